@@ -1,0 +1,1 @@
+"""tensegrity_env package."""

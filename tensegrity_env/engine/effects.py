@@ -1,0 +1,48 @@
+"""The plug-in point for force effects beyond linear springs, gravity and control.
+
+An effect is a small module with physical parameters. The engine's step calls
+every effect at two fixed points, with no special cases for any of them:
+
+* ``tension(frame, tension, kin)`` may rewrite the spring tensions (B, S) [N]
+  (slack springs, cubic stiffness, rest-length offsets);
+* ``wrench(state, kin, params)`` may add a force and torque (B, R, 3) on each rod
+  about its centre of mass, world frame (drag, contact, force fields).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import torch
+
+from tensegrity_env.engine.forces import SpringFrame
+from tensegrity_env.engine.kinematics import Kinematics
+from tensegrity_env.engine.state import State
+from tensegrity_env.params import Params
+
+
+@runtime_checkable
+class Effect(Protocol):
+    """A physical effect the engine can include. Subclass :class:`EffectBase`."""
+
+    name: str
+
+    def tension(self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics) -> torch.Tensor: ...
+
+    def wrench(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor] | None: ...
+
+
+class EffectBase:
+    """Default no-op hooks; an effect overrides the ones where it acts."""
+
+    name = "effect"
+
+    def tension(self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics) -> torch.Tensor:
+        return tension
+
+    def wrench(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        return None

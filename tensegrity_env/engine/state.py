@@ -1,0 +1,63 @@
+"""The changing state of a batch of spring-rod assemblies."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass(frozen=True)
+class State:
+    """Rod states, batched over a leading dimension ``B``.
+
+    Attributes:
+        p: centre-of-mass positions, (B, R, 3) [m], world frame.
+        v: centre-of-mass linear velocities, (B, R, 3) [m/s], world frame.
+        q: orientations of each rod's principal frame, unit quaternions (w, x, y, z),
+            (B, R, 4); ``x_world = R(q) x_rod``.
+        omega: angular velocities, (B, R, 3) [rad/s], **world frame**.
+    """
+
+    p: torch.Tensor
+    v: torch.Tensor
+    q: torch.Tensor
+    omega: torch.Tensor
+
+    @classmethod
+    def from_numpy(
+        cls,
+        p: np.ndarray,
+        v: np.ndarray,
+        q: np.ndarray,
+        omega: np.ndarray,
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+    ) -> State:
+        def t(x: np.ndarray) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x), dtype=dtype, device=device)
+
+        return cls(t(p), t(v), t(q), t(omega))
+
+    def numpy(self) -> dict[str, np.ndarray]:
+        return {k: getattr(self, k).detach().cpu().numpy() for k in ("p", "v", "q", "omega")}
+
+    @property
+    def batch_size(self) -> int:
+        return int(self.p.shape[0])
+
+    def to(self, dtype: torch.dtype | None = None, device: str | torch.device | None = None) -> State:
+        return State(*(x.to(dtype=dtype, device=device) for x in self.tensors()))
+
+    def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        return (self.p, self.v, self.q, self.omega)
+
+    def index(self, idx: torch.Tensor | slice | int) -> State:
+        """Select batch entries (keeps the batch dimension for tensor/slice indices)."""
+        return State(*(x[idx] for x in self.tensors()))
+
+    @staticmethod
+    def stack(states: list[State], dim: int = 1) -> State:
+        """Stack a sequence of states along a new time dimension: (B, T, R, ·)."""
+        return State(*(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states))))

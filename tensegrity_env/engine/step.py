@@ -1,0 +1,126 @@
+"""The engine: one step is force generation -> acceleration -> integration."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+from tensegrity_env.engine.acceleration import angular_acceleration_local, linear_acceleration
+from tensegrity_env.engine.effects import Effect
+from tensegrity_env.engine.forces import (
+    hooke_tension,
+    node_forces_to_wrench,
+    point_force_wrench,
+    spring_frames,
+    tension_to_node_forces,
+)
+from tensegrity_env.engine.integration import semi_implicit_euler
+from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.engine.state import State
+from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
+
+
+class Engine:
+    """Differentiable spring-rod engine for one topology.
+
+    Holds the topology as index/offset tensors on one dtype and device; parameters
+    are passed to every call so they can be fitted (make them ``requires_grad``).
+
+    Args:
+        topology: the assembly graph.
+        dt: physics time step [s].
+        effects: extra force modules (see :mod:`tensegrity_env.engine.effects`).
+        dtype, device: where the topology tensors live; states and params must match.
+    """
+
+    def __init__(
+        self,
+        topology: Topology,
+        dt: float = 1e-3,
+        effects: Sequence[Effect] = (),
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        self.topology = topology
+        self.dt = float(dt)
+        self.effects = tuple(effects)
+        self.dtype, self.device = dtype, torch.device(device)
+        kw = {"dtype": dtype, "device": self.device}
+        self.end_offsets = torch.as_tensor(topology.end_offsets, **kw)  # (R, 2, 3)
+        self.anchors = torch.as_tensor(topology.anchor_positions, **kw)  # (A, 3)
+        self.control_arms = torch.as_tensor(topology.control_arms, **kw)  # (R, 3)
+        nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long, device=self.device)
+        self.node_a, self.node_b = nodes[:, 0], nodes[:, 1]
+        incidence = torch.zeros(topology.n_nodes, topology.n_springs, **kw)
+        idx = torch.arange(topology.n_springs, device=self.device)
+        incidence[self.node_a, idx] = 1.0
+        incidence[self.node_b, idx] = -1.0
+        self.incidence = incidence  # (N, S): +1 at node a, -1 at node b
+
+    def with_effects(self, effects: Sequence[Effect]) -> Engine:
+        return Engine(self.topology, self.dt, effects, self.dtype, self.device)
+
+    # ------------------------------------------------------------------ one step
+    def accelerations(
+        self, state: State, params: Params, control: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Force generation and acceleration generation.
+
+        Args:
+            state: rod states (B, R, ·).
+            params: physical parameters.
+            control: control commands f_u per rod, world frame, (B, R, 3) [command units];
+                the applied force is ``h * f_u`` at each rod's control arm.
+
+        Returns:
+            a (B, R, 3) [m/s^2] world frame, α_l (B, R, 3) [rad/s^2] and ω_l (B, R, 3)
+            [rad/s] in each rod's frame.
+        """
+        # kinematics: end caps and their velocities
+        kin = node_kinematics(state, self.end_offsets, self.anchors)
+        # force generation: every spring reduced to a scalar tension along its axis
+        frame = spring_frames(kin, self.node_a, self.node_b)
+        tension = hooke_tension(frame, params.stiffness, params.damping, params.rest_length)
+        for effect in self.effects:
+            tension = effect.tension(frame, tension, kin)
+        force, torque = node_forces_to_wrench(
+            tension_to_node_forces(tension, frame, self.incidence), kin.arms
+        )
+        # control forces h * f_u at the arm r_u
+        if control is not None:
+            arm = torch.einsum("brij,rj->bri", kin.rot, self.control_arms)
+            f_u, t_u = point_force_wrench(params.control_gain * control, arm)
+            force, torque = force + f_u, torque + t_u
+        for effect in self.effects:
+            extra = effect.wrench(state, kin, params)
+            if extra is not None:
+                force, torque = force + extra[0], torque + extra[1]
+        # acceleration generation: Newton-Euler through M, I and R
+        accel = linear_acceleration(force, params.mass, params.gravity)
+        alpha_l, omega_l = angular_acceleration_local(torque, state.omega, kin.rot, params.inertia)
+        return accel, alpha_l, omega_l
+
+    def step(self, state: State, params: Params, control: torch.Tensor | None = None) -> State:
+        """Advance every assembly in the batch by one time step ``dt``."""
+        accel, alpha_l, omega_l = self.accelerations(state, params, control)
+        # integration: semi-implicit Euler (MuJoCo's Euler integrator)
+        return semi_implicit_euler(state, accel, alpha_l, omega_l, self.dt)
+
+    def rollout(
+        self,
+        state: State,
+        params: Params,
+        n_steps: int,
+        control: torch.Tensor | None = None,
+    ) -> State:
+        """States at steps 0..n_steps, stacked on dim 1: (B, n_steps + 1, R, ·).
+
+        ``control`` is (B, n_steps, R, 3) or None.
+        """
+        states = [state]
+        for t in range(n_steps):
+            state = self.step(state, params, None if control is None else control[:, t])
+            states.append(state)
+        return State.stack(states, dim=1)

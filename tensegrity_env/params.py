@@ -1,0 +1,216 @@
+"""Physical parameters of a spring-rod assembly and the versioned ``params.json`` file.
+
+:class:`Params` is a frozen dataclass of torch tensors so it can be differentiated
+through the engine (make any field ``requires_grad``) and moved between devices and
+dtypes. Shapes use ``S = n_springs`` and ``R = n_rods``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from tensegrity_env.io_utils import InputError, atomic_write_text
+from tensegrity_env.topology import Topology, TopologyError
+
+PARAMS_FORMAT = "tensegrity-sr/params"
+PARAMS_VERSION = 1
+
+#: Units of every field of :class:`Params`, as written into ``params.json``.
+UNITS: dict[str, str] = {
+    "stiffness": "N/m",
+    "damping": "N*s/m",
+    "rest_length": "m",
+    "mass": "kg",
+    "inertia": "kg*m^2 (principal, rod frame x y z)",
+    "control_gain": "N per command unit",
+    "gravity": "m/s^2",
+}
+
+FIELDS: tuple[str, ...] = tuple(UNITS)
+
+
+@dataclass(frozen=True)
+class Params:
+    """Physical parameters.
+
+    Attributes:
+        stiffness: spring stiffness K, (S,) [N/m].
+        damping: spring damping c, (S,) [N*s/m].
+        rest_length: spring rest length l0, (S,) [m].
+        mass: rod mass M, (R,) [kg].
+        inertia: rod principal inertia I = (Ixx, Iyy, Izz) in the rod frame, (R, 3) [kg*m^2].
+        control_gain: the scalar h mapping a control command f_u to force h*f_u, () [N/unit].
+        gravity: gravitational acceleration, (3,) [m/s^2].
+    """
+
+    stiffness: torch.Tensor
+    damping: torch.Tensor
+    rest_length: torch.Tensor
+    mass: torch.Tensor
+    inertia: torch.Tensor
+    control_gain: torch.Tensor
+    gravity: torch.Tensor
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def create(
+        cls,
+        stiffness: Any,
+        damping: Any,
+        rest_length: Any,
+        mass: Any,
+        inertia: Any,
+        control_gain: Any = 1.0,
+        gravity: Any = (0.0, 0.0, -9.81),
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+    ) -> Params:
+        """Build from array-likes (numpy, lists, tensors); values are copied."""
+
+        def t(x: Any) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(x, dtype=float), dtype=dtype, device=device).clone()
+
+        return cls(
+            stiffness=t(stiffness),
+            damping=t(damping),
+            rest_length=t(rest_length),
+            mass=t(mass),
+            inertia=t(inertia).reshape(-1, 3),
+            control_gain=t(control_gain).reshape(()),
+            gravity=t(gravity).reshape(3),
+        )
+
+    def replace(self, **changes: Any) -> Params:
+        return dataclasses.replace(self, **changes)
+
+    def to(self, dtype: torch.dtype | None = None, device: str | torch.device | None = None) -> Params:
+        return Params(**{f: getattr(self, f).to(dtype=dtype, device=device) for f in FIELDS})
+
+    def detach(self) -> Params:
+        return Params(**{f: getattr(self, f).detach().clone() for f in FIELDS})
+
+    def numpy(self) -> dict[str, np.ndarray]:
+        """Every field as a float64 numpy array."""
+        return {f: getattr(self, f).detach().cpu().double().numpy().copy() for f in FIELDS}
+
+    @property
+    def n_springs(self) -> int:
+        return int(self.stiffness.shape[0])
+
+    @property
+    def n_rods(self) -> int:
+        return int(self.mass.shape[0])
+
+    # ------------------------------------------------------------------ checks
+    def validate(self, topology: Topology, source: str = "params") -> Params:
+        """Check shapes against ``topology`` and physical signs. Raises :class:`InputError`."""
+        S, R = topology.n_springs, topology.n_rods
+        shapes = {
+            "stiffness": (S,),
+            "damping": (S,),
+            "rest_length": (S,),
+            "mass": (R,),
+            "inertia": (R, 3),
+            "control_gain": (),
+            "gravity": (3,),
+        }
+        for f, shape in shapes.items():
+            v = getattr(self, f)
+            if tuple(v.shape) != shape:
+                raise InputError(f"{source}: '{f}' has shape {tuple(v.shape)}, expected {shape}")
+            if not torch.isfinite(v).all():
+                raise InputError(f"{source}: '{f}' contains NaN or inf")
+        if (self.mass <= 0).any():
+            raise InputError(f"{source}: masses must be positive, got {self.mass.tolist()}")
+        if (self.inertia <= 0).any():
+            raise InputError(f"{source}: inertias must be positive")
+        if (self.stiffness <= 0).any():
+            raise InputError(f"{source}: spring stiffness must be positive")
+        if (self.damping < 0).any():
+            raise InputError(f"{source}: spring damping must be >= 0")
+        if (self.rest_length < 0).any():
+            raise InputError(f"{source}: rest lengths must be >= 0")
+        return self
+
+    def relative_error(self, truth: Params) -> dict[str, np.ndarray]:
+        """Element-wise |self - truth| / |truth| for every field (0/0 counts as 0)."""
+        a, b = self.numpy(), truth.numpy()
+        out = {}
+        for f in FIELDS:
+            den = np.abs(b[f])
+            out[f] = np.where(den > 0, np.abs(a[f] - b[f]) / np.where(den > 0, den, 1.0), 0.0)
+        return out
+
+
+# ---------------------------------------------------------------------- params.json
+def params_to_dict(params: Params) -> dict[str, Any]:
+    return {f: v.tolist() for f, v in params.numpy().items()}
+
+
+def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
+    missing = [f for f in FIELDS if f not in d]
+    if missing:
+        raise InputError(f"{source}: missing parameter(s) {missing}")
+    try:
+        return Params.create(**{f: d[f] for f in FIELDS})
+    except (ValueError, TypeError) as e:
+        raise InputError(f"{source}: malformed parameter values ({e})") from None
+
+
+def save_params(
+    path: str | Path,
+    topology: Topology,
+    params: Params,
+    extra: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write a versioned ``params.json`` (atomically: temporary file, then rename).
+
+    ``extra`` holds further top-level sections, for example ``identifiability``
+    (what the data could and could not determine), ``effects`` (modules the residual
+    loop added) or ``provenance``.
+    """
+    doc: dict[str, Any] = {
+        "format": PARAMS_FORMAT,
+        "version": PARAMS_VERSION,
+        "units": UNITS,
+        "topology": topology.to_dict(),
+        "params": params_to_dict(params),
+    }
+    doc.update(extra or {})
+    return atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
+
+
+def load_params_document(path: str | Path) -> dict[str, Any]:
+    """Read and check the header of a params file; returns the whole JSON document."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such params file")
+    try:
+        doc = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{p}: not valid JSON ({e.msg if hasattr(e, 'msg') else e})") from None
+    if not isinstance(doc, dict) or doc.get("format") != PARAMS_FORMAT:
+        raise InputError(f"{p}: not a tensegrity-sr params file (format != {PARAMS_FORMAT!r})")
+    if doc.get("version") != PARAMS_VERSION:
+        raise InputError(f"{p}: params version {doc.get('version')} is not supported")
+    return doc
+
+
+def load_params(path: str | Path) -> tuple[Topology, Params, dict[str, Any]]:
+    """Read ``params.json``: returns (topology, params, whole document)."""
+    doc = load_params_document(path)
+    try:
+        topology = Topology.from_dict(doc["topology"])
+    except (KeyError, TopologyError) as e:
+        raise InputError(f"{path}: bad topology ({e})") from None
+    params = params_from_dict(doc.get("params", {}), source=str(path))
+    params.validate(topology, source=str(path))
+    return topology, params, doc

@@ -1,0 +1,92 @@
+"""Quaternion helpers in PyTorch, batched over leading dimensions.
+
+Quaternions are ``(w, x, y, z)`` (MuJoCo's order), unit norm, mapping the rod's
+principal frame to the world frame: ``x_world = R(q) @ x_rod``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product ``a ⊗ b``, shapes (..., 4)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        dim=-1,
+    )
+
+
+def quat_conj(q: torch.Tensor) -> torch.Tensor:
+    return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Rotation matrix of unit quaternion ``q`` (..., 4) -> (..., 3, 3), as MuJoCo's mju_quat2Mat."""
+    w, x, y, z = q.unbind(-1)
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    rows = (
+        torch.stack((ww + xx - yy - zz, 2 * (xy - wz), 2 * (xz + wy)), -1),
+        torch.stack((2 * (xy + wz), ww - xx + yy - zz, 2 * (yz - wx)), -1),
+        torch.stack((2 * (xz - wy), 2 * (yz + wx), ww - xx - yy + zz), -1),
+    )
+    return torch.stack(rows, dim=-2)
+
+
+def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> torch.Tensor:
+    """Rotate ``q`` by body-frame angular velocity ``omega_local`` for ``dt`` seconds.
+
+    MuJoCo's ``mju_quatIntegrate``: ``q ⊗ quat(axis=ω/|ω|, angle=|ω| dt)``, then
+    normalised. Shapes (..., 4), (..., 3).
+    """
+    norm_sq = (omega_local * omega_local).sum(-1, keepdim=True)
+    safe = norm_sq > 0
+    norm = torch.sqrt(torch.where(safe, norm_sq, torch.ones_like(norm_sq)))
+    half = 0.5 * dt * norm
+    axis = omega_local / norm
+    s = torch.where(safe, torch.sin(half), torch.zeros_like(half))
+    c = torch.where(safe, torch.cos(half), torch.ones_like(half))
+    qrot = torch.cat((c, axis * s), dim=-1)
+    out = quat_mul(q, qrot)
+    return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
+
+
+def axis_angle_to_quat(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Numpy helper: unit quaternion (w, x, y, z) rotating ``angle`` [rad] about ``axis``."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * a])
+
+
+def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Numpy wrapper of :func:`quat_to_matrix`."""
+    return quat_to_matrix(torch.as_tensor(np.array(q, dtype=float))).numpy()
+
+
+def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Numpy wrapper of :func:`quat_mul`."""
+    return quat_mul(torch.as_tensor(np.array(a, float)), torch.as_tensor(np.array(b, float))).numpy()
+
+
+def random_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` uniformly distributed unit quaternions (Shoemake), shape (n, 4)."""
+    u1, u2, u3 = rng.random((3, n))
+    q = np.stack(
+        [
+            np.sqrt(u1) * np.cos(2 * np.pi * u3),
+            np.sqrt(1 - u1) * np.sin(2 * np.pi * u2),
+            np.sqrt(1 - u1) * np.cos(2 * np.pi * u2),
+            np.sqrt(u1) * np.sin(2 * np.pi * u3),
+        ],
+        axis=-1,
+    )
+    return q * np.sign(q[:, :1] + (q[:, :1] == 0))

@@ -1,0 +1,259 @@
+"""The system topology graph of a spring-rod assembly (the paper's Fig. 3).
+
+A :class:`Topology` is the fixed description of an assembly, never differentiated:
+
+* **rods** are rigid bodies. Each has a length, a radius, two end nodes (end caps)
+  given as offsets in the rod's principal (inertial) frame, and a control arm ``r_u``:
+  the point, in the same frame, where a control force ``f_u`` acts.
+* **nodes** are points springs attach to: either a rod's end cap, or a fixed world
+  anchor (for the paper's one-rod element, whose springs are tied to the world).
+* **springs** connect two nodes. Tension acts along the line between them.
+
+The graph has one vertex per rod and per spring and directed edges
+``rod -> spring`` (the rod's end-cap motion feeds the spring's compression
+``Δp^m`` and velocity ``Δv^m``) and ``spring -> rod`` (the spring's force acts on
+the rod), exactly as in the paper.
+
+Node numbering is global: the ``2 * n_rods`` rod end caps first (rod ``r`` owns nodes
+``2r`` and ``2r + 1``), then the world anchors in order.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+Vec3 = tuple[float, float, float]
+
+
+class TopologyError(ValueError):
+    """An assembly description that cannot be a valid spring-rod system."""
+
+
+@dataclass(frozen=True)
+class Rod:
+    """A rigid rod.
+
+    Attributes:
+        name: unique name (MJCF body name).
+        length: distance between the two end caps [m].
+        radius: radius of the rod's capsule, used for rendering and contact [m].
+        end_offsets: the two end caps in the rod's principal frame [m], shape (2, 3).
+        control_arm: where control force ``f_u`` acts, in the rod's principal frame [m].
+    """
+
+    name: str
+    length: float
+    radius: float = 0.016
+    end_offsets: tuple[Vec3, Vec3] | None = None
+    control_arm: Vec3 = (0.0, 0.0, 0.0)
+
+    def ends(self) -> np.ndarray:
+        """End-cap offsets in the rod frame, shape (2, 3) [m]; default ±length/2 along z."""
+        if self.end_offsets is None:
+            h = 0.5 * self.length
+            return np.array([[0.0, 0.0, -h], [0.0, 0.0, h]])
+        return np.asarray(self.end_offsets, dtype=float)
+
+
+@dataclass(frozen=True)
+class Spring:
+    """A spring (cable) between two nodes, by global node index (see module doc)."""
+
+    name: str
+    node_a: int
+    node_b: int
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Rods, world anchors and springs of one assembly. Validated on construction.
+
+    Attributes:
+        rods: the rigid rods, in state order.
+        springs: the springs, in parameter order.
+        anchors: fixed world points springs may attach to [m], each (x, y, z).
+        name: a label for the assembly (MJCF model name).
+    """
+
+    rods: tuple[Rod, ...]
+    springs: tuple[Spring, ...]
+    anchors: tuple[Vec3, ...] = ()
+    name: str = "assembly"
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rods", tuple(self.rods))
+        object.__setattr__(self, "springs", tuple(self.springs))
+        object.__setattr__(self, "anchors", tuple(tuple(map(float, a)) for a in self.anchors))
+        self._validate()
+
+    # ------------------------------------------------------------------ validation
+    def _validate(self) -> None:
+        if not self.rods:
+            raise TopologyError(f"{self.name}: an assembly needs at least one rod")
+        names = [r.name for r in self.rods] + [s.name for s in self.springs]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise TopologyError(f"{self.name}: duplicate names {dup}")
+        for rod in self.rods:
+            if not np.isfinite(rod.length) or rod.length <= 0:
+                raise TopologyError(f"rod '{rod.name}': length must be positive, got {rod.length}")
+            if not np.isfinite(rod.radius) or rod.radius < 0:
+                raise TopologyError(f"rod '{rod.name}': radius must be >= 0, got {rod.radius}")
+            ends = rod.ends()
+            if ends.shape != (2, 3) or not np.all(np.isfinite(ends)):
+                raise TopologyError(f"rod '{rod.name}': end_offsets must be two finite 3-vectors")
+            if len(rod.control_arm) != 3 or not np.all(np.isfinite(rod.control_arm)):
+                raise TopologyError(f"rod '{rod.name}': control_arm must be a finite 3-vector")
+        for a in self.anchors:
+            if len(a) != 3 or not np.all(np.isfinite(a)):
+                raise TopologyError(f"{self.name}: anchor {a} is not a finite 3-vector")
+        n = self.n_nodes
+        for s in self.springs:
+            for end in (s.node_a, s.node_b):
+                if not (0 <= end < n):
+                    raise TopologyError(
+                        f"spring '{s.name}': node {end} does not exist "
+                        f"(assembly has nodes 0..{n - 1})"
+                    )
+            if s.node_a == s.node_b:
+                raise TopologyError(f"spring '{s.name}': both ends on node {s.node_a}")
+            if self.is_anchor(s.node_a) and self.is_anchor(s.node_b):
+                raise TopologyError(f"spring '{s.name}': both ends are world anchors")
+            if self.node_rod[s.node_a] == self.node_rod[s.node_b] >= 0:
+                raise TopologyError(f"spring '{s.name}': both ends on the same rod")
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def n_rods(self) -> int:
+        return len(self.rods)
+
+    @property
+    def n_springs(self) -> int:
+        return len(self.springs)
+
+    @property
+    def n_anchors(self) -> int:
+        return len(self.anchors)
+
+    @property
+    def n_nodes(self) -> int:
+        return 2 * self.n_rods + self.n_anchors
+
+    def is_anchor(self, node: int) -> bool:
+        return node >= 2 * self.n_rods
+
+    # ------------------------------------------------------------------ arrays
+    @property
+    def node_rod(self) -> np.ndarray:
+        """Rod owning each node, -1 for world anchors, shape (n_nodes,)."""
+        return np.concatenate(
+            [np.repeat(np.arange(self.n_rods), 2), -np.ones(self.n_anchors, dtype=int)]
+        )
+
+    @property
+    def end_offsets(self) -> np.ndarray:
+        """End-cap offsets in each rod's principal frame, shape (n_rods, 2, 3) [m]."""
+        return np.stack([r.ends() for r in self.rods])
+
+    @property
+    def control_arms(self) -> np.ndarray:
+        """Control-force arm ``r_u`` of each rod in its principal frame, (n_rods, 3) [m]."""
+        return np.array([r.control_arm for r in self.rods], dtype=float)
+
+    @property
+    def anchor_positions(self) -> np.ndarray:
+        """World anchors, shape (n_anchors, 3) [m]."""
+        return np.array(self.anchors, dtype=float).reshape(-1, 3)
+
+    @property
+    def spring_nodes(self) -> np.ndarray:
+        """Node index at each spring end, shape (n_springs, 2)."""
+        return np.array([[s.node_a, s.node_b] for s in self.springs], dtype=int).reshape(-1, 2)
+
+    def node_name(self, node: int) -> str:
+        if self.is_anchor(node):
+            return f"anchor{node - 2 * self.n_rods}"
+        return f"{self.rods[node // 2].name}/end{node % 2}"
+
+    # ------------------------------------------------------------------ graph
+    def edges(self) -> list[tuple[str, str]]:
+        """Directed edges of the topology graph: (rod -> spring) and (spring -> rod)."""
+        out: list[tuple[str, str]] = []
+        for s in self.springs:
+            for node in (s.node_a, s.node_b):
+                r = self.node_rod[node]
+                if r >= 0:
+                    out.append((self.rods[r].name, s.name))
+                    out.append((s.name, self.rods[r].name))
+        return out
+
+    def springs_of_rod(self, rod: int) -> list[int]:
+        """Indices of the springs attached to rod ``rod``."""
+        nr = self.node_rod
+        return [i for i, s in enumerate(self.springs) if rod in (nr[s.node_a], nr[s.node_b])]
+
+    # ------------------------------------------------------------------ (de)serialise
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "rods": [
+                {
+                    "name": r.name,
+                    "length": r.length,
+                    "radius": r.radius,
+                    "end_offsets": r.ends().tolist(),
+                    "control_arm": list(r.control_arm),
+                }
+                for r in self.rods
+            ],
+            "anchors": [list(a) for a in self.anchors],
+            "springs": [{"name": s.name, "nodes": [s.node_a, s.node_b]} for s in self.springs],
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Topology:
+        try:
+            rods = tuple(
+                Rod(
+                    name=str(r["name"]),
+                    length=float(r["length"]),
+                    radius=float(r.get("radius", 0.0)),
+                    end_offsets=tuple(tuple(map(float, e)) for e in r["end_offsets"]),  # type: ignore[arg-type]
+                    control_arm=tuple(map(float, r.get("control_arm", (0, 0, 0)))),  # type: ignore[arg-type]
+                )
+                for r in d["rods"]
+            )
+            springs = tuple(
+                Spring(str(s["name"]), int(s["nodes"][0]), int(s["nodes"][1])) for s in d["springs"]
+            )
+            anchors = tuple(tuple(map(float, a)) for a in d.get("anchors", []))
+        except (KeyError, TypeError, IndexError, ValueError) as e:
+            raise TopologyError(f"malformed topology description: {e!r}") from None
+        return cls(rods=rods, springs=springs, anchors=anchors, name=str(d.get("name", "assembly")))  # type: ignore[arg-type]
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict())
+
+    @classmethod
+    def from_json(cls, text: str) -> Topology:
+        return cls.from_dict(json.loads(text))
+
+    def same_as(self, other: Topology, atol: float = 1e-12) -> bool:
+        """Structural equality up to floating-point tolerance on geometry."""
+        if (self.n_rods, self.n_springs, self.n_anchors) != (
+            other.n_rods,
+            other.n_springs,
+            other.n_anchors,
+        ):
+            return False
+        if not np.array_equal(self.spring_nodes, other.spring_nodes):
+            return False
+        return all(
+            np.allclose(getattr(self, f), getattr(other, f), atol=atol)
+            for f in ("end_offsets", "control_arms", "anchor_positions")
+        ) and np.allclose([r.length for r in self.rods], [r.length for r in other.rods], atol=atol)

@@ -48,7 +48,9 @@ class ParameterLayout:
     elements: list[int] = field(default_factory=list)
 
     @classmethod
-    def build(cls, topology: Topology, shared: bool = False, fit_rest_length: bool = True) -> ParameterLayout:
+    def build(
+        cls, topology: Topology, shared: bool = False, fit_rest_length: bool = True
+    ) -> ParameterLayout:
         names, groups, elements = [], [], []
 
         def add(group: str, labels: list[str], elems: list[int]) -> None:
@@ -73,7 +75,11 @@ class ParameterLayout:
                 [f"[{n},{a}]" for n in rods for a in "xyz"],
                 list(range(3 * len(rods))),
             )
-            for g in ["stiffness", "stiffness_rest", "damping"] if fit_rest_length else ["stiffness", "damping"]:
+            for g in (
+                ["stiffness", "stiffness_rest", "damping"]
+                if fit_rest_length
+                else ["stiffness", "damping"]
+            ):
                 add(g, [f"[{n}]" for n in springs], list(range(len(springs))))
         add("control_gain", [""], [-1])
         return cls(topology, shared, fit_rest_length, names, groups, elements)
@@ -85,7 +91,9 @@ class ParameterLayout:
     def index(self, group: str, element: int = -1) -> int:
         """Global index of the unknown of ``group`` for ``element`` (ignored if shared)."""
         for i, (g, e) in enumerate(zip(self.groups, self.elements, strict=True)):
-            if g == group and (e == element or e == -1 or (group == "inertia" and self.shared and e == element % 3)):
+            if g == group and (
+                e == element or e == -1 or (group == "inertia" and self.shared and e == element % 3)
+            ):
                 return i
         raise KeyError(f"no unknown {group}[{element}]")
 

@@ -51,7 +51,9 @@ class TransitionFeatures:
         return int(self.accel.shape[0])
 
 
-def transitions_of(split: Split, index: np.ndarray | None = None) -> tuple[State, State, torch.Tensor]:
+def transitions_of(
+    split: Split, index: np.ndarray | None = None
+) -> tuple[State, State, torch.Tensor]:
     """Flatten a split into transitions: (state_t, state_{t+1}, control_t), batch n.
 
     ``index`` selects flat transition indices in ``[0, N*T)`` (all when None).
@@ -83,7 +85,9 @@ def transition_features(
     rot1 = quat_to_matrix(s1.q)
     omega_l0 = torch.einsum("brji,brj->bri", kin.rot, s0.omega)
     omega_l1 = torch.einsum("brji,brj->bri", rot1, s1.omega)
-    arm_u = torch.einsum("brij,rj->bri", kin.rot, torch.as_tensor(topology.control_arms, dtype=dtype))
+    arm_u = torch.einsum(
+        "brij,rj->bri", kin.rot, torch.as_tensor(topology.control_arms, dtype=dtype)
+    )
     return TransitionFeatures(
         accel=(s1.v - s0.v) / dt,
         alpha_local=(omega_l1 - omega_l0) / dt,

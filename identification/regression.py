@@ -190,7 +190,9 @@ class SpringRodIdentifier:
                 if grp in self.freeze:
                     fixed[i] = float(np.ravel(init[grp])[max(el, 0)])
                 elif grp == "stiffness_rest" and {"stiffness", "rest_length"} <= set(self.freeze):
-                    fixed[i] = float(init["stiffness"][max(el, 0)] * init["rest_length"][max(el, 0)])
+                    fixed[i] = float(
+                        init["stiffness"][max(el, 0)] * init["rest_length"][max(el, 0)]
+                    )
         if any(v != 0 for v in fixed.values()):
             return fixed, "frozen" if self.freeze and not self.anchors else "anchored"
         fixed[layout.index("mass", 0)] = 1.0
@@ -262,7 +264,9 @@ class SpringRodIdentifier:
             note = ""
             value = float(theta[i])
             if status == "not identifiable":
-                value = float(np.ravel(fill.get(grp, [np.nan]))[max(el, 0)]) if grp in fill else np.nan
+                value = (
+                    float(np.ravel(fill.get(grp, [np.nan]))[max(el, 0)]) if grp in fill else np.nan
+                )
                 note = notes.get(grp, "no value assumed")
             rows.append(
                 ParameterRow(name, grp, el, value, float(stderr[i]), GROUP_UNITS[grp], status, note)
@@ -272,7 +276,9 @@ class SpringRodIdentifier:
                 k_i = layout.index("stiffness", s)
                 kl_i = layout.index("stiffness_rest", s)
                 ok = sol.identifiable[k_i] and sol.identifiable[kl_i]
-                rel = np.hypot(stderr[k_i] / theta[k_i], stderr[kl_i] / theta[kl_i]) if ok else np.nan
+                rel = (
+                    np.hypot(stderr[k_i] / theta[k_i], stderr[kl_i] / theta[kl_i]) if ok else np.nan
+                )
                 rows.append(
                     ParameterRow(
                         f"rest_length[{topo.springs[s].name}]" if not layout.shared else "rest_length",
@@ -319,9 +325,7 @@ class SpringRodIdentifier:
 
     def engine(self) -> Engine:
         self._check_fitted()
-        missing = [
-            f for f, v in self.params_.numpy().items() if not np.all(np.isfinite(v))
-        ]
+        missing = [f for f, v in self.params_.numpy().items() if not np.all(np.isfinite(v))]
         if missing:
             raise InputError(
                 f"cannot simulate: {missing} not identifiable from this data and no value assumed "
@@ -338,7 +342,11 @@ class SpringRodIdentifier:
         return self.engine().rollout(state, self.params_, n_steps, control)
 
     def score(
-        self, dataset: Dataset, split: str = "test", max_one_step: int = 50_000, horizon: int | None = None
+        self,
+        dataset: Dataset,
+        split: str = "test",
+        max_one_step: int = 50_000,
+        horizon: int | None = None,
     ) -> dict[str, Any]:
         """Errors of the identified engine on ``split``.
 

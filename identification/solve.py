@@ -50,9 +50,7 @@ class Solution:
     n_rows: int
 
 
-def solve_constrained(
-    normal: torch.Tensor, fixed: dict[int, float], n_rows: int
-) -> Solution:
+def solve_constrained(normal: torch.Tensor, fixed: dict[int, float], n_rows: int) -> Solution:
     """Solve ``min ‖A θ‖²`` subject to ``θ_i = fixed[i]``, given ``N = AᵀA`` (P, P)."""
     N = normal.double()
     P = N.shape[0]

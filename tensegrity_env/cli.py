@@ -17,6 +17,7 @@ from tensegrity_env.io_utils import InputError
 COMMANDS: tuple[str, ...] = (
     "identification.commands.generate",
     "identification.commands.inspect",
+    "identification.commands.identify",
 )
 
 

@@ -344,7 +344,7 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
             raise InputError(f"{src}: spring '{_name(m, TEN, t)}' has non-positive stiffness")
         if m.tendon_damping[t] < 0:
             raise InputError(f"{src}: spring '{_name(m, TEN, t)}' has negative damping")
-    for i, b in enumerate(rod_bodies):
+    for b in rod_bodies:
         if m.body_mass[b] <= 0 or np.any(m.body_inertia[b] <= 0):
             raise InputError(f"{src}: rod '{_name(m, BODY, b)}' has non-positive mass or inertia")
     params = Params.create(
@@ -363,7 +363,8 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
         int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): "implicitfast",
     }.get(int(m.opt.integrator), "Euler")
     has_floor = any(
-        m.geom_bodyid[g] == 0 and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE for g in range(m.ngeom)
+        m.geom_bodyid[g] == 0 and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE
+        for g in range(m.ngeom)
     )
     options = SimOptions(
         timestep=float(m.opt.timestep),

@@ -91,7 +91,9 @@ class Params:
     def replace(self, **changes: Any) -> Params:
         return dataclasses.replace(self, **changes)
 
-    def to(self, dtype: torch.dtype | None = None, device: str | torch.device | None = None) -> Params:
+    def to(
+        self, dtype: torch.dtype | None = None, device: str | torch.device | None = None
+    ) -> Params:
         return Params(**{f: getattr(self, f).to(dtype=dtype, device=device) for f in FIELDS})
 
     def detach(self) -> Params:

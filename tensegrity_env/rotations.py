@@ -74,7 +74,9 @@ def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Numpy wrapper of :func:`quat_mul`."""
-    return quat_mul(torch.as_tensor(np.array(a, float)), torch.as_tensor(np.array(b, float))).numpy()
+    return quat_mul(
+        torch.as_tensor(np.array(a, float)), torch.as_tensor(np.array(b, float))
+    ).numpy()
 
 
 def random_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:

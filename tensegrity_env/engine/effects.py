@@ -27,7 +27,9 @@ class Effect(Protocol):
 
     name: str
 
-    def tension(self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics) -> torch.Tensor: ...
+    def tension(
+        self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics
+    ) -> torch.Tensor: ...
 
     def wrench(
         self, state: State, kin: Kinematics, params: Params

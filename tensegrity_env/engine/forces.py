@@ -71,8 +71,6 @@ def node_forces_to_wrench(
     return f_end.sum(2), torch.cross(arms, f_end, dim=-1).sum(2)
 
 
-def point_force_wrench(
-    force: torch.Tensor, arm: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+def point_force_wrench(force: torch.Tensor, arm: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Wrench of forces (B, R, 3) applied at world offsets ``arm`` (B, R, 3) from the COM."""
     return force, torch.cross(arm, force, dim=-1)

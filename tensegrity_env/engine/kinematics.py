@@ -39,7 +39,9 @@ def node_kinematics(state: State, end_offsets: torch.Tensor, anchors: torch.Tens
     rot = quat_to_matrix(state.q)  # (B, R, 3, 3)
     arms = torch.einsum("brij,rkj->brki", rot, end_offsets)  # (B, R, 2, 3)
     x_end = state.p.unsqueeze(2) + arms
-    xd_end = state.v.unsqueeze(2) + torch.cross(state.omega.unsqueeze(2).expand_as(arms), arms, dim=-1)
+    xd_end = state.v.unsqueeze(2) + torch.cross(
+        state.omega.unsqueeze(2).expand_as(arms), arms, dim=-1
+    )
     n_end = 2 * state.p.shape[1]
     anc = anchors.unsqueeze(0).expand(B, -1, -1)
     x = torch.cat([x_end.reshape(B, n_end, 3), anc], dim=1)

@@ -47,7 +47,9 @@ class State:
     def batch_size(self) -> int:
         return int(self.p.shape[0])
 
-    def to(self, dtype: torch.dtype | None = None, device: str | torch.device | None = None) -> State:
+    def to(
+        self, dtype: torch.dtype | None = None, device: str | torch.device | None = None
+    ) -> State:
         return State(*(x.to(dtype=dtype, device=device) for x in self.tensors()))
 
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -60,4 +62,4 @@ class State:
     @staticmethod
     def stack(states: list[State], dim: int = 1) -> State:
         """Stack a sequence of states along a new time dimension: (B, T, R, ·)."""
-        return State(*(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states))))
+        return State(*(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=False)))

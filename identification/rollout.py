@@ -1,0 +1,235 @@
+"""MuJoCo's multi-threaded batched rollout, converted to rod states and end caps.
+
+:class:`Roller` wraps :mod:`mujoco.rollout` (a thread pool and one ``MjData`` per
+thread, reused across calls). :class:`RodFrames` turns MuJoCo's free-joint
+``(qpos, qvel)`` into rod states in each rod's principal frame and end-cap
+positions, vectorized over any leading dimensions; it computes exactly what
+:func:`tensegrity_env.mujoco_state.mj_to_rod_state` and
+:func:`tensegrity_env.assemblies.node_positions` compute, with quaternion rotations
+written out component by component so that the conversion costs a small fraction
+of the simulation (see ``benchmarks/bench_generate.py``).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+from mujoco import rollout as mj_rollout
+
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.mjcf import MjcfAssembly
+from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where time, qpos and qvel sit in MuJoCo's ``mjSTATE_FULLPHYSICS`` vector."""
+
+    size: int
+    time: int
+    qpos: slice
+    qvel: slice
+
+    @classmethod
+    def of(cls, m: mujoco.MjModel) -> StateLayout:
+        t = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_TIME)
+        return cls(
+            size=mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS),
+            time=0,
+            qpos=slice(t, t + m.nq),
+            qvel=slice(t + m.nq, t + m.nq + m.nv),
+        )
+
+
+def default_threads() -> int:
+    """CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return os.cpu_count() or 1
+
+
+class Roller:
+    """A MuJoCo rollout thread pool with one ``MjData`` per thread, reused across calls.
+
+    Args:
+        model: the compiled model.
+        threads: rollout threads (None: every available core).
+    """
+
+    def __init__(self, model: mujoco.MjModel, threads: int | None = None) -> None:
+        self.model = model
+        self.threads = threads or default_threads()
+        self.layout = StateLayout.of(model)
+        self.seconds = 0.0  # wall time spent inside MuJoCo's rollout
+        self._pool = mj_rollout.Rollout(nthread=self.threads)
+        self._datas = [mujoco.MjData(model) for _ in range(self.threads)]
+
+    def __enter__(self) -> Roller:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._pool.close()
+
+    def initial_states(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """``mjSTATE_FULLPHYSICS`` vectors (n, nstate) at time 0 from qpos (n, nq), qvel (n, nv)."""
+        m, layout = self.model, self.layout
+        template = np.empty(layout.size)
+        mujoco.mj_getState(m, mujoco.MjData(m), template, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        out = np.tile(template, (qpos.shape[0], 1))
+        out[:, layout.qpos], out[:, layout.qvel] = qpos, qvel
+        return out
+
+    def run(self, init: np.ndarray, ctrl: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """States after steps 1..T, (n, T, nstate), from initial states (n, nstate).
+
+        ``ctrl`` is (n, T, nu); ``out``, if given, must be C-contiguous (n, T, nstate).
+        Warm starts are reset to zero for every trajectory, so a trajectory does not
+        depend on which thread ran it before.
+        """
+        n, steps = ctrl.shape[:2]
+        if out is None:
+            out = np.empty((n, steps, self.layout.size))
+        t0 = time.perf_counter()
+        state, _ = self._pool.rollout(
+            self.model,
+            self._datas,
+            np.ascontiguousarray(init),
+            np.ascontiguousarray(ctrl),
+            control_spec=mujoco.mjtState.mjSTATE_CTRL.value,
+            nstep=steps,
+            initial_warmstart=np.zeros((n, self.model.nv)),
+            state=out,
+        )
+        self.seconds += time.perf_counter() - t0
+        return state
+
+    def check(self, states: np.ndarray, first: int = 0, where: str = "") -> None:
+        """Raise :class:`InputError` if a trajectory diverged.
+
+        MuJoCo resets a diverging simulation to ``qpos0`` at time 0 and carries on, so
+        the time column is the tell-tale; non-finite values are caught too.
+        """
+        dt = float(self.model.opt.timestep)
+        expected = dt * np.arange(1, states.shape[1] + 1)
+        bad = ~np.all(np.abs(states[:, :, self.layout.time] - expected) < 0.5 * dt, axis=1)
+        bad |= ~np.all(np.isfinite(states), axis=(1, 2))
+        if bad.any():
+            i = first + int(np.argmax(bad))
+            raise InputError(
+                f"{where}: trajectory {i} diverged (MuJoCo reset or non-finite state); "
+                "the model or the initial velocities are too violent for its time step"
+            )
+
+
+# ---------------------------------------------------------------------- frames
+Vec = tuple[Any, Any, Any]
+
+
+def _rotation_columns(q: np.ndarray) -> tuple[Vec, Vec, Vec]:
+    """Columns of R(q) as component arrays, for quaternions q (..., 4) (w, x, y, z).
+
+    The same matrix as :func:`tensegrity_env.rotations.quat_to_matrix`, without
+    materialising (..., 3, 3) arrays.
+    """
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return (
+        (ww + xx - yy - zz, 2 * (xy + wz), 2 * (xz - wy)),
+        (2 * (xy - wz), ww - xx + yy - zz, 2 * (yz + wx)),
+        (2 * (xz + wy), 2 * (yz - wx), ww - xx - yy + zz),
+    )
+
+
+def _apply(cols: tuple[Vec, Vec, Vec], v: np.ndarray, out: np.ndarray, base: Any = None) -> None:
+    """``out = base + R v`` (``base`` optional) with R given by its columns.
+
+    ``v`` is (..., 3) or a constant (R, 3) per rod; components that are zero for
+    every rod are skipped.
+    """
+    per_rod = v.ndim == 2
+    terms = [j for j in range(3) if not (per_rod and not np.any(v[:, j]))]
+    for i in range(3):
+        acc = out[..., i]
+        if base is not None:
+            acc[...] = base[..., i]
+        else:
+            acc[...] = 0.0
+        for j in terms:
+            acc += cols[j][i] * v[..., j]
+
+
+class RodFrames:
+    """Rod states and end caps from MuJoCo free-joint coordinates, for one model.
+
+    Args:
+        asm: the model read by :func:`tensegrity_env.mjcf.from_mjcf`.
+    """
+
+    def __init__(self, asm: MjcfAssembly) -> None:
+        R = asm.topology.n_rods
+        self.n_rods = R
+        self.qpos_idx = asm.rod_qpos[:, None] + np.arange(7)  # (R, 7)
+        self.qvel_idx = asm.rod_qvel[:, None] + np.arange(6)  # (R, 6)
+        # free joints of rods in order, nothing else: cheap reshapes instead of gathers
+        self.contiguous = bool(
+            np.array_equal(self.qpos_idx.ravel(), np.arange(7 * R))
+            and np.array_equal(self.qvel_idx.ravel(), np.arange(6 * R))
+        )
+        self.ipos = np.asarray(asm.body_ipos, dtype=float)  # (R, 3)
+        self.iquat = np.asarray(asm.body_iquat, dtype=float)  # (R, 4)
+        self.trivial = bool(
+            np.all(self.ipos == 0) and np.all(self.iquat == np.array([1.0, 0.0, 0.0, 0.0]))
+        )
+        # end caps in the body frame: ipos + R(iquat) e
+        ends = asm.topology.end_offsets  # (R, 2, 3), principal frame
+        self.ends_body = self.ipos[:, None] + np.einsum(
+            "rij,rkj->rki", np_quat_to_matrix(self.iquat), ends
+        )
+
+    def split(self, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-rod free-joint coordinates: (..., R, 7) and (..., R, 6)."""
+        lead, R = qpos.shape[:-1], self.n_rods
+        if self.contiguous:
+            return qpos.reshape(*lead, R, 7), qvel.reshape(*lead, R, 6)
+        return qpos[..., self.qpos_idx], qvel[..., self.qvel_idx]
+
+    def convert(
+        self, qpos: np.ndarray, qvel: np.ndarray, out: dict[str, np.ndarray] | None = None
+    ) -> dict[str, np.ndarray]:
+        """p, v, omega (..., R, 3), q (..., R, 4), nodes (..., 2R, 3) from qpos, qvel.
+
+        Same conventions as :func:`tensegrity_env.mujoco_state.mj_to_rod_state`. With
+        ``out``, results are written into those arrays (shapes as returned).
+        """
+        jp, jv = self.split(qpos, qvel)
+        lead, R = jp.shape[:-2], self.n_rods
+        if out is None:
+            out = {k: np.empty((*lead, R, 3)) for k in ("p", "v", "omega")}
+            out["q"] = np.empty((*lead, R, 4))
+            out["nodes"] = np.empty((*lead, 2 * R, 3))
+        pos, quat, vel, w_body = jp[..., :3], jp[..., 3:], jv[..., :3], jv[..., 3:]
+        cols = _rotation_columns(quat)  # R of the body frame
+        _apply(cols, w_body, out["omega"])  # body-frame angular velocity -> world
+        if self.trivial:
+            out["p"][...] = pos
+            out["q"][...] = quat
+            out["v"][...] = vel
+        else:
+            ipos_w = np.empty(pos.shape)
+            _apply(cols, self.ipos, ipos_w)
+            np.add(pos, ipos_w, out=out["p"])
+            out["q"][...] = np_quat_mul(quat, np.broadcast_to(self.iquat, quat.shape))
+            np.add(vel, np.cross(out["omega"], ipos_w), out=out["v"])
+        for k in range(2):  # rod r owns nodes 2r and 2r + 1
+            _apply(cols, self.ends_body[:, k], out["nodes"][..., k::2, :], base=pos)
+        return out

@@ -211,7 +211,9 @@ def accumulate_normal(A: torch.Tensor, slots: RodSlots, n_params: int, out: torc
 
     ``out`` is (n_params + 1, n_params + 1); the last row/column collects discarded columns.
     """
-    G = torch.einsum("nril,nrim->rlm", A, A)  # (R, L, L)
+    n, R, rows, L = A.shape
+    per_rod = A.permute(1, 0, 2, 3).reshape(R, n * rows, L)
+    G = torch.bmm(per_rod.transpose(1, 2), per_rod)  # (R, L, L)
     cols = slots.columns
     rows_idx = cols.unsqueeze(2).expand_as(G).reshape(-1)
     cols_idx = cols.unsqueeze(1).expand_as(G).reshape(-1)

@@ -1,0 +1,59 @@
+"""Figures people would rather look at than read: rollouts against ground truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from tensegrity_env.io_utils import atomic_path
+
+
+def save_figure(fig: plt.Figure, path: str | Path) -> Path:
+    """Save ``fig`` as PNG atomically and close it."""
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_rollout_comparison(
+    truth_nodes: np.ndarray,
+    model_nodes: np.ndarray,
+    dt: float,
+    error_curve: np.ndarray,
+    path: str | Path,
+    title: str = "identified engine vs MuJoCo",
+) -> Path:
+    """End-cap heights of one trajectory (truth solid, model dashed) and the error curve.
+
+    Args:
+        truth_nodes: ground-truth end caps of one trajectory, (T+1, n_nodes, 3) [m].
+        model_nodes: the model's end caps from the same initial state, (T+1, n_nodes, 3) [m].
+        dt: sample period [s].
+        error_curve: mean rod position error per step over a split, (T+1,) [m].
+        path: output PNG.
+    """
+    t = np.arange(truth_nodes.shape[0]) * dt
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
+    for k in range(truth_nodes.shape[1]):
+        (line,) = ax1.plot(t, truth_nodes[:, k, 2], lw=1.2)
+        ax1.plot(t, model_nodes[:, k, 2], "--", lw=1.0, color=line.get_color())
+    ax1.set(
+        xlabel="time [s]",
+        ylabel="end-cap height z [m]",
+        title=f"{title}: solid MuJoCo, dashed model",
+    )
+    te = np.arange(len(error_curve)) * dt
+    ax2.semilogy(te[1:], np.maximum(error_curve[1:], 1e-17))
+    ax2.set(
+        xlabel="horizon [s]",
+        ylabel="mean rod position error [m]",
+        title="rollout error, test split",
+    )
+    ax2.grid(True, which="both", alpha=0.3)
+    return save_figure(fig, path)

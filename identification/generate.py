@@ -508,7 +508,7 @@ def generate(spec: GenerateSpec, progress: bool = False) -> GenerateResult:
     splits: dict[str, Split] = {}
     with (
         Roller(truth.model, spec.threads) as roller,
-        tqdm(total=total, unit="step", unit_scale=True, disable=not progress) as bar,
+        tqdm(total=total, unit="step", unit_scale=True, disable=None if progress else True) as bar,
     ):
         for name, n in counts.items():
             bar.set_description(name)

@@ -1,0 +1,91 @@
+"""``tensegrity-sr inspect``: what a dataset holds (and whether it is well formed)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from identification.dataset import SPLITS, Dataset, GroundTruth, read_dataset, read_ground_truth
+from tensegrity_env.params import UNITS
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "inspect",
+        help="summarize a dataset: topology, time step, splits, arrays, ground truth",
+        description=(
+            "Read and check a dataset file and summarize it: the topology (rods, springs, "
+            "anchors), the time step, the splits with their sizes, which arrays are stored, "
+            "and whether a ground truth is present (shown only with --ground-truth)."
+        ),
+    )
+    p.add_argument("dataset", type=Path, help="HDF5 dataset")
+    p.add_argument("--ground-truth", action="store_true", help="also print the stored ground truth")
+    p.set_defaults(func=run)
+
+
+def summary(ds: Dataset, truth: GroundTruth | None) -> str:
+    """The text that ``inspect`` prints, without the ground truth's values."""
+    topo = ds.topology
+    a = ds.attrs
+    lines = [f"{ds.path}: {a.get('source', 'unknown source')}, created {a.get('created', '?')}"]
+    lines.append(
+        f"assembly: {a.get('assembly', topo.name)}: {topo.n_rods} rods, {topo.n_springs} "
+        f"springs, {topo.n_anchors} world anchors ({2 * topo.n_rods} end caps)"
+    )
+    lines.append(f"time step: dt = {ds.dt * 1e3:g} ms ({1 / ds.dt:g} Hz)")
+    if "preset" in a or "seed" in a:
+        lines.append(f"generated: preset {a.get('preset', '?')}, seed {a.get('seed', '?')}")
+    lines.append("splits:")
+    width = max(len(n) for n in ds.splits)
+    order = [n for n in SPLITS if n in ds.splits] + sorted(set(ds.splits) - set(SPLITS))
+    for name in order:
+        s = ds.splits[name]
+        lines.append(
+            f"  {name:<{width}}  N = {s.n_trajectories:>5}  T = {s.n_transitions:>5} steps "
+            f"({s.n_transitions * ds.dt:.3g} s)  {s.n_trajectories * s.n_transitions:>10,} steps"
+        )
+    lines.append(f"  {'total':<{width}}  {ds.n_steps:>44,} steps")
+    if all(s.has_states for s in ds.splits.values()):
+        stored = "rod states (p, v, q, omega), end caps (nodes) and control"
+    else:
+        stored = (
+            "end caps only (nodes) and control: rod states are derived from the end caps "
+            "(identification.states.rod_states_from_nodes)"
+        )
+    lines.append(f"arrays: {stored}")
+    control = [np.abs(s.control).max() for s in ds.splits.values() if s.control.size]
+    lines.append(f"control: {'none (all zero)' if not control or max(control) == 0 else 'applied'}")
+    if truth is None:
+        lines.append("ground truth: none (measured data)")
+    else:
+        lines.append("ground truth: present (not shown; pass --ground-truth to print it)")
+    return "\n".join(lines)
+
+
+def ground_truth_text(truth: GroundTruth) -> str:
+    """The ground truth, for ``--ground-truth``."""
+    lines = ["ground truth parameters:"]
+    with np.printoptions(precision=6, suppress=True, linewidth=100):
+        for f, values in truth.params.numpy().items():
+            lines.append(f"  {f} [{UNITS[f]}]:")
+            lines.extend(f"    {row}" for row in str(values).splitlines())
+    lines.append(f"simulation: {json.dumps(truth.sim)}")
+    lines.append(f"planted effects: {json.dumps(truth.effects) if truth.effects else 'none'}")
+    lines.append(f"MJCF: {len(truth.mjcf):,} characters (HDF5 attribute /ground_truth mjcf)")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    ds = read_dataset(args.dataset)
+    truth = read_ground_truth(args.dataset)
+    text = summary(ds, truth)
+    if args.ground_truth:
+        text = text.replace("present (not shown; pass --ground-truth to print it)", "present")
+        if truth is not None:
+            text += "\n" + ground_truth_text(truth)
+    print(text)
+    return 0

@@ -190,6 +190,19 @@ class Truth:
         return self.asm.topology
 
     @property
+    def radius(self) -> float:
+        """How far rod geometry reaches beyond the end-cap centres [m] (largest radius)."""
+        m = self.asm.model
+        round_types = {int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_SPHERE)}
+        rods = set(self.asm.rod_bodies.tolist())
+        sizes = [
+            float(m.geom_size[g, 0])
+            for g in range(m.ngeom)
+            if m.geom_bodyid[g] in rods and int(m.geom_type[g]) in round_types
+        ]
+        return max(sizes, default=0.0)
+
+    @property
     def model(self) -> mujoco.MjModel:
         return self.asm.model
 
@@ -214,8 +227,7 @@ class Truth:
 def _floor_height_check(truth: Truth, where: str) -> None:
     """With a floor, an assembly tied to world anchors must start above it."""
     nodes = assemblies.node_positions(truth.topology, truth.pose_p, truth.pose_q)
-    radius = max(r.radius for r in truth.topology.rods)
-    if nodes[: 2 * truth.topology.n_rods, 2].min() - radius <= 0:
+    if nodes[: 2 * truth.topology.n_rods, 2].min() - truth.radius <= 0:
         raise InputError(
             f"{where}: with a floor at z = 0, this assembly (tied to world anchors, so it "
             "cannot be lifted) must start above the floor"
@@ -253,6 +265,16 @@ def _load_user_mjcf(spec: GenerateSpec) -> Truth:
     ground = asm.options.ground
     if spec.ground and not ground:
         # add the floor the user asked for; it collides with any rod collision bit
+        m, rods = asm.model, set(asm.rod_bodies.tolist())
+        if not any(
+            (m.geom_contype[g] & 3) or (m.geom_conaffinity[g] & 1)
+            for g in range(m.ngeom)
+            if m.geom_bodyid[g] in rods
+        ):
+            raise InputError(
+                f"{path}: --ground: no rod geom can touch a floor (their contype and "
+                "conaffinity are 0); give the rods collision bits or drop --ground"
+            )
         mspec = mujoco.MjSpec.from_file(str(path))
         floor = mspec.worldbody.add_geom()
         floor.name, floor.type = "tensegrity_sr_floor", mujoco.mjtGeom.mjGEOM_PLANE
@@ -310,8 +332,7 @@ def sample_initial_conditions(
     if truth.ground and topo.n_anchors == 0:
         rot = np_quat_to_matrix(q)
         caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", rot, topo.end_offsets)
-        radius = max(r.radius for r in topo.rods)
-        low = caps[..., 2].reshape(n, -1).min(axis=1) - radius
+        low = caps[..., 2].reshape(n, -1).min(axis=1) - truth.radius
         p[..., 2] += (rng.uniform(*ic.lift, n) - low)[:, None]
     return {"p": p, "v": v, "q": q, "omega": omega}
 

@@ -67,6 +67,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def run(args: argparse.Namespace) -> int:
     spec = GenerateSpec.from_preset(
         args.preset,
@@ -102,8 +106,8 @@ def run(args: argparse.Namespace) -> int:
         extras.append("floor contact")
     extras.append(f"control std {spec.control_std:g}" if spec.control_std else "no control")
     print(
-        f"Wrote {output}: {ds.attrs['assembly']} ({ds.topology.n_rods} rods, "
-        f"{ds.topology.n_springs} springs; preset {spec.preset}, seed {spec.seed}, "
+        f"Wrote {output}: {ds.attrs['assembly']} ({_count(ds.topology.n_rods, 'rod')}, "
+        f"{_count(ds.topology.n_springs, 'spring')}; preset {spec.preset}, seed {spec.seed}, "
         f"{', '.join(extras)}), {names} = {counts} trajectories x {spec.steps} steps at "
         f"dt = {ds.dt * 1e3:g} ms = {ds.n_steps:,} steps, in {total_s:.2f} s wall "
         f"({result.rollout_seconds:.2f} s in MuJoCo rollouts on {result.threads} threads, "

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--trajectories", type=int, default=256, help="trajectories (default 256)")
     ap.add_argument("--steps", type=int, default=736, help="steps per trajectory (default 736)")
     ap.add_argument("--threads", type=int, default=None, help="rollout threads (default: all)")
-    ap.add_argument("--repeats", type=int, default=3, help="timed runs per side (default 3)")
+    ap.add_argument("--repeats", type=int, default=4, help="timed runs per side (default 4)")
     ap.add_argument("--control-std", type=float, default=1.0, help="random control (default 1)")
     ap.add_argument("--write", action="store_true", help="also time writing the HDF5 file")
     args = ap.parse_args(argv)
@@ -73,15 +73,17 @@ def main(argv: list[str] | None = None) -> int:
     ctrl = ctrl_vectors(truth, commands)
     datas = [mujoco.MjData(m) for _ in range(threads)]
 
-    bare_s, tool_s, bare_state, result = [], [], None, None
+    bare_s, tool_s, bare_cpu, tool_cpu, bare_state, result = [], [], [], [], None, None
     with rollout.Rollout(nthread=threads) as pool:
         for _ in range(args.repeats):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             bare_state, _ = pool.rollout(m, datas, init, ctrl)
             bare_s.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
+            bare_cpu.append(time.process_time() - c0)
+            t0, c0 = time.perf_counter(), time.process_time()
             result = generate(spec)
             tool_s.append(time.perf_counter() - t0)
+            tool_cpu.append(time.process_time() - c0)
     assert result is not None and bare_state is not None
     train = result.dataset.splits["train"]
     same = np.allclose(train.p[:, 0], states["p"]) and np.allclose(
@@ -101,6 +103,12 @@ def main(argv: list[str] | None = None) -> int:
         f"{result.seconds:.2f} s, {result.rollout_seconds:.2f} s of it in mujoco.rollout calls)"
     )
     print(f"ratio generate / bare: {tool_rate / bare_rate:.2f}  (target >= 0.80)")
+    cpu_ratio = min(bare_cpu) / min(tool_cpu)
+    print(
+        f"CPU time per step (all threads): bare {min(bare_cpu) / n_steps * 1e6:.2f} us, "
+        f"generate {min(tool_cpu) / n_steps * 1e6:.2f} us; ratio {cpu_ratio:.2f} (what the "
+        "wall-clock ratio tends to on an idle machine with enough cores)"
+    )
     if args.write:
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()

@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import time
 import warnings
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,7 +39,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from identification.dataset import SPLITS, Dataset, GroundTruth, Split
-from identification.rollout import RodFrames, Roller
+from identification.rollout import RodFrames, Roller, roll_and_convert
 from tensegrity_env import assemblies
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, SimOptions, from_mjcf, to_mjcf
@@ -49,9 +48,12 @@ from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix, random_quat
 from tensegrity_env.topology import Topology
 
 #: Trajectory counts and length (transitions) of each preset.
-PRESETS: dict[str, dict[str, int]] = {
+PRESETS: dict[str, dict[str, Any]] = {
     "small": {"n_train": 16, "n_val": 4, "n_test": 4, "steps": 300},
     "paper": {"n_train": 1000, "n_val": 200, "n_test": 100, "steps": 736},
+    # the paper's generalization data: 20,000-step trajectories under random directed
+    # perturbation forces h * f_u at each rod's arm r_u
+    "perturbed": {"n_train": 4, "n_val": 0, "n_test": 4, "steps": 20000, "control_std": 1.0},
 }
 
 #: How far above its nominal pose the built-in element is lifted when a floor is on [m].
@@ -401,7 +403,7 @@ def rollout_split(
         roller: the MuJoCo rollout pool.
         rod_states: initial rod states, p, v, omega (n, R, 3), q (n, R, 4).
         commands: control commands f_u, (n, T, R, 3).
-        chunk: trajectories per rollout call (None: about 8 per thread, at least 32).
+        chunk: trajectories per rollout call (None: automatic).
         bar: a tqdm bar updated with the steps done.
         where: label for error messages.
     """
@@ -409,7 +411,6 @@ def rollout_split(
     R = truth.topology.n_rods
     init = initial_state_vectors(truth, roller, rod_states)
     ctrl = ctrl_vectors(truth, commands)
-    chunk = chunk or max(32, 8 * roller.threads)
     layout, frames = roller.layout, RodFrames(truth.asm)
     arrays = {k: np.empty((n, steps + 1, R, 3)) for k in ("p", "v", "omega")}
     arrays["q"] = np.empty((n, steps + 1, R, 4))
@@ -417,29 +418,14 @@ def rollout_split(
     frames.convert(
         init[:, layout.qpos], init[:, layout.qvel], {k: a[:, 0] for k, a in arrays.items()}
     )
-    # double-buffered: MuJoCo rolls out chunk i + 1 (its threads release the GIL)
-    # while this thread converts chunk i
-    bounds = [(lo, min(n, lo + chunk)) for lo in range(0, n, chunk)]
-    bufs = [np.empty((min(chunk, n), steps, layout.size)) for _ in range(min(2, len(bounds)))]
 
-    def launch(i: int) -> Future[np.ndarray]:
-        lo, hi = bounds[i]
-        return pool.submit(roller.run, init[lo:hi], ctrl[lo:hi], bufs[i % 2][: hi - lo])
+    def done(k: int) -> None:
+        if bar is not None:
+            bar.update(k * steps)
 
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        pending = launch(0)
-        for i, (lo, hi) in enumerate(bounds):
-            out = pending.result()
-            if i + 1 < len(bounds):
-                pending = launch(i + 1)
-            roller.check(out, first=lo, where=where)
-            frames.convert(
-                out[..., layout.qpos],
-                out[..., layout.qvel],
-                {k: a[lo:hi, 1:] for k, a in arrays.items()},
-            )
-            if bar is not None:
-                bar.update((hi - lo) * steps)
+    roll_and_convert(
+        roller, frames, init, ctrl, {k: a[:, 1:] for k, a in arrays.items()}, chunk, done, where
+    )
     return Split(control=commands, **arrays)
 
 

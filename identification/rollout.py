@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -233,3 +235,76 @@ class RodFrames:
         for k in range(2):  # rod r owns nodes 2r and 2r + 1
             _apply(cols, self.ends_body[:, k], out["nodes"][..., k::2, :], base=pos)
         return out
+
+
+# ---------------------------------------------------------------------- pipeline
+#: Trajectories converted per task: small enough to stay in cache.
+CONVERT_BLOCK = 4
+
+
+def roll_and_convert(
+    roller: Roller,
+    frames: RodFrames,
+    init: np.ndarray,
+    ctrl: np.ndarray,
+    out: dict[str, np.ndarray],
+    chunk: int | None = None,
+    done: Callable[[int], None] | None = None,
+    where: str = "",
+) -> None:
+    """Roll out ``n`` trajectories and write rod states and end caps into ``out``.
+
+    A pipeline: MuJoCo rolls out chunk ``i + 1`` (its threads release the GIL)
+    while a pool of as many threads converts chunk ``i`` in cache-sized blocks
+    (numpy releases the GIL too), so the conversion hides behind the simulation
+    on any number of cores.
+
+    Args:
+        roller: the MuJoCo rollout pool.
+        frames: the converter of the same model.
+        init: initial ``mjSTATE_FULLPHYSICS`` states, (n, nstate).
+        ctrl: controls, (n, T, nu).
+        out: ``p, v, omega`` (n, T, R, 3), ``q`` (n, T, R, 4), ``nodes`` (n, T, 2R, 3)
+            for the states after steps 1..T.
+        chunk: trajectories per rollout call (None: 8 per thread, at least 32).
+        done: called with the number of trajectories finished, as they finish.
+        where: label for error messages.
+    """
+    n = init.shape[0]
+    layout = roller.layout
+    chunk = chunk or max(32, 8 * roller.threads)
+    bounds = [(lo, min(n, lo + chunk)) for lo in range(0, n, chunk)]
+    bufs = [np.empty((min(chunk, n), ctrl.shape[1], layout.size)) for _ in bounds[:2]]
+
+    def launch(i: int) -> Future[np.ndarray]:
+        lo, hi = bounds[i]
+        return sim.submit(roller.run, init[lo:hi], ctrl[lo:hi], bufs[i % 2][: hi - lo])
+
+    def convert(states: np.ndarray, lo: int) -> None:
+        hi = lo + states.shape[0]
+        qpos, qvel = states[..., layout.qpos], states[..., layout.qvel]
+        frames.convert(qpos, qvel, {k: a[lo:hi] for k, a in out.items()})
+
+    def finish(tasks: list[Future[None]], count: int) -> None:
+        for t in tasks:
+            t.result()
+        if done is not None and count:
+            done(count)
+
+    with (
+        ThreadPoolExecutor(max_workers=1) as sim,
+        ThreadPoolExecutor(max_workers=roller.threads) as work,
+    ):
+        pending, converting, count = launch(0), [], 0
+        for i, (lo, hi) in enumerate(bounds):
+            states = pending.result()
+            finish(converting, count)  # frees the buffer the next rollout writes
+            if i + 1 < len(bounds):
+                pending = launch(i + 1)
+            roller.check(states, first=lo, where=where)
+            converting = [
+                work.submit(convert, states[b : b + CONVERT_BLOCK], lo + b)
+                for b in range(0, hi - lo, CONVERT_BLOCK)
+            ]
+            count = hi - lo
+        finish(converting, count)

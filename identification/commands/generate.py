@@ -16,6 +16,8 @@ EPILOG = """\
 presets:
   small   icosahedron 16/4/4 trajectories of 300 steps (seconds)
   paper   1000/200/100 trajectories of 736 steps (736k training steps, as the paper)
+  perturbed  4/0/4 trajectories of 20,000 steps under random directed forces f_u
+          (control std 1; the paper's generalization data for identifying h)
 
 The file is written once, at the end, through a temporary file and a rename: an
 interrupted run leaves no file that looks complete; run the command again.
@@ -55,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--control-std",
         type=float,
-        default=0.0,
+        default=None,
         metavar="STD",
         help="std of random control commands f_u per rod and axis, held ~50 ms (default: 0)",
     )

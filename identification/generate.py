@@ -410,32 +410,35 @@ def rollout_split(
     n, steps = commands.shape[:2]
     R = truth.topology.n_rods
     init = initial_state_vectors(truth, roller, rod_states)
-    ctrl = ctrl_vectors(truth, commands)
-    layout, frames = roller.layout, RodFrames(truth.asm)
+    frames = RodFrames(truth.asm)
     arrays = {k: np.empty((n, steps + 1, R, 3)) for k in ("p", "v", "omega")}
     arrays["q"] = np.empty((n, steps + 1, R, 4))
     arrays["nodes"] = np.empty((n, steps + 1, 2 * R, 3))
-    frames.convert(
-        init[:, layout.qpos], init[:, layout.qvel], {k: a[:, 0] for k, a in arrays.items()}
-    )
 
     def done(k: int) -> None:
         if bar is not None:
             bar.update(k * steps)
 
-    roll_and_convert(
-        roller, frames, init, ctrl, {k: a[:, 1:] for k, a in arrays.items()}, chunk, done, where
-    )
+    def controls(lo: int, hi: int) -> np.ndarray:
+        return ctrl_vectors(truth, commands[lo:hi])
+
+    roll_and_convert(roller, frames, init, controls, arrays, chunk, done, where)
     return Split(control=commands, **arrays)
 
 
 # ---------------------------------------------------------------------- checks
 def spring_lengths(topology: Topology, nodes: np.ndarray) -> np.ndarray:
     """Spring lengths (..., S) [m] from end caps (..., 2R, 3) and the topology's anchors."""
-    anchors = np.broadcast_to(topology.anchor_positions, (*nodes.shape[:-2], topology.n_anchors, 3))
+    lead = nodes.shape[:-2]
+    anchors = np.broadcast_to(topology.anchor_positions, (*lead, topology.n_anchors, 3))
     x = np.concatenate([nodes, anchors], axis=-2)
+    # node -> spring difference operator (S, n_nodes): one small matmul per sample
     sn = topology.spring_nodes
-    return np.linalg.norm(x[..., sn[:, 1], :] - x[..., sn[:, 0], :], axis=-1)
+    diff = np.zeros((topology.n_springs, topology.n_nodes))
+    diff[np.arange(topology.n_springs), sn[:, 1]] = 1.0
+    diff[np.arange(topology.n_springs), sn[:, 0]] -= 1.0
+    d = np.matmul(diff, x)  # (..., S, 3)
+    return np.sqrt(np.sum(d * d, axis=-1))
 
 
 def spring_excitation(
@@ -453,7 +456,7 @@ def spring_excitation(
     stride = max(1, round(every / truth.dt))
     stds, lo, hi = [], np.inf, -np.inf
     for s in splits.values():
-        lengths = spring_lengths(topo, s.nodes[:, ::stride])  # (N, T', S)
+        lengths = spring_lengths(topo, np.ascontiguousarray(s.nodes[:, ::stride]))
         stds.append(lengths.std(axis=1).ravel())
         ratio = lengths / nominal
         lo, hi = min(lo, float(ratio.min())), max(hi, float(ratio.max()))

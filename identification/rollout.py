@@ -246,44 +246,54 @@ def roll_and_convert(
     roller: Roller,
     frames: RodFrames,
     init: np.ndarray,
-    ctrl: np.ndarray,
+    controls: Callable[[int, int], np.ndarray],
     out: dict[str, np.ndarray],
     chunk: int | None = None,
     done: Callable[[int], None] | None = None,
     where: str = "",
 ) -> None:
-    """Roll out ``n`` trajectories and write rod states and end caps into ``out``.
+    """Roll out ``n`` trajectories and write their rod states and end caps into ``out``.
 
     A pipeline: MuJoCo rolls out chunk ``i + 1`` (its threads release the GIL)
     while a pool of as many threads converts chunk ``i`` in cache-sized blocks
     (numpy releases the GIL too), so the conversion hides behind the simulation
-    on any number of cores.
+    on any number of cores; each output block is first written (and its memory
+    first touched) by the worker that converts it.
 
     Args:
         roller: the MuJoCo rollout pool.
         frames: the converter of the same model.
         init: initial ``mjSTATE_FULLPHYSICS`` states, (n, nstate).
-        ctrl: controls, (n, T, nu).
-        out: ``p, v, omega`` (n, T, R, 3), ``q`` (n, T, R, 4), ``nodes`` (n, T, 2R, 3)
-            for the states after steps 1..T.
+        controls: ``controls(lo, hi)`` gives the MuJoCo controls of trajectories
+            ``lo..hi-1``, (hi - lo, T, nu); built a chunk at a time.
+        out: ``p, v, omega`` (n, T+1, R, 3), ``q`` (n, T+1, R, 4), ``nodes``
+            (n, T+1, 2R, 3), filled for samples 0..T.
         chunk: trajectories per rollout call (None: 8 per thread, at least 32).
         done: called with the number of trajectories finished, as they finish.
         where: label for error messages.
     """
-    n = init.shape[0]
+    n, steps = init.shape[0], out["p"].shape[1] - 1
     layout = roller.layout
     chunk = chunk or max(32, 8 * roller.threads)
     bounds = [(lo, min(n, lo + chunk)) for lo in range(0, n, chunk)]
-    bufs = [np.empty((min(chunk, n), ctrl.shape[1], layout.size)) for _ in bounds[:2]]
+    bufs = [np.empty((min(chunk, n), steps, layout.size)) for _ in bounds[:2]]
 
     def launch(i: int) -> Future[np.ndarray]:
         lo, hi = bounds[i]
-        return sim.submit(roller.run, init[lo:hi], ctrl[lo:hi], bufs[i % 2][: hi - lo])
+        ctrl = controls(lo, hi)
+        return sim.submit(roller.run, init[lo:hi], ctrl, bufs[i % 2][: hi - lo])
 
     def convert(states: np.ndarray, lo: int) -> None:
         hi = lo + states.shape[0]
-        qpos, qvel = states[..., layout.qpos], states[..., layout.qvel]
-        frames.convert(qpos, qvel, {k: a[lo:hi] for k, a in out.items()})
+        first = init[lo:hi]
+        frames.convert(
+            first[:, layout.qpos], first[:, layout.qvel], {k: a[lo:hi, 0] for k, a in out.items()}
+        )
+        frames.convert(
+            states[..., layout.qpos],
+            states[..., layout.qvel],
+            {k: a[lo:hi, 1:] for k, a in out.items()},
+        )
 
     def finish(tasks: list[Future[None]], count: int) -> None:
         for t in tasks:

@@ -25,6 +25,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 
 bench: $(STAMP)
+	$(BIN)/pip install --quiet -e ".[bench]"  # mujoco[sysid] for the comparison in bench_identify
 	$(BIN)/python benchmarks/bench_generate.py
 	$(BIN)/python benchmarks/bench_identify.py
 

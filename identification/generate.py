@@ -12,8 +12,9 @@ The pipeline, each stage a small function:
    energy into the springs. :func:`sample_controls` draws piecewise-constant random
    control commands.
 3. :func:`rollout_split` rolls the split out with MuJoCo's own multi-threaded batched
-   rollout (:mod:`mujoco.rollout`), in chunks of trajectories (for the progress bar),
-   and converts (qpos, qvel) to rod states and end caps in place, vectorized.
+   rollout (:mod:`mujoco.rollout`) in chunks of trajectories, and converts (qpos,
+   qvel) to rod states and end caps in parallel while the next chunk simulates
+   (:func:`identification.rollout.roll_and_convert`).
 4. :func:`generate` checks the result (no MuJoCo reset, finite, springs within
    bounds) and returns it; :func:`generate_dataset` is the bare ``(Dataset,
    GroundTruth)`` version. Nothing is written here: the caller writes the file once

@@ -18,6 +18,7 @@ COMMANDS: tuple[str, ...] = (
     "identification.commands.generate",
     "identification.commands.inspect",
     "identification.commands.identify",
+    "identification.commands.evaluate",
     "identification.commands.efficiency",
 )
 

@@ -293,7 +293,8 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
             (
                 float(m.geom_size[g, 0])
                 for g in geoms
-                if m.geom_type[g] in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER)
+                if int(m.geom_type[g])
+                in (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
             ),
             0.0,
         )
@@ -363,7 +364,7 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
         int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): "implicitfast",
     }.get(int(m.opt.integrator), "Euler")
     has_floor = any(
-        m.geom_bodyid[g] == 0 and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE
+        m.geom_bodyid[g] == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
         for g in range(m.ngeom)
     )
     options = SimOptions(

@@ -50,6 +50,8 @@ def register(sub: Any) -> None:
     p.add_argument("--fraction", type=float, help="fit on this random fraction of training steps")
     p.add_argument("--seed", type=int, default=0, help="seed of the random subset")
     p.add_argument("--split", default="train", help="split to fit on (default train)")
+    p.add_argument("--horizon", type=int, default=2000,
+                   help="rollout steps for the test-split error (default 2000)")  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -88,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     scores: dict[str, Any] = {}
     if "test" in dataset.splits and dataset.split("test").has_states and not ratios:
         try:
-            scores = est.score(dataset, "test")
+            scores = est.score(dataset, "test", horizon=args.horizon)
         except InputError as e:
             print(f"\n(no test errors: {e})")
         else:

@@ -20,6 +20,7 @@ from identification.dataset import Split
 from identification.plots import save_figure
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
+from tensegrity_env.rotations import quat_conj, quat_mul
 
 CHECKPOINTS = (100, 1000, 2000, 5000, 10000, 20000)
 
@@ -47,8 +48,11 @@ def long_horizon_errors(
             pos[start : start + n + 1] = (
                 torch.linalg.vector_norm(roll.p - p_true, dim=-1).mean(dim=(0, 2)).numpy()
             )
-            dot = (roll.q * q_true).sum(-1).abs().clamp(max=1.0)
-            ang[start : start + n + 1] = (2 * torch.arccos(dot)).mean(dim=(0, 2)).numpy()
+            rel = quat_mul(quat_conj(q_true), roll.q)  # rotation from truth to model
+            angle = 2 * torch.atan2(
+                torch.linalg.vector_norm(rel[..., 1:], dim=-1), rel[..., 0].abs()
+            )
+            ang[start : start + n + 1] = angle.mean(dim=(0, 2)).numpy()
             state = roll.index((slice(None), -1))
     return {"position": pos, "orientation": ang}
 

@@ -360,6 +360,22 @@ def main(argv: list[str] | None = None) -> int:
             "transitions; the time is in torch's elementwise kernels and allocations, not "
             "in the solve)"
         )
+        print(f"  the same {frac:g} of the data with other settings (extrapolated to 100 %):")
+        default_threads = torch.get_num_threads()
+        default_chunk = SpringRodIdentifier().chunk_size
+        for threads, chunk in sorted(
+            {(default_threads, default_chunk), (default_threads, 4000), (1, default_chunk),
+             (1, 4000)}, reverse=True,
+        ):  # fmt: skip
+            torch.set_num_threads(threads)
+            t0 = time.perf_counter()
+            SpringRodIdentifier(anchors=anchors, fraction=frac, chunk_size=chunk).fit(dataset)
+            dt = time.perf_counter() - t0
+            print(
+                f"    torch threads {threads}, chunk_size {chunk:>6,}: {dt:6.2f} s -> "
+                f"{dt / frac:6.1f} s"
+            )
+        torch.set_num_threads(default_threads)
 
     # --- test-split rollouts of our fit
     rows: list[dict[str, Any]] = []

@@ -1,0 +1,61 @@
+"""A library of candidate effects beyond linear springs, gravity and control.
+
+Every effect is a small module subclassing
+:class:`tensegrity_env.engine.effects.EffectBase` (through
+:class:`~tensegrity_env.effects.base.PhysicalEffect`) with physical parameters
+(torch tensors, with units) and a physical gate (where it can act). :data:`EFFECTS`
+maps each effect's ``name`` to its class; the params file's ``effects`` list holds
+``effect.to_dict()`` entries, and::
+
+    topology, params, doc = load_params("params.json")
+    engine = Engine(topology, dt, effects=effects_from_document(doc, topology))
+
+runs the extended model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
+from tensegrity_env.effects.ground_contact import GroundContact
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.topology import Topology
+
+#: effect name -> class, every candidate the residual loop may add
+EFFECTS: dict[str, type[PhysicalEffect]] = {cls.name: cls for cls in (GroundContact,)}
+
+
+def effect_from_dict(doc: Mapping[str, Any], topology: Topology) -> PhysicalEffect:
+    """One effect from its ``to_dict()`` form. Raises :class:`InputError` if unknown."""
+    if not isinstance(doc, Mapping) or "name" not in doc:
+        raise InputError(f"effect entry {doc!r} needs a 'name'")
+    name = str(doc["name"])
+    if name not in EFFECTS:
+        raise InputError(f"unknown effect '{name}' (known: {', '.join(sorted(EFFECTS))})")
+    return EFFECTS[name].from_dict(doc, topology)
+
+
+def effects_from_document(doc: Mapping[str, Any], topology: Topology) -> list[PhysicalEffect]:
+    """The effects listed in a params document (``load_params(...)[2]``); [] if none."""
+    entries = doc.get("effects", [])
+    if not isinstance(entries, Sequence) or isinstance(entries, (str, bytes)):
+        raise InputError("params file: 'effects' must be a list")
+    return [effect_from_dict(e, topology) for e in entries]
+
+
+def effects_to_document(effects: Sequence[PhysicalEffect]) -> list[dict[str, Any]]:
+    """The ``effects`` section of a params file (pass as ``save_params(extra={"effects": ...})``)."""
+    return [e.to_dict() for e in effects]
+
+
+__all__ = [
+    "EFFECTS",
+    "GroundContact",
+    "ParamSpec",
+    "PhysicalEffect",
+    "effect_from_dict",
+    "effects_from_document",
+    "effects_to_document",
+]

@@ -1,0 +1,171 @@
+"""The common base of every candidate effect: named physical parameters with units.
+
+Each effect of :mod:`tensegrity_env.effects` subclasses :class:`PhysicalEffect`,
+declares its parameters once in :attr:`PhysicalEffect.PARAMS` (name -> unit and
+default) and overrides the engine hook(s) where it acts (see
+:mod:`tensegrity_env.engine.effects`). Parameter values are torch tensors, so an
+effect can be fitted through the differentiable engine: build it with tensors that
+``requires_grad`` (:meth:`PhysicalEffect.with_values`).
+
+An effect serialises to the params file's ``effects`` list as::
+
+    {"name": "ground_contact",
+     "params": {"stiffness": 3.1e4, ...},
+     "units": {"stiffness": "N/m", ...},
+     "uncertainty": {"stiffness": 120.0, ...}}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from tensegrity_env.engine.effects import EffectBase
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.topology import Topology
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One physical parameter of an effect.
+
+    Attributes:
+        unit: its unit, as written into the params file.
+        default: value used when a document omits it (scalar or per-element list).
+        per: ``""`` for a scalar or fixed-size vector, ``"spring"`` / ``"rod"`` for one
+            value per spring / rod (a scalar default is broadcast).
+        shape: trailing shape of each value, e.g. ``(3,)`` for a vector.
+        integer: an index list (not fitted; e.g. which springs are cables).
+    """
+
+    unit: str
+    default: Any = 0.0
+    per: str = ""
+    shape: tuple[int, ...] = ()
+    integer: bool = False
+
+
+class PhysicalEffect(EffectBase):
+    """An effect with named physical parameters (see the module docstring).
+
+    Args:
+        topology: the assembly the effect acts on (radii, springs, rods).
+        uncertainty: one standard error per parameter, same shapes (optional).
+        **values: parameter values (array-likes or tensors); omitted ones take
+            their :attr:`PARAMS` default.
+    """
+
+    name: ClassVar[str] = "effect"
+    #: what the effect is, in one line (printed in reports)
+    summary: ClassVar[str] = ""
+    #: parameter name -> :class:`ParamSpec`
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {}
+
+    def __init__(
+        self,
+        topology: Topology,
+        uncertainty: Mapping[str, Any] | None = None,
+        **values: Any,
+    ) -> None:
+        unknown = sorted(set(values) - set(self.PARAMS))
+        if unknown:
+            raise InputError(
+                f"effect '{self.name}': unknown parameter(s) {unknown} (has {sorted(self.PARAMS)})"
+            )
+        self.topology = topology
+        self.values: dict[str, torch.Tensor] = {}
+        for key, spec in self.PARAMS.items():
+            self.values[key] = self._tensor(key, spec, values.get(key, spec.default))
+        self.uncertainty: dict[str, Any] = dict(uncertainty or {})
+        self.check()
+
+    # ------------------------------------------------------------------ values
+    def _count(self, spec: ParamSpec) -> int | None:
+        return {"spring": self.topology.n_springs, "rod": self.topology.n_rods}.get(spec.per)
+
+    def _tensor(self, key: str, spec: ParamSpec, value: Any) -> torch.Tensor:
+        if spec.integer:
+            return torch.as_tensor(np.asarray(value, dtype=np.int64).reshape(-1))
+        if isinstance(value, torch.Tensor):
+            t = value if value.is_floating_point() else value.double()
+        else:
+            try:
+                t = torch.as_tensor(np.asarray(value, dtype=float), dtype=torch.float64)
+            except (TypeError, ValueError) as e:
+                raise InputError(f"effect '{self.name}': '{key}' is not numeric ({e})") from None
+        n = self._count(spec)
+        shape = ((n,) if n is not None else ()) + spec.shape
+        if tuple(t.shape) != shape:
+            if t.numel() == 1 or (n is not None and tuple(t.shape) == spec.shape):
+                t = t.expand(shape) if t.requires_grad else t.expand(shape).clone()
+            else:
+                raise InputError(
+                    f"effect '{self.name}': '{key}' has shape {tuple(t.shape)}, expected {shape}"
+                )
+        if not torch.isfinite(t.detach()).all() and key not in self.allow_infinite:
+            raise InputError(f"effect '{self.name}': '{key}' contains NaN or inf")
+        return t
+
+    #: parameters that may be +inf (e.g. an unlimited slack width)
+    allow_infinite: ClassVar[frozenset[str]] = frozenset()
+
+    def check(self) -> None:
+        """Physical sign checks of the values; raise :class:`InputError`. Override."""
+
+    def value(self, key: str, like: torch.Tensor) -> torch.Tensor:
+        """Parameter ``key`` on the dtype and device of ``like``."""
+        v = self.values[key]
+        if v.dtype != like.dtype or v.device != like.device:
+            v = v.to(dtype=like.dtype, device=like.device)
+        return v
+
+    def with_values(self, **values: Any) -> PhysicalEffect:
+        """A copy with some parameters replaced (tensors kept as given: differentiable)."""
+        merged = {**self.values, **values}
+        return type(self)(self.topology, uncertainty=self.uncertainty, **merged)
+
+    def fitted_params(self) -> list[str]:
+        """Names of the parameters a fit may change (non-index ones)."""
+        return [k for k, s in self.PARAMS.items() if not s.integer]
+
+    # ------------------------------------------------------------------ (de)serialise
+    def to_dict(self) -> dict[str, Any]:
+        """``{"name", "params", "units", "uncertainty"}`` (JSON-able)."""
+
+        def plain(x: Any) -> Any:
+            if isinstance(x, torch.Tensor):
+                x = x.detach().cpu().numpy()
+            if isinstance(x, np.ndarray):
+                return x.tolist()
+            return x
+
+        return {
+            "name": self.name,
+            "params": {k: plain(v) for k, v in self.values.items()},
+            "units": {k: s.unit for k, s in self.PARAMS.items()},
+            "uncertainty": {k: plain(v) for k, v in self.uncertainty.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, doc: Mapping[str, Any], topology: Topology) -> PhysicalEffect:
+        """Rebuild from :meth:`to_dict` output (params missing from ``doc`` take defaults)."""
+        params = doc.get("params", {})
+        if not isinstance(params, Mapping):
+            raise InputError(f"effect '{cls.name}': 'params' must be a mapping")
+        return cls(topology, uncertainty=doc.get("uncertainty") or {}, **dict(params))
+
+    def describe(self) -> str:
+        """One line: name and parameter values with units."""
+        parts = []
+        for k, spec in self.PARAMS.items():
+            v = self.values[k].detach().cpu().numpy()
+            text = f"{float(v):.4g}" if v.size == 1 else np.array2string(v, precision=3)
+            parts.append(f"{k}={text} {spec.unit}".rstrip())
+        return f"{self.name}: " + ", ".join(parts)
+
+    def __repr__(self) -> str:
+        return f"<{self.describe()}>"

@@ -168,42 +168,46 @@ def rod_blocks(
     """Local design blocks, (n, R, 6, L): rows = equations, columns = local unknowns.
 
     ``rest_length`` (S,) folds known rest lengths into the stiffness column (then the
-    ``K·l0`` column is zero and discarded).
+    ``K·l0`` column is zero and discarded). The result is a view of a rod-major
+    (R, n, 6, L) tensor, so :func:`accumulate_normal` reads it without a copy.
     """
     n, R = feat.accel.shape[:2]
     J = slots.spring.shape[1]
     dtype = feat.accel.dtype
     sign = slots.sign.to(dtype)  # (R, J)
     rods = torch.arange(R).unsqueeze(1).expand(R, J)
+
+    # per unit tension: force (world) and torque (rod frame) on the rod, (n, R, J, 6)
     axis = feat.springs.axis[:, slots.spring]  # (n, R, J, 3)
-    length = feat.springs.length[:, slots.spring]  # (n, R, J)
-    if rest_length is not None:
-        length = length - rest_length.to(dtype)[slots.spring]
-    rate = feat.springs.rate[:, slots.spring]
     arm = feat.arms[:, rods, slots.end]  # (n, R, J, 3)
     fdir = sign.unsqueeze(-1) * axis
     tdir = torch.einsum("nrji,nrkj->nrki", feat.rot, torch.cross(arm, fdir, dim=-1))
-    unit = torch.cat([fdir, tdir], dim=-1)  # (n, R, J, 6): force/torque per unit tension
+    unit = torch.cat([fdir, tdir], dim=-1).permute(1, 0, 3, 2).contiguous()  # (R, n, 6, J)
+    # the scalar multiplying each unit vector for K, K*l0 and c: -l (or -(l - l0)), 1, -l̇
+    length = feat.springs.length[:, slots.spring]  # (n, R, J)
+    if rest_length is not None:
+        length = length - rest_length.to(dtype)[slots.spring]
+    ones = torch.zeros_like(length) if rest_length is not None else torch.ones_like(length)
+    rate = feat.springs.rate[:, slots.spring]
+    scal = torch.stack([-length, ones, -rate], dim=-1).transpose(0, 1)  # (R, n, J, 3)
 
-    A = torch.zeros(n, R, ROWS_PER_ROD, slots.n_local, dtype=dtype)
-    A[:, :, :3, 0] = feat.accel - gravity
-    w = feat.omega_local
+    # fill a rod-major (R, n, 6, L) buffer in place: no concatenation copies
+    A = torch.zeros(R, n, ROWS_PER_ROD, slots.n_local, dtype=dtype)
+    torch.mul(unit.unsqueeze(-1), scal.unsqueeze(2), out=A[..., 4 : 4 + 3 * J].view(R, n, 6, J, 3))
+    A[:, :, :3, 0] = (feat.accel - gravity).transpose(0, 1)
+    w = feat.omega_local.transpose(0, 1)  # (R, n, 3)
+    alpha = feat.alpha_local.transpose(0, 1)
     eye = torch.eye(3, dtype=dtype)
-    for k in range(3):
+    for k in range(3):  # d/dI_k of I ⊙ α + ω × (I ⊙ ω), rotational rows only
         e_k = eye[k].expand_as(w)
-        A[:, :, 3:, 1 + k] = feat.alpha_local[..., k : k + 1] * e_k + torch.cross(
+        A[:, :, 3:, 1 + k] = alpha[..., k : k + 1] * e_k + torch.cross(
             w, e_k * w[..., k : k + 1], dim=-1
         )
-    spring_cols = torch.stack(
-        [-length.unsqueeze(-1) * unit, unit, -rate.unsqueeze(-1) * unit], dim=-1
-    )  # (n, R, J, 6, 3): K, K*l0, c
-    if rest_length is not None:
-        spring_cols[..., 1] = 0.0
-    A[:, :, :, 4 : 4 + 3 * J] = spring_cols.permute(0, 1, 3, 2, 4).reshape(n, R, 6, 3 * J)
     f_u = feat.control
     t_u = torch.einsum("nrji,nrj->nri", feat.rot, torch.cross(feat.control_arm, f_u, dim=-1))
-    A[:, :, :, -1] = -torch.cat([f_u, t_u], dim=-1)
-    return A
+    A[:, :, :3, -1] = -f_u.transpose(0, 1)
+    A[:, :, 3:, -1] = -t_u.transpose(0, 1)
+    return A.permute(1, 0, 2, 3)
 
 
 def accumulate_normal(A: torch.Tensor, slots: RodSlots, n_params: int, out: torch.Tensor) -> None:
@@ -212,7 +216,7 @@ def accumulate_normal(A: torch.Tensor, slots: RodSlots, n_params: int, out: torc
     ``out`` is (n_params + 1, n_params + 1); the last row/column collects discarded columns.
     """
     n, R, rows, L = A.shape
-    per_rod = A.permute(1, 0, 2, 3).reshape(R, n * rows, L)
+    per_rod = A.permute(1, 0, 2, 3).reshape(R, n * rows, L)  # free for rod_blocks' output
     G = torch.bmm(per_rod.transpose(1, 2), per_rod)  # (R, L, L)
     cols = slots.columns
     rows_idx = cols.unsqueeze(2).expand_as(G).reshape(-1)

@@ -89,7 +89,7 @@ class SpringRodIdentifier:
         init_params: Params | None = None,
         freeze: Sequence[str] = (),
         gravity: Sequence[float] = (0.0, 0.0, -9.81),
-        chunk_size: int = 40_000,
+        chunk_size: int = 2_000,
         max_transitions: int | None = None,
         fraction: float | None = None,
         seed: int = 0,

@@ -40,6 +40,7 @@ class ParamSpec:
             value per spring / rod (a scalar default is broadcast).
         shape: trailing shape of each value, e.g. ``(3,)`` for a vector.
         integer: an index list (not fitted; e.g. which springs are cables).
+        positive: physically >= 0 (fitted in log space); False for signed values.
     """
 
     unit: str
@@ -47,6 +48,7 @@ class ParamSpec:
     per: str = ""
     shape: tuple[int, ...] = ()
     integer: bool = False
+    positive: bool = True
 
 
 class PhysicalEffect(EffectBase):

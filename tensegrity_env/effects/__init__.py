@@ -18,13 +18,29 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
+from tensegrity_env.effects.base import LinearEffect, ParamSpec, PhysicalEffect
+from tensegrity_env.effects.control import ControlLag
+from tensegrity_env.effects.drag import LinearDrag, QuadraticDrag
+from tensegrity_env.effects.force_field import ForceField
 from tensegrity_env.effects.ground_contact import GroundContact
+from tensegrity_env.effects.springs import CubicStiffness, RestLengthOffset, SlackSprings
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.topology import Topology
 
 #: effect name -> class, every candidate the residual loop may add
-EFFECTS: dict[str, type[PhysicalEffect]] = {cls.name: cls for cls in (GroundContact,)}
+EFFECTS: dict[str, type[PhysicalEffect]] = {
+    cls.name: cls
+    for cls in (
+        GroundContact,
+        LinearDrag,
+        QuadraticDrag,
+        SlackSprings,
+        ForceField,
+        CubicStiffness,
+        RestLengthOffset,
+        ControlLag,
+    )
+}
 
 
 def effect_from_dict(doc: Mapping[str, Any], topology: Topology) -> PhysicalEffect:
@@ -52,9 +68,17 @@ def effects_to_document(effects: Sequence[PhysicalEffect]) -> list[dict[str, Any
 
 __all__ = [
     "EFFECTS",
+    "ControlLag",
+    "CubicStiffness",
+    "ForceField",
     "GroundContact",
+    "LinearDrag",
+    "LinearEffect",
     "ParamSpec",
     "PhysicalEffect",
+    "QuadraticDrag",
+    "RestLengthOffset",
+    "SlackSprings",
     "effect_from_dict",
     "effects_from_document",
     "effects_to_document",

@@ -25,7 +25,10 @@ import numpy as np
 import torch
 
 from tensegrity_env.engine.effects import EffectBase
+from tensegrity_env.engine.kinematics import Kinematics
+from tensegrity_env.engine.state import State
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 
@@ -171,3 +174,87 @@ class PhysicalEffect(EffectBase):
 
     def __repr__(self) -> str:
         return f"<{self.describe()}>"
+
+
+class LinearEffect(PhysicalEffect):
+    """An effect whose wrench is linear in its (non-index) parameters θ.
+
+    ``wrench = Σ_j θ_j basis_j``: subclasses give :meth:`basis`, the force and torque
+    on every rod per unit of each parameter entry. Such an effect can join the linear
+    regression's design matrix (``identification.extended``).
+    """
+
+    def basis(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Force (B, R, 3, P) [N/unit] and torque (B, R, 3, P) [N*m/unit], world frame."""
+        raise NotImplementedError
+
+    def theta(self) -> torch.Tensor:
+        """All fitted parameter entries, flattened in :attr:`PARAMS` order, (P,)."""
+        return torch.cat([self.values[k].reshape(-1) for k in self.fitted_params()])
+
+    def theta_names(self) -> list[str]:
+        """A name per entry of :meth:`theta`, e.g. ``translational[x]``."""
+        names = []
+        for k in self.fitted_params():
+            n = self.values[k].numel()
+            spec = self.PARAMS[k]
+            if n == 1:
+                names.append(k)
+            elif spec.per == "spring":
+                names += [f"{k}[{s.name}]" for s in self.topology.springs]
+            elif spec.per == "rod":
+                names += [f"{k}[{r.name}]" for r in self.topology.rods]
+            else:
+                names += [f"{k}[{'xyz'[i] if n == 3 else i}]" for i in range(n)]
+        return names
+
+    def with_theta(self, theta: Any, stderr: Any = None) -> LinearEffect:
+        """A copy with :meth:`theta` replaced (and its standard errors, same layout)."""
+        theta = torch.as_tensor(theta, dtype=torch.float64).reshape(-1)
+        values, unc, i = {}, {}, 0
+        for k in self.fitted_params():
+            shape = self.values[k].shape
+            n = self.values[k].numel()
+            values[k] = theta[i : i + n].reshape(shape)
+            if stderr is not None:
+                unc[k] = np.asarray(stderr, dtype=float).reshape(-1)[i : i + n].reshape(shape)
+            i += n
+        new = self.with_values(**values)
+        if stderr is not None:
+            new.uncertainty = unc
+        return new
+
+    def wrench(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        force, torque = self.basis(state, kin, params)
+        th = self.theta().to(force)
+        return force @ th, torque @ th
+
+
+def spring_unit_wrench(
+    kin: Kinematics, topology: Topology
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Wrench on every rod from a unit tension (1 N) in each spring, and the lengths.
+
+    Returns force (B, R, 3, S) [N/N], torque (B, R, 3, S) [N*m/N], world frame, and the
+    spring lengths (B, S) [m]. A spring pulls its two nodes towards each other.
+    """
+    nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long, device=kin.x.device)
+    a, b = nodes[:, 0], nodes[:, 1]
+    d = kin.x[:, b] - kin.x[:, a]
+    length = torch.linalg.vector_norm(d, dim=-1)
+    axis = d / length.unsqueeze(-1)  # (B, S, 3)
+    S, R = topology.n_springs, topology.n_rods
+    inc = torch.zeros(topology.n_nodes, S, dtype=kin.x.dtype, device=kin.x.device)
+    idx = torch.arange(S, device=kin.x.device)
+    inc[a, idx] = 1.0
+    inc[b, idx] = -1.0
+    node_f = (
+        inc[: 2 * R].reshape(R, 2, S)[None, :, :, None, :] * axis.transpose(1, 2)[:, None, None]
+    )  # (B, R, 2, 3, S)
+    force = node_f.sum(2)
+    torque = torch.cross(kin.arms.unsqueeze(-1).expand_as(node_f), node_f, dim=-2).sum(2)
+    return force, torque, length

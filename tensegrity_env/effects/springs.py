@@ -1,0 +1,98 @@
+"""Spring laws beyond Hooke: cubic stiffness, rest-length offsets and slack (tension-only) cables.
+
+All act along each spring's own axis (its 1-D frame) and use the fitted ``K`` and
+``l0`` of the params:
+
+* :class:`CubicStiffness`: ``T += k3_s (l - l0)^3`` [N], gate: grows with the
+  stretch, both ways;
+* :class:`RestLengthOffset`: ``T += -K_s δ_s`` [N] (the rest length is ``l0 + δ``),
+  gate: a constant bias on one spring;
+* :class:`SlackSprings`: the listed springs are cables, ``T = K (l - l0) + c l̇`` only
+  while ``l > l0``; shorter than rest they carry only their damping (MuJoCo's tendon
+  spring dead band ``springlength = (0, l0)``), gate: ``l < l0``.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import torch
+
+from tensegrity_env.effects.base import (
+    LinearEffect,
+    ParamSpec,
+    PhysicalEffect,
+    spring_unit_wrench,
+)
+from tensegrity_env.engine.kinematics import Kinematics
+from tensegrity_env.engine.state import State
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import Params
+
+
+class CubicStiffness(LinearEffect):
+    """Per-spring cubic stiffness ``stiffness`` k3 (S,) [N/m^3]: ``T += k3 (l - l0)^3``."""
+
+    name: ClassVar[str] = "cubic_stiffness"
+    summary: ClassVar[str] = "spring tension grows with (l - l0)^3"
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "stiffness": ParamSpec("N/m^3", 0.0, per="spring", positive=False),
+    }
+
+    def basis(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        force, torque, length = spring_unit_wrench(kin, self.topology)
+        stretch = (length - params.rest_length.to(length)) ** 3  # (B, S)
+        return force * stretch[:, None, None], torque * stretch[:, None, None]
+
+
+class RestLengthOffset(LinearEffect):
+    """Per-spring rest-length offset ``offset`` δ (S,) [m]: ``T += -K δ``."""
+
+    name: ClassVar[str] = "rest_length_offset"
+    summary: ClassVar[str] = "a constant tension bias -K δ on a spring"
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "offset": ParamSpec("m", 0.0, per="spring", positive=False),
+    }
+
+    def basis(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        force, torque, _ = spring_unit_wrench(kin, self.topology)
+        k = -params.stiffness.to(force)
+        return force * k, torque * k
+
+
+class SlackSprings(PhysicalEffect):
+    """Springs ``springs`` (indices) are cables: no elastic force while ``l < l0``."""
+
+    name: ClassVar[str] = "slack_springs"
+    summary: ClassVar[str] = "tension-only springs: no elastic force when shorter than rest"
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "springs": ParamSpec("spring index", [], integer=True),
+    }
+
+    def check(self) -> None:
+        idx = self.values["springs"]
+        if idx.numel() and (idx.min() < 0 or idx.max() >= self.topology.n_springs):
+            raise InputError(
+                f"effect '{self.name}': spring indices must be in 0..{self.topology.n_springs - 1}"
+            )
+
+    def mask(self, like: torch.Tensor) -> torch.Tensor:
+        """1 for cable springs, 0 for the others, (S,)."""
+        m = torch.zeros(self.topology.n_springs, dtype=like.dtype, device=like.device)
+        m[self.values["springs"].to(like.device)] = 1.0
+        return m
+
+    def wrench(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        if self.values["springs"].numel() == 0:
+            return None
+        force, torque, length = spring_unit_wrench(kin, self.topology)
+        stretch = length - params.rest_length.to(length)
+        # remove the elastic push of slack cables: -K (l - l0) where l < l0
+        dT = -params.stiffness.to(length) * stretch * (stretch < 0) * self.mask(length)
+        return torch.einsum("brks,bs->brk", force, dT), torch.einsum("brks,bs->brk", torque, dT)

@@ -20,6 +20,7 @@ COMMANDS: tuple[str, ...] = (
     "identification.commands.identify",
     "identification.commands.evaluate",
     "identification.commands.efficiency",
+    "identification.commands.experiment",
 )
 
 

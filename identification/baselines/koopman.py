@@ -1,0 +1,253 @@
+"""Koopman+Int: a linear operator on lifted observables predicts accelerations.
+
+Observables (per rod, built from the 1-D frames of the springs on its end caps and from
+the rod state; float64):
+
+* for every incident spring ``s`` (sign ``σ`` = +1 at node a, -1 at node b, so ``σ e_s``
+  points from the rod's end cap along the spring): the monomials up to ``degree`` of its
+  standardised elongation ``δ = l - l̄`` (``l̄``: the training mean length; the rest length
+  is unknown to the baseline) and elongation rate ``l̇`` — ``1, δ, l̇, δ², δ l̇, l̇², ...``
+  — each times the spring direction projected on the world axes (``σ e_s``, for the
+  linear acceleration) and on the rod's axes (``R^T σ e_s``, for the angular one);
+* the rod-frame angular velocity ``ω_l`` and its quadratic monomials (gyroscopic term);
+* a constant.
+
+For rod ``r`` the operator ``A_r`` (6 x n_features) maps them to ``[a, α_l]``: linear
+acceleration [m/s^2] (world) and angular acceleration [rad/s^2] (rod frame), which the
+integration module (:func:`~tensegrity_env.engine.integration.semi_implicit_euler`)
+turns into the next state. ``A_r`` is fitted by ridge regression on standardised
+observables, with the ridge weight picked from a grid by the validation error; the
+regression is solved through a QR factor accumulated chunk by chunk (exact fits stay
+exact, and all training transitions fit in memory).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from identification.baselines.common import Geometry, local_angular_velocity, sample_transitions
+from identification.dataset import Dataset
+from tensegrity_env.engine import State
+from tensegrity_env.engine.forces import spring_frames
+from tensegrity_env.engine.integration import semi_implicit_euler
+from tensegrity_env.engine.kinematics import Kinematics
+from tensegrity_env.io_utils import InputError
+
+#: Ridge weights tried, relative to unit-variance observables.
+RIDGE_GRID: tuple[float, ...] = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4, 1e-2, 1.0)
+
+
+@dataclass(frozen=True)
+class KoopmanConfig:
+    """Hyperparameters of Koopman+Int.
+
+    Attributes:
+        degree: highest total degree of the (δ, l̇) monomials per spring.
+        ridge_grid: ridge weights tried (the validation error picks one).
+        max_train: training transitions (random subset; None: all).
+        max_val: validation transitions for choosing the ridge weight.
+        seed: seed of the subsets.
+        chunk: transitions per chunk while accumulating the QR factor.
+    """
+
+    degree: int = 2
+    ridge_grid: tuple[float, ...] = RIDGE_GRID
+    max_train: int | None = None
+    max_val: int | None = 20_000
+    seed: int = 0
+    chunk: int = 10_000
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class RidgeCurve:
+    """Validation error (mean standardised squared error) for each ridge weight."""
+
+    ridge: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    best: float = float("nan")
+    seconds: float = 0.0
+    n_train: int = 0
+    n_val: int = 0
+    n_features: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def incident_springs(geometry: Geometry) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per rod, the springs on its end caps: indices, signs and a mask, each (R, K)."""
+    R = geometry.n_rods
+    lists: list[list[tuple[int, float]]] = [[] for _ in range(R)]
+    for s, (a, b) in enumerate(
+        zip(geometry.node_a.tolist(), geometry.node_b.tolist(), strict=True)
+    ):
+        if a < 2 * R:
+            lists[a // 2].append((s, 1.0))
+        if b < 2 * R:
+            lists[b // 2].append((s, -1.0))
+    K = max(1, max(len(x) for x in lists))
+    idx = torch.zeros(R, K, dtype=torch.long)
+    sign = torch.zeros(R, K, dtype=torch.float64)
+    for r, x in enumerate(lists):
+        for k, (s, sg) in enumerate(x):
+            idx[r, k], sign[r, k] = s, sg
+    return idx, sign, sign != 0
+
+
+def monomial_powers(degree: int) -> list[tuple[int, int]]:
+    """Exponents (i, j) of ``δ^i l̇^j`` with ``i + j <= degree``, constant first."""
+    return [(i, d - i) for d in range(degree + 1) for i in range(d, -1, -1)]
+
+
+class KoopmanInt:
+    """Koopman operator on spring-frame observables + the integration module.
+
+    Args:
+        config: hyperparameters (:class:`KoopmanConfig`).
+    """
+
+    name = "Koopman+Int"
+
+    def __init__(self, config: KoopmanConfig | None = None) -> None:
+        self.config = config or KoopmanConfig()
+
+    # -------------------------------------------------------------- observables
+    def observables(self, state: State, kin: Kinematics | None = None) -> torch.Tensor:
+        """Lifted observables per rod, (B, R, n_features), float64."""
+        g = self.geometry_
+        kin = g.kinematics(state) if kin is None else kin
+        frame = spring_frames(kin, g.node_a, g.node_b)
+        delta = (frame.length - self.length_mean_) / self.length_std_  # (B, S)
+        rate = frame.rate / self.rate_std_
+        idx, sign, mask = self.incident_
+        d, r = delta[:, idx], rate[:, idx]  # (B, R, K)
+        mono = torch.stack([d**i * r**j for i, j in self.powers_], dim=-1)  # (B, R, K, M)
+        mono = mono * mask.to(mono.dtype)[..., None]
+        u = frame.axis[:, idx] * sign[..., None]  # (B, R, K, 3) world
+        w = torch.einsum("brji,brkj->brki", kin.rot, u)  # rod frame
+        per_spring = torch.cat(
+            [mono[..., None] * u[..., None, :], mono[..., None] * w[..., None, :]], dim=-1
+        )  # (B, R, K, M, 6)
+        wl = local_angular_velocity(state, kin.rot)
+        quad = torch.stack([wl[..., i] * wl[..., j] for i in range(3) for j in range(i, 3)], -1)
+        B, R = wl.shape[:2]
+        return torch.cat([per_spring.reshape(B, R, -1), wl, quad], dim=-1)
+
+    def _targets(self, s0: State, s1: State, kin: Kinematics) -> torch.Tensor:
+        w0 = local_angular_velocity(s0, kin.rot)
+        w1 = local_angular_velocity(s1)
+        return torch.cat([(s1.v - s0.v) / self.dt_, (w1 - w0) / self.dt_], dim=-1)
+
+    def _chunks(self, s0: State, s1: State, chunk: int | None = None) -> Any:
+        c = chunk or self.config.chunk
+        for lo in range(0, s0.batch_size, c):
+            a, b = s0.index(slice(lo, lo + c)), s1.index(slice(lo, lo + c))
+            kin = self.geometry_.kinematics(a)
+            yield self.observables(a, kin), self._targets(a, b, kin)
+
+    # -------------------------------------------------------------- fitting
+    def fit(self, dataset: Dataset, split: str = "train", val_split: str = "val") -> KoopmanInt:
+        """Ridge regression of accelerations on observables; ridge weight by validation."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        if val_split not in dataset.splits:
+            raise InputError(f"{self.name}: needs a '{val_split}' split to pick the ridge weight")
+        self.geometry_ = Geometry(dataset.topology)
+        self.dt_ = float(dataset.dt)
+        self.incident_ = incident_springs(self.geometry_)
+        self.powers_ = monomial_powers(cfg.degree)
+        s0, s1, _ = sample_transitions(dataset.split(split), cfg.max_train, cfg.seed)
+        va0, va1, _ = sample_transitions(dataset.split(val_split), cfg.max_val, cfg.seed + 1)
+        self._spring_scales(s0)
+        self._standardisation(s0, s1)
+        tri = self._accumulate(s0, s1)
+        curve = RidgeCurve(
+            n_train=s0.batch_size, n_val=va0.batch_size, n_features=int(self.x_mean_.shape[-1])
+        )
+        solutions = [self._solve(tri, lam, s0.batch_size) for lam in cfg.ridge_grid]
+        losses = self._val_losses(va0, va1, solutions)
+        best = int(np.nanargmin(losses))
+        self.weight_, self.bias_ = solutions[best]
+        curve.ridge, curve.val_loss = list(cfg.ridge_grid), [float(x) for x in losses]
+        curve.best = float(cfg.ridge_grid[best])
+        curve.seconds = time.perf_counter() - t0
+        self.history_ = curve
+        return self
+
+    def _spring_scales(self, s0: State) -> None:
+        g = self.geometry_
+        sub = s0.index(slice(0, 50_000))
+        frame = spring_frames(g.kinematics(sub), g.node_a, g.node_b)
+        self.length_mean_ = frame.length.mean(0)
+        self.length_std_ = frame.length.std(0).clamp_min(1e-9)
+        self.rate_std_ = frame.rate.std(0).clamp_min(1e-9)
+
+    def _standardisation(self, s0: State, s1: State, n: int = 20_000) -> None:
+        """Observable and target means / stds (per rod) from a subset of the transitions."""
+        x, y = next(self._chunks(s0.index(slice(0, n)), s1.index(slice(0, n)), chunk=n))
+        self.x_mean_ = x.mean(0)  # (R, F)
+        std = x.std(0)
+        self.x_std_ = torch.where(std > 1e-12, std, torch.ones_like(std))
+        ystd = y.std(0)  # (R, 6); floor as in Standardizer
+        self.target_std_ = ystd.clamp_min(1e-3 * float(ystd.max()) + 1e-30)
+
+    def _accumulate(self, s0: State, s1: State) -> torch.Tensor:
+        """Per rod, the triangular factor of ``[Z 1 | Y]`` (R, F+7, F+7) by chunked QR.
+
+        ``Z`` are the standardised observables, ``1`` the intercept column and ``Y`` the
+        accelerations; QR (not normal equations) keeps the exact fits exact.
+        """
+        tri = None
+        for x, y in self._chunks(s0, s1):
+            z = (x - self.x_mean_) / self.x_std_
+            rows = torch.cat([z, torch.ones_like(z[..., :1]), y], dim=-1).transpose(0, 1)
+            if tri is not None:
+                rows = torch.cat([tri, rows], dim=1)
+            tri = torch.linalg.qr(rows, mode="r")[1]
+        assert tri is not None
+        return tri
+
+    def _solve(self, tri: torch.Tensor, lam: float, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Weights (R, F, 6) and biases (R, 6) minimising ``|Zw + b - Y|² + lam n |w|²``."""
+        R, F1 = tri.shape[0], tri.shape[-1] - 6
+        a, rhs = tri[:, :F1, :F1], tri[:, :F1, F1:]
+        ridge = torch.eye(F1, dtype=tri.dtype) * (lam * n) ** 0.5
+        ridge[-1, -1] = 0.0  # the intercept is not shrunk
+        a = torch.cat([a, ridge.expand(R, -1, -1)], dim=1)
+        rhs = torch.cat([rhs, torch.zeros(R, F1, 6, dtype=tri.dtype)], dim=1)
+        sol = torch.linalg.lstsq(a, rhs, rcond=1e-13, driver="gelsd").solution  # (R, F+1, 6)
+        weight = sol[:, :-1] / self.x_std_[:, :, None]
+        bias = sol[:, -1] - torch.einsum("rf,rfk->rk", self.x_mean_, weight)
+        return weight, bias
+
+    def _val_losses(
+        self, s0: State, s1: State, solutions: Sequence[tuple[torch.Tensor, torch.Tensor]]
+    ) -> np.ndarray:
+        sq = np.zeros(len(solutions))
+        for x, y in self._chunks(s0, s1):
+            for i, (w, b) in enumerate(solutions):
+                pred = torch.einsum("brf,rfk->brk", x, w) + b
+                sq[i] += float((((pred - y) / self.target_std_) ** 2).sum())
+        n = s0.batch_size * self.geometry_.n_rods * 6
+        sq = sq / n
+        sq[~np.isfinite(sq)] = np.nan
+        return sq
+
+    # -------------------------------------------------------------- prediction
+    def predict(self, state: State) -> State:
+        """One step: observables -> [a, α_l] -> semi-implicit Euler (float64)."""
+        if not hasattr(self, "weight_"):
+            raise RuntimeError(f"{self.name}: call fit(dataset) first")
+        kin = self.geometry_.kinematics(state)
+        out = torch.einsum("brf,rfk->brk", self.observables(state, kin), self.weight_) + self.bias_
+        omega_l = local_angular_velocity(state, kin.rot)
+        return semi_implicit_euler(state, out[..., :3], out[..., 3:], omega_l, self.dt_)

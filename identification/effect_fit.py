@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from identification.dataset import Split
-from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -110,10 +110,28 @@ def _apply(
 ) -> list[PhysicalEffect]:
     out = list(effects)
     for k, (i, key) in enumerate(free):
-        spec = out[i].PARAMS[key]
-        val = torch.exp(theta[k]) if spec.positive else theta[k]
-        out[i] = out[i].with_values(**{key: val})
+        out[i] = out[i].with_values(
+            validate=False, **{key: from_free(out[i].PARAMS[key], theta[k])}
+        )
     return out
+
+
+def to_free(spec: ParamSpec, value: float) -> float:
+    """A parameter value in the unconstrained coordinates of the fit (log, logit or as is)."""
+    if spec.unit_interval:
+        return float(np.log(value / (1.0 - value)))
+    if spec.positive:
+        return float(np.log(max(value, 1e-12)))
+    return float(value)
+
+
+def from_free(spec: ParamSpec, x: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`to_free`."""
+    if spec.unit_interval:
+        return torch.sigmoid(x)
+    if spec.positive:
+        return torch.exp(x)
+    return x
 
 
 def fit_effect_params(
@@ -134,10 +152,10 @@ def fit_effect_params(
     """
 
     def theta_of(effs: Sequence[PhysicalEffect]) -> torch.Tensor:
-        vals = []
-        for i, key in free:
-            v = float(effs[i].values[key].detach().reshape(-1)[0])
-            vals.append(np.log(max(v, 1e-12)) if effs[i].PARAMS[key].positive else v)
+        vals = [
+            to_free(effs[i].PARAMS[key], float(effs[i].values[key].detach().reshape(-1)[0]))
+            for i, key in free
+        ]
         return torch.tensor(vals, dtype=DTYPE)
 
     def residual(theta: torch.Tensor) -> torch.Tensor:
@@ -180,8 +198,11 @@ def fit_effect_params(
     fitted = _apply(effects, free, theta.detach())
     values, stderr = [], []
     for k, (i, key) in enumerate(free):
+        spec = fitted[i].PARAMS[key]
         v = float(fitted[i].values[key].reshape(-1)[0])
         values.append(v)
-        stderr.append(abs(v) * se_theta[k] if fitted[i].PARAMS[key].positive else se_theta[k])
+        # delta method: d value / d free coordinate
+        slope = v * (1 - v) if spec.unit_interval else (abs(v) if spec.positive else 1.0)
+        stderr.append(slope * se_theta[k])
     names = [f"{effects[i].name}.{key}" for i, key in free]
     return EffectFit(fitted, names, np.array(values), np.array(stderr), history)

@@ -44,6 +44,7 @@ class ParamSpec:
         shape: trailing shape of each value, e.g. ``(3,)`` for a vector.
         integer: an index list (not fitted; e.g. which springs are cables).
         positive: physically >= 0 (fitted in log space); False for signed values.
+        unit_interval: physically in (0, 1) (fitted in logit space).
     """
 
     unit: str
@@ -52,6 +53,7 @@ class ParamSpec:
     shape: tuple[int, ...] = ()
     integer: bool = False
     positive: bool = True
+    unit_interval: bool = False
 
 
 class PhysicalEffect(EffectBase):
@@ -74,6 +76,8 @@ class PhysicalEffect(EffectBase):
         self,
         topology: Topology,
         uncertainty: Mapping[str, Any] | None = None,
+        *,
+        validate: bool = True,
         **values: Any,
     ) -> None:
         unknown = sorted(set(values) - set(self.PARAMS))
@@ -86,7 +90,8 @@ class PhysicalEffect(EffectBase):
         for key, spec in self.PARAMS.items():
             self.values[key] = self._tensor(key, spec, values.get(key, spec.default))
         self.uncertainty: dict[str, Any] = dict(uncertainty or {})
-        self.check()
+        if validate:
+            self.check()
 
     # ------------------------------------------------------------------ values
     def _count(self, spec: ParamSpec) -> int | None:
@@ -121,6 +126,14 @@ class PhysicalEffect(EffectBase):
     def check(self) -> None:
         """Physical sign checks of the values; raise :class:`InputError`. Override."""
 
+    def physical(self) -> bool:
+        """Whether the values pass :meth:`check` (a fit may give unphysical ones)."""
+        try:
+            self.check()
+        except InputError:
+            return False
+        return True
+
     def value(self, key: str, like: torch.Tensor) -> torch.Tensor:
         """Parameter ``key`` on the dtype and device of ``like``."""
         v = self.values[key]
@@ -128,10 +141,13 @@ class PhysicalEffect(EffectBase):
             v = v.to(dtype=like.dtype, device=like.device)
         return v
 
-    def with_values(self, **values: Any) -> PhysicalEffect:
-        """A copy with some parameters replaced (tensors kept as given: differentiable)."""
+    def with_values(self, validate: bool = True, **values: Any) -> PhysicalEffect:
+        """A copy with some parameters replaced (tensors kept as given: differentiable).
+
+        ``validate=False`` skips the physical checks (see :meth:`physical`).
+        """
         merged = {**self.values, **values}
-        return type(self)(self.topology, uncertainty=self.uncertainty, **merged)
+        return type(self)(self.topology, uncertainty=self.uncertainty, validate=validate, **merged)
 
     def fitted_params(self) -> list[str]:
         """Names of the parameters a fit may change (non-index ones)."""
@@ -221,7 +237,7 @@ class LinearEffect(PhysicalEffect):
             if stderr is not None:
                 unc[k] = np.asarray(stderr, dtype=float).reshape(-1)[i : i + n].reshape(shape)
             i += n
-        new = self.with_values(**values)
+        new = self.with_values(validate=False, **values)
         if stderr is not None:
             new.uncertainty = unc
         return new

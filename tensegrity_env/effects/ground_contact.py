@@ -92,15 +92,17 @@ class GroundContact(PhysicalEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "stiffness": ParamSpec("1/s^2 (N/m per kg of effective mass)", MUJOCO_DEFAULT["stiffness"]),
         "damping": ParamSpec("1/s (N*s/m per kg of effective mass)", MUJOCO_DEFAULT["damping"]),
-        "impedance": ParamSpec("1", MUJOCO_DEFAULT["impedance"]),
-        "impedance_min": ParamSpec("1", MUJOCO_DEFAULT["impedance_min"]),
+        "impedance": ParamSpec("1", MUJOCO_DEFAULT["impedance"], unit_interval=True),
+        "impedance_min": ParamSpec("1", MUJOCO_DEFAULT["impedance_min"], unit_interval=True),
         "width": ParamSpec("m", MUJOCO_DEFAULT["width"]),
         "friction": ParamSpec("1", MUJOCO_DEFAULT["friction"]),
         "height": ParamSpec("m", MUJOCO_DEFAULT["height"], positive=False),
     }
 
-    def __init__(self, topology: Topology, uncertainty: Any = None, **values: Any) -> None:
-        super().__init__(topology, uncertainty, **values)
+    def __init__(
+        self, topology: Topology, uncertainty: Any = None, *, validate: bool = True, **values: Any
+    ) -> None:
+        super().__init__(topology, uncertainty, validate=validate, **values)
         #: each rod's end-cap radius, (R,) [m]
         self.radius = torch.tensor(
             [max(r.radius, 1e-3) for r in topology.rods], dtype=torch.float64
@@ -121,7 +123,7 @@ class GroundContact(PhysicalEffect):
                 raise InputError(f"effect '{self.name}': '{key}' must be >= 0")
         for key in ("impedance", "impedance_min"):
             hi = float(self.values[key].detach().max())
-            if not 0 < v[key] and hi < 1:
+            if not (0 < v[key] and hi < 1):
                 raise InputError(f"effect '{self.name}': '{key}' must be in (0, 1)")
 
     # ------------------------------------------------------------------ hooks

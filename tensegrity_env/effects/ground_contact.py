@@ -15,7 +15,7 @@ own frame of contacts:
   ``k_N ≈ m_eff d K`` [N/m] for a cap of effective mass ``m_eff`` [kg];
 * the edge forces ``f >= 0`` [N] solve the small convex problem
   ``min ½ fᵀ (A + R) f + fᵀ (a0 - a_ref)`` per rod, with ``A`` the rod's inverse
-  inertia seen by its edges, ``R = (1 - d)/d · 4/M`` the softness and ``a0`` the
+  inertia seen by its edges, ``R = (1 - d)/d · 2μ²(1 + μ²)/M`` the softness and ``a0`` the
   edge accelerations without contact (gravity, springs, gyroscopic terms). The
   **impedance** ``d ∈ (0, 1)`` (how much of ``a_ref`` is enforced) rises from
   ``impedance_min`` at zero penetration to ``impedance`` at ``width``;
@@ -64,8 +64,9 @@ MUJOCO_DEFAULT: dict[str, float] = {
     "height": 0.0,
 }
 
-#: Active-set iterations of the per-rod contact problem (8 unknowns: converges in a few).
-ACTIVE_SET_ITERATIONS = 8
+#: Most active-set iterations of the per-rod contact problem (8 unknowns: usually a few;
+#: near-parallel pyramid edges at small friction take more).
+ACTIVE_SET_ITERATIONS = 30
 
 
 def impedance_curve(
@@ -226,7 +227,7 @@ class GroundContact(PhysicalEffect):
         d8 = imp.unsqueeze(-1).expand(B, R, 2, 4).reshape(rep)
         dist8 = dist.unsqueeze(-1).expand(B, R, 2, 4).reshape(rep)
         aref = -Bd * v_e - K * d8 * dist8
-        soft = (1.0 - d8) / d8 * 4.0 / mass[..., 0]
+        soft = (1.0 - d8) / d8 * 2.0 * mu**2 * (1.0 + mu**2) / mass[..., 0]
         mask = active.unsqueeze(-1).expand(B, R, 2, 4).reshape(rep)
         f = solve_soft_contacts(A + torch.diag_embed(soft), a0 - aref, mask)
         force = (f.reshape(B, R, 2, 4).unsqueeze(-1) * edges).sum(-2)

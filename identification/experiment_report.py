@@ -9,6 +9,8 @@ Writes into one folder, each file atomically:
 * ``parameters_<assembly>.md`` — our identified parameters against the truth;
 * ``efficiency.md``, ``efficiency.json``, ``efficiency.png`` — the data-efficiency sweep
   (:func:`identification.efficiency.write_outputs`);
+* ``data_requirement.png`` — test rollout error against training transitions, ours and
+  Koopman+Int, on the icosahedron;
 * ``results.json`` — every number; ``results.md`` — the tables, with the command,
   machine and wall time.
 """
@@ -106,7 +108,70 @@ def plot_training(res: AssemblyResult, path: str | Path) -> Path:
     return save_figure(fig, path)
 
 
+def requirement_points(result: ExperimentResult) -> dict[str, list[tuple[int, float]]]:
+    """(training transitions, final test rollout error [m]) for Ours and Koopman+Int."""
+    res = result.assemblies["icosahedron"]
+    c = res.counts
+    total = c["train"] * c["steps"]
+    koop_full = res.training["Koopman+Int"]["history"]["n_train"]
+    pts: dict[str, list[tuple[int, float]]] = {
+        "Ours": [(total, float(res.curves["Ours"][-1]))],
+        "Koopman+Int": [(koop_full, float(res.curves["Koopman+Int"][-1]))],
+    }
+    if result.efficiency is not None:
+        pts["Ours"] += [(r.n_transitions, r.rollout_final_error) for r in result.efficiency.runs]
+    pts["Koopman+Int"] += [
+        (int(r["n_transitions"]), r["rollout_final"]) for r in result.koopman_requirement
+    ]
+    return pts
+
+
+def plot_requirement(result: ExperimentResult, path: str | Path) -> Path:
+    """Final test rollout error against training transitions (log-log), ours vs Koopman+Int."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    for name, pts in requirement_points(result).items():
+        pts = sorted((n, e if np.isfinite(e) else np.nan) for n, e in pts)
+        n, e = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
+        ax.loglog(n, np.maximum(e, 1e-17), "o-", color=COLORS[name], label=name, ms=4)
+    T = result.assemblies["icosahedron"].horizon
+    ax.set(
+        xlabel="training transitions",
+        ylabel=f"test rod position error after {T} steps [m]",
+        title="icosahedron: how much data each model needs (dots: seeds; gaps: no value)",
+    )
+    ax.title.set_fontsize(10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return save_figure(fig, path)
+
+
 # ---------------------------------------------------------------------- tables
+def requirement_table(result: ExperimentResult) -> str:
+    """Ours (seed 0 of the efficiency sweep) against Koopman+Int per fraction."""
+    res = result.assemblies["icosahedron"]
+    T = res.horizon
+    lines = [
+        f"| fraction | transitions | Ours: error at {T} steps [m] | Koopman+Int: error at {T} "
+        "steps [m] | Koopman+Int: one-step v error [m/s] |",
+        "|---|---|---|---|---|",
+    ]
+    full = res.training["Koopman+Int"]["history"]["n_train"]
+    lines.append(
+        f"| all | {full:,} (Koopman+Int), {res.counts['train'] * T:,} (Ours) | "
+        f"{_e(res.curves['Ours'][T])} | {_e(res.curves['Koopman+Int'][T])} | "
+        f"{_e(res.one_step['Koopman+Int']['velocity'])} |"
+    )
+    for row in result.koopman_requirement:
+        f = row["fraction"]
+        ours = [r for r in result.efficiency.runs_of(f) if r.seed == 0] if result.efficiency else []
+        lines.append(
+            f"| {100 * f:g}% | {int(row['n_transitions']):,} | "
+            f"{_e(ours[0].rollout_final_error) if ours else '—'} | {_e(row['rollout_final'])} | "
+            f"{_e(row['one_step_velocity'])} |"
+        )
+    return "\n".join(lines)
+
+
 def error_table(res: AssemblyResult) -> str:
     """Rollout position error at a few horizons and one-step errors, one row per model."""
     hs = horizons(res.horizon)
@@ -208,24 +273,28 @@ def markdown(result: ExperimentResult, command: str) -> str:
     ]
     for name, res in result.assemblies.items():
         c = res.counts
-        sub = res.training["Interaction"]["history"]["n_train"]
         total = c["train"] * c["steps"]
+        used = {m: r["history"]["n_train"] for m, r in res.training.items()}
+        subsets = [f"{m}: {n:,}" for m, n in used.items() if n < total]
         lines += [
             f"## {name}",
             "",
             f"{c['train']}/{c['val']}/{c['test']} train/val/test trajectories x {c['steps']} "
-            f"steps (dt = {res.dt:g} s): {total:,} training transitions. "
+            f"steps (dt = {res.dt:g} s): {total:,} training transitions. Ours uses all of them"
             + (
-                f"The MLP baselines train on a random subset of {sub:,} of them "
-                "(the CPU budget); Koopman+Int and Ours use all."
-                if sub < total
-                else "Every model trains on all of them."
+                "; the baselines train on random subsets (the CPU budget) — "
+                + ", ".join(subsets)
+                + "."
+                if subsets
+                else ", and so does every baseline."
             ),
             "",
-            f"Mean rod position error [m] of fed-back rollouts on the test split "
-            f"(![errors](errors_{name}.png)), and one-step velocity errors:",
+            "Mean rod position error [m] of fed-back rollouts on the test split against "
+            "horizon, and one-step velocity errors (mean norms over test transitions and rods):",
             "",
             error_table(res),
+            "",
+            f"![{name} errors](errors_{name}.png)",
             "",
             "Baselines (training curves: `training_" + name + ".png`):",
             "",
@@ -239,6 +308,17 @@ def markdown(result: ExperimentResult, command: str) -> str:
     if result.efficiency is not None:
         lines += ["## Data efficiency (icosahedron, ours)", "", result.efficiency.markdown(), ""]
         lines += ["![efficiency](efficiency.png)", ""]
+    if result.koopman_requirement:
+        lines += [
+            "## Data requirement: Ours against Koopman+Int (icosahedron)",
+            "",
+            "Koopman+Int's observables can express the spring-rod physics exactly, so with "
+            "enough data it approaches our engine; the random training subsets below show how "
+            "much it needs ([figure](data_requirement.png)).",
+            "",
+            requirement_table(result),
+            "",
+        ]
     return "\n".join(lines)
 
 
@@ -249,6 +329,7 @@ def to_json(result: ExperimentResult, command: str) -> dict[str, Any]:
         "seconds": result.seconds,
         "scale": result.scale.name,
         "seed": result.seed,
+        "koopman_requirement": result.koopman_requirement,
         "assemblies": {},
     }
     for name, res in result.assemblies.items():
@@ -281,6 +362,8 @@ def write_results(result: ExperimentResult, out_dir: str | Path, command: str) -
         )
     if result.efficiency is not None:
         paths += list(write_outputs(result.efficiency, out).values())
+    if result.koopman_requirement:
+        paths.append(plot_requirement(result, out / "data_requirement.png"))
     paths.append(
         atomic_write_text(
             out / "results.json",

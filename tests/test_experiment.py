@@ -14,6 +14,7 @@ from tensegrity_env.cli import main
 
 FIGURES = [f"{kind}_{a}.png" for a in ASSEMBLIES for kind in ("errors", "training")]
 TABLES = ["results.md", "results.json", "efficiency.md", "efficiency.json", "efficiency.png"]
+TABLES += ["data_requirement.png"]
 TABLES += [f"parameters_{a}.md" for a in ASSEMBLIES]
 
 

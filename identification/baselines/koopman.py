@@ -188,16 +188,16 @@ class KoopmanInt:
         sub = s0.index(slice(0, 50_000))
         frame = spring_frames(g.kinematics(sub), g.node_a, g.node_b)
         self.length_mean_ = frame.length.mean(0)
-        self.length_std_ = frame.length.std(0).clamp_min(1e-9)
-        self.rate_std_ = frame.rate.std(0).clamp_min(1e-9)
+        self.length_std_ = torch.nan_to_num(frame.length.std(0, correction=0)).clamp_min(1e-9)
+        self.rate_std_ = torch.nan_to_num(frame.rate.std(0, correction=0)).clamp_min(1e-9)
 
     def _standardisation(self, s0: State, s1: State, n: int = 20_000) -> None:
         """Observable and target means / stds (per rod) from a subset of the transitions."""
         x, y = next(self._chunks(s0.index(slice(0, n)), s1.index(slice(0, n)), chunk=n))
         self.x_mean_ = x.mean(0)  # (R, F)
-        std = x.std(0)
+        std = torch.nan_to_num(x.std(0, correction=0))  # one transition: no spread
         self.x_std_ = torch.where(std > 1e-12, std, torch.ones_like(std))
-        ystd = y.std(0)  # (R, 6); floor as in Standardizer
+        ystd = torch.nan_to_num(y.std(0, correction=0))  # (R, 6); floor as in Standardizer
         self.target_std_ = ystd.clamp_min(1e-3 * float(ystd.max()) + 1e-30)
 
     def _accumulate(self, s0: State, s1: State) -> torch.Tensor:
@@ -219,6 +219,8 @@ class KoopmanInt:
     def _solve(self, tri: torch.Tensor, lam: float, n: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Weights (R, F, 6) and biases (R, 6) minimising ``|Zw + b - Y|² + lam n |w|²``."""
         R, F1 = tri.shape[0], tri.shape[-1] - 6
+        if tri.shape[1] < tri.shape[2]:  # fewer transitions than columns: pad the factor
+            tri = torch.cat([tri, tri.new_zeros(R, tri.shape[2] - tri.shape[1], tri.shape[2])], 1)
         a, rhs = tri[:, :F1, :F1], tri[:, :F1, F1:]
         ridge = torch.eye(F1, dtype=tri.dtype) * (lam * n) ** 0.5
         ridge[-1, -1] = 0.0  # the intercept is not shrunk

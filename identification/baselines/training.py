@@ -91,7 +91,7 @@ class Standardizer(nn.Module):
     def __init__(self, x: torch.Tensor, floor: float = 1e-3) -> None:
         super().__init__()
         mean = x.mean(0)
-        std = x.std(0)
+        std = x.std(0, correction=0)
         std = std.clamp_min(floor * float(std.max()) + 1e-30)
         self.register_buffer("mean", mean)
         self.register_buffer("std", std)

@@ -79,7 +79,9 @@ class Split:
 
     def subset(self, idx: np.ndarray | slice) -> Split:
         """The trajectories ``idx`` of this split."""
-        pick = {k: (None if getattr(self, k) is None else getattr(self, k)[idx]) for k in STATE_KEYS}
+        pick = {
+            k: (None if getattr(self, k) is None else getattr(self, k)[idx]) for k in STATE_KEYS
+        }
         return Split(nodes=self.nodes[idx], control=self.control[idx], **pick)
 
 
@@ -131,7 +133,9 @@ class Dataset:
 
 
 # ---------------------------------------------------------------------- writing
-def write_dataset(path: str | Path, dataset: Dataset, ground_truth: GroundTruth | None = None) -> Path:
+def write_dataset(
+    path: str | Path, dataset: Dataset, ground_truth: GroundTruth | None = None
+) -> Path:
     """Write ``dataset`` (and optionally its ground truth) atomically to ``path``."""
     _check_dataset(dataset, str(path))
     with atomic_path(path, suffix=".h5") as tmp:
@@ -196,7 +200,9 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
             out = {}
             for name in names:
                 g = f[f"splits/{name}"]
-                arrays = {k: (g[k][()] if k in g else None) for k in ("nodes", "control", *STATE_KEYS)}
+                arrays = {
+                    k: (g[k][()] if k in g else None) for k in ("nodes", "control", *STATE_KEYS)
+                }
                 if arrays["nodes"] is None:
                     raise InputError(f"{p}: split '{name}' has no 'nodes'")
                 if arrays["control"] is None:
@@ -219,7 +225,9 @@ def read_ground_truth(path: str | Path) -> GroundTruth | None:
             return None
         a = f["ground_truth"].attrs
         return GroundTruth(
-            params=params_from_dict(json.loads(_decode(a["params"])), source=f"{path}:ground_truth"),
+            params=params_from_dict(
+                json.loads(_decode(a["params"])), source=f"{path}:ground_truth"
+            ),
             sim=json.loads(_decode(a.get("sim", "{}"))),
             mjcf=_decode(a.get("mjcf", "")),
             effects=json.loads(_decode(a.get("effects", "[]"))),

@@ -90,9 +90,9 @@ SCALES: dict[str, Scale] = {
     "full": Scale(
         name="full",
         preset="paper",
-        train=TrainConfig(hidden=128, layers=2, lr=3e-3, batch=512, epochs=12, patience=4,
+        train=TrainConfig(hidden=128, layers=2, lr=2e-3, batch=128, epochs=16, patience=4,
                           max_train=100_000, max_val=20_000),
-        koopman=KoopmanConfig(max_train=None, max_val=20_000),
+        koopman=KoopmanConfig(max_train=200_000, max_val=20_000),
         efficiency_seeds=3,
         one_step=20_000,
     ),

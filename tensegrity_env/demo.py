@@ -102,6 +102,11 @@ def step_control_gain(out: Path) -> None:
          "--params", str(params_h), "--label", "after: h identified", "-o", str(out / "long_horizon")])  # fmt: skip
 
 
+def step_experiment(out: Path) -> None:
+    banner("5. The paper's experiments: ours vs Interaction, Interaction+Int, Koopman+Int")
+    cli(["experiment", "paper", "--scale", "small", "-o", str(out / "experiment")])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -117,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     step_identify(out, data_path)
     step_element(out)
     step_control_gain(out)
+    step_experiment(out)
     banner(f"Done in {time.perf_counter() - t0:.0f} s. Every output is in: {out.resolve()}")
     for f in sorted(out.iterdir()):
         print(f"  {f.name}")

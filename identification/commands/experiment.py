@@ -44,12 +44,16 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
-    torch.set_num_threads(args.threads)
     command = f"tensegrity-sr experiment {args.which} --scale {args.scale} -o {args.output}"
     command += (f" --seed {args.seed}" if args.seed else "") + (
         f" --threads {args.threads}" if args.threads != 1 else ""
     )
-    result = run_paper(args.scale, seed=args.seed, progress=True)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        result = run_paper(args.scale, seed=args.seed, progress=True)
+    finally:
+        torch.set_num_threads(threads)
     paths = write_results(result, args.output, command)
     print("\n".join(target_checks(result)))
     print(f"\nwall time {result.seconds:.0f} s; wrote {len(paths)} files into {args.output}:")

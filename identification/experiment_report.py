@@ -129,15 +129,25 @@ def requirement_points(result: ExperimentResult) -> dict[str, list[tuple[int, fl
 def plot_requirement(result: ExperimentResult, path: str | Path) -> Path:
     """Final test rollout error against training transitions (log-log), ours vs Koopman+Int."""
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    diverged = False
     for name, pts in requirement_points(result).items():
-        pts = sorted((n, e if np.isfinite(e) else np.nan) for n, e in pts)
-        n, e = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
-        ax.loglog(n, np.maximum(e, 1e-17), "o-", color=COLORS[name], label=name, ms=4)
+        n = np.array([p[0] for p in pts], dtype=float)
+        e = np.array([p[1] for p in pts], dtype=float)
+        ok = np.isfinite(e)
+        ax.scatter(n[ok], np.maximum(e[ok], 1e-17), s=14, color=COLORS[name], alpha=0.6)
+        inf = np.isinf(e)  # diverged rollouts (NaN: no model, e.g. nothing identifiable)
+        if inf.any():
+            diverged = True
+            ax.scatter(n[inf], np.ones(inf.sum()), marker="x", s=40, color=COLORS[name])
+        xs = np.unique(n)
+        med = [np.median(e[(n == x) & ok]) if ((n == x) & ok).any() else np.nan for x in xs]
+        ax.loglog(xs, np.maximum(med, 1e-17), "-", color=COLORS[name], label=f"{name} (median)")
     T = result.assemblies["icosahedron"].horizon
     ax.set(
         xlabel="training transitions",
         ylabel=f"test rod position error after {T} steps [m]",
-        title="icosahedron: how much data each model needs (dots: seeds; gaps: no value)",
+        title="icosahedron: how much data each model needs"
+        + (" (x: diverged, drawn at 1 m)" if diverged else ""),
     )
     ax.title.set_fontsize(10)
     ax.grid(True, which="both", alpha=0.3)

@@ -21,6 +21,7 @@ COMMANDS: tuple[str, ...] = (
     "identification.commands.evaluate",
     "identification.commands.efficiency",
     "identification.commands.experiment",
+    "identification.commands.diagnose",
 )
 
 

@@ -1,0 +1,120 @@
+"""``tensegrity-sr diagnose``: find what the model is missing, name it, add it, report.
+
+Also ``tensegrity-sr plant``: MuJoCo data with an effect the identifier is not told
+about (:mod:`identification.planted`), to try the loop on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from identification.candidates import FitSettings
+from identification.dataset import read_dataset, read_ground_truth, write_dataset
+from identification.diagnose import diagnose
+from identification.diagnose_report import fmt_err, ratio, write_params, write_report
+from identification.measured import with_measured_states
+from identification.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
+from identification.regression import parse_anchor
+from tensegrity_env.effects import EFFECTS, effects_from_document
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import load_params
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "diagnose",
+        help="residual loop: find the missing effect, name it, add it, report errors before/after",
+        description=(
+            "Fit the declared model, look at what it cannot explain per element (springs, rods, "
+            "end caps), try every candidate effect whose physical gate the data passes, keep the "
+            "one that lowers the held-out error and the BIC against 'nothing is missing', refit "
+            "jointly, repeat. Writes DIR/report.md (with residual PNGs) and DIR/params.json with "
+            "an 'effects' section that the engine and the environments load."
+        ),
+    )
+    p.add_argument("dataset", type=Path, help="HDF5 dataset (rod states, or end caps only)")
+    p.add_argument("--params", type=Path, help="starting params file (its rod0 mass fixes the "
+                   "scale; its effects start the model)")  # fmt: skip
+    p.add_argument("--anchor", action="append", default=[], metavar="NAME=VALUE",
+                   help="a known value fixing the scale, e.g. mass[rod0]=1.95 (repeatable)")  # fmt: skip
+    p.add_argument("-o", "--output", type=Path, default=Path("diagnose_out"), help="report folder")
+    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--horizon", type=float, default=1.0, help="rollout horizon [s] (default 1)")
+    p.add_argument("--candidates", default="", metavar="NAMES",
+                   help=f"comma-separated subset of {','.join(EFFECTS)}")  # fmt: skip
+    p.add_argument("--smoothing", type=float, default=0.02,
+                   help="Savitzky-Golay window [s] for end-cap-only data (default 0.02)")  # fmt: skip
+    p.set_defaults(func=run)
+
+    q = sub.add_parser(
+        "plant",
+        help="MuJoCo data with an undeclared effect (contact, drag, slack cables) to diagnose",
+        description="Write a planted dataset: " + "; ".join(
+            f"{k} ({STRENGTH_UNITS[k] or 'clean control'}: {v})" for k, v in PLANTS.items()),
+    )  # fmt: skip
+    q.add_argument("effect", choices=sorted(PLANTS), help="the planted effect")
+    q.add_argument("--strength", default="moderate", help="weak, moderate, strong or a number")
+    q.add_argument("--noise", type=float, default=0.0, help="end-cap noise std [m] (e.g. 0.001)")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--n-train", type=int, default=8)
+    q.add_argument("--n-val", type=int, default=4)
+    q.add_argument("--n-test", type=int, default=4)
+    q.add_argument("--steps", type=int, default=1000)
+    q.add_argument("-o", "--output", type=Path, required=True, help="dataset file to write")
+    q.set_defaults(func=run_plant)
+
+
+def run_plant(args: argparse.Namespace) -> int:
+    try:
+        strength: str | float = float(args.strength)
+    except ValueError:
+        strength = args.strength
+    spec = PlantSpec(effect=args.effect, strength=strength, noise=args.noise, seed=args.seed,
+                     n_train=args.n_train, n_val=args.n_val, n_test=args.n_test, steps=args.steps)  # fmt: skip
+    data = planted_dataset(spec)
+    write_dataset(args.output, data.dataset, data.ground_truth)
+    print(f"wrote {args.output} ({spec.label}; planted effect recorded in ground_truth)")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    torch.set_num_threads(1)  # small tensors: threads only add overhead
+    dataset = with_measured_states(read_dataset(args.dataset), args.smoothing)
+    anchors = dict(parse_anchor(a) for a in args.anchor)
+    start: list[Any] = []
+    if args.params is not None:
+        topo, params, doc = load_params(args.params)
+        if not topo.same_as(dataset.topology):
+            raise InputError(f"{args.params}: topology differs from {args.dataset}")
+        anchors.setdefault(f"mass[{topo.rods[0].name}]", float(params.mass[0]))
+        start = effects_from_document(doc, topo)
+    names = [n for n in args.candidates.split(",") if n] or None
+    bad = [n for n in names or [] if n not in EFFECTS]
+    if bad:
+        raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
+    out: Path = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    result = diagnose(dataset, FitSettings(anchors=anchors), start, args.max_effects,
+                      args.horizon, names, plots=out)  # fmt: skip
+    truth = read_ground_truth(args.dataset)
+    report = write_report(result, out, str(args.dataset), args.horizon,
+                          None if truth is None else truth.effects)  # fmt: skip
+    params = write_params(result, dataset.topology, out / "params.json",
+                          {"dataset": str(args.dataset), "seconds": time.perf_counter() - t0})  # fmt: skip
+    b, f = result.baseline_test, result.final_test
+    print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
+    for e in result.model.effects:
+        print(f"  {e.describe()}")
+    print(f"held-out one-step error {fmt_err(b['one_step'])} -> {fmt_err(f['one_step'])} "
+          f"({ratio(b['one_step'], f['one_step'])}); {args.horizon:g}-s rollout "
+          f"{fmt_err(b['rollout'])} -> {fmt_err(f['rollout'])} ({ratio(b['rollout'], f['rollout'])})")  # fmt: skip
+    if result.unexplained:
+        print(f"unexplained: {result.unexplained}")
+    print(f"wrote {report} and {params}")
+    return 0

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from identification.candidates import FitSettings
@@ -100,8 +101,9 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    result = diagnose(dataset, FitSettings(anchors=anchors), start, args.max_effects,
-                      args.horizon, names, plots=out)  # fmt: skip
+    with np.errstate(invalid="ignore", divide="ignore"):  # candidates may fit badly: judged below
+        result = diagnose(dataset, FitSettings(anchors=anchors), start, args.max_effects,
+                          args.horizon, names, plots=out)  # fmt: skip
     truth = read_ground_truth(args.dataset)
     report = write_report(result, out, str(args.dataset), args.horizon,
                           None if truth is None else truth.effects)  # fmt: skip

@@ -16,11 +16,13 @@ from __future__ import annotations
 
 from typing import ClassVar
 
+import numpy as np
 import torch
 
 from tensegrity_env.effects.base import LinearEffect, ParamSpec
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 
 
@@ -45,10 +47,10 @@ class _Drag(LinearEffect):
         return torch.cat([f_t, zero], -1), torch.cat([zero, t_r], -1)
 
     def check(self) -> None:
-        from tensegrity_env.io_utils import InputError
-
+        """Drag opposes motion: coefficients >= 0 (or within 3 standard errors of 0)."""
         for k, v in self.values.items():
-            if (v.detach() < 0).any():
+            se = torch.as_tensor(np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float)))
+            if (v.detach() < -3 * se.to(v)).any():
                 raise InputError(f"effect '{self.name}': '{k}' must be >= 0 (drag opposes motion)")
 
 

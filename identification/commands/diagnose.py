@@ -48,8 +48,8 @@ def register(sub: Any) -> None:
     p.add_argument("--horizon", type=float, default=1.0, help="rollout horizon [s] (default 1)")
     p.add_argument("--candidates", default="", metavar="NAMES",
                    help=f"comma-separated subset of {','.join(EFFECTS)}")  # fmt: skip
-    p.add_argument("--smoothing", type=float, default=0.02,
-                   help="Savitzky-Golay window [s] for end-cap-only data (default 0.02)")  # fmt: skip
+    p.add_argument("--smoothing", type=float, default=0.01,
+                   help="Gaussian smoothing std [s] for end-cap-only data (default 0.01)")  # fmt: skip
     p.set_defaults(func=run)
 
     q = sub.add_parser(

@@ -1,1 +1,35 @@
-"""tensegrity_env package."""
+"""tensegrity_env: the spring-rod world (topology, MuJoCo ground truth, engine, environments).
+
+Importing the package registers the Gymnasium environments ``IcosahedronSR-v0`` (the
+identified engine) and ``IcosahedronMJ-v0`` (its MuJoCo twin), each with a natively
+batched ``vector_entry_point`` (see :mod:`tensegrity_env.envs`). On a Linux machine
+without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
+imported) so that rendering works headless; set it yourself to override.
+"""
+
+import os
+import sys
+
+if sys.platform.startswith("linux") and not (
+    os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+):
+    os.environ.setdefault("MUJOCO_GL", "egl")
+
+
+def _register_envs() -> None:
+    from gymnasium.envs.registration import register, registry
+
+    for name, single, vector in (
+        ("IcosahedronSR-v0", "sr_env:IcosahedronSREnv", "vector:IcosahedronSRVectorEnv"),
+        ("IcosahedronMJ-v0", "mj_env:IcosahedronMJEnv", "vector:IcosahedronMJVectorEnv"),
+    ):
+        if name not in registry:
+            register(
+                id=name,
+                entry_point=f"tensegrity_env.envs.{single}",
+                vector_entry_point=f"tensegrity_env.envs.{vector}",
+                max_episode_steps=300,
+            )
+
+
+_register_envs()

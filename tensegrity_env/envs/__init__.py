@@ -1,0 +1,42 @@
+"""Gymnasium environments: the rolling icosahedron on the identified engine and in MuJoCo.
+
+==========================  ====================================================
+``IcosahedronSR-v0``        :class:`IcosahedronSREnv`: the identified engine
+                            (params file; native C kernel or PyTorch engine)
+``IcosahedronMJ-v0``        :class:`IcosahedronMJEnv`: the MuJoCo twin, ground truth
+``gym.make_vec(...)``       :class:`IcosahedronSRVectorEnv` /
+                            :class:`IcosahedronMJVectorEnv`: N envs, one batched step
+:class:`SB3VecEnv`          Stable-Baselines3 ``VecEnv`` adapter
+==========================  ====================================================
+
+Modules: :mod:`.task` (reset, actions, observation, reward: shared),
+:mod:`.base` (the single-env base), :mod:`.sr_env`, :mod:`.mj_env`, :mod:`.vector`,
+:mod:`.sb3`, :mod:`.physics` (steppers) with :mod:`.native` (the C kernel),
+:mod:`.rendering` (MuJoCo renderer, videos), :mod:`.twin` (the ground truth).
+"""
+
+from tensegrity_env.envs.mj_env import IcosahedronMJEnv
+from tensegrity_env.envs.rendering import (
+    RenderingUnavailable,
+    record_episode,
+    record_side_by_side,
+    write_video,
+)
+from tensegrity_env.envs.sb3 import SB3VecEnv
+from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, IcosahedronSREnv
+from tensegrity_env.envs.task import RollingTask
+from tensegrity_env.envs.vector import IcosahedronMJVectorEnv, IcosahedronSRVectorEnv
+
+__all__ = [
+    "DEFAULT_PARAMS",
+    "IcosahedronMJEnv",
+    "IcosahedronMJVectorEnv",
+    "IcosahedronSREnv",
+    "IcosahedronSRVectorEnv",
+    "RenderingUnavailable",
+    "RollingTask",
+    "SB3VecEnv",
+    "record_episode",
+    "record_side_by_side",
+    "write_video",
+]

@@ -1,0 +1,170 @@
+"""``IcosahedronMJ-v0``: the same task in MuJoCo with the true parameters (the twin).
+
+The twin's model ships as ``tensegrity_env/assets/icosahedron_rolling.xml``
+(:func:`tensegrity_env.envs.twin.twin_mjcf`): the prestressed icosahedron, a floor,
+and three world-axis force actuators per rod whose gain is the true ``h``, so the
+same command ``f_u`` applies ``h_true * f_u``. :class:`MJBatch` steps many copies
+through MuJoCo's multi-threaded :mod:`mujoco.rollout` for the vector twin.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from mujoco import rollout as mj_rollout
+
+from tensegrity_env.envs.base import RollingEnv, settle
+from tensegrity_env.envs.physics import default_threads
+from tensegrity_env.envs.sr_env import ASSETS
+from tensegrity_env.envs.task import RollingTask
+from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
+from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
+
+#: the MuJoCo twin (regenerate: assets/make_default_params.py)
+TWIN_XML = ASSETS / "icosahedron_rolling.xml"
+
+
+def pack_mj(asm: MjcfAssembly, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+    """Packed rod states (..., R, 13) from MuJoCo's qpos (..., nq) and qvel (..., nv)."""
+    s = mj_to_rod_state(asm, qpos, qvel)
+    return np.concatenate([s["p"], s["v"], s["q"], s["omega"]], axis=-1)
+
+
+def unpack_mj(asm: MjcfAssembly, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo's (qpos, qvel) from packed rod states (..., R, 13)."""
+    return rod_state_to_mj(asm, x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
+
+
+class MJSimulator:
+    """One assembly in MuJoCo (``mj_step`` with ``nstep = frame_skip``).
+
+    Args:
+        frame_skip: MuJoCo steps per control step.
+        xml_path: the twin's MJCF (None: the shipped model).
+    """
+
+    def __init__(self, frame_skip: int = 50, xml_path: str | Path | None = None) -> None:
+        self.xml_path = Path(xml_path) if xml_path is not None else TWIN_XML
+        self.asm = from_mjcf(self.xml_path)
+        self.topology = self.asm.topology
+        self.model = self.asm.model
+        self.data = mujoco.MjData(self.model)
+        self.frame_skip = int(frame_skip)
+        self.control_dt = float(self.model.opt.timestep) * self.frame_skip
+        if np.any(self.asm.actuators < 0):
+            raise ValueError(f"{self.xml_path}: every rod needs x, y, z force actuators")
+
+    def set_state(self, x: np.ndarray) -> None:
+        mujoco.mj_resetData(self.model, self.data)
+        qpos, qvel = unpack_mj(self.asm, x)
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, self.data)
+
+    def get_state(self) -> np.ndarray:
+        return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
+
+    def step(self, command: np.ndarray) -> None:
+        self.data.ctrl[self.asm.actuators.ravel()] = np.asarray(command).ravel()
+        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+
+    def initial_pose(self) -> np.ndarray:
+        """The model's own initial pose (``qpos0``, the face-down nominal pose), at rest."""
+        return pack_mj(self.asm, self.model.qpos0.copy(), np.zeros(self.model.nv))
+
+    def render_assembly(self) -> MjcfAssembly:
+        return self.asm
+
+
+class MJBatch:
+    """``B`` copies of the twin stepped by :mod:`mujoco.rollout` (one call per control step).
+
+    Holds MuJoCo's full physics state of every copy; ``threads`` rollout threads.
+    """
+
+    def __init__(self, sim: MJSimulator, batch: int, threads: int | None = None) -> None:
+        self.sim, self.asm, self.model = sim, sim.asm, sim.model
+        self.threads = int(threads or default_threads())
+        self._pool = mj_rollout.Rollout(nthread=self.threads)
+        self._datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
+        self.spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        nstate = mujoco.mj_stateSize(self.model, self.spec)
+        self.states = np.zeros((batch, nstate))
+        self._out = np.empty((batch, sim.frame_skip, nstate))
+        t = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_TIME)
+        self._qpos = slice(t, t + self.model.nq)
+        self._qvel = slice(t + self.model.nq, t + self.model.nq + self.model.nv)
+
+    def set_states(self, idx: np.ndarray, x: np.ndarray) -> None:
+        """Set copies ``idx`` from packed rod states (len(idx), R, 13)."""
+        for i, xi in zip(idx, x, strict=True):
+            self.sim.set_state(xi)
+            mujoco.mj_getState(self.model, self.sim.data, self.states[i], self.spec)
+
+    def get_states(self) -> np.ndarray:
+        """Packed rod states of every copy (B, R, 13)."""
+        return pack_mj(self.asm, self.states[:, self._qpos], self.states[:, self._qvel])
+
+    def step(self, commands: np.ndarray) -> None:
+        """Every copy ``frame_skip`` MuJoCo steps under commands (B, R, 3)."""
+        B = commands.shape[0]
+        ctrl = np.zeros((B, 1, self.model.nu))
+        ctrl[:, 0, self.asm.actuators.ravel()] = commands.reshape(B, -1)
+        self._pool.rollout(
+            self.model, self._datas, self.states, ctrl, nstep=self.sim.frame_skip,
+            state=self._out,
+        )  # fmt: skip
+        self.states[:] = self._out[:, -1]
+
+    def close(self) -> None:
+        self._pool.close()
+
+
+class IcosahedronMJEnv(RollingEnv):
+    """The MuJoCo twin of :class:`~tensegrity_env.envs.sr_env.IcosahedronSREnv`.
+
+    Identical action and observation spaces, task, rewards, terminations and reset
+    procedure (see ``IcosahedronSREnv`` for the tables); the physics is MuJoCo with
+    the true parameters and contact, and the actuators apply ``h_true * f_u``. Its
+    resting pose is settled in MuJoCo from the same face-down nominal pose. It is
+    the ground truth for checking what a policy trained on the identified env does
+    on the "real" robot; ``reset(options={"state": x, "goal": g})`` starts it in a
+    state taken from the identified env.
+
+    Args:
+        xml_path: the twin's MJCF (None: ``tensegrity_env/assets/icosahedron_rolling.xml``).
+        frame_skip, reset_noise_scale, goal_distance, goal_radius, max_command,
+        progress_weight, control_weight, goal_bonus, render_mode, width, height: as
+            ``IcosahedronSREnv``.
+    """
+
+    def __init__(
+        self,
+        xml_path: str | Path | None = None,
+        frame_skip: int = 50,
+        reset_noise_scale: float = 5e-3,
+        goal_distance: tuple[float, float] = (1.0, 2.0),
+        goal_radius: float = 0.3,
+        max_command: float = 2.0,
+        progress_weight: float = 1.0,
+        control_weight: float = 0.1,
+        goal_bonus: float = 10.0,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+    ) -> None:
+        sim = MJSimulator(frame_skip, xml_path)
+        task = RollingTask(
+            goal_distance=tuple(goal_distance),  # type: ignore[arg-type]
+            goal_radius=goal_radius,
+            max_command=max_command,
+            progress_weight=progress_weight,
+            control_weight=control_weight,
+            goal_bonus=goal_bonus,
+            reset_noise_scale=reset_noise_scale,
+            control_dt=sim.control_dt,
+        )
+        rest = settle(sim, sim.initial_pose())
+        super().__init__(sim, rest, task, render_mode, width, height)

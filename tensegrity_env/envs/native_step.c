@@ -1,0 +1,349 @@
+/*
+ * The identified spring-rod model's control step, in C, for environments.
+ *
+ * Exactly the physics of tensegrity_env.engine.Engine.step with the effect
+ * tensegrity_env.effects.ground_contact.GroundContact (tests/test_envs.py checks
+ * the two agree to round-off in double precision):
+ *
+ *   kinematics  end caps x = p + R(q) e, velocities v + w x (R e)
+ *   forces      every spring a scalar tension T = K (l - l0) + c dl/dt along its
+ *               axis; control h f_u at each rod's arm R r_u; ground contact per rod:
+ *               four friction-pyramid edges per touching end cap, forces f >= 0
+ *               from min 1/2 f'(A + R)f + f'(a0 - aref) by the same primal-dual
+ *               active-set iteration (at most `iterations`, stop when the active
+ *               set settles) and one projected Gauss-Seidel sweep
+ *   accel.      a = F / M + g; Euler's equations in the rod frame with the
+ *               gyroscopic term
+ *   integration MuJoCo's semi-implicit Euler: v, w_local first, then p and the
+ *               quaternion with the new rod-frame angular velocity
+ *
+ * Only touching end caps enter the contact problem (the engine masks the others
+ * out, which gives the same forces), so a rod off the floor costs nothing.
+ *
+ * Layouts (all double, row-major):
+ *   state   (B, R, 13): p[3] v[3] q[4] (w x y z) omega[3], world frame; in/out
+ *   control (B, R, 3):  commands f_u, world frame
+ *   springs (S, 2):     node indices (end caps 2r, 2r+1, then anchors)
+ *   model:  end[R][2][3], arm_u[R][3], anchors[A][3], K[S], c[S], l0[S], mass[R],
+ *           inertia[R][3], gain, gravity[3], contact[8] = {on, stiffness, damping,
+ *           impedance, impedance_min, width, friction, height}, radius[R]
+ */
+#include <math.h>
+#include <string.h>
+
+#define TSR_MAX_RODS 64
+#define TSR_MAX_NODES 256
+#define TSR_MAX_EDGES 8
+
+typedef struct {
+    int R, S, A;
+    const double *end, *arm_u, *anchors, *K, *c, *l0, *mass, *inertia;
+    double gain, g[3];
+    int contact;
+    double k_c, b_c, d_max, d_min, width, mu, height;
+    const double *radius;
+    const int *springs;
+    int iterations;
+    double dt;
+} Model;
+
+static void unpack(Model *m, const double *w, const int *springs, int R, int S, int A) {
+    m->R = R; m->S = S; m->A = A; m->springs = springs;
+    m->end = w; w += 6 * R;
+    m->arm_u = w; w += 3 * R;
+    m->anchors = w; w += 3 * A;
+    m->K = w; w += S;
+    m->c = w; w += S;
+    m->l0 = w; w += S;
+    m->mass = w; w += R;
+    m->inertia = w; w += 3 * R;
+    m->gain = w[0]; w += 1;
+    m->g[0] = w[0]; m->g[1] = w[1]; m->g[2] = w[2]; w += 3;
+    m->contact = w[0] != 0.0;
+    m->k_c = w[1]; m->b_c = w[2]; m->d_max = w[3]; m->d_min = w[4];
+    m->width = w[5]; m->mu = w[6]; m->height = w[7]; w += 8;
+    m->radius = w;
+}
+
+static inline void cross(const double *a, const double *b, double *o) {
+    o[0] = a[1] * b[2] - a[2] * b[1];
+    o[1] = a[2] * b[0] - a[0] * b[2];
+    o[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static inline double dot(const double *a, const double *b) {
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+/* R(q), as tensegrity_env.rotations.quat_to_matrix */
+static void rotmat(const double *q, double *M) {
+    double w = q[0], x = q[1], y = q[2], z = q[3];
+    double ww = w * w, xx = x * x, yy = y * y, zz = z * z;
+    double xy = x * y, xz = x * z, yz = y * z, wx = w * x, wy = w * y, wz = w * z;
+    M[0] = ww + xx - yy - zz; M[1] = 2 * (xy - wz);     M[2] = 2 * (xz + wy);
+    M[3] = 2 * (xy + wz);     M[4] = ww - xx + yy - zz; M[5] = 2 * (yz - wx);
+    M[6] = 2 * (xz - wy);     M[7] = 2 * (yz + wx);     M[8] = ww - xx - yy + zz;
+}
+
+static inline void rot(const double *M, const double *v, double *o) {
+    o[0] = M[0] * v[0] + M[1] * v[1] + M[2] * v[2];
+    o[1] = M[3] * v[0] + M[4] * v[1] + M[5] * v[2];
+    o[2] = M[6] * v[0] + M[7] * v[1] + M[8] * v[2];
+}
+
+static inline void rot_t(const double *M, const double *v, double *o) {
+    o[0] = M[0] * v[0] + M[3] * v[1] + M[6] * v[2];
+    o[1] = M[1] * v[0] + M[4] * v[1] + M[7] * v[2];
+    o[2] = M[2] * v[0] + M[5] * v[1] + M[8] * v[2];
+}
+
+/* Cholesky solve of the active rows of H (n x n, row-major); inactive unknowns are 0 */
+static void solve_active(int n, const double *H, const double *b, const int *S, double *f) {
+    int idx[TSR_MAX_EDGES], m = 0;
+    double L[TSR_MAX_EDGES * TSR_MAX_EDGES], y[TSR_MAX_EDGES], inv[TSR_MAX_EDGES];
+    for (int i = 0; i < n; i++) {
+        f[i] = 0.0;
+        if (S[i]) idx[m++] = i;
+    }
+    for (int j = 0; j < m; j++) {
+        double acc = H[idx[j] * n + idx[j]];
+        for (int k = 0; k < j; k++) acc -= L[j * m + k] * L[j * m + k];
+        inv[j] = 1.0 / sqrt(acc);
+        for (int i = j + 1; i < m; i++) {
+            double a = H[idx[i] * n + idx[j]];
+            for (int k = 0; k < j; k++) a -= L[i * m + k] * L[j * m + k];
+            L[i * m + j] = a * inv[j];
+        }
+    }
+    for (int i = 0; i < m; i++) {
+        double acc = -b[idx[i]];
+        for (int k = 0; k < i; k++) acc -= L[i * m + k] * y[k];
+        y[i] = acc * inv[i];
+    }
+    for (int i = m - 1; i >= 0; i--) {
+        double acc = y[i];
+        for (int k = i + 1; k < m; k++) acc -= L[k * m + i] * f[idx[k]];
+        f[idx[i]] = acc * inv[i];
+    }
+}
+
+/* GroundContact.solve_soft_contacts on one rod's touching edges */
+static void solve_contacts(int n, const double *H, const double *b, int iterations, double *f) {
+    int S[TSR_MAX_EDGES], Snew[TSR_MAX_EDGES];
+    for (int i = 0; i < n; i++) { S[i] = b[i] < 0; f[i] = 0.0; }
+    for (int it = 0; it < iterations; it++) {
+        solve_active(n, H, b, S, f);
+        int same = 1;
+        for (int i = 0; i < n; i++) {
+            double w = b[i];
+            for (int j = 0; j < n; j++) w += H[i * n + j] * f[j];
+            Snew[i] = (S[i] && f[i] > 0) || (!S[i] && w < 0);
+            same &= Snew[i] == S[i];
+        }
+        if (same) break;
+        memcpy(S, Snew, sizeof(S));
+    }
+    for (int i = 0; i < n; i++) f[i] = f[i] > 0 ? f[i] : 0.0;
+    for (int i = 0; i < n; i++) {
+        double w = b[i];
+        for (int j = 0; j < n; j++) w += H[i * n + j] * f[j];
+        double v = f[i] - w / H[i * n + i];
+        f[i] = v > 0 ? v : 0.0;
+    }
+}
+
+static double impedance(const Model *m, double dist) {
+    double x = fabs(dist) / m->width;
+    x = x < 0 ? 0 : (x > 1 ? 1 : x);
+    double y = x < 0.5 ? 2.0 * x * x : 1.0 - 2.0 * (1.0 - x) * (1.0 - x);
+    return m->d_min + y * (m->d_max - m->d_min);
+}
+
+/* contact force and torque on rod r (added to F, T); f_s, t_s: the springs' wrench */
+static void contact_wrench(const Model *m, int r, const double *p, const double *v,
+                           const double *omega, const double *M, const double arms[2][3],
+                           const double *f_s, const double *t_s, double *F, double *T) {
+    double dist[2];
+    int any = 0;
+    for (int k = 0; k < 2; k++) {
+        dist[k] = p[2] + arms[k][2] - m->radius[r] - m->height;
+        any |= dist[k] < 0;
+    }
+    if (!any) return;
+    const double mass = m->mass[r], *I = m->inertia + 3 * r;
+    double sI[3] = {sqrt(I[0]), sqrt(I[1]), sqrt(I[2])};
+    double isI[3] = {1.0 / sI[0], 1.0 / sI[1], 1.0 / sI[2]}, inv_m = 1.0 / mass;
+    /* free accelerations without contact: gravity, springs, gyroscopic terms */
+    double acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
+    for (int i = 0; i < 3; i++) acc[i] = f_s[i] * inv_m + m->g[i];
+    rot_t(M, omega, wl);
+    rot_t(M, t_s, tl);
+    for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
+    cross(wl, Iw, gyro);
+    for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) * isI[i];
+    double E[TSR_MAX_EDGES][3], Ang[TSR_MAX_EDGES][3], b[TSR_MAX_EDGES], soft[TSR_MAX_EDGES];
+    double carm[2][3];
+    int cap_of[TSR_MAX_EDGES], n = 0;
+    for (int k = 0; k < 2; k++) {
+        if (!(dist[k] < 0)) continue;
+        carm[k][0] = arms[k][0];
+        carm[k][1] = arms[k][1];
+        carm[k][2] = (m->height + dist[k] / 2) - p[2];
+        double vel[3], wxr[3];
+        cross(omega, carm[k], wxr);
+        for (int i = 0; i < 3; i++) vel[i] = v[i] + wxr[i];
+        double nrm = sqrt(arms[k][0] * arms[k][0] + arms[k][1] * arms[k][1]);
+        double t1x = 1.0, t1y = 0.0;
+        if (nrm > 1e-12) { t1x = arms[k][0] / nrm; t1y = arms[k][1] / nrm; }
+        double d = impedance(m, dist[k]);
+        double sft = (1.0 - d) / d * (4.0 * inv_m), kd = m->k_c * d * dist[k];
+        double tan[2][2] = {{t1x, t1y}, {-t1y, t1x}};
+        for (int t = 0; t < 2; t++) {
+            for (int s = 0; s < 2; s++) {
+                double sign = s == 0 ? 1.0 : -1.0, aw[3], al[3];
+                double *e = E[n];
+                e[0] = m->mu * sign * tan[t][0];
+                e[1] = m->mu * sign * tan[t][1];
+                e[2] = 1.0;
+                cross(carm[k], e, aw);
+                rot_t(M, aw, al);
+                for (int i = 0; i < 3; i++) Ang[n][i] = al[i] * isI[i];
+                double a0 = dot(e, acc) + dot(Ang[n], alpha);
+                double aref = -m->b_c * dot(e, vel) - kd;
+                b[n] = a0 - aref;
+                soft[n] = sft;
+                cap_of[n] = k;
+                n++;
+            }
+        }
+    }
+    double H[TSR_MAX_EDGES * TSR_MAX_EDGES], f[TSR_MAX_EDGES];
+    for (int i = 0; i < n; i++) {
+        for (int j = i; j < n; j++) {
+            double h = dot(E[i], E[j]) * inv_m + dot(Ang[i], Ang[j]);
+            if (i == j) h += soft[i];
+            H[i * n + j] = H[j * n + i] = h;
+        }
+    }
+    solve_contacts(n, H, b, m->iterations, f);
+    for (int k = 0; k < 2; k++) {
+        double fk[3] = {0, 0, 0}, tk[3];
+        int has = 0;
+        for (int i = 0; i < n; i++) {
+            if (cap_of[i] != k) continue;
+            has = 1;
+            for (int c = 0; c < 3; c++) fk[c] += f[i] * E[i][c];
+        }
+        if (!has) continue;
+        cross(carm[k], fk, tk);
+        for (int c = 0; c < 3; c++) { F[c] += fk[c]; T[c] += tk[c]; }
+    }
+}
+
+/* one physics step of one assembly: x (R, 13) in place, u (R, 3) */
+static void substep(const Model *m, double *x, const double *u) {
+    const int R = m->R, N = 2 * m->R + m->A;
+    double M[TSR_MAX_RODS][9], arms[TSR_MAX_RODS][2][3];
+    double nx[TSR_MAX_NODES][3], nv[TSR_MAX_NODES][3], nf[TSR_MAX_NODES][3];
+    for (int r = 0; r < R; r++) {
+        const double *p = x + 13 * r, *v = p + 3, *q = p + 6, *w = p + 10;
+        rotmat(q, M[r]);
+        for (int k = 0; k < 2; k++) {
+            double wxa[3];
+            rot(M[r], m->end + 6 * r + 3 * k, arms[r][k]);
+            cross(w, arms[r][k], wxa);
+            for (int i = 0; i < 3; i++) {
+                nx[2 * r + k][i] = p[i] + arms[r][k][i];
+                nv[2 * r + k][i] = v[i] + wxa[i];
+            }
+        }
+    }
+    for (int a = 0; a < m->A; a++)
+        for (int i = 0; i < 3; i++) { nx[2 * R + a][i] = m->anchors[3 * a + i]; nv[2 * R + a][i] = 0; }
+    memset(nf, 0, sizeof(double) * 3 * N);
+    /* springs: scalar tension along each spring's axis, +T e on node a, -T e on node b */
+    for (int s = 0; s < m->S; s++) {
+        int a = m->springs[2 * s], b = m->springs[2 * s + 1];
+        double d[3], e[3], len, rate = 0;
+        for (int i = 0; i < 3; i++) d[i] = nx[b][i] - nx[a][i];
+        len = sqrt(dot(d, d));
+        double inv = 1.0 / len;
+        for (int i = 0; i < 3; i++) { e[i] = d[i] * inv; rate += (nv[b][i] - nv[a][i]) * e[i]; }
+        double T = m->K[s] * (len - m->l0[s]) + m->c[s] * rate;
+        for (int i = 0; i < 3; i++) { nf[a][i] += T * e[i]; nf[b][i] -= T * e[i]; }
+    }
+    const double dt = m->dt;
+    for (int r = 0; r < R; r++) {
+        double *p = x + 13 * r, *v = p + 3, *q = p + 6, *w = p + 10;
+        double f_s[3], t_s[3], t0[3], t1[3], F[3], T[3];
+        const double *f0 = nf[2 * r], *f1 = nf[2 * r + 1];
+        cross(arms[r][0], f0, t0);
+        cross(arms[r][1], f1, t1);
+        for (int i = 0; i < 3; i++) { f_s[i] = f0[i] + f1[i]; t_s[i] = t0[i] + t1[i]; }
+        /* control h f_u at the arm R r_u */
+        double fu[3], au[3], tu[3];
+        for (int i = 0; i < 3; i++) fu[i] = m->gain * u[3 * r + i];
+        rot(M[r], m->arm_u + 3 * r, au);
+        cross(au, fu, tu);
+        for (int i = 0; i < 3; i++) { F[i] = f_s[i] + fu[i]; T[i] = t_s[i] + tu[i]; }
+        if (m->contact) contact_wrench(m, r, p, v, w, M[r], arms[r], f_s, t_s, F, T);
+        /* Newton-Euler */
+        const double mass = m->mass[r], *I = m->inertia + 3 * r;
+        double wl[3], tl[3], Iw[3], gyro[3], acc[3], alpha[3];
+        for (int i = 0; i < 3; i++) acc[i] = F[i] / mass + m->g[i];
+        rot_t(M[r], w, wl);
+        rot_t(M[r], T, tl);
+        for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
+        cross(wl, Iw, gyro);
+        for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
+        /* semi-implicit Euler */
+        double wl2[3];
+        for (int i = 0; i < 3; i++) {
+            v[i] += dt * acc[i];
+            wl2[i] = wl[i] + dt * alpha[i];
+            p[i] += dt * v[i];
+        }
+        double nsq = dot(wl2, wl2), qr[4] = {1, 0, 0, 0};
+        if (nsq > 0) {
+            double nrm = sqrt(nsq), half = 0.5 * dt * nrm, s = sin(half);
+            qr[0] = cos(half);
+            for (int i = 0; i < 3; i++) qr[i + 1] = wl2[i] / nrm * s;
+        }
+        double q2[4] = {
+            q[0] * qr[0] - q[1] * qr[1] - q[2] * qr[2] - q[3] * qr[3],
+            q[0] * qr[1] + q[1] * qr[0] + q[2] * qr[3] - q[3] * qr[2],
+            q[0] * qr[2] - q[1] * qr[3] + q[2] * qr[0] + q[3] * qr[1],
+            q[0] * qr[3] + q[1] * qr[2] - q[2] * qr[1] + q[3] * qr[0],
+        };
+        double qn = sqrt(q2[0] * q2[0] + q2[1] * q2[1] + q2[2] * q2[2] + q2[3] * q2[3]);
+        for (int i = 0; i < 4; i++) q[i] = q2[i] / qn;
+        double M2[9];
+        rotmat(q, M2);
+        rot(M2, wl2, w);
+    }
+}
+
+/* frame_skip steps of B assemblies (threads: OpenMP threads, <= 0: the default) */
+int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
+             double *state, const double *control, const double *model, const int *springs,
+             int threads) {
+    if (R > TSR_MAX_RODS || 2 * R + A > TSR_MAX_NODES) return -1;
+    Model m;
+    unpack(&m, model, springs, R, S, A);
+    m.iterations = iterations;
+    m.dt = dt;
+#ifdef _OPENMP
+    if (threads <= 0) threads = 1;
+#pragma omp parallel for schedule(dynamic, 16) num_threads(threads) if (B > 1 && threads > 1)
+#endif
+    for (int e = 0; e < B; e++) {
+        double *x = state + (long)e * R * 13;
+        const double *u = control + (long)e * R * 3;
+        for (int k = 0; k < frame_skip; k++) substep(&m, x, u);
+    }
+    (void)threads;
+    return 0;
+}
+
+int tsr_max_rods(void) { return TSR_MAX_RODS; }
+int tsr_max_nodes(void) { return TSR_MAX_NODES; }

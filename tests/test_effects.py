@@ -1,0 +1,206 @@
+"""The effect library: physics against MuJoCo, gates, serialisation into the engine."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from identification.effect_fit import fit_effect_params, rollout_caps, sample_windows
+from identification.features import transitions_of
+from identification.generate import GenerateSpec, InitialConditions, generate_dataset
+from identification.planted import PlantSpec, planted_dataset
+from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.effects import (
+    EFFECTS,
+    ControlLag,
+    CubicStiffness,
+    ForceField,
+    GroundContact,
+    LinearDrag,
+    QuadraticDrag,
+    RestLengthOffset,
+    SlackSprings,
+    effect_from_dict,
+    effects_from_document,
+    effects_to_document,
+)
+from tensegrity_env.engine import Engine, State
+from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import load_params, save_params
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="module")
+def ico():
+    return icosahedron()
+
+
+def _examples(topology):
+    S = topology.n_springs
+    return [
+        GroundContact(topology, friction=0.7, stiffness=2000.0),
+        LinearDrag(topology, translational=[0.5, 0.5, 0.1], rotational=[0.01, 0.01, 0.0]),
+        QuadraticDrag(topology, translational=[1.4, 1.4, 0.04], rotational=[0.05, 0.05, 0.0]),
+        SlackSprings(topology, springs=[0, 3, 5]),
+        ForceField(topology, force=[0.1, -0.2, 0.3]),
+        CubicStiffness(topology, stiffness=np.linspace(0, 50, S)),
+        RestLengthOffset(topology, offset=np.linspace(-0.01, 0.01, S)),
+        ControlLag(topology, time_constant=0.02),
+    ]
+
+
+def _random_state(topology, n=5, seed=0, lift=0.3):
+    a = icosahedron()
+    rng = np.random.default_rng(seed)
+    R = topology.n_rods
+    p = a.pose_p[None] + rng.normal(0, 0.02, (n, R, 3))
+    p[..., 2] += lift
+    q = np.broadcast_to(a.pose_q, (n, R, 4)).copy()
+    return State.from_numpy(p, rng.normal(0, 0.5, (n, R, 3)), q, rng.normal(0, 1.0, (n, R, 3)))
+
+
+def test_registry_has_every_effect(ico):
+    assert {e.name for e in _examples(ico.topology)} == set(EFFECTS)
+
+
+def test_to_dict_round_trip(ico):
+    for effect in _examples(ico.topology):
+        d = effect.to_dict()
+        assert set(d) == {"name", "params", "units", "uncertainty"}
+        back = effect_from_dict(d, ico.topology)
+        for k, v in effect.values.items():
+            assert torch.equal(back.values[k], v), (effect.name, k)
+
+
+def test_params_file_round_trips_into_the_engine(ico, tmp_path):
+    effects = [e for e in _examples(ico.topology) if not isinstance(e, ControlLag)]
+    path = save_params(tmp_path / "p.json", ico.topology, ico.params,
+                       {"effects": effects_to_document(effects)})  # fmt: skip
+    topology, params, doc = load_params(path)
+    loaded = effects_from_document(doc, topology)
+    assert [e.name for e in loaded] == [e.name for e in effects]
+    state = _random_state(ico.topology, lift=-0.55)  # some end caps below the floor
+    a = Engine(ico.topology, 1e-3, effects=effects).step(state, ico.params)
+    b = Engine(topology, 1e-3, effects=loaded).step(state, params)
+    for x, y in zip(a.tensors(), b.tensors(), strict=True):
+        torch.testing.assert_close(x, y, rtol=1e-12, atol=1e-12)
+    assert not torch.allclose(a.v, Engine(ico.topology, 1e-3).step(state, ico.params).v)
+
+
+def test_unknown_effect_is_a_clear_error(ico):
+    with pytest.raises(InputError, match="unknown effect"):
+        effects_from_document({"effects": [{"name": "magic"}]}, ico.topology)
+    with pytest.raises(InputError, match="unknown parameter"):
+        GroundContact(ico.topology, stifness=1.0)
+
+
+def test_linear_effects_wrench_is_basis_times_theta(ico):
+    state = _random_state(ico.topology)
+    eng = Engine(ico.topology, 1e-3)
+    kin = node_kinematics(state, eng.end_offsets, eng.anchors)
+    for effect in _examples(ico.topology):
+        if not hasattr(effect, "basis"):
+            continue
+        f, _ = effect.basis(state, kin, ico.params)
+        wf, wt = effect.wrench(state, kin, ico.params)
+        torch.testing.assert_close(wf, f @ effect.theta())
+        twice = effect.with_theta(2 * effect.theta())
+        torch.testing.assert_close(twice.wrench(state, kin, ico.params)[1], 2 * wt)
+
+
+def test_drag_opposes_motion(ico):
+    state = _random_state(ico.topology, seed=3)
+    eng = Engine(ico.topology, 1e-3)
+    kin = node_kinematics(state, eng.end_offsets, eng.anchors)
+    for cls in (LinearDrag, QuadraticDrag):
+        f, t = cls(ico.topology, translational=[1, 2, 0.1], rotational=[0.1, 0.2, 0.01]).wrench(
+            state, kin, ico.params
+        )
+        assert (f * state.v).sum() < 0 and (t * state.omega).sum() < 0
+
+
+def test_contact_gate_no_force_above_the_floor(ico):
+    state = _random_state(ico.topology, lift=1.0)  # every cap well above z = 0
+    eng = Engine(ico.topology, 1e-3)
+    kin = node_kinematics(state, eng.end_offsets, eng.anchors)
+    f, t = GroundContact(ico.topology).wrench(state, kin, ico.params)
+    assert torch.count_nonzero(f) == 0 and torch.count_nonzero(t) == 0
+
+
+@pytest.mark.parametrize(("friction", "seed"), [(1.0, 0), (0.3, 4), (2.0, 7)])
+def test_ground_contact_reproduces_mujoco_one_step(friction, seed):
+    data = planted_dataset(PlantSpec("ground_contact", friction, n_train=2, n_val=0, n_test=0,
+                                     steps=400, seed=seed))  # fmt: skip
+    ds, truth = data.dataset, data.ground_truth
+    s0, s1, u = transitions_of(ds.split("train"))
+    contact = GroundContact(ds.topology, friction=friction)
+    with torch.no_grad():
+        bare = Engine(ds.topology, ds.dt).step(s0, truth.params, u)
+        full = Engine(ds.topology, ds.dt, effects=[contact]).step(s0, truth.params, u)
+    before = (bare.p - s1.p).norm(dim=-1).mean()
+    after = (full.p - s1.p).norm(dim=-1)
+    assert before > 1e-6
+    assert after.mean() < 1e-13 and after.max() < 1e-9
+
+
+def test_slack_springs_reproduce_mujoco_dead_band():
+    data = planted_dataset(PlantSpec("slack_springs", 8, n_train=2, n_val=0, n_test=0,
+                                     steps=300, seed=5))  # fmt: skip
+    ds, truth = data.dataset, data.ground_truth
+    cables = truth.effects[0]["params"]["springs"]
+    s0, s1, u = transitions_of(ds.split("train"))
+    with torch.no_grad():
+        full = Engine(ds.topology, ds.dt, effects=[SlackSprings(ds.topology, springs=cables)])
+        err = (full.step(s0, truth.params, u).p - s1.p).norm(dim=-1).max()
+    assert err < 1e-15
+
+
+def test_control_lag_filters_commands(ico):
+    u = torch.zeros(1, 100, ico.topology.n_rods, 3, dtype=torch.float64)
+    u[:, 10:] = 1.0
+    f = ControlLag(ico.topology, time_constant=0.01).filter_commands(u, 1e-3)
+    assert f[0, 9].abs().max() == 0 and 0.5 < f[0, 20, 0, 0] < 0.7 and f[0, -1, 0, 0] > 0.99
+
+
+def _free_fall(seed: int, n: int):
+    still = InitialConditions(speed=(0.0, 0.0), tumble=(0.0, 0.0), spin=0.0, position_std=0.0,
+                              rotation_std=0.0, lift=(0.1, 0.5))  # fmt: skip
+    spec = GenerateSpec(ground=True, n_train=n, n_val=0, n_test=0, steps=2000, seed=seed,
+                        initial=still)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the collapse on the floor stretches springs a lot
+        return generate_dataset(spec)
+
+
+def test_identified_contact_free_fall_and_bounce_within_2cm():
+    """Contact identified from tumbling data, then a 2-s drop from rest: MuJoCo within 2 cm."""
+    train = planted_dataset(PlantSpec("ground_contact", "moderate", n_train=4, n_val=0, n_test=0,
+                                      steps=500, seed=11))  # fmt: skip
+    start = GroundContact(train.dataset.topology, stiffness=1000.0, damping=50.0, friction=0.5,
+                          impedance=0.9)  # fmt: skip
+    free = [(0, k) for k in ("stiffness", "damping", "friction", "impedance")]
+    windows = sample_windows(train.dataset.split("train"), 1, 600, seed=0)
+    fit = fit_effect_params(train.dataset.topology, train.dataset.dt, train.ground_truth.params,
+                            [start], free, windows, max_iter=20)  # fmt: skip
+    contact = fit.effects[0]
+    assert abs(float(contact.values["friction"]) - 1.0) < 1e-3
+    ds, truth = _free_fall(seed=21, n=3)
+    s = ds.split("train")
+    init = State.from_numpy(*(getattr(s, k)[:, 0] for k in ("p", "v", "q", "omega")))
+    with torch.no_grad():
+        caps = rollout_caps(Engine(ds.topology, ds.dt, effects=[contact]), truth.params, init,
+                            torch.as_tensor(s.control))  # fmt: skip
+    err = np.linalg.norm(caps.numpy() - s.nodes, axis=-1).mean(-1)  # (N, T+1), mean over caps
+    assert s.nodes[..., 2].min() < 0.0  # it did reach the floor and bounce
+    assert err.max() < 0.02

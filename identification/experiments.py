@@ -90,7 +90,7 @@ SCALES: dict[str, Scale] = {
     "full": Scale(
         name="full",
         preset="paper",
-        train=TrainConfig(hidden=128, layers=2, lr=2e-3, batch=128, epochs=16, patience=4,
+        train=TrainConfig(hidden=128, layers=2, lr=2e-3, batch=128, epochs=30, patience=5,
                           max_train=100_000, max_val=20_000),
         koopman=KoopmanConfig(max_train=200_000, max_val=20_000),
         efficiency_seeds=3,
@@ -149,9 +149,11 @@ class ExperimentResult:
 def machine_description() -> str:
     """Cores, CPU and library versions of this machine, one line."""
     cpu = platform.processor() or platform.machine()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (
         f"{os.cpu_count()}-core CPU ({cpu}), {platform.system()}, Python "
-        f"{platform.python_version()}, torch {torch.__version__} (CPU), no GPU"
+        f"{platform.python_version()}, torch {torch.__version__} (CPU), no GPU; "
+        f"load average {load:.1f} at the start (the cores are shared with other jobs)"
     )
 
 

@@ -58,6 +58,8 @@ def test_ours_beats_every_baseline_and_recovers_the_parameters(out: Path) -> Non
         assert T == res["counts"]["steps"] and T in horizons(T)
         assert curves["Ours"][T] < 1e-9
         assert max(res["group_errors"].values()) < 1e-6
+        # 16 training trajectories: too little for every baseline (Koopman+Int catches up
+        # with ours only on the paper-scale data, see docs/results/results.md)
         for m in MODELS[1:]:
             assert np.all(curves["Ours"][1:] < curves[m][1:]), (a, m)
         for m in ("Interaction", "Interaction+Int"):

@@ -1,0 +1,145 @@
+"""The residual loop on data with undeclared effects (not only the ones it was tuned on)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from identification.candidates import FitSettings
+from identification.diagnose import diagnose
+from identification.extended import ExtendedIdentifier
+from identification.planted import PlantSpec, planted_dataset
+from identification.residuals import compute_residuals, summarize
+from tensegrity_env.cli import main as cli
+from tensegrity_env.effects import SlackSprings, effects_from_document
+from tensegrity_env.engine import Engine
+from tensegrity_env.params import load_params
+
+SMALL = {"n_train": 4, "n_val": 2, "n_test": 2, "steps": 500}
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def run(spec: PlantSpec, horizon: float = 0.5, candidates=None, max_effects: int = 2):
+    data = planted_dataset(spec)
+    settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])},
+                           contact_windows=((1, 600),))  # fmt: skip
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result = diagnose(data.dataset, settings, max_effects=max_effects, horizon_s=horizon,
+                          candidates=candidates, log=lambda s: None)  # fmt: skip
+    return data, result
+
+
+def improvement(result) -> tuple[float, float]:
+    b, f = result.baseline_test, result.final_test
+    roll_before = b["rollout"] if np.isfinite(b["rollout"]) else np.inf
+    return b["one_step"] / f["one_step"], roll_before / f["rollout"]
+
+
+def test_clean_data_adds_nothing():
+    _, result = run(PlantSpec("none", seed=3, **SMALL))
+    assert result.model.effects == []
+    assert all(it.chosen is None for it in result.iterations)
+    assert result.unexplained == ""
+
+
+@pytest.mark.parametrize(("strength", "seed"), [("weak", 1), ("strong", 2)])
+def test_quadratic_drag_is_named(strength, seed):
+    _, result = run(PlantSpec("quadratic_drag", strength, seed=seed, **SMALL),
+                    candidates=["linear_drag", "quadratic_drag", "force_field"])  # fmt: skip
+    assert result.model.names == ["quadratic_drag"]
+    one, roll = improvement(result)
+    assert one >= 100 and roll >= 10
+    drag = result.model.effects[0].values["translational"].numpy()
+    assert drag[0] > 10 * drag[2]  # a rod drags far less along its axis
+
+
+def test_slack_cables_are_found():
+    data, result = run(PlantSpec("slack_springs", 6, seed=4, **SMALL),
+                       candidates=["slack_springs", "linear_drag", "force_field"])  # fmt: skip
+    assert result.model.names == ["slack_springs"]
+    found = sorted(result.model.effects[0].values["springs"].tolist())
+    assert found == data.ground_truth.effects[0]["params"]["springs"]
+    one, roll = improvement(result)
+    assert one >= 100 and roll >= 10
+
+
+def test_ground_contact_is_named_and_identified():
+    _, result = run(PlantSpec("ground_contact", 2.0, seed=5, **SMALL),
+                    candidates=["ground_contact", "quadratic_drag", "force_field"], max_effects=1)  # fmt: skip
+    assert result.model.names == ["ground_contact"]
+    contact = result.model.effects[0]
+    assert abs(float(contact.values["friction"]) - 2.0) < 0.01
+    one, roll = improvement(result)
+    assert one >= 100 and roll >= 10
+
+
+def test_residuals_point_at_the_springs_that_go_slack():
+    data = planted_dataset(PlantSpec("slack_springs", "strong", seed=6, **SMALL))
+    est = ExtendedIdentifier(anchors={"mass[rod0]": 2.0}).fit(data.dataset)
+    res = compute_residuals(
+        data.dataset.topology, est.params_, [], data.dataset, max_transitions=3000
+    )
+    s = summarize(res)
+    assert s["rms_force"] > 0.1 and res.tension.shape == res.stretch.shape
+    clean = compute_residuals(data.dataset.topology, data.ground_truth.params,
+                              [_true_slack(data)], data.dataset, max_transitions=3000)  # fmt: skip
+    assert summarize(clean)["rms_force"] < 1e-9
+
+
+def _true_slack(data):
+    return SlackSprings(
+        data.dataset.topology, springs=data.ground_truth.effects[0]["params"]["springs"]
+    )
+
+
+def test_cli_writes_report_and_params_the_engine_loads(tmp_path):
+    path = tmp_path / "drag.h5"
+    assert cli(["plant", "linear_drag", "--strength", "1.0", "--seed", "8", "--n-train", "3",
+                "--n-val", "2", "--n-test", "2", "--steps", "300", "-o", str(path)]) == 0  # fmt: skip
+    out = tmp_path / "out"
+    assert cli(["diagnose", str(path), "--anchor", "mass[rod0]=2.0", "--max-effects", "1",
+                "--candidates", "linear_drag,quadratic_drag", "--horizon", "0.2", "-o", str(out)]) == 0  # fmt: skip
+    report = (out / "report.md").read_text()
+    assert "Added: linear_drag" in report and "residuals_0.png" in report
+    assert (out / "residuals_0.png").stat().st_size > 10_000
+    topology, _, doc = load_params(out / "params.json")
+    effects = effects_from_document(doc, topology)
+    assert [e.name for e in effects] == ["linear_drag"]
+    assert json.loads((out / "params.json").read_text())["diagnose"]["added"] == ["linear_drag"]
+    Engine(topology, 1e-3, effects=effects)  # runs the extended model
+
+
+# ---------------------------------------------------------------------- thorough
+CASES = [("ground_contact", s, seed) for s in ("weak", "moderate", "strong") for seed in (0, 1)] + [
+    (e, s, seed)
+    for e in ("quadratic_drag", "linear_drag", "slack_springs")
+    for s in ("weak", "moderate", "strong")
+    for seed in (0, 1)
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("effect", "strength", "seed"), CASES)
+def test_planted_effects_full(effect, strength, seed):
+    spec = PlantSpec(effect, strength, seed=seed, n_train=8, n_val=4, n_test=4, steps=1000)
+    _, result = run(spec, horizon=1.0, max_effects=2)
+    assert result.model.names == [effect]
+    one, roll = improvement(result)
+    assert one >= 100 and roll >= 10
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_clean_control_full(seed):
+    _, result = run(PlantSpec("none", seed=seed, n_train=8, n_val=4, n_test=4, steps=1000), 1.0)
+    assert result.model.effects == []

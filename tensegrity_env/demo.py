@@ -107,6 +107,18 @@ def step_experiment(out: Path) -> None:
     cli(["experiment", "paper", "--scale", "small", "-o", str(out / "experiment")])
 
 
+def step_diagnose(out: Path) -> None:
+    banner("6. The closed loop: MuJoCo data with an undeclared floor; find it, name it, add it")
+    path = out / "planted_contact.h5"
+    cli(["plant", "ground_contact", "--n-train", "4", "--n-val", "2", "--n-test", "2",
+         "--steps", "500", "--seed", "0", "-o", str(path)])  # fmt: skip
+    truth = read_ground_truth(path)
+    assert truth is not None
+    mass0 = float(truth.params.mass[0])  # a weighed rod fixes the scale, as in step 2
+    cli(["diagnose", str(path), "--anchor", f"mass[rod0]={mass0!r}", "--max-effects", "2",
+         "--horizon", "0.5", "-o", str(out / "diagnose")])  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -123,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     step_element(out)
     step_control_gain(out)
     step_experiment(out)
+    step_diagnose(out)
     banner(f"Done in {time.perf_counter() - t0:.0f} s. Every output is in: {out.resolve()}")
     for f in sorted(out.iterdir()):
         print(f"  {f.name}")

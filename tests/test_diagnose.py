@@ -143,3 +143,23 @@ def test_planted_effects_full(effect, strength, seed):
 def test_clean_control_full(seed):
     _, result = run(PlantSpec("none", seed=seed, n_train=8, n_val=4, n_test=4, steps=1000), 1.0)
     assert result.model.effects == []
+
+
+def test_indistinguishable_candidates_are_flagged(monkeypatch):
+    """Two candidates that predict the same change: the attribution is flagged, with the correlation."""
+    import identification.diagnose as dg
+    from identification.candidates import Proposal
+    from tensegrity_env.effects import QuadraticDrag
+
+    def twins(dataset, current, settings, names=None):
+        if current.effects:
+            return []
+        topo = dataset.topology
+        return [Proposal("quadratic_drag", [QuadraticDrag(topo)], "twin a"),
+                Proposal("quadratic_drag_again", [QuadraticDrag(topo)], "twin b")]  # fmt: skip
+
+    monkeypatch.setattr(dg, "propose", twins)
+    _, result = run(PlantSpec("quadratic_drag", "moderate", seed=9, **SMALL), max_effects=1)
+    it = result.iterations[0]
+    assert it.chosen is not None and it.ambiguous is not None
+    assert it.ambiguous[1] > 0.99

@@ -67,6 +67,8 @@ class Scored:
         physical: the identified effect values pass their physical checks.
         seconds: fit wall time [s].
         gate: why the candidate may act here.
+        accepted: it passes every test of :func:`_judge`.
+        verdict: one line saying why it passes or not.
     """
 
     name: str

@@ -20,6 +20,7 @@ from identification.dataset import Split
 from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
+from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
 
 DTYPE = torch.float64
@@ -74,15 +75,9 @@ def rollout_caps(
     for t in range(control.shape[1] + 1):
         if t:
             state = engine.step(state, params, control[:, t - 1])
-        rot_arms = torch.einsum("wrij,rkj->wrki", _rot(state.q), ends)
+        rot_arms = torch.einsum("wrij,rkj->wrki", quat_to_matrix(state.q), ends)
         caps.append((state.p.unsqueeze(2) + rot_arms).reshape(-1, 2 * R, 3))
     return torch.stack(caps, dim=1)
-
-
-def _rot(q: torch.Tensor) -> torch.Tensor:
-    from tensegrity_env.rotations import quat_to_matrix
-
-    return quat_to_matrix(q)
 
 
 @dataclass(frozen=True)

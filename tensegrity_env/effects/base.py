@@ -62,6 +62,8 @@ class PhysicalEffect(EffectBase):
     Args:
         topology: the assembly the effect acts on (radii, springs, rods).
         uncertainty: one standard error per parameter, same shapes (optional).
+        validate: run the physical checks (:meth:`check`); fits pass False and ask
+            :meth:`physical` afterwards.
         **values: parameter values (array-likes or tensors); omitted ones take
             their :attr:`PARAMS` default.
     """

@@ -24,9 +24,9 @@ SOURCE = Path(__file__).with_name("native_step.c")
 
 #: compiler flag sets tried in order (OpenMP and -march=native are optional)
 FLAG_SETS: tuple[tuple[str, ...], ...] = (
-    ("-O3", "-march=native", "-fopenmp"),
-    ("-O3", "-fopenmp"),
-    ("-O3",),
+    ("-O3", "-march=native", "-fno-math-errno", "-fopenmp"),
+    ("-O3", "-fno-math-errno", "-fopenmp"),
+    ("-O3", "-fno-math-errno"),
 )
 
 

@@ -20,6 +20,10 @@
  * Only touching end caps enter the contact problem (the engine masks the others
  * out, which gives the same forces), so a rod off the floor costs nothing.
  *
+ * TSR_W assemblies are stepped together, one per SIMD lane (GCC vector extensions);
+ * the frame_skip substeps of a control step run with the states in registers and
+ * L1, and OpenMP threads take blocks of assemblies.
+ *
  * Layouts (all double, row-major):
  *   state   (B, R, 13): p[3] v[3] q[4] (w x y z) omega[3], world frame; in/out
  *   control (B, R, 3):  commands f_u, world frame
@@ -31,8 +35,9 @@
 #include <math.h>
 #include <string.h>
 
-#define TSR_MAX_RODS 64
-#define TSR_MAX_NODES 256
+#define TSR_MAX_RODS 16
+#define TSR_MAX_NODES 64
+#define TSR_W 8 /* assemblies per SIMD block */
 #define TSR_MAX_EDGES 8
 
 typedef struct {
@@ -73,22 +78,6 @@ static inline void cross(const double *a, const double *b, double *o) {
 
 static inline double dot(const double *a, const double *b) {
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-/* R(q), as tensegrity_env.rotations.quat_to_matrix */
-static void rotmat(const double *q, double *M) {
-    double w = q[0], x = q[1], y = q[2], z = q[3];
-    double ww = w * w, xx = x * x, yy = y * y, zz = z * z;
-    double xy = x * y, xz = x * z, yz = y * z, wx = w * x, wy = w * y, wz = w * z;
-    M[0] = ww + xx - yy - zz; M[1] = 2 * (xy - wz);     M[2] = 2 * (xz + wy);
-    M[3] = 2 * (xy + wz);     M[4] = ww - xx + yy - zz; M[5] = 2 * (yz - wx);
-    M[6] = 2 * (xz - wy);     M[7] = 2 * (yz + wx);     M[8] = ww - xx - yy + zz;
-}
-
-static inline void rot(const double *M, const double *v, double *o) {
-    o[0] = M[0] * v[0] + M[1] * v[1] + M[2] * v[2];
-    o[1] = M[3] * v[0] + M[4] * v[1] + M[5] * v[2];
-    o[2] = M[6] * v[0] + M[7] * v[1] + M[8] * v[2];
 }
 
 static inline void rot_t(const double *M, const double *v, double *o) {
@@ -240,90 +229,296 @@ static void contact_wrench(const Model *m, int r, const double *p, const double 
     }
 }
 
-/* one physics step of one assembly: x (R, 13) in place, u (R, 3) */
-static void substep(const Model *m, double *x, const double *u) {
+/* ------------------------------------------------------------------ W assemblies at once
+ * Every quantity below is a vector of W doubles, one lane per assembly, so each
+ * operation is one SIMD instruction for W assemblies. Lanes never mix: a lane's
+ * result does not depend on the others (the contact iteration runs until every
+ * lane has settled, and settled lanes repeat the same solve bit for bit), so an
+ * assembly gives the same numbers whatever batch it is stepped in.
+ */
+typedef double vd __attribute__((vector_size(TSR_W * sizeof(double))));
+typedef long long vl __attribute__((vector_size(TSR_W * sizeof(long long))));
+
+static inline vd vsplat(double s) { return (vd){0} + s; }
+static inline vd vsel(vl m, vd a, vd b) { return (vd)(((vl)a & m) | ((vl)b & ~m)); }
+static inline vd vsqrt(vd x) {
+    vd r;
+    for (int l = 0; l < TSR_W; l++) r[l] = sqrt(x[l]);
+    return r;
+}
+static inline vd vmax0(vd x) { return vsel(x > 0, x, vsplat(0.0)); }
+static inline int vany(vl m) {
+    long long a = 0;
+    for (int l = 0; l < TSR_W; l++) a |= m[l];
+    return a != 0;
+}
+static inline void vcross(const vd *a, const vd *b, vd *o) {
+    o[0] = a[1] * b[2] - a[2] * b[1];
+    o[1] = a[2] * b[0] - a[0] * b[2];
+    o[2] = a[0] * b[1] - a[1] * b[0];
+}
+static inline vd vdot(const vd *a, const vd *b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+static void vrotmat(const vd *q, vd *M) {
+    vd w = q[0], x = q[1], y = q[2], z = q[3];
+    vd ww = w * w, xx = x * x, yy = y * y, zz = z * z;
+    vd xy = x * y, xz = x * z, yz = y * z, wx = w * x, wy = w * y, wz = w * z;
+    M[0] = ww + xx - yy - zz; M[1] = 2 * (xy - wz);     M[2] = 2 * (xz + wy);
+    M[3] = 2 * (xy + wz);     M[4] = ww - xx + yy - zz; M[5] = 2 * (yz - wx);
+    M[6] = 2 * (xz - wy);     M[7] = 2 * (yz + wx);     M[8] = ww - xx - yy + zz;
+}
+static inline void vrot(const vd *M, const vd *v, vd *o) {
+    o[0] = M[0] * v[0] + M[1] * v[1] + M[2] * v[2];
+    o[1] = M[3] * v[0] + M[4] * v[1] + M[5] * v[2];
+    o[2] = M[6] * v[0] + M[7] * v[1] + M[8] * v[2];
+}
+static inline void vrot_c(const vd *M, const double *v, vd *o) { /* constant v */
+    o[0] = M[0] * v[0] + M[1] * v[1] + M[2] * v[2];
+    o[1] = M[3] * v[0] + M[4] * v[1] + M[5] * v[2];
+    o[2] = M[6] * v[0] + M[7] * v[1] + M[8] * v[2];
+}
+static inline void vrot_t(const vd *M, const vd *v, vd *o) {
+    o[0] = M[0] * v[0] + M[3] * v[1] + M[6] * v[2];
+    o[1] = M[1] * v[0] + M[4] * v[1] + M[7] * v[2];
+    o[2] = M[2] * v[0] + M[5] * v[1] + M[8] * v[2];
+}
+
+/* sin and cos of small angles (|x| < 0.1: Taylor terms to x^10, exact in double);
+ * other lanes (a rod spinning faster than 200 rad/s) go through libm */
+static void vsincos(vd x, vd *s, vd *c) {
+    vd x2 = x * x;
+    *s = x * (1 + x2 * (-1.0 / 6 + x2 * (1.0 / 120 + x2 * (-1.0 / 5040 + x2 * (1.0 / 362880)))));
+    *c = 1 + x2 * (-0.5 + x2 * (1.0 / 24 + x2 * (-1.0 / 720 + x2 * (1.0 / 40320 - x2 / 3628800))));
+    vl big = (x > 0.1) | (x < -0.1);
+    if (vany(big))
+        for (int l = 0; l < TSR_W; l++)
+            if (big[l]) { (*s)[l] = sin(x[l]); (*c)[l] = cos(x[l]); }
+}
+
+typedef struct { vd p[3], v[3], q[4], w[3], u[3]; } VRod;
+
+/* the ground contact of one end cap (the rod's other cap off the floor), lanes `act` */
+static void vcontact_cap(const Model *m, int r, const VRod *x, const vd *M, const vd *arm,
+                         const vd *dist, vl act, const vd *acc, const vd *alpha, vd *F, vd *T) {
+    const double mass = m->mass[r], *I = m->inertia + 3 * r;
+    const double isI[3] = {1.0 / sqrt(I[0]), 1.0 / sqrt(I[1]), 1.0 / sqrt(I[2])};
+    const double inv_m = 1.0 / mass, mu = m->mu;
+    vd carm[3] = {arm[0], arm[1], (m->height + *dist / 2) - x->p[2]};
+    vd wxr[3], vel[3];
+    vcross(x->w, carm, wxr);
+    for (int i = 0; i < 3; i++) vel[i] = x->v[i] + wxr[i];
+    vd nrm = vsqrt(arm[0] * arm[0] + arm[1] * arm[1]);
+    vl ok = nrm > 1e-12;
+    vd t1x = vsel(ok, arm[0] / nrm, vsplat(1.0)), t1y = vsel(ok, arm[1] / nrm, vsplat(0.0));
+    /* impedance d(|dist|), softness and the spring term of the reference acceleration */
+    vd xi = (vsel(*dist < 0, -*dist, *dist)) / m->width;
+    xi = vsel(xi > 1, vsplat(1.0), xi);
+    vd yi = vsel(xi < 0.5, 2.0 * xi * xi, 1.0 - 2.0 * (1.0 - xi) * (1.0 - xi));
+    vd d = m->d_min + yi * (m->d_max - m->d_min);
+    vd sft = (1.0 - d) / d * (4.0 * inv_m), kd = m->k_c * d * *dist;
+    vd E[4][3], Ang[4][3], b[4];
+    const vd tx[2] = {t1x, -t1y}, ty[2] = {t1y, t1x};
+    for (int j = 0; j < 4; j++) {
+        double sign = (j % 2 == 0) ? 1.0 : -1.0;
+        vd *e = E[j], g[3], al[3];
+        e[0] = mu * sign * tx[j / 2];
+        e[1] = mu * sign * ty[j / 2];
+        e[2] = vsplat(1.0);
+        vcross(carm, e, g);
+        vrot_t(M, g, al);
+        for (int i = 0; i < 3; i++) Ang[j][i] = al[i] * isI[i];
+        vd a0 = vdot(e, acc) + vdot(Ang[j], alpha);
+        vd aref = -m->b_c * vdot(e, vel) - kd;
+        b[j] = a0 - aref;
+    }
+    vd H[4][4];
+    for (int i = 0; i < 4; i++)
+        for (int j = i; j < 4; j++) {
+            vd h = vdot(E[i], E[j]) * inv_m + vdot(Ang[i], Ang[j]);
+            if (i == j) h += sft;
+            H[i][j] = H[j][i] = h;
+        }
+    /* primal-dual active set on the lanes in contact; masked Cholesky (identity off S) */
+    vl S[4];
+    vd f[4];
+    for (int i = 0; i < 4; i++) { S[i] = act & (b[i] < 0); f[i] = vsplat(0.0); }
+    for (int it = 0; it < m->iterations; it++) {
+        vd sd[4], L[4][4], inv[4], y[4];
+        for (int i = 0; i < 4; i++) sd[i] = vsel(S[i], vsplat(1.0), vsplat(0.0));
+        for (int j = 0; j < 4; j++) {
+            vd a = H[j][j] * sd[j] + (1.0 - sd[j]);
+            for (int k = 0; k < j; k++) a -= L[j][k] * L[j][k];
+            inv[j] = 1.0 / vsqrt(a);
+            for (int i = j + 1; i < 4; i++) {
+                vd c = H[i][j] * (sd[i] * sd[j]);
+                for (int k = 0; k < j; k++) c -= L[i][k] * L[j][k];
+                L[i][j] = c * inv[j];
+            }
+        }
+        for (int i = 0; i < 4; i++) {
+            vd a = -b[i] * sd[i];
+            for (int k = 0; k < i; k++) a -= L[i][k] * y[k];
+            y[i] = a * inv[i];
+        }
+        for (int i = 3; i >= 0; i--) {
+            vd a = y[i];
+            for (int k = i + 1; k < 4; k++) a -= L[k][i] * f[k];
+            f[i] = a * inv[i];
+        }
+        vl changed = (vl){0};
+        vl Snew[4];
+        for (int i = 0; i < 4; i++) {
+            vd w = b[i];
+            for (int j = 0; j < 4; j++) w += H[i][j] * f[j];
+            Snew[i] = act & ((S[i] & (f[i] > 0)) | (~S[i] & (w < 0)));
+            changed |= Snew[i] ^ S[i];
+        }
+        if (!vany(changed)) break;
+        for (int i = 0; i < 4; i++) S[i] = Snew[i];
+    }
+    for (int i = 0; i < 4; i++) f[i] = vsel(act, vmax0(f[i]), vsplat(0.0));
+    for (int i = 0; i < 4; i++) { /* one projected Gauss-Seidel sweep */
+        vd w = b[i];
+        for (int j = 0; j < 4; j++) w += H[i][j] * f[j];
+        f[i] = vsel(act, vmax0(f[i] - w / H[i][i]), f[i]);
+    }
+    vd fk[3] = {f[0] * E[0][0], f[0] * E[0][1], f[0] * E[0][2]}, tk[3];
+    for (int j = 1; j < 4; j++)
+        for (int c = 0; c < 3; c++) fk[c] += f[j] * E[j][c];
+    for (int c = 0; c < 3; c++) fk[c] = vsel(act, fk[c], vsplat(0.0));
+    vcross(carm, fk, tk);
+    for (int c = 0; c < 3; c++) { F[c] += fk[c]; T[c] += tk[c]; }
+}
+
+/* the contact wrench of rod r on every lane (F, T accumulate) */
+static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[2][3],
+                     const vd *f_s, const vd *t_s, vd *F, vd *T) {
+    vd dist[2];
+    vl act[2];
+    for (int k = 0; k < 2; k++) {
+        dist[k] = x->p[2] + arms[k][2] - m->radius[r] - m->height;
+        act[k] = dist[k] < 0;
+    }
+    vl both = act[0] & act[1];
+    if (!vany(act[0] | act[1])) return;
+    const double mass = m->mass[r], *I = m->inertia + 3 * r;
+    /* free accelerations without contact: gravity, springs, gyroscopic terms */
+    vd acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
+    for (int i = 0; i < 3; i++) acc[i] = f_s[i] * (1.0 / mass) + m->g[i];
+    vrot_t(M, x->w, wl);
+    vrot_t(M, t_s, tl);
+    for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
+    vcross(wl, Iw, gyro);
+    for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) * (1.0 / sqrt(I[i]));
+    for (int k = 0; k < 2; k++) {
+        vl one = act[k] & ~both;
+        if (vany(one)) vcontact_cap(m, r, x, M, arms[k], &dist[k], one, acc, alpha, F, T);
+    }
+    if (!vany(both)) return;
+    /* both end caps on the floor (a rod lying flat): the coupled 8-edge problem, per lane */
+    for (int l = 0; l < TSR_W; l++) {
+        if (!both[l]) continue;
+        double p[3], v[3], w[3], Ms[9], a2[2][3], fs[3], ts[3], Fl[3] = {0}, Tl[3] = {0};
+        for (int i = 0; i < 3; i++) {
+            p[i] = x->p[i][l]; v[i] = x->v[i][l]; w[i] = x->w[i][l];
+            fs[i] = f_s[i][l]; ts[i] = t_s[i][l];
+            a2[0][i] = arms[0][i][l]; a2[1][i] = arms[1][i][l];
+        }
+        for (int i = 0; i < 9; i++) Ms[i] = M[i][l];
+        contact_wrench(m, r, p, v, w, Ms, a2, fs, ts, Fl, Tl);
+        for (int i = 0; i < 3; i++) { F[i][l] += Fl[i]; T[i][l] += Tl[i]; }
+    }
+}
+
+/* one physics step of W assemblies (R rods each) */
+static void vsubstep(const Model *m, VRod *x) {
     const int R = m->R, N = 2 * m->R + m->A;
-    double M[TSR_MAX_RODS][9], arms[TSR_MAX_RODS][2][3];
-    double nx[TSR_MAX_NODES][3], nv[TSR_MAX_NODES][3], nf[TSR_MAX_NODES][3];
+    vd M[TSR_MAX_RODS][9], arms[TSR_MAX_RODS][2][3];
+    vd nx[TSR_MAX_NODES][3], nv[TSR_MAX_NODES][3], nf[TSR_MAX_NODES][3];
+    /* kinematics: end caps and their velocities */
     for (int r = 0; r < R; r++) {
-        const double *p = x + 13 * r, *v = p + 3, *q = p + 6, *w = p + 10;
-        rotmat(q, M[r]);
+        vrotmat(x[r].q, M[r]);
         for (int k = 0; k < 2; k++) {
-            double wxa[3];
-            rot(M[r], m->end + 6 * r + 3 * k, arms[r][k]);
-            cross(w, arms[r][k], wxa);
+            vd wxa[3];
+            vrot_c(M[r], m->end + 6 * r + 3 * k, arms[r][k]);
+            vcross(x[r].w, arms[r][k], wxa);
             for (int i = 0; i < 3; i++) {
-                nx[2 * r + k][i] = p[i] + arms[r][k][i];
-                nv[2 * r + k][i] = v[i] + wxa[i];
+                nx[2 * r + k][i] = x[r].p[i] + arms[r][k][i];
+                nv[2 * r + k][i] = x[r].v[i] + wxa[i];
             }
         }
     }
     for (int a = 0; a < m->A; a++)
-        for (int i = 0; i < 3; i++) { nx[2 * R + a][i] = m->anchors[3 * a + i]; nv[2 * R + a][i] = 0; }
-    memset(nf, 0, sizeof(double) * 3 * N);
+        for (int i = 0; i < 3; i++) {
+            nx[2 * R + a][i] = vsplat(m->anchors[3 * a + i]);
+            nv[2 * R + a][i] = vsplat(0.0);
+        }
+    for (int n = 0; n < N; n++)
+        for (int i = 0; i < 3; i++) nf[n][i] = vsplat(0.0);
     /* springs: scalar tension along each spring's axis, +T e on node a, -T e on node b */
     for (int s = 0; s < m->S; s++) {
         int a = m->springs[2 * s], b = m->springs[2 * s + 1];
-        double d[3], e[3], len, rate = 0;
+        vd d[3], e[3], rate = vsplat(0.0);
         for (int i = 0; i < 3; i++) d[i] = nx[b][i] - nx[a][i];
-        len = sqrt(dot(d, d));
-        double inv = 1.0 / len;
+        vd len = vsqrt(vdot(d, d)), inv = 1.0 / len;
         for (int i = 0; i < 3; i++) { e[i] = d[i] * inv; rate += (nv[b][i] - nv[a][i]) * e[i]; }
-        double T = m->K[s] * (len - m->l0[s]) + m->c[s] * rate;
+        vd T = m->K[s] * (len - m->l0[s]) + m->c[s] * rate;
         for (int i = 0; i < 3; i++) { nf[a][i] += T * e[i]; nf[b][i] -= T * e[i]; }
     }
     const double dt = m->dt;
     for (int r = 0; r < R; r++) {
-        double *p = x + 13 * r, *v = p + 3, *q = p + 6, *w = p + 10;
-        double f_s[3], t_s[3], t0[3], t1[3], F[3], T[3];
-        const double *f0 = nf[2 * r], *f1 = nf[2 * r + 1];
-        cross(arms[r][0], f0, t0);
-        cross(arms[r][1], f1, t1);
+        VRod *xr = x + r;
+        vd f_s[3], t_s[3], t0[3], t1[3], F[3], T[3];
+        const vd *f0 = nf[2 * r], *f1 = nf[2 * r + 1];
+        vcross(arms[r][0], f0, t0);
+        vcross(arms[r][1], f1, t1);
         for (int i = 0; i < 3; i++) { f_s[i] = f0[i] + f1[i]; t_s[i] = t0[i] + t1[i]; }
         /* control h f_u at the arm R r_u */
-        double fu[3], au[3], tu[3];
-        for (int i = 0; i < 3; i++) fu[i] = m->gain * u[3 * r + i];
-        rot(M[r], m->arm_u + 3 * r, au);
-        cross(au, fu, tu);
+        vd fu[3], au[3], tu[3];
+        for (int i = 0; i < 3; i++) fu[i] = m->gain * xr->u[i];
+        vrot_c(M[r], m->arm_u + 3 * r, au);
+        vcross(au, fu, tu);
         for (int i = 0; i < 3; i++) { F[i] = f_s[i] + fu[i]; T[i] = t_s[i] + tu[i]; }
-        if (m->contact) contact_wrench(m, r, p, v, w, M[r], arms[r], f_s, t_s, F, T);
+        if (m->contact) vcontact(m, r, xr, M[r], arms[r], f_s, t_s, F, T);
         /* Newton-Euler */
         const double mass = m->mass[r], *I = m->inertia + 3 * r;
-        double wl[3], tl[3], Iw[3], gyro[3], acc[3], alpha[3];
+        vd wl[3], tl[3], Iw[3], gyro[3], acc[3], alpha[3];
         for (int i = 0; i < 3; i++) acc[i] = F[i] / mass + m->g[i];
-        rot_t(M[r], w, wl);
-        rot_t(M[r], T, tl);
+        vrot_t(M[r], xr->w, wl);
+        vrot_t(M[r], T, tl);
         for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
-        cross(wl, Iw, gyro);
+        vcross(wl, Iw, gyro);
         for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
-        /* semi-implicit Euler */
-        double wl2[3];
+        /* semi-implicit Euler: velocities first, then positions with the new velocities */
+        vd wl2[3];
         for (int i = 0; i < 3; i++) {
-            v[i] += dt * acc[i];
+            xr->v[i] += dt * acc[i];
             wl2[i] = wl[i] + dt * alpha[i];
-            p[i] += dt * v[i];
+            xr->p[i] += dt * xr->v[i];
         }
-        double nsq = dot(wl2, wl2), qr[4] = {1, 0, 0, 0};
-        if (nsq > 0) {
-            double nrm = sqrt(nsq), half = 0.5 * dt * nrm, s = sin(half);
-            qr[0] = cos(half);
-            for (int i = 0; i < 3; i++) qr[i + 1] = wl2[i] / nrm * s;
-        }
-        double q2[4] = {
+        vd nsq = vdot(wl2, wl2);
+        vl safe = nsq > 0;
+        vd nrm = vsqrt(vsel(safe, nsq, vsplat(1.0))), s, c;
+        vsincos(0.5 * dt * nrm, &s, &c);
+        s = vsel(safe, s, vsplat(0.0));
+        c = vsel(safe, c, vsplat(1.0));
+        vd qr[4] = {c, wl2[0] / nrm * s, wl2[1] / nrm * s, wl2[2] / nrm * s};
+        vd *q = xr->q;
+        vd q2[4] = {
             q[0] * qr[0] - q[1] * qr[1] - q[2] * qr[2] - q[3] * qr[3],
             q[0] * qr[1] + q[1] * qr[0] + q[2] * qr[3] - q[3] * qr[2],
             q[0] * qr[2] - q[1] * qr[3] + q[2] * qr[0] + q[3] * qr[1],
             q[0] * qr[3] + q[1] * qr[2] - q[2] * qr[1] + q[3] * qr[0],
         };
-        double qn = sqrt(q2[0] * q2[0] + q2[1] * q2[1] + q2[2] * q2[2] + q2[3] * q2[3]);
+        vd qn = vsqrt(q2[0] * q2[0] + q2[1] * q2[1] + q2[2] * q2[2] + q2[3] * q2[3]);
         for (int i = 0; i < 4; i++) q[i] = q2[i] / qn;
-        double M2[9];
-        rotmat(q, M2);
-        rot(M2, wl2, w);
+        vd M2[9];
+        vrotmat(q, M2);
+        vrot(M2, wl2, xr->w);
     }
 }
 
-/* frame_skip steps of B assemblies (threads: OpenMP threads, <= 0: the default) */
+/* frame_skip steps of B assemblies, W at a time (the last block padded with copies of
+ * its last assembly); threads: OpenMP threads over the blocks */
 int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
              double *state, const double *control, const double *model, const int *springs,
              int threads) {
@@ -332,18 +527,46 @@ int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iteratio
     unpack(&m, model, springs, R, S, A);
     m.iterations = iterations;
     m.dt = dt;
+    const int blocks = (B + TSR_W - 1) / TSR_W;
+    (void)threads;
 #ifdef _OPENMP
     if (threads <= 0) threads = 1;
-#pragma omp parallel for schedule(dynamic, 16) num_threads(threads) if (B > 1 && threads > 1)
+#pragma omp parallel for schedule(dynamic, 4) num_threads(threads) if (blocks > 1 && threads > 1)
 #endif
-    for (int e = 0; e < B; e++) {
-        double *x = state + (long)e * R * 13;
-        const double *u = control + (long)e * R * 3;
-        for (int k = 0; k < frame_skip; k++) substep(&m, x, u);
+    for (int blk = 0; blk < blocks; blk++) {
+        VRod x[TSR_MAX_RODS];
+        int env[TSR_W];
+        for (int l = 0; l < TSR_W; l++) {
+            int e = blk * TSR_W + l;
+            env[l] = e < B ? e : B - 1;
+        }
+        for (int r = 0; r < R; r++)
+            for (int l = 0; l < TSR_W; l++) {
+                const double *s = state + ((long)env[l] * R + r) * 13;
+                const double *u = control + ((long)env[l] * R + r) * 3;
+                for (int i = 0; i < 3; i++) {
+                    x[r].p[i][l] = s[i];
+                    x[r].v[i][l] = s[3 + i];
+                    x[r].w[i][l] = s[10 + i];
+                    x[r].u[i][l] = u[i];
+                }
+                for (int i = 0; i < 4; i++) x[r].q[i][l] = s[6 + i];
+            }
+        for (int k = 0; k < frame_skip; k++) vsubstep(&m, x);
+        for (int l = 0; l < TSR_W && blk * TSR_W + l < B; l++)
+            for (int r = 0; r < R; r++) {
+                double *s = state + ((long)env[l] * R + r) * 13;
+                for (int i = 0; i < 3; i++) {
+                    s[i] = x[r].p[i][l];
+                    s[3 + i] = x[r].v[i][l];
+                    s[10 + i] = x[r].w[i][l];
+                }
+                for (int i = 0; i < 4; i++) s[6 + i] = x[r].q[i][l];
+            }
     }
-    (void)threads;
     return 0;
 }
 
 int tsr_max_rods(void) { return TSR_MAX_RODS; }
 int tsr_max_nodes(void) { return TSR_MAX_NODES; }
+int tsr_lanes(void) { return TSR_W; }

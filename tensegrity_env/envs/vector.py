@@ -89,6 +89,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self.goals = np.zeros((self.num_envs, 2))
         self._distance = np.zeros(self.num_envs)
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
+        self._last_obs = np.zeros((self.num_envs, n_obs), dtype=np.float32)
         self._renderer: SceneRenderer | None = None
 
     # ------------------------------------------------------------------ physics hooks
@@ -96,6 +97,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         raise NotImplementedError
 
     def _get_states(self) -> np.ndarray:
+        """Packed states (N, R, 13); callers do not modify them."""
         raise NotImplementedError
 
     def _step_physics(self, commands: np.ndarray) -> None:
@@ -132,19 +134,19 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             self._set_states(idx, x.reshape(self.num_envs, self.n_rods, 13))
             self._distance = self.task.distance(self._get_states(), self.goals)
         obs = self.task.observe(self._get_states(), self.goals, self._axes)
+        self._last_obs = obs
         return obs, self._base_info(self._get_states())
 
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         commands = self.task.commands(np.asarray(actions), self.n_rods)
-        before = self._get_states()
         self._step_physics(commands)
         x = self._get_states()
         bad = ~np.all(np.isfinite(x), axis=(1, 2))
-        if bad.any():  # diverged physics ends those episodes on their last finite state
-            x[bad] = before[bad]
         dist = self.task.distance(x, self.goals)
+        if bad.any():  # diverged physics ends those episodes on their last observation
+            dist[bad] = self._distance[bad]
         reward, reached, terms = self.task.reward(self._distance, dist, commands)
         reward[bad] = 0.0
         for v in terms.values():
@@ -156,6 +158,8 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         if self.max_episode_steps is not None:
             truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
         obs = self.task.observe(x, self.goals, self._axes)
+        if bad.any():
+            obs[bad] = self._last_obs[bad]
         infos: dict[str, Any] = {**terms, **self._base_info(x)}
         infos["is_success"] = reached
         infos["physics_diverged"] = bad
@@ -172,6 +176,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             self._reset_envs(ended)
             x = self._get_states()
             obs[ended] = self.task.observe(x[ended], self.goals[ended], self._axes)
+        self._last_obs = obs
         return obs, reward, terminated, truncated, infos
 
     def render(self) -> tuple[np.ndarray, ...] | None:
@@ -255,7 +260,7 @@ class IcosahedronSRVectorEnv(RollingVectorEnv):
         self.sim.x[idx] = x
 
     def _get_states(self) -> np.ndarray:
-        return self.sim.x.copy()
+        return self.sim.x  # a view: read only
 
     def _step_physics(self, commands: np.ndarray) -> None:
         self.sim.step_batch(commands)

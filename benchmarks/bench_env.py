@@ -1,0 +1,175 @@
+"""Environment speed and fidelity: the identified env against its MuJoCo twin.
+
+Three measurements, both sides at the same physics step (1 ms), control rate
+(``frame_skip`` 50: 20 Hz), task code and thread count, timed in alternation with
+the best of ``--repeats`` kept per side, so background load hits both alike:
+
+1. **Batched**: ``IcosahedronSR-v0``'s vector env (one native call steps all N
+   assemblies, OpenMP over the batch) against the twin's vector env, which steps
+   through MuJoCo's multi-threaded ``mujoco.rollout`` (the fastest way to run N
+   MuJoCo copies), both through the Gymnasium ``VectorEnv.step`` API with the same
+   random actions. Target: ratio >= 10 at N = 4096.
+2. **Single env**: ``env.step`` latency of ``IcosahedronSR-v0`` against
+   ``IcosahedronMJ-v0`` (``mj_step`` with ``nstep = 50``). Target: ratio >= 1.
+3. **Fidelity**: from the same state (the identified env's seeded reset, copied into
+   the twin) under the same random actions, the distance between the two
+   structures' centres after 1 s and 5 s, over ``--episodes`` episodes. The same for
+   the engine with the *true* parameters and MuJoCo's default contact, which
+   separates identification error from what the model leaves out, and with no
+   control at all.
+
+Ratios are printed, never asserted::
+
+    .venv/bin/python benchmarks/bench_env.py
+    .venv/bin/python benchmarks/bench_env.py --num-envs 1024 --repeats 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+import tensegrity_env  # noqa: F401  (registers the envs, MUJOCO_GL)
+from tensegrity_env.effects import GroundContact, effects_to_document
+from tensegrity_env.envs import (
+    IcosahedronMJEnv,
+    IcosahedronMJVectorEnv,
+    IcosahedronSREnv,
+    IcosahedronSRVectorEnv,
+)
+from tensegrity_env.envs.physics import default_threads
+from tensegrity_env.envs.twin import twin_assembly
+from tensegrity_env.params import save_params
+
+
+def best_of(fns: list[Callable[[], float]], repeats: int) -> list[float]:
+    """Run each timing function ``repeats`` times in alternation; the best (lowest) of each."""
+    best = [np.inf] * len(fns)
+    for _ in range(repeats):
+        for k, fn in enumerate(fns):
+            best[k] = min(best[k], fn())
+    return best
+
+
+def batched(num_envs: int, steps: int, mj_steps: int, threads: int, repeats: int) -> None:
+    sr = IcosahedronSRVectorEnv(num_envs, threads=threads)
+    mj = IcosahedronMJVectorEnv(num_envs, threads=threads)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (max(steps, mj_steps), num_envs, 18)).astype(np.float32)
+    sr.reset(seed=0)
+    mj.reset(seed=0)
+    sr.step(actions[0])  # warm up (first touch of the buffers, the kernel's threads)
+    mj.step(actions[0])
+
+    def run(env: IcosahedronSRVectorEnv | IcosahedronMJVectorEnv, n: int) -> Callable[[], float]:
+        def timed() -> float:
+            t0 = time.perf_counter()
+            for k in range(n):
+                env.step(actions[k])
+            return (time.perf_counter() - t0) / n
+
+        return timed
+
+    t_sr, t_mj = best_of([run(sr, steps), run(mj, mj_steps)], repeats)
+    r_sr, r_mj = num_envs / t_sr, num_envs / t_mj
+    print(
+        f"\n1. Batched, N = {num_envs}, {threads} thread(s) each (env-steps/s, 50 physics steps each)"
+    )
+    print(f"   IcosahedronSR-v0 vector env (native kernel):   {r_sr:12,.0f}")
+    print(f"   IcosahedronMJ-v0 vector env (mujoco.rollout):  {r_mj:12,.0f}")
+    print(f"   ratio SR / MJ: {r_sr / r_mj:.1f}x   (target >= 10)")
+    sr.close()
+    mj.close()
+
+
+def single(steps: int, repeats: int) -> None:
+    sr, mj = IcosahedronSREnv(), IcosahedronMJEnv()
+    rng = np.random.default_rng(1)
+    actions = rng.uniform(-1, 1, (steps, 18)).astype(np.float32)
+
+    def run(env: IcosahedronSREnv | IcosahedronMJEnv) -> Callable[[], float]:
+        def timed() -> float:
+            env.reset(seed=0)
+            t0 = time.perf_counter()
+            for a in actions:
+                env.step(a)
+            return (time.perf_counter() - t0) / steps
+
+        return timed
+
+    t_sr, t_mj = best_of([run(sr), run(mj)], repeats)
+    print("\n2. Single env, env.step latency (50 physics steps + observation + reward)")
+    print(f"   IcosahedronSR-v0: {t_sr * 1e3:8.3f} ms")
+    print(f"   IcosahedronMJ-v0: {t_mj * 1e3:8.3f} ms")
+    print(f"   ratio MJ / SR latency: {t_mj / t_sr:.1f}x   (target >= 1)")
+
+
+def divergence(
+    sr: IcosahedronSREnv, mj: IcosahedronMJEnv, episodes: int, scale: float
+) -> np.ndarray:
+    """Centre distance [m] after 1 s and 5 s, (episodes, 2)."""
+    out = np.zeros((episodes, 2))
+    marks = {round(1.0 / sr.sim.control_dt): 0, round(5.0 / sr.sim.control_dt): 1}
+    for e in range(episodes):
+        sr.reset(seed=e)
+        mj.reset(options={"state": sr.state, "goal": sr.goal})
+        rng = np.random.default_rng(1000 + e)
+        for k in range(1, max(marks) + 1):
+            a = (scale * rng.uniform(-1, 1, 18)).astype(np.float32)
+            sr.step(a)
+            mj.step(a)
+            if k in marks:
+                c_sr, c_mj = sr.state[:, :3].mean(axis=0), mj.state[:, :3].mean(axis=0)
+                out[e, marks[k]] = np.linalg.norm(c_sr - c_mj)
+    return out
+
+
+def fidelity(episodes: int) -> None:
+    mj = IcosahedronMJEnv(goal_distance=(100.0, 100.0))  # far goal: no episode ends early
+    with tempfile.TemporaryDirectory() as tmp:
+        a = twin_assembly()
+        true_path = Path(tmp) / "true_params.json"
+        save_params(true_path, a.topology, a.params,
+                    {"effects": effects_to_document([GroundContact(a.topology)])})  # fmt: skip
+        rows = [
+            ("identified params, random actions", IcosahedronSREnv(goal_distance=(100.0, 100.0)), 1.0),
+            ("identified params, no control", IcosahedronSREnv(goal_distance=(100.0, 100.0)), 0.0),
+            ("true params + MuJoCo's contact, random actions",
+             IcosahedronSREnv(true_path, goal_distance=(100.0, 100.0)), 1.0),
+        ]  # fmt: skip
+        print(f"\n3. Centre (COM) divergence, identified env vs twin from the same state and "
+              f"actions, {episodes} episodes [mm]")  # fmt: skip
+        print(
+            f"   {'model':<48} {'1 s median':>10} {'1 s max':>9} {'5 s median':>11} {'5 s max':>9}"
+        )
+        for label, sr, scale in rows:
+            d = 1e3 * divergence(sr, mj, episodes, scale)
+            med, mx = np.median(d, axis=0), d.max(axis=0)
+            print(f"   {label:<48} {med[0]:10.3f} {mx[0]:9.3f} {med[1]:11.3f} {mx[1]:9.3f}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--num-envs", type=int, default=4096, help="batch size N (default 4096)")
+    ap.add_argument("--threads", type=int, default=None, help="threads per side (default: all)")
+    ap.add_argument("--steps", type=int, default=10, help="timed batched SR steps (default 10)")
+    ap.add_argument("--mj-steps", type=int, default=2, help="timed batched MJ steps (default 2)")
+    ap.add_argument("--single-steps", type=int, default=200, help="timed single-env steps")
+    ap.add_argument("--repeats", type=int, default=3, help="alternating timed runs (default 3)")
+    ap.add_argument("--episodes", type=int, default=16, help="fidelity episodes (default 16)")
+    args = ap.parse_args(argv)
+    threads = args.threads or default_threads()
+    print(f"bench_env: {default_threads()} CPU core(s) available, physics dt 1 ms, 20 Hz control")
+    batched(args.num_envs, args.steps, args.mj_steps, threads, args.repeats)
+    single(args.single_steps, args.repeats)
+    fidelity(args.episodes)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

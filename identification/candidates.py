@@ -45,8 +45,9 @@ CONTACT_FREE = ("stiffness", "damping", "friction", "impedance")
 SLACK_LOSS = 0.5
 #: ... by at least this many standard errors
 SLACK_SIGNIFICANCE = 5.0
-#: a floor stops end caps: data whose caps sink deeper than this has none [m]
-FLOOR_DEPTH = 0.05
+#: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
+#: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
+FLOOR_DEPTH = 0.3
 #: control lag time constants tried [s]
 LAG_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 

@@ -239,11 +239,12 @@ def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) ->
 
     ``H`` (..., n, n) symmetric positive definite, ``b`` and ``mask`` (..., n). A
     primal-dual active-set iteration (exact once the active set settles, a few
-    iterations for n = 8), then one projected Gauss-Seidel sweep as a safeguard.
+    iterations for n = 8); if it has not settled, one projected Gauss-Seidel sweep.
     """
     eye = torch.eye(H.shape[-1], dtype=H.dtype, device=H.device)
     S = mask & (b < 0)
     f = torch.zeros_like(b)
+    settled = False
     for _ in range(ACTIVE_SET_ITERATIONS):
         both = (S.unsqueeze(-1) & S.unsqueeze(-2)).to(H.dtype)
         H_S = H * both + eye * (1.0 - S.to(H.dtype)).unsqueeze(-1)
@@ -251,9 +252,12 @@ def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) ->
         w = (H @ f.unsqueeze(-1)).squeeze(-1) + b
         S_new = mask & ((S & (f > 0)) | (~S & (w < 0)))
         if bool((S_new == S).all()):
+            settled = True
             break
         S = S_new
     f = torch.where(mask, f.clamp_min(0.0), torch.zeros_like(f))
+    if settled:  # exact: f >= 0 on S, w >= 0 off S
+        return f
     for i in range(H.shape[-1]):
         w_i = (H[..., i, :] * f).sum(-1) + b[..., i]
         new = (f[..., i] - w_i / H[..., i, i]).clamp_min(0.0)

@@ -22,10 +22,18 @@ from tensegrity_env.envs.rendering import (
     record_side_by_side,
     write_video,
 )
-from tensegrity_env.envs.sb3 import SB3VecEnv
 from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, IcosahedronSREnv
 from tensegrity_env.envs.task import RollingTask
 from tensegrity_env.envs.vector import IcosahedronMJVectorEnv, IcosahedronSRVectorEnv
+
+
+def __getattr__(name: str) -> object:
+    if name == "SB3VecEnv":  # imported on use: Stable-Baselines3 is slow to import
+        from tensegrity_env.envs.sb3 import SB3VecEnv
+
+        return SB3VecEnv
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "DEFAULT_PARAMS",

@@ -21,7 +21,7 @@ from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.topology import Topology
 
 #: how long the resting pose is settled from the face-down nominal pose [s]
-SETTLE_SECONDS = 3.0
+SETTLE_SECONDS = 10.0
 
 
 class Simulator(Protocol):

@@ -9,6 +9,7 @@ through MuJoCo's multi-threaded :mod:`mujoco.rollout` for the vector twin.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from pathlib import Path
 
 import mujoco
@@ -53,6 +54,7 @@ class MJSimulator:
         self.data = mujoco.MjData(self.model)
         self.frame_skip = int(frame_skip)
         self.control_dt = float(self.model.opt.timestep) * self.frame_skip
+        self.diverged = False
         if np.any(self.asm.actuators < 0):
             raise ValueError(f"{self.xml_path}: every rod needs x, y, z force actuators")
 
@@ -62,13 +64,21 @@ class MJSimulator:
         self.data.qpos[:] = qpos
         self.data.qvel[:] = qvel
         mujoco.mj_forward(self.model, self.data)
+        self.diverged = False
 
     def get_state(self) -> np.ndarray:
+        """Packed rod states (R, 13); NaN once MuJoCo has declared the simulation unstable."""
+        if self.diverged:
+            return np.full((self.topology.n_rods, 13), np.nan)
         return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
 
     def step(self, command: np.ndarray) -> None:
         self.data.ctrl[self.asm.actuators.ravel()] = np.asarray(command).ravel()
+        bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
+        before = bad.number
         mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
+        # MuJoCo resets an unstable simulation to qpos0 and goes on; report it instead
+        self.diverged |= bad.number > before
 
     def initial_pose(self) -> np.ndarray:
         """The model's own initial pose (``qpos0``, the face-down nominal pose), at rest."""
@@ -76,6 +86,18 @@ class MJSimulator:
 
     def render_assembly(self) -> MjcfAssembly:
         return self.asm
+
+
+@lru_cache(maxsize=8)
+def _twin_rest(xml_path: str, mtime: float, frame_skip: int) -> np.ndarray:
+    sim = MJSimulator(frame_skip, xml_path)
+    return settle(sim, sim.initial_pose())
+
+
+def twin_rest_pose(sim: MJSimulator) -> np.ndarray:
+    """The twin's resting pose, settled in MuJoCo (cached per model file)."""
+    p = sim.xml_path.resolve()
+    return _twin_rest(str(p), p.stat().st_mtime, sim.frame_skip).copy()
 
 
 class MJBatch:
@@ -96,27 +118,34 @@ class MJBatch:
         t = mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_TIME)
         self._qpos = slice(t, t + self.model.nq)
         self._qvel = slice(t + self.model.nq, t + self.model.nq + self.model.nv)
+        self.diverged = np.zeros(batch, dtype=bool)
 
     def set_states(self, idx: np.ndarray, x: np.ndarray) -> None:
         """Set copies ``idx`` from packed rod states (len(idx), R, 13)."""
         for i, xi in zip(idx, x, strict=True):
             self.sim.set_state(xi)
             mujoco.mj_getState(self.model, self.sim.data, self.states[i], self.spec)
+        self.diverged[idx] = False
 
     def get_states(self) -> np.ndarray:
-        """Packed rod states of every copy (B, R, 13)."""
-        return pack_mj(self.asm, self.states[:, self._qpos], self.states[:, self._qvel])
+        """Packed rod states of every copy (B, R, 13); NaN where MuJoCo went unstable."""
+        x = pack_mj(self.asm, self.states[:, self._qpos], self.states[:, self._qvel])
+        x[self.diverged] = np.nan
+        return x
 
     def step(self, commands: np.ndarray) -> None:
         """Every copy ``frame_skip`` MuJoCo steps under commands (B, R, 3)."""
         B = commands.shape[0]
         ctrl = np.zeros((B, 1, self.model.nu))
         ctrl[:, 0, self.asm.actuators.ravel()] = commands.reshape(B, -1)
+        expected = self.states[:, 0] + self.sim.frame_skip * self.model.opt.timestep
         self._pool.rollout(
             self.model, self._datas, self.states, ctrl, nstep=self.sim.frame_skip,
             state=self._out,
         )  # fmt: skip
         self.states[:] = self._out[:, -1]
+        # an unstable copy is reset by MuJoCo (its clock restarts): report it instead
+        self.diverged |= self.states[:, 0] < expected - 0.5 * self.model.opt.timestep
 
     def close(self) -> None:
         self._pool.close()
@@ -145,7 +174,7 @@ class IcosahedronMJEnv(RollingEnv):
         xml_path: str | Path | None = None,
         frame_skip: int = 50,
         reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (1.0, 2.0),
+        goal_distance: tuple[float, float] = (2.0, 4.0),
         goal_radius: float = 0.3,
         max_command: float = 2.0,
         progress_weight: float = 1.0,
@@ -156,6 +185,7 @@ class IcosahedronMJEnv(RollingEnv):
         height: int = 480,
     ) -> None:
         sim = MJSimulator(frame_skip, xml_path)
+        rest = twin_rest_pose(sim)
         task = RollingTask(
             goal_distance=tuple(goal_distance),  # type: ignore[arg-type]
             goal_radius=goal_radius,
@@ -166,5 +196,4 @@ class IcosahedronMJEnv(RollingEnv):
             reset_noise_scale=reset_noise_scale,
             control_dt=sim.control_dt,
         )
-        rest = settle(sim, sim.initial_pose())
         super().__init__(sim, rest, task, render_mode, width, height)

@@ -9,7 +9,8 @@
  *   forces      every spring a scalar tension T = K (l - l0) + c dl/dt along its
  *               axis; control h f_u at each rod's arm R r_u; ground contact per rod:
  *               four friction-pyramid edges per touching end cap, forces f >= 0
- *               from min 1/2 f'(A + R)f + f'(a0 - aref) by the same primal-dual
+ *               from min 1/2 f'(A + R)f + f'(a0 - aref), R = (1 - d)/d 2 mu^2 (1 + mu^2) / M,
+ *               by the same primal-dual
  *               active-set iteration (at most `iterations`, stop when the active
  *               set settles) and one projected Gauss-Seidel sweep
  *   accel.      a = F / M + g; Euler's equations in the rod frame with the
@@ -45,7 +46,7 @@ typedef struct {
     const double *end, *arm_u, *anchors, *K, *c, *l0, *mass, *inertia;
     double gain, g[3];
     int contact;
-    double k_c, b_c, d_max, d_min, width, mu, height;
+    double k_c, b_c, d_max, d_min, width, mu, height, soft;
     const double *radius;
     const int *springs;
     int iterations;
@@ -67,6 +68,7 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->contact = w[0] != 0.0;
     m->k_c = w[1]; m->b_c = w[2]; m->d_max = w[3]; m->d_min = w[4];
     m->width = w[5]; m->mu = w[6]; m->height = w[7]; w += 8;
+    m->soft = 2.0 * m->mu * m->mu * (1.0 + m->mu * m->mu); /* R = (1-d)/d soft / M */
     m->radius = w;
 }
 
@@ -185,7 +187,7 @@ static void contact_wrench(const Model *m, int r, const double *p, const double 
         double t1x = 1.0, t1y = 0.0;
         if (nrm > 1e-12) { t1x = arms[k][0] / nrm; t1y = arms[k][1] / nrm; }
         double d = impedance(m, dist[k]);
-        double sft = (1.0 - d) / d * (4.0 * inv_m), kd = m->k_c * d * dist[k];
+        double sft = (1.0 - d) / d * m->soft * inv_m, kd = m->k_c * d * dist[k];
         double tan[2][2] = {{t1x, t1y}, {-t1y, t1x}};
         for (int t = 0; t < 2; t++) {
             for (int s = 0; s < 2; s++) {
@@ -314,7 +316,7 @@ static void vcontact_cap(const Model *m, int r, const VRod *x, const vd *M, cons
     xi = vsel(xi > 1, vsplat(1.0), xi);
     vd yi = vsel(xi < 0.5, 2.0 * xi * xi, 1.0 - 2.0 * (1.0 - xi) * (1.0 - xi));
     vd d = m->d_min + yi * (m->d_max - m->d_min);
-    vd sft = (1.0 - d) / d * (4.0 * inv_m), kd = m->k_c * d * *dist;
+    vd sft = (1.0 - d) / d * (m->soft * inv_m), kd = m->k_c * d * *dist;
     vd E[4][3], Ang[4][3], b[4];
     const vd tx[2] = {t1x, -t1y}, ty[2] = {t1y, t1x};
     for (int j = 0; j < 4; j++) {

@@ -36,6 +36,7 @@ from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.effects import Effect
 from tensegrity_env.envs.native import NativeUnavailable, load_kernel
 from tensegrity_env.params import Params
+from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_env.topology import Topology
 
 #: rows of the packed state: p, v, q, omega
@@ -90,6 +91,10 @@ def ground_contact_of(effects: Sequence[Effect]) -> Effect | None:
     return contact[0] if contact else None
 
 
+class KernelMismatch(ValueError):
+    """The native kernel no longer computes what :class:`Engine` computes."""
+
+
 class NativeStepper:
     """The C kernel (see the module docstring). Raises :class:`NativeUnavailable`.
 
@@ -98,7 +103,11 @@ class NativeStepper:
         effects: its effects (ground contact at most; ValueError otherwise).
         dt: physics step [s]. frame_skip: physics steps per call.
         threads: OpenMP threads over the batch (None: every available core).
-        contact_iterations: active-set iterations of the contact problem.
+        contact_iterations: most active-set iterations of the contact problem (None:
+            ``GroundContact``'s own limit).
+        verify: compare one step with :class:`Engine` on states touching the floor and
+            raise :class:`KernelMismatch` if they differ beyond round-off (the kernel
+            restates the engine's physics; this catches the two drifting apart).
     """
 
     backend = "native"
@@ -111,8 +120,11 @@ class NativeStepper:
         dt: float,
         frame_skip: int,
         threads: int | None = None,
-        contact_iterations: int = 8,
+        contact_iterations: int | None = None,
+        verify: bool = True,
     ) -> None:
+        from tensegrity_env.effects import ground_contact
+
         contact = ground_contact_of(effects)
         self._lib, self.openmp = load_kernel()
         if (
@@ -123,7 +135,7 @@ class NativeStepper:
         self.topology = topology
         self.dt, self.frame_skip = float(dt), int(frame_skip)
         self.threads = int(threads or default_threads())
-        self.iterations = int(contact_iterations)
+        self.iterations = int(contact_iterations or ground_contact.ACTIVE_SET_ITERATIONS)
         P = params.numpy()
         if contact is None:
             c = np.zeros(8)
@@ -148,6 +160,45 @@ class NativeStepper:
         ]  # fmt: skip
         self._model = np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)
+        if verify:
+            self.verify(params, effects)
+
+    def verify(self, params: Params, effects: Sequence[Effect], atol: float = 1e-9) -> float:
+        """Largest state difference after two steps against :class:`Engine` (float64).
+
+        The states: rods in random orientations spread over a square metre, each
+        lowered so that its lower end cap sinks 1 mm into the floor, with random
+        velocities and commands. Raises :class:`KernelMismatch` above ``atol``.
+        """
+        t = self.topology
+        rng = np.random.default_rng(0)
+        B, R = 3, t.n_rods
+        q = rng.normal(size=(B, R, 4))
+        q /= np.linalg.norm(q, axis=-1, keepdims=True)
+        ends = np.einsum("brij,rkj->brki", np_quat_to_matrix(q), t.end_offsets)
+        radius = np.array([max(r.radius, 1e-3) for r in t.rods])
+        p = np.concatenate([rng.uniform(-0.5, 0.5, (B, R, 2)), np.zeros((B, R, 1))], -1)
+        p[..., 2] = radius - 1e-3 - ends[..., 2].min(axis=-1)
+        x = np.concatenate([p, rng.normal(0, 0.3, (B, R, 3)), q, rng.normal(0, 1, (B, R, 3))], -1)
+        u = rng.normal(0, 1, (B, R, 3))
+        engine = Engine(t, self.dt, effects)
+        ref = unpack_states(x)
+        with torch.no_grad():
+            for _ in range(2):
+                ref = engine.step(ref, params, torch.as_tensor(u))
+        steps, self.frame_skip = self.frame_skip, 2
+        try:
+            mine = np.ascontiguousarray(x)
+            self(mine, u)
+        finally:
+            self.frame_skip = steps
+        err = float(np.abs(mine - pack_states(ref)).max())
+        if not err <= atol:
+            raise KernelMismatch(
+                f"the native kernel differs from the engine by {err:.2e} (> {atol:g}): "
+                "an effect's law changed without native_step.c"
+            )
+        return err
 
     def __call__(self, x: np.ndarray, control: np.ndarray) -> None:
         if x.dtype != np.float64 or not x.flags.c_contiguous:

@@ -30,9 +30,11 @@ import numpy as np
 from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.mujoco_state import rod_state_to_mj
 
-#: camera: looks at the midpoint of the structure and its goal from this far [m]
-CAMERA_DISTANCE = 4.0
-CAMERA_ELEVATION = -30.0  # deg
+#: camera: looks at the midpoint of the structure and its goal from CAMERA_DISTANCE [m]
+#: plus CAMERA_ZOOM times their separation, so that both stay in view
+CAMERA_DISTANCE = 2.5
+CAMERA_ZOOM = 1.1
+CAMERA_ELEVATION = -35.0  # deg
 CAMERA_AZIMUTH = 135.0  # deg
 GOAL_RGBA = (0.15, 0.8, 0.25, 0.7)
 
@@ -94,6 +96,8 @@ class SceneRenderer:
     def _aim(self, x: np.ndarray, goal: np.ndarray) -> None:
         centre = x[:, 0:3].mean(axis=0)
         self.camera.lookat[:] = (0.5 * (centre[0] + goal[0]), 0.5 * (centre[1] + goal[1]), 0.3)
+        gap = float(np.hypot(goal[0] - centre[0], goal[1] - centre[1]))
+        self.camera.distance = CAMERA_DISTANCE + CAMERA_ZOOM * gap
 
     def _add_goal(self, scene: mujoco.MjvScene, goal: np.ndarray) -> None:
         if scene.ngeom >= scene.maxgeom:

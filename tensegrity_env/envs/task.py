@@ -38,7 +38,7 @@ class RollingTask:
         control_dt: seconds per env step (``frame_skip * dt``).
     """
 
-    goal_distance: tuple[float, float] = (1.0, 2.0)
+    goal_distance: tuple[float, float] = (2.0, 4.0)
     goal_radius: float = 0.3
     max_command: float = 2.0
     progress_weight: float = 1.0

@@ -4,10 +4,16 @@ The paper's icosahedron (:func:`tensegrity_env.assemblies.icosahedron`) has ever
 spring exactly at its rest length in the nominal pose (no prestress) and 100 N/m
 springs; under gravity on a floor it folds flat (its centre ends 16 mm above the
 floor, the rod radius). A rolling tensegrity robot is prestressed, so the
-environments' ground truth is the same topology, rods and control gain
+environments' ground truth is the same topology, rod masses and control gain
 ``h_true = 2.5`` with stiffer springs (300 N/m ±20 %, 3 N*s/m) and rest lengths at
 85 % of the nominal spring length (about 29 N of pretension per spring). It stands
 with its centre about 0.3 m high and rolls under bounded control forces.
+
+The rods are 5 cm in radius (end caps the size of a real robot's motor housings),
+not 16 mm: an end cap rolling sideways on the floor spins its rod about its own
+axis at ``v / r``, and the thin rods' spin (300 rad/s when pushed along at 1 m/s)
+made the explicitly integrated gyroscopic coupling of every Euler-integrated model,
+MuJoCo's included, blow up within seconds.
 
 :func:`twin_assembly` builds it; :func:`face_down_pose` puts a triangular face on
 the floor; :func:`twin_mjcf` writes the MuJoCo twin (floor, three world-axis force
@@ -28,6 +34,7 @@ from tensegrity_env.topology import Topology
 TWIN_STIFFNESS = 300.0  # N/m, nominal (varied ±20 % per spring)
 TWIN_DAMPING = 3.0  # N*s/m, nominal (varied ±20 % per spring)
 TWIN_PRESTRESS = 0.85  # rest length / nominal spring length
+TWIN_RADIUS = 0.05  # m, rods and end caps
 TWIN_TIMESTEP = 1e-3  # s
 #: clearance between the lowest end-cap surface and the floor in the initial pose [m]
 DROP_CLEARANCE = 1e-3
@@ -35,7 +42,7 @@ DROP_CLEARANCE = 1e-3
 
 def twin_assembly() -> Assembly:
     """The prestressed icosahedron: topology, true parameters, nominal pose."""
-    a = icosahedron(stiffness=TWIN_STIFFNESS, damping=TWIN_DAMPING)
+    a = icosahedron(stiffness=TWIN_STIFFNESS, damping=TWIN_DAMPING, radius=TWIN_RADIUS)
     params = a.params.replace(rest_length=a.params.rest_length * TWIN_PRESTRESS)
     return Assembly(a.topology, params, a.pose_p, a.pose_q)
 

@@ -31,8 +31,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from tensegrity_env.envs.base import settle
-from tensegrity_env.envs.mj_env import MJBatch, MJSimulator
+from tensegrity_env.envs.mj_env import MJBatch, MJSimulator, twin_rest_pose
 from tensegrity_env.envs.physics import Backend
 from tensegrity_env.envs.rendering import SceneRenderer
 from tensegrity_env.envs.sr_env import SRSimulator, rest_pose
@@ -231,7 +230,7 @@ class IcosahedronSRVectorEnv(RollingVectorEnv):
         params_path: str | Path | None = None,
         frame_skip: int = 50,
         reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (1.0, 2.0),
+        goal_distance: tuple[float, float] = (2.0, 4.0),
         goal_radius: float = 0.3,
         max_command: float = 2.0,
         progress_weight: float = 1.0,
@@ -287,7 +286,7 @@ class IcosahedronMJVectorEnv(RollingVectorEnv):
         xml_path: str | Path | None = None,
         frame_skip: int = 50,
         reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (1.0, 2.0),
+        goal_distance: tuple[float, float] = (2.0, 4.0),
         goal_radius: float = 0.3,
         max_command: float = 2.0,
         progress_weight: float = 1.0,
@@ -301,7 +300,7 @@ class IcosahedronMJVectorEnv(RollingVectorEnv):
     ) -> None:
         sim = MJSimulator(frame_skip, xml_path)
         self.topology, self.control_dt = sim.topology, sim.control_dt
-        self.rest = settle(sim, sim.initial_pose())
+        self.rest = twin_rest_pose(sim)
         self.batch = MJBatch(sim, num_envs, threads)
         task = RollingTask(
             goal_distance=tuple(goal_distance),  # type: ignore[arg-type]

@@ -148,6 +148,11 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
             self._renderer.close()
             self._renderer = None
 
+    @property
+    def distance_to_goal(self) -> float:
+        """Horizontal distance from the structure's centre to the goal [m]."""
+        return self._distance
+
     # ------------------------------------------------------------------ helpers
     def _obs(self) -> np.ndarray:
         return self.task.observe(self.state[None], self.goal[None], self._axes)[0]

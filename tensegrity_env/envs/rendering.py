@@ -62,10 +62,17 @@ class SceneRenderer:
         assembly: the MuJoCo model of the assembly (with its floor) and its maps.
         width, height: image size [px] (at most the model's offscreen buffer).
         goal_radius: radius of the goal marker [m].
+        shadows: draw shadows and floor reflections (6x slower with software OpenGL,
+            the usual headless case).
     """
 
     def __init__(
-        self, assembly: MjcfAssembly, width: int = 640, height: int = 480, goal_radius: float = 0.3
+        self,
+        assembly: MjcfAssembly,
+        width: int = 640,
+        height: int = 480,
+        goal_radius: float = 0.3,
+        shadows: bool = False,
     ) -> None:
         m = assembly.model
         if not (0 < width <= m.vis.global_.offwidth and 0 < height <= m.vis.global_.offheight):
@@ -76,6 +83,7 @@ class SceneRenderer:
         self.assembly, self.model = assembly, m
         self.data = mujoco.MjData(m)
         self.width, self.height, self.goal_radius = int(width), int(height), float(goal_radius)
+        self.shadows = bool(shadows)
         self._renderer: mujoco.Renderer | None = None
         self._viewer: Any = None
         self._warned = False
@@ -121,9 +129,12 @@ class SceneRenderer:
             except Exception as e:  # MuJoCo raises several types for a missing GL context
                 gl = os.environ.get("MUJOCO_GL", "unset")
                 raise RenderingUnavailable(
-                    f"MuJoCo's renderer has no OpenGL context ({_first_line(e)}; MUJOCO_GL="
-                    f"{gl}): headless, set MUJOCO_GL=egl or osmesa before mujoco is imported"
+                    f"MuJoCo's renderer has no OpenGL context ({_first_line(e)}); MuJoCo picks "
+                    f"its GL backend when first imported (MUJOCO_GL is now {gl!r}): headless, "
+                    "set MUJOCO_GL=egl or osmesa before anything imports mujoco"
                 ) from None
+            for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION):
+                self._renderer.scene.flags[flag] = self.shadows
         self.set_state(x)
         self._aim(x, goal)
         self._renderer.update_scene(self.data, camera=self.camera)

@@ -320,3 +320,36 @@ def test_rendered_frame_shows_the_structure(cls: type) -> None:
     assert rods.sum() > 200, "no rod pixels in the frame"
     assert frame.std() > 10
     env.close()
+
+
+# ---------------------------------------------------------------------- slow
+@pytest.mark.slow
+def test_asset_pipeline_regenerates_an_identified_model(tmp_path: Path) -> None:
+    """generate -> identify -> generate on the floor -> diagnose, on small datasets (~1 min)."""
+    from tensegrity_env.assets.make_default_params import main as make_assets
+
+    assert make_assets(["--quick", "--out", str(tmp_path), "--work", str(tmp_path / "work")]) == 0
+    params = tmp_path / "icosahedron_rolling_params.json"
+    _, _, effects = load_env_model(params)
+    contact = effects[0].values
+    assert abs(float(contact["friction"]) - 1.0) < 0.05
+    env = IcosahedronSREnv(params_path=params)
+    env.reset(seed=0)
+    assert 0.2 < env.state[:, 2].mean() < 0.45
+
+
+@pytest.mark.slow
+def test_identified_env_tracks_the_twin() -> None:
+    """Same start and random actions: the centres stay within a few cm for a second."""
+    sr, mj = IcosahedronSREnv(goal_distance=(50, 50)), IcosahedronMJEnv(goal_distance=(50, 50))
+    gaps = []
+    for seed in range(6):
+        sr.reset(seed=seed)
+        mj.reset(options={"state": sr.state, "goal": sr.goal})
+        rng = np.random.default_rng(seed)
+        for _ in range(20):
+            a = rng.uniform(-1, 1, 18).astype(np.float32)
+            sr.step(a)
+            mj.step(a)
+        gaps.append(np.linalg.norm(sr.state[:, :3].mean(0) - mj.state[:, :3].mean(0)))
+    assert np.median(gaps) < 0.01 and max(gaps) < 0.03

@@ -1,8 +1,8 @@
 """Regenerate the environments' assets: the MuJoCo twin and the identified params file.
 
-    python -m tensegrity_env.assets.make_default_params [--work DIR] [--quick]
+    python -m tensegrity_env.assets.make_default_params [--work DIR] [--quick] [--out DIR]
 
-writes, next to this script,
+writes, next to this script (or into ``--out``),
 
 * ``icosahedron_rolling.xml``: the twin (:func:`tensegrity_env.envs.twin.twin_mjcf`);
 * ``icosahedron_rolling_params.json``: what the identification pipeline makes of it,
@@ -53,14 +53,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--quick", action="store_true", help="smaller datasets (a check, not the asset)"
     )
+    parser.add_argument("--out", type=Path, default=HERE, help="folder for the two assets")
     args = parser.parse_args(argv)
+    twin_path, params_path = args.out / TWIN.name, args.out / PARAMS.name
+    args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     work = args.work or Path(tempfile.mkdtemp(prefix="tensegrity_assets_"))
     work.mkdir(parents=True, exist_ok=True)
     n = ["--n-train", "4", "--n-val", "2", "--n-test", "2"] if args.quick else \
         ["--n-train", "16", "--n-val", "4", "--n-test", "4"]  # fmt: skip
 
-    atomic_write_text(TWIN, twin_mjcf(ground=True))
+    atomic_write_text(twin_path, twin_mjcf(ground=True))
     free_xml = work / "icosahedron_rolling_free.xml"
     atomic_write_text(free_xml, twin_mjcf(ground=False))
     mass0 = float(twin_assembly().params.mass[0])  # the rod a user would weigh
@@ -70,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
          "--seed", "0", "--no-progress", "-o", str(free)])  # fmt: skip
     run(["identify", str(free), "--anchor", f"mass[rod0]={mass0!r}", "-o", str(ident)])
     ground, diag = work / "ground.h5", work / "diagnose"
-    run(["generate", "--mjcf", str(TWIN), *n, "--steps", "1000", "--control-std", "1",
+    run(["generate", "--mjcf", str(twin_path), *n, "--steps", "1000", "--control-std", "1",
          "--seed", "1", "--no-progress", "-o", str(ground)])  # fmt: skip
     run(["diagnose", str(ground), "--params", str(ident), "--candidates", "ground_contact",
          "--max-effects", "1", "-o", str(diag)])  # fmt: skip
@@ -81,10 +84,10 @@ def main(argv: list[str] | None = None) -> int:
         "twin": TWIN.name,
         "quick": bool(args.quick),
     }
-    atomic_write_text(PARAMS, json.dumps(doc, indent=2) + "\n")
+    atomic_write_text(params_path, json.dumps(doc, indent=2) + "\n")
     if args.work is None:
         shutil.rmtree(work, ignore_errors=True)
-    print(f"wrote {TWIN} and {PARAMS} in {time.perf_counter() - t0:.0f} s")
+    print(f"wrote {twin_path} and {params_path} in {time.perf_counter() - t0:.0f} s")
     return 0
 
 

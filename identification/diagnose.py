@@ -41,6 +41,7 @@ from identification.extended import commands_for, evaluate_model
 from identification.features import transitions_of
 from identification.residuals import compute_residuals, plot_residuals, summarize
 from tensegrity_env.engine import Engine
+from tensegrity_env.io_utils import InputError
 
 #: a candidate must lower the BIC by this much ...
 MIN_BIC_DROP = 10.0
@@ -222,7 +223,7 @@ def diagnose(
             t0 = time.perf_counter()
             try:
                 fitted = fit_proposal(dataset, p, settings)
-            except (RuntimeError, ValueError) as e:  # a singular or failed fit
+            except (RuntimeError, ValueError, InputError) as e:  # a singular or failed fit
                 skipped.append(Proposal(p.name, None, f"fit failed: {e}"))
                 continue
             s = _score(dataset, p.name, fitted, val_split, horizon_s)

@@ -154,6 +154,8 @@ def fit_effect_params(
         return torch.tensor(vals, dtype=DTYPE)
 
     def residual(theta: torch.Tensor) -> torch.Tensor:
+        if not bool(torch.isfinite(theta).all()) or bool((theta.abs() > 50).any()):
+            return torch.full((windows.caps.numel(),), float("inf"), dtype=DTYPE)
         eng = Engine(topology, dt, effects=_apply(effects, free, theta))
         with torch.no_grad():
             caps = rollout_caps(eng, params, windows.init, windows.control)

@@ -146,14 +146,19 @@ class ExperimentResult:
     seed: int
 
 
-def machine_description() -> str:
-    """Cores, CPU and library versions of this machine, one line."""
+def load_average() -> float:
+    """The 1-minute load average (NaN where the OS has none)."""
+    return os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+
+
+def machine_description(load_start: float) -> str:
+    """Cores, CPU, library versions and load (start and end of the run), one line."""
     cpu = platform.processor() or platform.machine()
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (
         f"{os.cpu_count()}-core CPU ({cpu}), {platform.system()}, Python "
-        f"{platform.python_version()}, torch {torch.__version__} (CPU), no GPU; "
-        f"load average {load:.1f} at the start (the cores are shared with other jobs)"
+        f"{platform.python_version()}, torch {torch.__version__} (CPU), no GPU; 1-minute "
+        f"load average {load_start:.1f} at the start and {load_average():.1f} at the end "
+        "(other jobs share the cores)"
     )
 
 
@@ -255,11 +260,11 @@ def run_paper(
         if scale not in SCALES:
             raise InputError(f"--scale: unknown scale '{scale}' (choose from {sorted(SCALES)})")
         scale = SCALES[scale]
-    t0 = time.perf_counter()
+    t0, load0 = time.perf_counter(), load_average()
+    assert ASSEMBLIES[-1] == "icosahedron"
     per_assembly = 2 + len(MODELS) - 1 + 1  # generate, ours, baselines, evaluate
     total = len(ASSEMBLIES) * per_assembly + 2
     results: dict[str, AssemblyResult] = {}
-    datasets: dict[str, tuple[Dataset, Params]] = {}
     with tqdm(total=total, desc="experiment", unit="stage", disable=not progress) as bar:
         first = [True]
 
@@ -269,12 +274,8 @@ def run_paper(
             first[0] = False
             bar.set_postfix_str(label)
 
-        for name in ASSEMBLIES:
-            results[name], *pair = run_assembly(name, scale, seed, step)
-            datasets[name] = (pair[0], pair[1])
-            if name != "icosahedron":
-                del datasets[name]  # only the icosahedron is needed below
-        dataset, truth = datasets["icosahedron"]
+        for name in ASSEMBLIES:  # the icosahedron last: its data serve the sweeps below
+            results[name], dataset, truth = run_assembly(name, scale, seed, step)
         step("icosahedron: data efficiency (ours)")
         efficiency = run_efficiency(
             dataset,
@@ -293,6 +294,6 @@ def run_paper(
         efficiency=efficiency,
         koopman_requirement=koopman,
         seconds=time.perf_counter() - t0,
-        machine=machine_description(),
+        machine=machine_description(load0),
         seed=seed,
     )

@@ -672,13 +672,15 @@ class WindowFit:
         history: mean squared end-cap error [m^2] at the start and after each iteration.
         stderr: standard error of each free log-parameter (= relative standard error of
             the parameter) from the Gauss-Newton covariance ``σ² S⁻¹``, (n_free,).
-        converged: the relative decrease fell below the tolerance.
+        score: the chi-square decrease the first Gauss-Newton step promised.
+        converged: the stopping rule was met (not just ``max_iter``).
     """
 
     theta: torch.Tensor
     windows: Windows
     history: list[float]
     stderr: np.ndarray
+    score: float
     converged: bool
 
 
@@ -688,23 +690,24 @@ def fit_windows(
     windows: Windows,
     theta: torch.Tensor,
     max_iter: int = 20,
-    tol: float = 0.05,
+    tol: float = 0.1,
     progress: Callable[[float], None] | None = None,
     exact_gradient: bool = False,
     spin: bool = True,
+    gate: float | None = None,
 ) -> WindowFit:
     """Stage 2: Levenberg-Marquardt on window initial states and free log-parameters.
 
     Minimises the mean squared end-cap position error of all windows rolled out by
-    ``engine`` (Nielsen's damping update, faster when the model is good). Stops when an iteration moved no parameter
-    by more than ``tol`` of its standard error (the window states are nuisances) and
-    lowered the error by less than 0.1 % (so the fit explains all it can), when
-    the RMS error reaches round-off (clean data), or after ``max_iter`` iterations (one
-    Jacobian each). With noise the residuals do not vanish, so Gauss-Newton converges
-    only linearly along weakly determined directions; this test stops once the rest
-    no longer matters statistically.
-    ``progress`` is called with the mean squared error after each iteration;
-    ``exact_gradient``: see :func:`linearize`; ``spin``: see :func:`local_basis`.
+    ``engine`` (Nielsen's damping update, faster when the model is good). Stops when
+    the full Gauss-Newton step would lower the chi-square ``sse / σ̂²`` by less than
+    ``tol`` (the Newton decrement: 0.1 leaves every parameter well within a fraction
+    of its standard error), when the RMS error reaches round-off (clean data), or
+    after ``max_iter`` iterations (one Jacobian each). With ``gate``, nothing is done
+    when the first step promises less than ``gate`` (a score test: the new unknowns
+    cannot be told from noise). ``progress`` is called with the mean squared error
+    after each iteration; ``exact_gradient``: see :func:`linearize`; ``spin``: see
+    :func:`local_basis`.
     """
     basis = local_basis(vec.axes, spin)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # batch of the FD Jacobian
@@ -712,8 +715,11 @@ def fit_windows(
     dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
     history = [ne.sse / ne.m]
     exact = (1e-12 * max(1.0, float(windows.obs.abs().max()))) ** 2  # round-off [m^2]
-    lam, nu, converged = 1e-7, 2.0, history[-1] < exact
-    for _ in range(max_iter if not converged else 0):
+    _, _, newton, S = schur_step(ne, 0.0)
+    score = newton / max(ne.sse / dof, 1e-300)
+    done = score < tol or history[-1] < exact or (gate is not None and score < gate)
+    lam, nu, converged = 1e-7, 2.0, done
+    for _ in range(max_iter if not done else 0):
         while True:
             d_z, d_theta, pred, _ = schur_step(ne, lam)
             d_state = torch.einsum("bl,lrj->brj", d_z, basis)
@@ -730,19 +736,17 @@ def fit_windows(
         if lam > 1e10:
             converged = True  # no step lowers the error any more
             break
-        windows, theta, previous = trial, theta + d_theta, ne.sse
+        windows, theta = trial, theta + d_theta
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
-        *_, S = schur_step(ne, 0.0)
+        _, _, newton, S = schur_step(ne, 0.0)
         history.append(ne.sse / ne.m)
         if progress is not None:
             progress(history[-1])
-        stderr = _stderr(S, ne.sse / dof)
-        moved = float((d_theta.abs() / stderr.clamp_min(1e-300)).max())
-        if (moved < tol and previous - ne.sse < 1e-3 * ne.sse) or history[-1] < exact:
+        if newton < tol * ne.sse / dof or history[-1] < exact:
             converged = True
             break
-    *_, S = schur_step(ne, 0.0)
-    return WindowFit(theta, windows, history, _stderr(S, ne.sse / dof).numpy(), converged)
+    stderr = _stderr(S, ne.sse / dof).numpy()
+    return WindowFit(theta, windows, history, stderr, score, converged)
 
 
 def _stderr(S: torch.Tensor, sigma2: float) -> torch.Tensor:
@@ -850,42 +854,55 @@ class TrajectoryIdentifier:
         schedule = window_schedule(self.first_window, min(self.window, data.n_transitions))
         self.history_, self.stages_ = [], []
         bar = tqdm(
-            total=self.max_iter * len(schedule), desc="trajectory fit", unit="it",
+            total=self.max_iter * (len(schedule) + 1), desc="trajectory fit", unit="it",
             disable=not self.progress,
         )  # fmt: skip
-        for k, W in enumerate(schedule):
+        # the axial spins are fitted last, on the final windows, if the data can see them
+        plan = [(W, False) for W in schedule] + [(schedule[-1], True)]
+        self.spin_fitted_ = False
+        for k, (W, spin) in enumerate(plan):
             windows = cut_windows(data.nodes, data.control, grid, W)
             if k == 0 and self.max_windows is not None and windows.size > self.max_windows:
                 rng = np.random.default_rng(self.seed)
                 windows = windows.take(np.sort(rng.choice(windows.size, self.max_windows, False)))
-            last = k == len(schedule) - 1
 
             def tick(mse: float, W: int = W) -> None:
                 bar.update(1)
                 bar.set_postfix(window=W, rms=f"{np.sqrt(mse):.3e} m")
 
+            n_spin = windows.size * topo.n_rods if spin else 0
+            gate = n_spin + 3 * np.sqrt(2 * n_spin) if spin else None  # chi2(n_spin) + 3 sd
+            tol = self.tol if k >= len(schedule) - 1 else 1.0
             fit = fit_windows(
-                engine, vec, windows, theta, self.max_iter, self.tol if last else 0.5, tick,
-                self.exact_gradient, spin=last,
+                engine, vec, windows, theta, self.max_iter, tol, tick, self.exact_gradient,
+                spin=spin, gate=gate,
             )  # fmt: skip
-            theta = fit.theta
+            if spin and len(fit.history) == 1:  # the data cannot tell the spins from noise
+                self.stages_.append(
+                    {"window": W, "windows": windows.size, "spin": True, "iterations": 0,
+                     "skipped": f"score test: chi2 gain {fit.score:.1f} < {gate:.1f} "
+                     f"for {n_spin} axial spins, which stay 0"}
+                )  # fmt: skip
+                break
+            self.spin_fitted_ = spin
+            final, theta = fit, fit.theta
             fill_grid(engine, vec.params(vec.full(theta)), fit.windows, grid)
             self.history_ += fit.history if k == 0 else fit.history[1:]
             self.stages_.append(
-                {"window": W, "windows": windows.size, "iterations": len(fit.history) - 1,
-                 "rms": float(np.sqrt(fit.history[-1]))}
+                {"window": W, "windows": windows.size, "spin": spin,
+                 "iterations": len(fit.history) - 1, "rms": float(np.sqrt(fit.history[-1]))}
             )  # fmt: skip
         bar.close()
         self.topology_, self.dt_ = topo, dataset.dt
         self.vector_ = vec
         self.params_ = vec.params(vec.full(theta).detach())
         self.initial_params_ = vec.params(vec.start)
-        self.converged_ = fit.converged
-        self.windows_ = fit.windows
+        self.converged_ = final.converged
+        self.windows_ = final.windows
         self.rms_ = float(np.sqrt(self.history_[-1]))
         names = vec.names()
         free = torch.nonzero(vec.free)[:, 0].tolist()
-        self.stderr_ = {names[i]: float(s) for i, s in zip(free, fit.stderr, strict=True)}
+        self.stderr_ = {names[i]: float(s) for i, s in zip(free, final.stderr, strict=True)}
         self.notes_ = self._notes(topo, axes, has_control)
         return self
 

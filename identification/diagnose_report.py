@@ -22,7 +22,9 @@ def fmt_err(x: float) -> str:
 
 
 def ratio(before: float, after: float) -> str:
-    """``before / after`` as ``123x``; ``diverged -> ok`` when the model before blew up."""
+    """``before / after`` as ``123x``, or which of the two diverged (NaN or inf)."""
+    if not np.isfinite(after):
+        return "diverged after" if np.isfinite(before) else "diverged both"
     if not np.isfinite(before):
         return "∞ (was diverged)"
     return f"{before / max(after, 1e-300):.3g}x"

@@ -335,10 +335,13 @@ def parse_anchors(topology: Topology, anchors: Mapping[str, float]) -> dict[tupl
                 f"unknown anchor '{name}'; use mass[{topology.rods[0].name}], "
                 f"stiffness[{topology.springs[0].name}], inertia_perp[ROD], control_gain, ..."
             )
-        if group == "inertia" and rest.rstrip("]").split(",")[-1] == "xyz"[
-            RodAxes.of(topology).axis[key[1]]
-        ]:
-            raise InputError(f"anchor '{name}': the axial inertia is not identifiable from end caps")
+        if (
+            group == "inertia"
+            and rest.rstrip("]").split(",")[-1] == "xyz"[RodAxes.of(topology).axis[key[1]]]
+        ):
+            raise InputError(
+                f"anchor '{name}': the axial inertia is not identifiable from end caps"
+            )
         if not float(value) > 0:
             raise InputError(f"anchor '{name}' must be positive, got {value}")
         out[key] = float(value)
@@ -379,7 +382,7 @@ class ParamVector:
         return sel
 
     def full(self, theta: torch.Tensor) -> torch.Tensor:
-        """Full log vector (..., n_full) from free values ``theta`` (..., n_free) (differentiable)."""
+        """Full log vector (..., n_full) from the free values ``theta`` (..., n_free)."""
         return torch.where(self.free, 0.0, self.start) + theta @ self.selector().T
 
     def params(self, log_full: torch.Tensor) -> Params:
@@ -593,8 +596,13 @@ def linearize(
 
 @torch.no_grad()
 def gauss_newton_fd(
-    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
-    step: float, block: int = 25,
+    engine: Engine,
+    vec: ParamVector,
+    win: Windows,
+    basis: torch.Tensor,
+    theta: torch.Tensor,
+    step: float,
+    block: int = 25,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, float]:
     """``JᵀJ`` and ``Jᵀr`` by forward differences, and the sum of squares ``rᵀr`` [m^2].
 
@@ -902,9 +910,10 @@ class TrajectoryIdentifier:
                 engine, vec, windows, theta, self.max_iter, tol, tick, self.exact_gradient,
                 spin=spin, gate=gate,
             )  # fmt: skip
-            if spin and len(fit.history) == 1:  # the data cannot tell the spins from noise
+            if spin and gate is not None and fit.score < gate:  # spins invisible: keep 0
                 self.stages_.append(
-                    {"window": windows.steps, "windows": windows.size, "spin": True, "iterations": 0,
+                    {"window": windows.steps, "windows": windows.size, "spin": True,
+                     "iterations": 0,
                      "skipped": f"score test: chi2 gain {fit.score:.1f} < {gate:.1f} "
                      f"for {n_spin} axial spins, which stay 0"}
                 )  # fmt: skip

@@ -64,7 +64,9 @@ def simulate(
     s = mj_to_rod_state(mj, qpos, qvel)
     rot = np_quat_to_matrix(s["q"])
     ends = s["p"][..., None, :] + np.einsum("ntrij,rkj->ntrki", rot, asm.topology.end_offsets)
-    split = Split(nodes=ends.reshape(n, steps + 1, 2 * R, 3), control=np.zeros((n, steps, R, 3)), **s)
+    split = Split(
+        nodes=ends.reshape(n, steps + 1, 2 * R, 3), control=np.zeros((n, steps, R, 3)), **s
+    )
     return Dataset(asm.topology, float(m.opt.timestep), {"train": split})
 
 

@@ -217,7 +217,11 @@ def accumulate_normal(A: torch.Tensor, slots: RodSlots, n_params: int, out: torc
     """
     n, R, rows, L = A.shape
     per_rod = A.permute(1, 0, 2, 3).reshape(R, n * rows, L)  # free for rod_blocks' output
-    G = torch.bmm(per_rod.transpose(1, 2), per_rod)  # (R, L, L)
+    scatter_local_gram(torch.bmm(per_rod.transpose(1, 2), per_rod), slots, out)
+
+
+def scatter_local_gram(G: torch.Tensor, slots: RodSlots, out: torch.Tensor) -> None:
+    """Add per-rod local Gram matrices ``G`` (R, L, L) into the global normal matrix ``out``."""
     cols = slots.columns
     rows_idx = cols.unsqueeze(2).expand_as(G).reshape(-1)
     cols_idx = cols.unsqueeze(1).expand_as(G).reshape(-1)

@@ -12,6 +12,7 @@ identifiability report, ``predict``/``simulate`` run the identified engine and
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -21,8 +22,15 @@ import torch
 from tqdm.auto import tqdm
 
 from identification.dataset import Dataset, Split
-from identification.design import ParameterLayout, accumulate_normal, rod_blocks, rod_slots
+from identification.design import (
+    ParameterLayout,
+    accumulate_normal,
+    rod_blocks,
+    rod_slots,
+    scatter_local_gram,
+)
 from identification.features import transition_features, transitions_of
+from identification.native_normal import NativeUnavailable, local_gram_native
 from identification.solve import Solution, fit_linear_network, solve_constrained
 from tensegrity_env.assemblies import cylinder_inertia
 from tensegrity_env.engine import Engine, State
@@ -78,6 +86,9 @@ class SpringRodIdentifier:
         fraction: fit on this random fraction of the training transitions.
         seed: seed of the random subset and of the network solver.
         progress: show a progress bar while building the design.
+        backend: how the normal matrix is built: ``"native"`` (one C pass over the
+            states, :mod:`identification.native_normal`), ``"torch"`` (design blocks in
+            PyTorch, chunked) or ``"auto"`` (native where a C compiler works).
     """
 
     def __init__(
@@ -94,7 +105,10 @@ class SpringRodIdentifier:
         fraction: float | None = None,
         seed: int = 0,
         progress: bool = False,
+        backend: str = "auto",
     ) -> None:
+        if backend not in ("auto", "native", "torch"):
+            raise ValueError(f"backend must be 'auto', 'native' or 'torch', got {backend!r}")
         if solver not in ("lstsq", "network"):
             raise ValueError(f"solver must be 'lstsq' or 'network', got {solver!r}")
         bad = [f for f in freeze if f not in FREEZABLE]
@@ -114,6 +128,7 @@ class SpringRodIdentifier:
         self.fraction = fraction
         self.seed = seed
         self.progress = progress
+        self.backend = backend
 
     # ------------------------------------------------------------------ fitting
     def fit(self, dataset: Dataset, split: str = "train") -> SpringRodIdentifier:
@@ -166,12 +181,25 @@ class SpringRodIdentifier:
             rest = self.init_params.rest_length.detach().double()
         P = layout.n_params
         normal = torch.zeros(P + 1, P + 1, dtype=torch.float64)
+        n_rows = len(index) * dataset.topology.n_rods * 6
+        if self.backend != "torch":
+            try:
+                gram = local_gram_native(dataset.topology, data, index, slots, g, dataset.dt, rest)
+            except NativeUnavailable as e:
+                if self.backend == "native":
+                    raise
+                warnings.warn(f"C normal equations unavailable ({e}); using PyTorch", stacklevel=3)
+            else:
+                scatter_local_gram(gram, slots, normal)
+                self.backend_ = "native"
+                return normal, n_rows
+        self.backend_ = "torch"
         chunks = range(0, len(index), self.chunk_size)
         for start in tqdm(chunks, desc="design", disable=not self.progress, unit="chunk"):
             s0, s1, u = transitions_of(data, index[start : start + self.chunk_size])
             feat = transition_features(dataset.topology, s0, s1, u, dataset.dt)
             accumulate_normal(rod_blocks(feat, slots, g, rest), slots, P, normal)
-        return normal, len(index) * dataset.topology.n_rods * 6
+        return normal, n_rows
 
     def _constraints(self, layout: ParameterLayout) -> tuple[dict[int, float], str]:
         fixed: dict[int, float] = {}

@@ -183,3 +183,50 @@ def test_identify_command_writes_a_params_file(tmp_path, capsys) -> None:
     code = main(["identify", str(path), "--anchor", "mass[nope]=1", "-o", str(out)])
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert code == 2 and err.startswith("error:") and "mass[nope]" in err
+
+
+@pytest.mark.parametrize("assembly", ["icosahedron", "element"])
+@pytest.mark.parametrize("known_rest_length", [False, True])
+def test_c_normal_equations_equal_the_pytorch_design(assembly: str, known_rest_length) -> None:
+    """The one-pass C kernel builds the same AᵀA as the PyTorch design blocks (with control)."""
+    from identification.design import ParameterLayout, accumulate_normal, rod_blocks, rod_slots
+    from identification.features import transition_features, transitions_of
+    from identification.native_normal import NativeUnavailable, local_gram_native
+
+    ds, truth = _data(assembly)
+    data = ds.split("train")
+    layout = ParameterLayout.build(ds.topology, fit_rest_length=not known_rest_length)
+    slots = rod_slots(layout)
+    g = torch.tensor([0.0, 0.0, -9.81], dtype=torch.float64)
+    rest = truth.params.rest_length.double() if known_rest_length else None
+    index = np.random.default_rng(0).choice(data.control.shape[0] * 200, 500, replace=False)
+    P = layout.n_params
+    torch_normal = torch.zeros(P + 1, P + 1, dtype=torch.float64)
+    s0, s1, u = transitions_of(data, index)
+    feat = transition_features(ds.topology, s0, s1, u, ds.dt)
+    accumulate_normal(rod_blocks(feat, slots, g, rest), slots, P, torch_normal)
+    assert float(feat.control.abs().max()) > 0.1  # the control column is exercised
+    try:
+        gram = local_gram_native(ds.topology, data, index, slots, g, ds.dt, rest)
+    except NativeUnavailable as e:
+        pytest.skip(f"no C compiler: {e}")
+    from identification.design import scatter_local_gram
+
+    c_normal = torch.zeros_like(torch_normal)
+    scatter_local_gram(gram, slots, c_normal)
+    scale = torch.sqrt(torch.diagonal(torch_normal))
+    used = scale > 0  # padded and discarded columns stay zero in both
+    assert torch.equal(c_normal[~used], torch.zeros_like(c_normal[~used]))
+    rel = (c_normal - torch_normal)[used][:, used].abs() / torch.outer(scale[used], scale[used])
+    assert float(rel.max()) < 1e-12
+
+
+def test_both_backends_identify_the_same_parameters() -> None:
+    ds, truth = _data()
+    native = SpringRodIdentifier(anchors=_anchor(truth), backend="auto").fit(ds)
+    reference = SpringRodIdentifier(anchors=_anchor(truth), backend="torch").fit(ds)
+    assert reference.backend_ == "torch"
+    assert max(group_errors(native.table_, truth.params).values()) < 1e-6
+    for field in ("stiffness", "damping", "rest_length", "mass", "inertia", "control_gain"):
+        a, b = getattr(native.params_, field), getattr(reference.params_, field)
+        assert torch.allclose(a, b, rtol=1e-7, atol=0), field  # I_z is round-off sensitive

@@ -22,6 +22,8 @@ COMMANDS: tuple[str, ...] = (
     "identification.commands.efficiency",
     "identification.commands.experiment",
     "identification.commands.diagnose",
+    "policies.commands.train",
+    "policies.commands.transfer",
 )
 
 

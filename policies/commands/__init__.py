@@ -1,0 +1,1 @@
+"""Subcommands of the tensegrity-sr CLI that belong to policies: train, transfer."""

@@ -1,0 +1,78 @@
+"""``tensegrity-sr train``: PPO or SAC with Stable-Baselines3 on a (batched) environment."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from policies.artifacts import ALGOS
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train a PPO or SAC policy on IcosahedronSR-v0 (or any registered env)",
+        description=(
+            "Train with Stable-Baselines3 on the natively batched environment, "
+            "hyperparameters from a YAML file keyed by environment id (rl-zoo3 convention; "
+            "default: the shipped policies/hyperparams/<algo>.yml). Writes OUT/model.zip, "
+            "OUT/model_vecnormalize.pkl (observation statistics, reused frozen at evaluation), "
+            "OUT/model.json (run record), checkpoints in OUT/checkpoints and TensorBoard logs "
+            "in OUT/tb (tensorboard --logdir OUT/tb). An interrupted run continues with "
+            "--resume."
+        ),
+    )
+    p.add_argument("algo", choices=sorted(ALGOS), help="algorithm")
+    p.add_argument("--env", default="IcosahedronSR-v0", help="environment id (default %(default)s)")
+    p.add_argument("-o", "--output", type=Path, default=None,
+                   help="run folder (default runs/<algo>_<env>_s<seed>)")  # fmt: skip
+    p.add_argument("--timesteps", type=int, default=None,
+                   help="budget in env steps (default: n_timesteps of the hyperparameters)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed of model and envs (default 0)")
+    p.add_argument("--n-envs", type=int, default=None,
+                   help="environments stepped together (default: the hyperparameters')")  # fmt: skip
+    p.add_argument("--hyperparams", type=Path, default=None,
+                   help="YAML file keyed by env id (default: the shipped one)")  # fmt: skip
+    p.add_argument("--checkpoint-every", type=int, default=50_000,
+                   help="checkpoint period in env steps (default %(default)s)")  # fmt: skip
+    p.add_argument("--resume", action="store_true",
+                   help="continue the newest checkpoint in the run folder")  # fmt: skip
+    p.add_argument("--threads", type=int, default=1,
+                   help="physics threads of the batched env, 0 for every core (default 1)")  # fmt: skip
+    p.add_argument("--torch-threads", type=int, default=1,
+                   help="PyTorch threads (default 1: the networks are small)")  # fmt: skip
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard logs")
+    p.add_argument("-v", "--verbose", type=int, default=0, choices=(0, 1, 2), help="SB3 verbosity")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from policies.train import train
+
+    out = args.output or Path("runs") / f"{args.algo}_{args.env}_s{args.seed}"
+    result = train(
+        args.algo,
+        args.env,
+        out,
+        timesteps=args.timesteps,
+        seed=args.seed,
+        n_envs=args.n_envs,
+        hyperparams=args.hyperparams,
+        checkpoint_every=args.checkpoint_every,
+        resume=args.resume,
+        threads=args.threads or None,
+        torch_threads=args.torch_threads,
+        progress=not args.no_progress,
+        tensorboard=not args.no_tensorboard,
+        verbose=args.verbose,
+        command=shlex.join(["tensegrity-sr", *sys.argv[1:]]),
+    )
+    print(
+        f"trained {result.timesteps:,} env steps in {result.wall_s:.0f} s: {result.model_path} "
+        f"(+ {result.model_path.stem}_vecnormalize.pkl, {result.model_path.stem}.json)"
+    )
+    return 0

@@ -1,0 +1,124 @@
+"""``tensegrity-sr transfer``: a trained policy in IcosahedronSR-v0 and in its MuJoCo twin."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from tensegrity_env.io_utils import InputError, atomic_write_text
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "transfer",
+        help="evaluate a policy in the identified env and the MuJoCo twin (sim-to-sim transfer)",
+        description=(
+            "Evaluate POLICY (a model zip with its _vecnormalize.pkl beside it, or a training "
+            "folder) deterministically over the same seeded episodes in the source env "
+            "(default IcosahedronSR-v0) and the target env (default IcosahedronMJ-v0, the "
+            "ground truth): mean return, success rate, time to goal in each and the transfer "
+            "ratio (target return / source return), with a side-by-side video. With "
+            "--train-reference DIR the same algorithm and hyperparameters are also trained "
+            "directly on the target with the same env-step budget and seed, and compared; "
+            "--reference MODEL compares against such a policy trained earlier."
+        ),
+    )
+    p.add_argument("policy", type=Path, help="model zip or training folder")
+    p.add_argument("--episodes", type=int, default=20, help="episodes per env (default 20)")
+    p.add_argument("--seed", type=int, default=1000,
+                   help="episode k starts from the source's reset(seed=SEED+k) (default 1000)")  # fmt: skip
+    p.add_argument(
+        "--source", default="IcosahedronSR-v0", help="env trained in (default %(default)s)"
+    )
+    p.add_argument(
+        "--target", default="IcosahedronMJ-v0", help="env transferred to (default %(default)s)"
+    )
+    p.add_argument("-o", "--output", type=Path, default=Path("transfer"),
+                   help="folder for transfer.md, transfer.json and the video (default %(default)s)")  # fmt: skip
+    p.add_argument("--no-video", action="store_true", help="skip the side-by-side video")
+    ref = p.add_mutually_exclusive_group()
+    ref.add_argument("--reference", type=Path, default=None,
+                     help="a policy trained on the target env to compare with")  # fmt: skip
+    ref.add_argument("--train-reference", type=Path, default=None, metavar="DIR",
+                     help="train the reference on the target into DIR (same algo, budget, seed)")  # fmt: skip
+    p.add_argument("--threads", type=int, default=1,
+                   help="physics threads when training the reference, 0 for every core")  # fmt: skip
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from policies.artifacts import load_policy
+    from policies.evaluate import episode_starts, evaluate
+    from policies.transfer import (
+        TransferResult,
+        reference_table,
+        side_by_side_video,
+        train_reference,
+        transfer_table,
+    )
+    from policies.vec import env_spec
+
+    if args.episodes < 1:
+        raise InputError("--episodes must be >= 1")
+    env_spec(args.source), env_spec(args.target)  # unknown ids fail before any work
+    policy = load_policy(args.policy)
+    label = f"{policy.algo} ({policy.path})"
+    starts = episode_starts(args.source, args.episodes, args.seed)
+    print(
+        f"evaluating {policy.path} over {args.episodes} episodes in {args.source} and {args.target}"
+    )
+    result = TransferResult(
+        evaluate(policy, args.source, starts), evaluate(policy, args.target, starts)
+    )
+    report = [f"# Transfer of {policy.path}\n", transfer_table(result, label)]
+    doc: dict[str, Any] = {"policy": str(policy.path), "seed": args.seed, **result.to_dict()}
+
+    ref_path = args.reference
+    if args.train_reference is not None:
+        print(f"training the reference on {args.target} into {args.train_reference}")
+        ref_path = train_reference(
+            policy.record, args.target, args.train_reference, threads=args.threads or None,
+            command=shlex.join(["tensegrity-sr", *sys.argv[1:]]),
+        ).model_path  # fmt: skip
+    if ref_path is not None:
+        ref = load_policy(ref_path)
+        ref_eval = evaluate(ref, args.target, starts)
+        rec = policy.record
+        report += [
+            f"\n## Against {ref.algo} trained directly on {args.target}\n",
+            reference_table(
+                result, ref_eval, label, f"{ref.algo} ({ref.path})",
+                rec.get("wall_s"), ref.record.get("wall_s"),
+                rec.get("timesteps"), ref.record.get("timesteps"),
+            ),
+        ]  # fmt: skip
+        doc["reference"] = {
+            "policy": str(ref.path),
+            "mean_return": ref_eval.mean_return,
+            "success_rate": ref_eval.success_rate,
+            "time_to_goal_s": ref_eval.time_to_goal,
+            "returns": ref_eval.returns.tolist(),
+            "wall_s": ref.record.get("wall_s"),
+            "timesteps": ref.record.get("timesteps"),
+        }
+    if not args.no_video:
+        from tensegrity_env.envs import RenderingUnavailable
+
+        try:
+            video = side_by_side_video(
+                policy, args.output / "side_by_side.mp4", args.seed, source=args.source,
+                target=args.target,
+            )  # fmt: skip
+            report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
+        except RenderingUnavailable as e:
+            print(f"no video: {e}")
+    text = "\n".join(report) + "\n"
+    atomic_write_text(args.output / "transfer.md", text)
+    atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")
+    print(text)
+    print(f"wrote {args.output / 'transfer.md'} and transfer.json")
+    return 0

@@ -1,0 +1,289 @@
+"""Train PPO or SAC on a (batched) environment, with checkpoints and resuming.
+
+A run folder holds everything one training run writes::
+
+    OUT/model.zip, model_vecnormalize.pkl, model.json    the final policy (artifacts)
+    OUT/checkpoints/ckpt_<steps>.zip (+ _vecnormalize.pkl, .json, SAC: _replay_buffer.pkl)
+    OUT/tb/<ALGO>_1/                                    TensorBoard event files
+
+``train(..., resume=True)`` continues from the newest checkpoint (or the final model)
+in ``OUT``: weights, optimizer, normalization statistics (and SAC's replay buffer)
+are restored and the timestep counter goes on from where it stopped, in the same
+TensorBoard run. The environments' and sampler's random streams are not restored,
+so a resumed run is a valid continuation, not a bitwise replay of an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from tqdm import tqdm
+
+from policies.artifacts import (
+    ALGOS,
+    LoadedPolicy,
+    load_vecnormalize,
+    read_record,
+    save_policy,
+    stats_path,
+)
+from policies.hyperparams import Hyperparams, load_hyperparams
+from policies.vec import make_training_env
+from tensegrity_env.io_utils import InputError, atomic_path
+
+CHECKPOINT_RE = re.compile(r"ckpt_(\d+)\.zip$")
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a finished run wrote.
+
+    Attributes:
+        model_path: the final model zip.
+        timesteps: env steps trained in all (across resumes).
+        wall_s: training wall-clock time in all [s] (across resumes).
+        record: the run record written beside the model.
+        policy: the trained policy in memory (statistics frozen), as it was saved.
+    """
+
+    model_path: Path
+    timesteps: int
+    wall_s: float
+    record: dict[str, Any]
+    policy: LoadedPolicy
+
+
+# ---------------------------------------------------------------------- callbacks
+class ProgressBar(BaseCallback):
+    """A tqdm bar over env steps with the mean return of the last 100 episodes."""
+
+    def _on_training_start(self) -> None:
+        total = int(self.locals["total_timesteps"])
+        self.bar = tqdm(total=total, initial=self.num_timesteps, unit="step", dynamic_ncols=True)
+
+    def _on_step(self) -> bool:
+        self.bar.update(self.num_timesteps - self.bar.n)
+        buf = self.model.ep_info_buffer
+        if buf and self.n_calls % 20 == 0:
+            self.bar.set_postfix(ep_return=f"{np.mean([e['r'] for e in buf]):.1f}", refresh=False)
+        return True
+
+    def _on_training_end(self) -> None:
+        self.bar.close()
+
+
+class Checkpoint(BaseCallback):
+    """Saves model, statistics and run record every ``every`` env steps, atomically.
+
+    SAC's replay buffer is saved too; only the newest one is kept (they are large).
+    """
+
+    def __init__(self, folder: Path, every: int, record: dict[str, Any], clock: Clock) -> None:
+        super().__init__()
+        self.folder, self.every, self.record, self.clock = folder, int(every), record, clock
+        self._next = 0
+
+    def _on_training_start(self) -> None:
+        self._next = (self.num_timesteps // self.every + 1) * self.every
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps >= self._next:
+            self._next = (self.num_timesteps // self.every + 1) * self.every
+            save_checkpoint(self.model, self.folder, self.record, self.clock.total())
+        return True
+
+
+class Clock:
+    """Wall time of a run, carried over from the run it resumes."""
+
+    def __init__(self, before: float = 0.0) -> None:
+        self.before, self.start = float(before), time.perf_counter()
+
+    def total(self) -> float:
+        return self.before + time.perf_counter() - self.start
+
+
+def save_checkpoint(
+    model: BaseAlgorithm, folder: Path, record: dict[str, Any], wall_s: float
+) -> Path:
+    """Write ``ckpt_<steps>`` files into ``folder``; returns the zip's path."""
+    path = folder / f"ckpt_{model.num_timesteps:010d}.zip"
+    vecnorm = model.get_vec_normalize_env()
+    save_policy(
+        model, vecnorm, path, {**record, "timesteps": model.num_timesteps, "wall_s": wall_s}
+    )
+    if isinstance(model, OffPolicyAlgorithm):
+        buffer = path.with_name(f"{path.stem}_replay_buffer.pkl")
+        with atomic_path(buffer) as tmp:
+            model.save_replay_buffer(tmp)
+        for old in folder.glob("ckpt_*_replay_buffer.pkl"):
+            if old != buffer:
+                old.unlink()
+    return path
+
+
+def latest_checkpoint(out: Path) -> Path | None:
+    """The model zip with the most timesteps in ``out`` (checkpoints or final), or None."""
+    found: list[tuple[int, Path]] = []
+    for p in (out / "checkpoints").glob("ckpt_*.zip"):
+        m = CHECKPOINT_RE.search(p.name)
+        if m:
+            found.append((int(m.group(1)), p))
+    final = out / "model.zip"
+    if final.exists():
+        found.append((int(read_record(final).get("timesteps", 0)), final))
+    return max(found, key=lambda t: t[0])[1] if found else None
+
+
+# ---------------------------------------------------------------------- training
+def build_model(
+    hp: Hyperparams, venv: VecEnv, seed: int, tb_dir: Path | None, verbose: int
+) -> tuple[BaseAlgorithm, VecNormalize | None]:
+    """A fresh model on ``venv`` (wrapped in VecNormalize if the settings say so)."""
+    kwargs = hp.sb3_kwargs()
+    vecnorm = None
+    env: VecEnv = venv
+    if hp.normalize is not None:
+        gamma = float(kwargs.get("gamma", 0.99))
+        vecnorm = env = VecNormalize(venv, gamma=gamma, **hp.normalize)
+    tb = str(tb_dir) if tb_dir is not None else None
+    model = ALGOS[hp.algo](
+        hp.policy, env, seed=seed, device="cpu", tensorboard_log=tb, verbose=verbose, **kwargs
+    )
+    return model, vecnorm
+
+
+def resume_model(
+    ckpt: Path, algo: str, venv: VecEnv, tb_dir: Path | None, verbose: int
+) -> tuple[BaseAlgorithm, VecNormalize | None]:
+    """The model, statistics (and replay buffer) of checkpoint ``ckpt`` on ``venv``."""
+    vecnorm = None
+    env: VecEnv = venv
+    if stats_path(ckpt).exists():
+        vecnorm = load_vecnormalize(stats_path(ckpt))
+        vecnorm.set_venv(venv)
+        vecnorm.training = True
+        env = vecnorm
+    cls = ALGOS[algo]
+    try:
+        model = cls.load(ckpt, env=env, device="cpu", verbose=verbose)
+    except Exception as e:
+        raise InputError(
+            f"{ckpt}: cannot resume from this checkpoint ({type(e).__name__})"
+        ) from None
+    model.tensorboard_log = str(tb_dir) if tb_dir is not None else None
+    buffer = ckpt.with_name(f"{ckpt.stem}_replay_buffer.pkl")
+    if isinstance(model, OffPolicyAlgorithm) and buffer.exists():
+        model.load_replay_buffer(buffer)
+    return model, vecnorm
+
+
+def train(
+    algo: str,
+    env_id: str,
+    out: str | Path,
+    timesteps: int | None = None,
+    seed: int = 0,
+    n_envs: int | None = None,
+    hyperparams: str | Path | None = None,
+    checkpoint_every: int = 50_000,
+    resume: bool = False,
+    threads: int | None = 1,
+    torch_threads: int = 1,
+    progress: bool = True,
+    tensorboard: bool = True,
+    verbose: int = 0,
+    command: str | None = None,
+) -> TrainResult:
+    """Train ``algo`` on ``env_id`` into the run folder ``out``.
+
+    Args:
+        algo: ``"ppo"`` or ``"sac"``.
+        env_id: a registered Gymnasium id (``IcosahedronSR-v0``, ``IcosahedronMJ-v0``).
+        out: the run folder (see the module docstring).
+        timesteps: budget in env steps (None: ``n_timesteps`` of the hyperparameters);
+            PPO stops at the first whole rollout at or past it.
+        seed: seeds the model, its sampler and environment ``i`` with ``seed + i``.
+        n_envs: environments stepped together (None: the hyperparameters').
+        hyperparams: YAML file keyed by env id (None: the shipped ``<algo>.yml``).
+        checkpoint_every: checkpoint period [env steps].
+        resume: continue the newest checkpoint in ``out`` instead of starting afresh.
+        threads: physics threads of the batched env (None: every core).
+        torch_threads: PyTorch CPU threads (1 suits these small networks).
+        progress: show a progress bar.
+        tensorboard: log to ``out/tb``.
+        verbose: SB3 verbosity.
+        command: the command line to record (default: ``sys.argv``).
+    """
+    if algo not in ALGOS:
+        raise InputError(f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
+    out = Path(out)
+    hp = load_hyperparams(algo, env_id, hyperparams)
+    n_envs = int(n_envs or hp.n_envs)
+    total = int(timesteps or hp.n_timesteps)
+    ckpt = latest_checkpoint(out) if out.exists() else None
+    if ckpt is not None and not resume:
+        raise InputError(
+            f"{out}: already holds a run (pass --resume to continue it, or another -o)"
+        )
+    if resume and ckpt is None:
+        raise InputError(f"{out}: no checkpoint to resume from")
+    torch.set_num_threads(torch_threads)
+    venv = make_training_env(env_id, n_envs, seed, threads)
+    tb_dir = out / "tb" if tensorboard else None
+    before = 0.0
+    if ckpt is not None:
+        prev = read_record(ckpt)
+        if prev.get("algo", algo) != algo or prev.get("env_id", env_id) != env_id:
+            raise InputError(
+                f"{ckpt}: was trained with {prev.get('algo')} on {prev.get('env_id')}, "
+                f"not {algo} on {env_id}"
+            )
+        before = float(prev.get("wall_s", 0.0))
+        model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose)
+    else:
+        model, vecnorm = build_model(hp, venv, seed, tb_dir, verbose)
+    record: dict[str, Any] = {
+        "algo": algo,
+        "env_id": env_id,
+        "seed": seed,
+        "n_envs": n_envs,
+        "target_timesteps": total,
+        "hyperparams": hp.to_dict(),
+        "hyperparams_file": hp.source,
+        "vecnormalize": vecnorm is not None,
+        "torch_threads": torch_threads,
+        "physics_threads": threads,
+        "command": command if command is not None else " ".join(sys.argv),
+    }
+    clock = Clock(before)
+    callbacks: list[BaseCallback] = [
+        Checkpoint(out / "checkpoints", max(1, checkpoint_every), record, clock)
+    ]
+    if progress:
+        callbacks.append(ProgressBar())
+    remaining = total - model.num_timesteps
+    if remaining > 0:
+        model.learn(
+            remaining,
+            callback=CallbackList(callbacks),
+            reset_num_timesteps=ckpt is None,
+            tb_log_name=algo.upper(),
+        )
+    wall = clock.total()
+    record = {**record, "timesteps": int(model.num_timesteps), "wall_s": wall}
+    path = save_policy(model, vecnorm, out / "model.zip", record)
+    venv.close()
+    policy = LoadedPolicy(model, vecnorm, path, record)
+    return TrainResult(path, int(model.num_timesteps), wall, record, policy)

@@ -1,0 +1,222 @@
+"""Sim-to-sim transfer: a policy in the identified env and in the MuJoCo twin.
+
+:func:`transfer` evaluates one policy over the same seeded episodes (see
+:mod:`policies.evaluate`) in a source env (the one it was trained in,
+``IcosahedronSR-v0``) and a target env (``IcosahedronMJ-v0``, the ground truth) and
+reports mean return, success rate and time to goal in each and the transfer ratio
+``target return / source return``. :func:`reference_table` sets it beside a policy of
+the same algorithm trained directly on the target with the same step budget.
+:func:`side_by_side_video` renders one episode in both envs under the policy.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import numpy as np
+
+from policies.evaluate import EvalResult, Policy, episode_starts, evaluate
+
+if TYPE_CHECKING:
+    from policies.train import TrainResult
+
+SOURCE_ENV = "IcosahedronSR-v0"
+TARGET_ENV = "IcosahedronMJ-v0"
+
+
+@dataclass(frozen=True)
+class TransferResult:
+    """One policy in the source and the target env over the same episodes."""
+
+    source: EvalResult
+    target: EvalResult
+
+    @property
+    def ratio(self) -> float:
+        """Transfer ratio: mean target return / mean source return."""
+        return self.target.mean_return / self.source.mean_return
+
+    def to_dict(self) -> dict[str, Any]:
+        def one(r: EvalResult) -> dict[str, Any]:
+            return {
+                "env_id": r.env_id,
+                "mean_return": r.mean_return,
+                "std_return": r.std_return,
+                "success_rate": r.success_rate,
+                "time_to_goal_s": r.time_to_goal,
+                "returns": r.returns.tolist(),
+                "steps": r.steps.tolist(),
+            }
+
+        return {"source": one(self.source), "target": one(self.target), "ratio": self.ratio}
+
+
+def transfer(
+    policy: Policy,
+    episodes: int = 20,
+    seed: int = 1000,
+    source: str = SOURCE_ENV,
+    target: str = TARGET_ENV,
+) -> TransferResult:
+    """``policy`` over ``episodes`` seeded starts (drawn by ``source``) in both envs."""
+    starts = episode_starts(source, episodes, seed)
+    return TransferResult(evaluate(policy, source, starts), evaluate(policy, target, starts))
+
+
+def _fmt(x: float, spec: str) -> str:
+    return "-" if not np.isfinite(x) else format(x, spec)
+
+
+def row(label: str, r: EvalResult) -> str:
+    """One markdown table row: return (mean ± std), success, time to goal."""
+    return (
+        f"| {label} | {r.env_id} | {r.mean_return:.2f} ± {r.std_return:.2f} | "
+        f"{100 * r.success_rate:.0f}% | {_fmt(r.time_to_goal, '.2f')} |"
+    )
+
+
+HEADER = (
+    "| policy | evaluated in | mean return ± std | success | time to goal [s] |\n"
+    "| --- | --- | --- | --- | --- |"
+)
+
+
+def transfer_table(result: TransferResult, label: str = "policy") -> str:
+    """Markdown: the policy in both envs, then the transfer ratio."""
+    n = len(result.source.returns)
+    return "\n".join(
+        [
+            HEADER,
+            row(label, result.source),
+            row(label, result.target),
+            "",
+            f"transfer ratio (return in {result.target.env_id} / return in "
+            f"{result.source.env_id}): **{result.ratio:.3f}** over {n} episodes",
+        ]
+    )
+
+
+def reference_table(
+    result: TransferResult,
+    reference: EvalResult,
+    label: str,
+    reference_label: str,
+    wall_s: float | None,
+    reference_wall_s: float | None,
+    timesteps: int | None,
+    reference_timesteps: int | None,
+) -> str:
+    """Markdown: the transferred policy against one trained on the target directly."""
+
+    def w(x: float | None) -> str:
+        return "-" if x is None else f"{x:.0f}"
+
+    def t(x: int | None) -> str:
+        return "-" if x is None else f"{x:,}"
+
+    lines = [
+        "| policy | trained in | env steps | training wall time [s] | return in "
+        f"{reference.env_id} | success | time to goal [s] |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        f"| {label} | {result.source.env_id} | {t(timesteps)} | {w(wall_s)} | "
+        f"{result.target.mean_return:.2f} | {100 * result.target.success_rate:.0f}% | "
+        f"{_fmt(result.target.time_to_goal, '.2f')} |",
+        f"| {reference_label} | {reference.env_id} | {t(reference_timesteps)} | "
+        f"{w(reference_wall_s)} | {reference.mean_return:.2f} | "
+        f"{100 * reference.success_rate:.0f}% | {_fmt(reference.time_to_goal, '.2f')} |",
+        "",
+        f"return of the transferred policy / the reference's, both in {reference.env_id}: "
+        f"**{result.target.mean_return / reference.mean_return:.3f}**",
+    ]
+    if wall_s is not None and reference_wall_s is not None:
+        lines.append(
+            f"training wall time, transferred / reference: **{wall_s / reference_wall_s:.3f}**"
+        )
+    return "\n".join(lines)
+
+
+def side_by_side_video(
+    policy: Policy,
+    path: str | Path,
+    seed: int = 1000,
+    max_steps: int = 300,
+    source: str = SOURCE_ENV,
+    target: str = TARGET_ENV,
+    width: int = 400,
+    height: int = 300,
+) -> Path:
+    """One episode (seed ``seed``) in ``source`` (left) and ``target`` (right), to MP4/GIF.
+
+    Both start from the source's seeded state and goal; the policy sees each env's own
+    observation. Written under a temporary name, then renamed (atomic).
+    """
+    from tensegrity_env.envs.rendering import write_video
+
+    final = Path(path)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = final.with_name(f".{final.stem}.partial{final.suffix}")
+    kw = {"render_mode": "rgb_array", "width": width, "height": height}
+    left, right = gym.make(source, **kw), gym.make(target, **kw)
+    try:
+        obs_l, _ = left.reset(seed=seed)
+        base = left.unwrapped
+        opts = {"state": base.state.copy(), "goal": base.goal.copy()}  # type: ignore[attr-defined]
+        obs_r, _ = right.reset(seed=seed, options=opts)
+        frames = [np.concatenate([left.render(), right.render()], axis=1)]  # type: ignore[list-item]
+        done_l = done_r = False
+        for _ in range(max_steps):
+            if not done_l:
+                obs_l, _, t, u, _ = left.step(policy(obs_l))
+                done_l = t or u
+            if not done_r:
+                obs_r, _, t, u, _ = right.step(policy(obs_r))
+                done_r = t or u
+            frames.append(np.concatenate([left.render(), right.render()], axis=1))  # type: ignore[list-item]
+            if done_l and done_r:
+                break
+        write_video(frames, tmp, fps=left.metadata.get("render_fps", 20))
+        os.replace(tmp, final)
+    finally:
+        left.close()
+        right.close()
+        if tmp.exists():
+            tmp.unlink()
+    return final
+
+
+def train_reference(
+    record: dict[str, Any],
+    target: str,
+    out: str | Path,
+    threads: int | None = 1,
+    command: str | None = None,
+) -> TrainResult:
+    """Train the reference: the run ``record`` describes, repeated on ``target``.
+
+    Same algorithm, hyperparameter file (its ``target`` entry), number of envs, seed and
+    env-step budget as the run that produced the policy; resumes an interrupted
+    reference run in ``out``.
+    """
+    from policies.train import latest_checkpoint, train
+    from tensegrity_env.io_utils import InputError
+
+    missing = [k for k in ("algo", "timesteps", "seed") if k not in record]
+    if missing:
+        raise InputError(f"the policy has no run record with {', '.join(missing)}: train it first")
+    out = Path(out)
+    return train(
+        record["algo"],
+        target,
+        out,
+        timesteps=int(record["timesteps"]),
+        seed=int(record["seed"]),
+        n_envs=record.get("n_envs"),
+        hyperparams=record.get("hyperparams_file") or None,
+        resume=out.exists() and latest_checkpoint(out) is not None,
+        threads=threads,
+        command=command,
+    )

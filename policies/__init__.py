@@ -1,1 +1,19 @@
-"""policies package."""
+"""policies: Stable-Baselines3 training on IcosahedronSR-v0 and sim-to-sim transfer to MuJoCo.
+
+==========================  ==========================================================
+:mod:`.hyperparams`         YAML hyperparameters keyed by env id (``hyperparams/*.yml``)
+:mod:`.vec`                 an env id as one (batched) SB3 ``VecEnv``
+:mod:`.train`               training runs: checkpoints, resume, TensorBoard, seeds
+:mod:`.artifacts`           a policy on disk: zip, VecNormalize statistics, run record
+:mod:`.evaluate`            seeded episodes, the same starts in every env
+:mod:`.transfer`            identified env vs MuJoCo twin, the reference, the video
+:mod:`.commands`            ``tensegrity-sr train`` and ``tensegrity-sr transfer``
+==========================  ==========================================================
+
+``SHIPPED_POLICY`` is the PPO policy trained on ``IcosahedronSR-v0`` that ships in
+``policies/pretrained`` (its run record, with the exact training command, beside it).
+"""
+
+from pathlib import Path
+
+SHIPPED_POLICY = Path(__file__).resolve().parent / "pretrained" / "ppo_IcosahedronSR-v0.zip"

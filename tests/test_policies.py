@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
+from policies import SHIPPED_POLICY
 from policies.artifacts import load_policy, stats_path
 from policies.evaluate import episode_starts, evaluate
 from policies.hyperparams import load_hyperparams
@@ -17,8 +18,7 @@ from policies.transfer import transfer
 from tensegrity_env.cli import main as cli
 from tensegrity_env.io_utils import InputError
 
-PRETRAINED = Path(__file__).resolve().parent.parent / "policies" / "pretrained"
-SHIPPED = PRETRAINED / "ppo_IcosahedronSR-v0.zip"
+SHIPPED = SHIPPED_POLICY
 #: PPO small enough for a test: 8 envs x 64 steps per rollout
 SMALL_PPO = {"n_steps": 64, "batch_size": 256, "n_epochs": 2}
 

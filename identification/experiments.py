@@ -12,9 +12,10 @@ For the one-rod element and the icosahedron (:data:`ASSEMBLIES`), :func:`run_pap
    position error of fed-back rollouts against horizon (the paper's error figures);
 
 then runs the data-efficiency sweep of :mod:`identification.efficiency` on the
-icosahedron (10 %, 1 %, 0.1 %, 0.01 % of the training transitions), and fits Koopman+Int
-on the same fractions (:func:`koopman_requirement`): its first-principles basis can
-express the physics exactly, so what separates it from ours is how much data it needs.
+icosahedron (10 %, 1 %, 0.1 %, 0.01 % of the training transitions), and fits both Koopman
+models on the same fractions (:func:`koopman_requirement`): the baseline's generic
+polynomial dictionary, and the ablation whose dictionary contains the spring law (it
+can express the physics exactly, so what separates it from ours is the data it needs).
 :mod:`identification.experiment_report` writes the figures and ``results.md``.
 """
 
@@ -42,6 +43,7 @@ from identification.baselines import (
     TrainConfig,
 )
 from identification.baselines.evaluate import one_step_errors, rollout_error_curve
+from identification.baselines.koopman import BASES
 from identification.dataset import Dataset
 from identification.efficiency import EfficiencyResult, run_efficiency
 from identification.generate import GenerateSpec, generate_dataset
@@ -51,7 +53,11 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 
 ASSEMBLIES: tuple[str, ...] = ("element", "icosahedron")
-MODELS: tuple[str, ...] = ("Ours", "Interaction", "Interaction+Int", "Koopman+Int")
+#: The paper's baselines (the targets are measured against these).
+BASELINES: tuple[str, ...] = ("Interaction", "Interaction+Int", "Koopman+Int")
+#: Koopman+Int with the spring law in its dictionary: shows what the basis contributes.
+ABLATION = BASES["spring_law"]
+MODELS: tuple[str, ...] = ("Ours", *BASELINES, ABLATION)
 REFERENCE = "constant velocity"
 EFFICIENCY_FRACTIONS: tuple[float, ...] = (0.1, 0.01, 0.001, 0.0001)
 
@@ -64,7 +70,8 @@ class Scale:
         name: ``small`` (CI-sized) or ``full`` (the paper's data).
         preset: the :data:`identification.generate.PRESETS` entry of both assemblies.
         train: hyperparameters of the two MLP baselines.
-        koopman: hyperparameters of Koopman+Int.
+        koopman: hyperparameters of Koopman+Int (the ablation uses them with the
+            spring-law basis at degree 2).
         efficiency_seeds: random subsets per fraction in the efficiency sweep.
         one_step: test transitions for the one-step errors.
     """
@@ -140,7 +147,7 @@ class ExperimentResult:
     scale: Scale
     assemblies: dict[str, AssemblyResult]
     efficiency: EfficiencyResult | None
-    koopman_requirement: list[dict[str, float]]
+    koopman_requirement: dict[str, list[dict[str, float]]]
     seconds: float
     machine: str
     seed: int
@@ -163,8 +170,18 @@ def machine_description(load_start: float) -> str:
 
 
 def baselines(scale: Scale) -> list[Any]:
-    """Fresh, unfitted baselines with the hyperparameters of ``scale``."""
-    return [Interaction(scale.train), InteractionInt(scale.train), KoopmanInt(scale.koopman)]
+    """Fresh, unfitted baselines (and the Koopman ablation) with the settings of ``scale``."""
+    return [
+        Interaction(scale.train),
+        InteractionInt(scale.train),
+        KoopmanInt(scale.koopman),
+        KoopmanInt(spring_law_config(scale.koopman)),
+    ]
+
+
+def spring_law_config(config: KoopmanConfig) -> KoopmanConfig:
+    """The ablation's settings: the spring-law dictionary at degree 2, else ``config``."""
+    return replace(config, basis="spring_law", degree=2)
 
 
 def _training_record(model: Any) -> dict[str, Any]:
@@ -225,31 +242,35 @@ def run_assembly(
 
 def koopman_requirement(
     dataset: Dataset, scale: Scale, fractions: tuple[float, ...], seed: int
-) -> list[dict[str, float]]:
-    """Koopman+Int fitted on random fractions of the training transitions.
+) -> dict[str, list[dict[str, float]]]:
+    """Both Koopman models fitted on random fractions of the training transitions.
 
-    Returns per fraction: ``fraction``, ``n_transitions``, the test one-step velocity
-    error [m/s] and the rollout position error at the end of the test trajectories and
-    its mean over the horizon [m].
+    Returns, per model name and fraction: ``fraction``, ``n_transitions``, the test
+    one-step velocity error [m/s] and the rollout position error at the end of the test
+    trajectories and its mean over the horizon [m].
     """
     total = dataset.split("train").n_trajectories * dataset.split("train").n_transitions
     test = dataset.split("test")
-    rows = []
-    for f in fractions:
-        n = max(1, round(f * total))
-        cfg = replace(scale.koopman, max_train=n, seed=seed)
-        model = KoopmanInt(cfg).fit(dataset)
-        curve = rollout_error_curve(model, test)
-        rows.append(
-            {
-                "fraction": f,
-                "n_transitions": n,
-                "one_step_velocity": one_step_errors(model, test, scale.one_step, seed)["velocity"],
-                "rollout_final": float(curve[-1]),
-                "rollout_mean": float(np.mean(curve)),
-            }
-        )
-    return rows
+    out: dict[str, list[dict[str, float]]] = {}
+    for config in (scale.koopman, spring_law_config(scale.koopman)):
+        rows = []
+        for f in fractions:
+            n = max(1, round(f * total))
+            model = KoopmanInt(replace(config, max_train=n, seed=seed)).fit(dataset)
+            curve = rollout_error_curve(model, test)
+            rows.append(
+                {
+                    "fraction": f,
+                    "n_transitions": n,
+                    "one_step_velocity": one_step_errors(model, test, scale.one_step, seed)[
+                        "velocity"
+                    ],
+                    "rollout_final": float(curve[-1]),
+                    "rollout_mean": float(np.mean(curve)),
+                }
+            )
+        out[BASES[config.basis]] = rows
+    return out
 
 
 def run_paper(
@@ -284,7 +305,7 @@ def run_paper(
             fractions=EFFICIENCY_FRACTIONS,
             seeds=scale.efficiency_seeds,
         )
-        step("icosahedron: data requirement (Koopman+Int)")
+        step("icosahedron: data requirement (Koopman models)")
         koopman = koopman_requirement(dataset, scale, EFFICIENCY_FRACTIONS, seed)
         bar.update(1)
         bar.set_postfix_str("done")

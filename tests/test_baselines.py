@@ -77,13 +77,31 @@ def test_rollout_curve_is_zero_for_the_true_engine_and_grows_for_constant_veloci
     assert cv[0] == 0 and np.all(np.diff(cv[1:]) > 0)
 
 
-def test_koopman_basis_contains_the_element_physics() -> None:
+def test_koopman_spring_law_basis_contains_the_element_physics() -> None:
     """On the one-rod element the first-principles basis is exact (paper: ≈ ours)."""
     ds, _ = generate_dataset(GenerateSpec.from_preset("small", assembly="element"))
-    model = KoopmanInt().fit(ds)
+    model = KoopmanInt(KoopmanConfig(basis="spring_law", degree=2)).fit(ds)
+    assert model.name == "Koopman+Int (spring-law basis)"
     err = one_step_errors(model, ds.split("test"), n=400)
     assert err["velocity"] < 1e-8 and err["angular_velocity"] < 1e-7
     assert model.history_.best == min(model.history_.ridge)
+
+
+def test_koopman_polynomial_basis_approximates_but_cannot_express_the_spring_law() -> None:
+    """The generic dictionary: better than "no change" on little data, far from exact."""
+    ds, _ = generate_dataset(GenerateSpec.from_preset("small", assembly="element"))
+    model = KoopmanInt(KoopmanConfig(basis="polynomial", degree=3)).fit(ds)
+    assert model.name == "Koopman+Int"
+    test = ds.split("test")
+    err = one_step_errors(model, test, n=400)
+    ref = one_step_errors(ConstantVelocity(ds.dt), test, n=400)
+    assert err["velocity"] < 0.5 * ref["velocity"], (err, ref)
+    assert err["velocity"] > 1e-6  # approximation error, not round-off
+
+
+def test_koopman_rejects_an_unknown_basis() -> None:
+    with pytest.raises(InputError, match="basis"):
+        KoopmanInt(KoopmanConfig(basis="fourier"))
 
 
 def test_koopman_incidence_and_monomials() -> None:

@@ -1,28 +1,41 @@
 """Koopman+Int: a linear operator on lifted observables predicts accelerations.
 
-Observables (per rod, built from the 1-D frames of the springs on its end caps and from
-the rod state; float64):
+Two dictionaries of observables (per rod; float64), chosen by ``KoopmanConfig.basis``:
 
-* for every incident spring ``s`` (sign ``σ`` = +1 at node a, -1 at node b, so ``σ e_s``
-  points from the rod's end cap along the spring): the monomials up to ``degree`` of its
-  standardised elongation ``δ = l - l̄`` (``l̄``: the training mean length; the rest length
-  is unknown to the baseline) and elongation rate ``l̇`` — ``1, δ, l̇, δ², δ l̇, l̇², ...``
-  — each times the spring direction projected on the world axes (``σ e_s``, for the
-  linear acceleration) and on the rod's axes (``R^T σ e_s``, for the angular one);
-* the rod-frame angular velocity ``ω_l`` and its quadratic monomials (gyroscopic term);
-* a constant.
+``"polynomial"`` (the baseline, extended dynamic mode decomposition with a generic
+dictionary): for every spring on the rod's end caps, the relative position and velocity
+of its far end seen from the rod's end cap, ``Δp = σ (x_b - x_a)`` and ``Δv`` (``σ`` =
++1 at node a, -1 at node b), standardised per rod and slot, in the world frame (for the
+linear acceleration) and in the rod frame (for the angular one); their monomials up to
+``degree`` (3 by default: the spring force is cubic to leading order in Δp, since
+``|Δp| - l0 ≈ (|Δp|² - l0²) / 2 l0``) that are at most linear in Δv (damping), with no
+cross terms between springs (spring forces add up); the rod-frame
+angular velocity ``ω_l`` and its quadratic monomials (gyroscopic term); a constant. This
+is what one designs knowing only that springs couple end caps: a polynomial can
+approximate the spring law ``K (|Δp| - l0) Δp/|Δp|`` near the training states but not
+express it.
 
-For rod ``r`` the operator ``A_r`` (6 x n_features) maps them to ``[a, α_l]``: linear
-acceleration [m/s^2] (world) and angular acceleration [rad/s^2] (rod frame), which the
-integration module (:func:`~tensegrity_env.engine.integration.semi_implicit_euler`)
-turns into the next state. ``A_r`` is fitted by ridge regression on standardised
-observables, with the ridge weight picked from a grid by the validation error; the
-regression is solved through a QR factor accumulated chunk by chunk (exact fits stay
-exact, and all training transitions fit in memory).
+``"spring_law"`` (an ablation, not a baseline): the paper's 3-D to 1-D reduction built
+in: for every incident spring, the monomials up to ``degree`` of its standardised
+elongation ``δ = l - l̄`` (``l̄``: the training mean length) and rate ``l̇`` —
+``1, δ, l̇, δ², δ l̇, l̇², ...`` — each times the spring direction projected on the world
+axes (``σ e_s``) and on the rod axes (``R^T σ e_s``), plus ``ω_l``, its quadratics and a
+constant. These contain the linear spring law exactly, so with enough data this model
+becomes ours up to round-off: it shows what the basis, not the regression, contributes.
+
+For rod ``r`` the operator ``A_r`` (6 x n_features) maps the observables to
+``[a, α_l]``: linear acceleration [m/s^2] (world) and angular acceleration [rad/s^2]
+(rod frame), which the integration module
+(:func:`~tensegrity_env.engine.integration.semi_implicit_euler`) turns into the next
+state. ``A_r`` is fitted by ridge regression on standardised observables, with the ridge
+weight picked from a grid by the validation error; the regression is solved through a
+QR factor accumulated chunk by chunk (exact fits stay exact, and all training
+transitions fit in memory).
 """
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -39,8 +52,14 @@ from tensegrity_env.engine.integration import semi_implicit_euler
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.io_utils import InputError
 
+#: The dictionaries of observables (see the module docstring) and the model name of each.
+BASES: dict[str, str] = {
+    "polynomial": "Koopman+Int",
+    "spring_law": "Koopman+Int (spring-law basis)",
+}
+
 #: Ridge weights tried, relative to unit-variance observables.
-RIDGE_GRID: tuple[float, ...] = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4, 1e-2, 1.0)
+RIDGE_GRID: tuple[float, ...] = (1e-12, 1e-10, 1e-8, 1e-6, 1e-4, 1e-2, 1.0, 100.0)
 
 
 @dataclass(frozen=True)
@@ -48,7 +67,10 @@ class KoopmanConfig:
     """Hyperparameters of Koopman+Int.
 
     Attributes:
-        degree: highest total degree of the (δ, l̇) monomials per spring.
+        basis: ``"polynomial"`` (generic dictionary, the baseline) or ``"spring_law"``
+            (the spring law built in, an ablation); see the module docstring.
+        degree: highest total degree of the monomials per spring (the spring-law basis
+            is exact from degree 1; the polynomial one needs 3 for the leading order).
         ridge_grid: ridge weights tried (the validation error picks one).
         max_train: training transitions (random subset; None: all).
         max_val: validation transitions for choosing the ridge weight.
@@ -56,7 +78,8 @@ class KoopmanConfig:
         chunk: transitions per chunk while accumulating the QR factor.
     """
 
-    degree: int = 2
+    basis: str = "polynomial"
+    degree: int = 3
     ridge_grid: tuple[float, ...] = RIDGE_GRID
     max_train: int | None = None
     max_val: int | None = 20_000
@@ -103,28 +126,72 @@ def incident_springs(geometry: Geometry) -> tuple[torch.Tensor, torch.Tensor, to
     return idx, sign, sign != 0
 
 
+def monomial_indices(degree: int) -> list[tuple[int, ...]]:
+    """Monomials of (Δp, Δv) (variables 0-2 and 3-5) of degree 1..``degree``, at most
+    linear in Δv (forces that depend on velocity through damping), as variable indices."""
+    return [
+        c
+        for d in range(1, degree + 1)
+        for c in itertools.combinations_with_replacement(range(6), d)
+        if sum(i >= 3 for i in c) <= 1
+    ]
+
+
 def monomial_powers(degree: int) -> list[tuple[int, int]]:
     """Exponents (i, j) of ``δ^i l̇^j`` with ``i + j <= degree``, constant first."""
     return [(i, d - i) for d in range(degree + 1) for i in range(d, -1, -1)]
 
 
 class KoopmanInt:
-    """Koopman operator on spring-frame observables + the integration module.
+    """Koopman operator on lifted observables + the integration module.
 
     Args:
-        config: hyperparameters (:class:`KoopmanConfig`).
+        config: hyperparameters (:class:`KoopmanConfig`); ``config.basis`` picks the
+            dictionary and the model's name (:data:`BASES`).
     """
-
-    name = "Koopman+Int"
 
     def __init__(self, config: KoopmanConfig | None = None) -> None:
         self.config = config or KoopmanConfig()
+        if self.config.basis not in BASES:
+            raise InputError(f"Koopman+Int: unknown basis {self.config.basis!r} ({sorted(BASES)})")
+        self.name = BASES[self.config.basis]
 
     # -------------------------------------------------------------- observables
     def observables(self, state: State, kin: Kinematics | None = None) -> torch.Tensor:
         """Lifted observables per rod, (B, R, n_features), float64."""
+        kin = self.geometry_.kinematics(state) if kin is None else kin
+        wl = local_angular_velocity(state, kin.rot)
+        quad = torch.stack([wl[..., i] * wl[..., j] for i in range(3) for j in range(i, 3)], -1)
+        if self.config.basis == "polynomial":
+            per_spring = self._polynomial_observables(kin)
+        else:
+            per_spring = self._spring_law_observables(kin)
+        return torch.cat([per_spring, wl, quad], dim=-1)
+
+    def _relative_motion(self, kin: Kinematics) -> torch.Tensor:
+        """Far spring ends seen from each rod's end caps, (B, R, K, 12): Δp, Δv world, rod."""
         g = self.geometry_
-        kin = g.kinematics(state) if kin is None else kin
+        idx, sign, _ = self.incident_
+        dp = (kin.x[:, g.node_b] - kin.x[:, g.node_a])[:, idx] * sign[..., None]  # (B,R,K,3)
+        dv = (kin.xd[:, g.node_b] - kin.xd[:, g.node_a])[:, idx] * sign[..., None]
+        world = torch.cat([dp, dv], dim=-1)
+        local = torch.einsum("brji,brkcj->brkci", kin.rot, world.unflatten(-1, (2, 3)))
+        return torch.cat([world, local.flatten(-2)], dim=-1)
+
+    def _polynomial_observables(self, kin: Kinematics) -> torch.Tensor:
+        """Monomials of the standardised relative motion per spring, (B, R, K * 2 * M)."""
+        z = (self._relative_motion(kin) - self.motion_mean_) / self.motion_std_
+        mask = self.incident_[2].to(z.dtype)[..., None]
+        feats = []
+        for part in (z[..., :6], z[..., 6:]):  # world frame, rod frame
+            mono = [part[..., list(c)].prod(-1) for c in self.monomials_]
+            feats.append(torch.stack(mono, dim=-1) * mask)
+        B, R = z.shape[:2]
+        return torch.cat(feats, dim=-1).reshape(B, R, -1)
+
+    def _spring_law_observables(self, kin: Kinematics) -> torch.Tensor:
+        """Monomials of (δ, l̇) times projected spring directions, (B, R, K * M * 6)."""
+        g = self.geometry_
         frame = spring_frames(kin, g.node_a, g.node_b)
         delta = (frame.length - self.length_mean_) / self.length_std_  # (B, S)
         rate = frame.rate / self.rate_std_
@@ -137,10 +204,8 @@ class KoopmanInt:
         per_spring = torch.cat(
             [mono[..., None] * u[..., None, :], mono[..., None] * w[..., None, :]], dim=-1
         )  # (B, R, K, M, 6)
-        wl = local_angular_velocity(state, kin.rot)
-        quad = torch.stack([wl[..., i] * wl[..., j] for i in range(3) for j in range(i, 3)], -1)
-        B, R = wl.shape[:2]
-        return torch.cat([per_spring.reshape(B, R, -1), wl, quad], dim=-1)
+        B, R = per_spring.shape[:2]
+        return per_spring.reshape(B, R, -1)
 
     def _targets(self, s0: State, s1: State, kin: Kinematics) -> torch.Tensor:
         w0 = local_angular_velocity(s0, kin.rot)
@@ -165,6 +230,7 @@ class KoopmanInt:
         self.dt_ = float(dataset.dt)
         self.incident_ = incident_springs(self.geometry_)
         self.powers_ = monomial_powers(cfg.degree)
+        self.monomials_ = monomial_indices(cfg.degree)
         s0, s1, _ = sample_transitions(dataset.split(split), cfg.max_train, cfg.seed)
         va0, va1, _ = sample_transitions(dataset.split(val_split), cfg.max_val, cfg.seed + 1)
         self._spring_scales(s0)
@@ -186,7 +252,12 @@ class KoopmanInt:
     def _spring_scales(self, s0: State) -> None:
         g = self.geometry_
         sub = s0.index(slice(0, 50_000))
-        frame = spring_frames(g.kinematics(sub), g.node_a, g.node_b)
+        kin = g.kinematics(sub)
+        motion = self._relative_motion(kin)  # (n, R, K, 12)
+        self.motion_mean_ = motion.mean(0)
+        spread = torch.nan_to_num(motion.std(0, correction=0))
+        self.motion_std_ = spread.clamp_min(1e-9)
+        frame = spring_frames(kin, g.node_a, g.node_b)
         self.length_mean_ = frame.length.mean(0)
         self.length_std_ = torch.nan_to_num(frame.length.std(0, correction=0)).clamp_min(1e-9)
         self.rate_std_ = torch.nan_to_num(frame.rate.std(0, correction=0)).clamp_min(1e-9)

@@ -353,3 +353,20 @@ def test_identified_env_tracks_the_twin() -> None:
             mj.step(a)
         gaps.append(np.linalg.norm(sr.state[:, :3].mean(0) - mj.state[:, :3].mean(0)))
     assert np.median(gaps) < 0.01 and max(gaps) < 0.03
+
+
+def test_task_options_reach_every_env_and_typos_are_refused() -> None:
+    """One definition of the task options (TaskOptions) serves the single and vector envs."""
+    sr = gym.make("IcosahedronSR-v0", goal_radius=0.5, goal_distance=[3.0, 3.0])
+    mj = gym.make("IcosahedronMJ-v0", goal_radius=0.5, goal_distance=[3.0, 3.0])
+    venv = IcosahedronSRVectorEnv(num_envs=2, goal_radius=0.5, goal_distance=(3.0, 3.0))
+    for env in (sr.unwrapped, mj.unwrapped, venv):
+        assert env.task.goal_radius == 0.5 and env.task.goal_distance == (3.0, 3.0)
+    sr.reset(seed=0)
+    obs, _ = venv.reset(seed=0)
+    # the goal starts 3 m from the centre: observation entries 73-74 are goal minus centre
+    assert abs(float(np.linalg.norm(obs[0, 73:75])) - 3.0) < 0.05
+    with pytest.raises(TypeError, match="goal_radus"):
+        IcosahedronSREnv(goal_radus=0.5)  # type: ignore[call-arg]
+    for env in (sr, mj, venv):
+        env.close()

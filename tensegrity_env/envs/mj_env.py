@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Unpack
 
 import mujoco
 import numpy as np
@@ -19,7 +20,7 @@ from mujoco import rollout as mj_rollout
 from tensegrity_env.envs.base import RollingEnv, settle
 from tensegrity_env.envs.physics import default_threads
 from tensegrity_env.envs.sr_env import ASSETS
-from tensegrity_env.envs.task import RollingTask
+from tensegrity_env.envs.task import TaskOptions, make_task
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
 from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
 
@@ -164,36 +165,18 @@ class IcosahedronMJEnv(RollingEnv):
 
     Args:
         xml_path: the twin's MJCF (None: ``tensegrity_env/assets/icosahedron_rolling.xml``).
-        frame_skip, reset_noise_scale, goal_distance, goal_radius, max_command,
-        progress_weight, control_weight, goal_bonus, render_mode, width, height: as
-            ``IcosahedronSREnv``.
+        frame_skip, render_mode, width, height, **task: as ``IcosahedronSREnv``.
     """
 
     def __init__(
         self,
         xml_path: str | Path | None = None,
         frame_skip: int = 50,
-        reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (2.0, 4.0),
-        goal_radius: float = 0.3,
-        max_command: float = 2.0,
-        progress_weight: float = 1.0,
-        control_weight: float = 0.1,
-        goal_bonus: float = 10.0,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        **task: Unpack[TaskOptions],
     ) -> None:
         sim = MJSimulator(frame_skip, xml_path)
         rest = twin_rest_pose(sim)
-        task = RollingTask(
-            goal_distance=tuple(goal_distance),  # type: ignore[arg-type]
-            goal_radius=goal_radius,
-            max_command=max_command,
-            progress_weight=progress_weight,
-            control_weight=control_weight,
-            goal_bonus=goal_bonus,
-            reset_noise_scale=reset_noise_scale,
-            control_dt=sim.control_dt,
-        )
-        super().__init__(sim, rest, task, render_mode, width, height)
+        super().__init__(sim, rest, make_task(sim.control_dt, task), render_mode, width, height)

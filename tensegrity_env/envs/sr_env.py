@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import torch
@@ -12,7 +12,7 @@ import torch
 from tensegrity_env.effects import effects_from_document
 from tensegrity_env.envs.base import RollingEnv, settle
 from tensegrity_env.envs.physics import Backend, make_stepper
-from tensegrity_env.envs.task import RollingTask
+from tensegrity_env.envs.task import TaskOptions, make_task
 from tensegrity_env.envs.twin import TWIN_TIMESTEP, face_down_pose, twin_assembly
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, SimOptions, from_mjcf, to_mjcf
@@ -183,42 +183,28 @@ class IcosahedronSREnv(RollingEnv):
         params_path: identified params file (None: the shipped default,
             ``tensegrity_env/assets/icosahedron_rolling_params.json``).
         frame_skip: physics steps (1 ms) per action.
-        reset_noise_scale: see :class:`RollingTask`.
-        goal_distance, goal_radius, max_command: the task (m, m, command units).
-        progress_weight, control_weight, goal_bonus: reward weights.
         backend: ``"auto"`` (the native C kernel on CPU, else the PyTorch engine),
             ``"native"`` or ``"torch"``.
         device: torch device of the ``"torch"`` backend.
         render_mode: ``"rgb_array"``, ``"human"`` or None.
         width, height: rendered image size [px].
+        **task: the task and reward options (:class:`TaskOptions`): ``goal_distance``,
+            ``goal_radius``, ``max_command``, ``progress_weight``, ``control_weight``,
+            ``goal_bonus``, ``reset_noise_scale``; see
+            :class:`~tensegrity_env.envs.task.RollingTask`.
     """
 
     def __init__(
         self,
         params_path: str | Path | None = None,
         frame_skip: int = 50,
-        reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (2.0, 4.0),
-        goal_radius: float = 0.3,
-        max_command: float = 2.0,
-        progress_weight: float = 1.0,
-        control_weight: float = 0.1,
-        goal_bonus: float = 10.0,
         backend: Backend = "auto",
         device: str | torch.device = "cpu",
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        **task: Unpack[TaskOptions],
     ) -> None:
         sim = SRSimulator(params_path, frame_skip, backend, device, batch=1, threads=1)
-        task = RollingTask(
-            goal_distance=tuple(goal_distance),  # type: ignore[arg-type]
-            goal_radius=goal_radius,
-            max_command=max_command,
-            progress_weight=progress_weight,
-            control_weight=control_weight,
-            goal_bonus=goal_bonus,
-            reset_noise_scale=reset_noise_scale,
-            control_dt=sim.control_dt,
-        )
-        super().__init__(sim, rest_pose(sim), task, render_mode, width, height)
+        task_ = make_task(sim.control_dt, task)
+        super().__init__(sim, rest_pose(sim), task_, render_mode, width, height)

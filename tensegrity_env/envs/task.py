@@ -9,12 +9,42 @@ every environment and any batch size.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any, TypedDict
 
 import numpy as np
 
 #: entries of ``info`` and of each vector-env info array, per step
 REWARD_TERMS = ("reward_progress", "reward_control", "reward_goal")
+
+
+class TaskOptions(TypedDict, total=False):
+    """The task's keyword arguments every environment takes (see :class:`RollingTask`)."""
+
+    goal_distance: tuple[float, float]
+    goal_radius: float
+    max_command: float
+    progress_weight: float
+    control_weight: float
+    goal_bonus: float
+    reset_noise_scale: float
+
+
+def make_task(control_dt: float, options: Mapping[str, Any]) -> RollingTask:
+    """The :class:`RollingTask` of an environment: its ``control_dt`` and task options.
+
+    Raises:
+        TypeError: an option that is not a :class:`TaskOptions` key (as for a wrong keyword).
+    """
+    unknown = sorted(set(options) - set(TaskOptions.__annotations__))
+    if unknown:
+        names = ", ".join(TaskOptions.__annotations__)
+        raise TypeError(f"unknown task option(s) {unknown}; the task takes {names}")
+    opts = dict(options)
+    if "goal_distance" in opts:
+        opts["goal_distance"] = tuple(float(d) for d in opts["goal_distance"])
+    return RollingTask(control_dt=control_dt, **opts)
 
 
 @dataclass(frozen=True)

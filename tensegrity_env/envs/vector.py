@@ -22,7 +22,7 @@ equals N single ``IcosahedronSR-v0`` envs stepped with the same actions.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 import torch
@@ -35,7 +35,7 @@ from tensegrity_env.envs.mj_env import MJBatch, MJSimulator, twin_rest_pose
 from tensegrity_env.envs.physics import Backend
 from tensegrity_env.envs.rendering import SceneRenderer
 from tensegrity_env.envs.sr_env import SRSimulator, rest_pose
-from tensegrity_env.envs.task import RollingTask, rod_axes
+from tensegrity_env.envs.task import RollingTask, TaskOptions, make_task, rod_axes
 from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.topology import Topology
 
@@ -216,9 +216,8 @@ class IcosahedronSRVectorEnv(RollingVectorEnv):
 
     Args:
         num_envs: N.
-        params_path, frame_skip, reset_noise_scale, goal_distance, goal_radius,
-        max_command, progress_weight, control_weight, goal_bonus, backend, device:
-            as :class:`~tensegrity_env.envs.sr_env.IcosahedronSREnv`.
+        params_path, frame_skip, backend, device, **task: as
+            :class:`~tensegrity_env.envs.sr_env.IcosahedronSREnv`.
         max_episode_steps: time limit (truncation) per episode, None for none.
         threads: CPU threads of the native kernel (None: every available core).
         render_mode: ``"rgb_array"`` (env 0) or None. width, height: image size [px].
@@ -229,13 +228,6 @@ class IcosahedronSRVectorEnv(RollingVectorEnv):
         num_envs: int = 1,
         params_path: str | Path | None = None,
         frame_skip: int = 50,
-        reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (2.0, 4.0),
-        goal_radius: float = 0.3,
-        max_command: float = 2.0,
-        progress_weight: float = 1.0,
-        control_weight: float = 0.1,
-        goal_bonus: float = 10.0,
         backend: Backend = "auto",
         device: str | torch.device = "cpu",
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
@@ -243,17 +235,13 @@ class IcosahedronSRVectorEnv(RollingVectorEnv):
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        **task: Unpack[TaskOptions],
     ) -> None:
         self.sim = SRSimulator(params_path, frame_skip, backend, device, num_envs, threads)
         self.topology, self.control_dt = self.sim.topology, self.sim.control_dt
         self.rest = rest_pose(self.sim)
-        task = RollingTask(
-            goal_distance=tuple(goal_distance),  # type: ignore[arg-type]
-            goal_radius=goal_radius, max_command=max_command, progress_weight=progress_weight,
-            control_weight=control_weight, goal_bonus=goal_bonus,
-            reset_noise_scale=reset_noise_scale, control_dt=self.control_dt,
-        )  # fmt: skip
-        self._setup(num_envs, task, max_episode_steps, render_mode, width, height)
+        task_ = make_task(self.control_dt, task)
+        self._setup(num_envs, task_, max_episode_steps, render_mode, width, height)
 
     def _set_states(self, idx: np.ndarray, x: np.ndarray) -> None:
         self.sim.x[idx] = x
@@ -275,7 +263,7 @@ class IcosahedronMJVectorEnv(RollingVectorEnv):
     starts each call cold), a difference from the single twin at solver tolerance.
 
     Args:
-        num_envs: N. xml_path, frame_skip, task arguments: as ``IcosahedronMJ-v0``.
+        num_envs: N. xml_path, frame_skip, **task: as ``IcosahedronMJ-v0``.
         max_episode_steps: time limit per episode. threads: rollout threads (None: all
         cores). render_mode, width, height: as :class:`IcosahedronSRVectorEnv`.
     """
@@ -285,30 +273,19 @@ class IcosahedronMJVectorEnv(RollingVectorEnv):
         num_envs: int = 1,
         xml_path: str | Path | None = None,
         frame_skip: int = 50,
-        reset_noise_scale: float = 5e-3,
-        goal_distance: tuple[float, float] = (2.0, 4.0),
-        goal_radius: float = 0.3,
-        max_command: float = 2.0,
-        progress_weight: float = 1.0,
-        control_weight: float = 0.1,
-        goal_bonus: float = 10.0,
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
         threads: int | None = None,
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        **task: Unpack[TaskOptions],
     ) -> None:
         sim = MJSimulator(frame_skip, xml_path)
         self.topology, self.control_dt = sim.topology, sim.control_dt
         self.rest = twin_rest_pose(sim)
         self.batch = MJBatch(sim, num_envs, threads)
-        task = RollingTask(
-            goal_distance=tuple(goal_distance),  # type: ignore[arg-type]
-            goal_radius=goal_radius, max_command=max_command, progress_weight=progress_weight,
-            control_weight=control_weight, goal_bonus=goal_bonus,
-            reset_noise_scale=reset_noise_scale, control_dt=self.control_dt,
-        )  # fmt: skip
-        self._setup(num_envs, task, max_episode_steps, render_mode, width, height)
+        task_ = make_task(self.control_dt, task)
+        self._setup(num_envs, task_, max_episode_steps, render_mode, width, height)
 
     def _set_states(self, idx: np.ndarray, x: np.ndarray) -> None:
         self.batch.set_states(idx, x)

@@ -26,6 +26,7 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
+from policies.goal_frame import to_goal_frame, to_world_actions
 from tensegrity_env.io_utils import InputError, atomic_path, atomic_write_text
 
 #: algorithms by the name used on the command line and in run records
@@ -105,12 +106,15 @@ class LoadedPolicy:
         vecnorm: its frozen observation statistics, None if trained without them.
         path: the model zip.
         record: the run record ({} if none was saved).
+        goal_frame: the network acts in the goal frame (:mod:`policies.goal_frame`):
+            observations are turned into it and actions back into the world frame.
     """
 
     model: BaseAlgorithm
     vecnorm: VecNormalize | None
     path: Path
     record: dict[str, Any] = field(default_factory=dict)
+    goal_frame: bool = False
 
     def __post_init__(self) -> None:
         if self.vecnorm is not None:
@@ -129,7 +133,10 @@ class LoadedPolicy:
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic action(s) for observation(s) (75,) or (B, 75): (18,) or (B, 18)."""
-        action, _ = self.model.predict(self.normalize(obs), deterministic=True)
+        seen = to_goal_frame(obs) if self.goal_frame else obs
+        action, _ = self.model.predict(self.normalize(seen), deterministic=True)
+        if self.goal_frame:
+            action = to_world_actions(np.asarray(action), np.asarray(obs))
         return np.asarray(action, dtype=np.float32)
 
 
@@ -161,4 +168,4 @@ def load_policy(path: str | Path) -> LoadedPolicy:
         raise InputError(f"{s}: missing (the run record says the policy was normalized)")
     if vecnorm is not None and vecnorm.observation_space.shape != model.observation_space.shape:
         raise InputError(f"{s}: statistics do not match {p}'s observation space")
-    return LoadedPolicy(model, vecnorm, p, record)
+    return LoadedPolicy(model, vecnorm, p, record, bool(record.get("goal_frame", False)))

@@ -11,6 +11,8 @@ constructor unchanged:
 ``normalize``       VecNormalize arguments (``norm_obs``, ``norm_reward``, ...)
                     in training, or ``false`` for none
 ``policy_kwargs``   a mapping; ``activation_fn`` is a name (``tanh``, ``relu``)
+``goal_frame``      the policy sees the scene turned so that the goal is on +x
+                    (:mod:`policies.goal_frame`; default false)
 ==================  =========================================================
 """
 
@@ -48,6 +50,7 @@ class Hyperparams:
         normalize: VecNormalize keyword arguments for training, None for no normalization.
         algo_kwargs: every other key, for the SB3 constructor (policy_kwargs as in the file).
         source: the file they came from.
+        goal_frame: the policy acts in the goal frame (:mod:`policies.goal_frame`).
     """
 
     algo: str
@@ -58,6 +61,7 @@ class Hyperparams:
     normalize: dict[str, Any] | None
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     source: str = ""
+    goal_frame: bool = False
 
     def sb3_kwargs(self) -> dict[str, Any]:
         """Constructor kwargs with ``policy_kwargs.activation_fn`` turned into a class."""
@@ -76,6 +80,7 @@ class Hyperparams:
             "n_timesteps": self.n_timesteps,
             "policy": self.policy,
             "normalize": self.normalize,
+            "goal_frame": self.goal_frame,
             **self.algo_kwargs,
         }
 
@@ -112,6 +117,9 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     if n_envs < 1 or n_timesteps < 1:
         raise InputError(f"{path}: {env_id}: n_envs and n_timesteps must be >= 1")
     policy = str(entry.pop("policy", "MlpPolicy"))
+    goal_frame = entry.pop("goal_frame", False)
+    if not isinstance(goal_frame, bool):
+        raise InputError(f"{path}: {env_id}: goal_frame must be true or false")
     normalize = entry.pop("normalize", None)
     if normalize is True:
         normalize = {}
@@ -127,4 +135,6 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
         raise InputError(
             f"{path}: {env_id}: activation_fn {act!r} is not one of {', '.join(ACTIVATIONS)}"
         )
-    return Hyperparams(algo, env_id, n_envs, n_timesteps, policy, normalize, entry, str(path))
+    return Hyperparams(
+        algo, env_id, n_envs, n_timesteps, policy, normalize, entry, str(path), goal_frame
+    )

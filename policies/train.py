@@ -38,6 +38,7 @@ from policies.artifacts import (
     save_policy,
     stats_path,
 )
+from policies.goal_frame import VecGoalFrame
 from policies.hyperparams import Hyperparams, load_hyperparams
 from policies.vec import make_training_env
 from tensegrity_env.io_utils import InputError, atomic_path
@@ -153,10 +154,10 @@ def build_model(
     """A fresh model on ``venv`` (wrapped in VecNormalize if the settings say so)."""
     kwargs = hp.sb3_kwargs()
     vecnorm = None
-    env: VecEnv = venv
+    env: VecEnv = VecGoalFrame(venv) if hp.goal_frame else venv
     if hp.normalize is not None:
         gamma = float(kwargs.get("gamma", 0.99))
-        vecnorm = env = VecNormalize(venv, gamma=gamma, **hp.normalize)
+        vecnorm = env = VecNormalize(env, gamma=gamma, **hp.normalize)
     tb = str(tb_dir) if tb_dir is not None else None
     model = ALGOS[hp.algo](
         hp.policy, env, seed=seed, device="cpu", tensorboard_log=tb, verbose=verbose, **kwargs
@@ -165,14 +166,14 @@ def build_model(
 
 
 def resume_model(
-    ckpt: Path, algo: str, venv: VecEnv, tb_dir: Path | None, verbose: int
+    ckpt: Path, algo: str, venv: VecEnv, tb_dir: Path | None, verbose: int, goal_frame: bool
 ) -> tuple[BaseAlgorithm, VecNormalize | None]:
     """The model, statistics (and replay buffer) of checkpoint ``ckpt`` on ``venv``."""
     vecnorm = None
-    env: VecEnv = venv
+    env: VecEnv = VecGoalFrame(venv) if goal_frame else venv
     if stats_path(ckpt).exists():
         vecnorm = load_vecnormalize(stats_path(ckpt))
-        vecnorm.set_venv(venv)
+        vecnorm.set_venv(env)
         vecnorm.training = True
         env = vecnorm
     cls = ALGOS[algo]
@@ -251,8 +252,10 @@ def train(
                 f"not {algo} on {env_id}"
             )
         before = float(prev.get("wall_s", 0.0))
-        model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose)
+        goal_frame = bool(prev.get("goal_frame", hp.goal_frame))
+        model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose, goal_frame)
     else:
+        goal_frame = hp.goal_frame
         model, vecnorm = build_model(hp, venv, seed, tb_dir, verbose)
     record: dict[str, Any] = {
         "algo": algo,
@@ -263,6 +266,7 @@ def train(
         "hyperparams": hp.to_dict(),
         "hyperparams_file": hp.source,
         "vecnormalize": vecnorm is not None,
+        "goal_frame": goal_frame,
         "torch_threads": torch_threads,
         "physics_threads": threads,
         "command": command if command is not None else " ".join(sys.argv),
@@ -285,5 +289,5 @@ def train(
     record = {**record, "timesteps": int(model.num_timesteps), "wall_s": wall}
     path = save_policy(model, vecnorm, out / "model.zip", record)
     venv.close()
-    policy = LoadedPolicy(model, vecnorm, path, record)
+    policy = LoadedPolicy(model, vecnorm, path, record, goal_frame)
     return TrainResult(path, int(model.num_timesteps), wall, record, policy)

@@ -143,6 +143,26 @@ def step_environments(out: Path) -> None:
           f"{sr.distance_to_goal:.2f} m (identified) and {mj.distance_to_goal:.2f} m (twin)")  # fmt: skip
 
 
+def step_transfer(out: Path) -> None:
+    banner("8. Sim-to-sim transfer: the shipped PPO policy (trained on IcosahedronSR-v0) in MuJoCo")
+    from policies import SHIPPED_POLICY
+    from policies.artifacts import load_policy
+    from policies.transfer import side_by_side_video, transfer, transfer_table
+    from tensegrity_env.envs import RenderingUnavailable
+
+    policy = load_policy(SHIPPED_POLICY)
+    print(f"policy: {SHIPPED_POLICY.name}, trained with: {policy.record.get('command', '?')}")
+    result = transfer(policy, episodes=5, seed=1000)
+    table = transfer_table(result, f"shipped {policy.algo}")
+    print(table)
+    atomic_write_text(out / "transfer.md", f"# Transfer of the shipped policy\n\n{table}\n")
+    try:
+        clip = side_by_side_video(policy, out / "transfer_side_by_side.mp4", seed=1001)
+        print(f"clip (left: identified engine, right: MuJoCo twin, same policy): {clip}")
+    except RenderingUnavailable as e:
+        print(f"no clip: {e}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -161,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     step_experiment(out)
     step_diagnose(out)
     step_environments(out)
+    step_transfer(out)
     banner(f"Done in {time.perf_counter() - t0:.0f} s. Every output is in: {out.resolve()}")
     for f in sorted(out.iterdir()):
         print(f"  {f.name}")

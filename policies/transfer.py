@@ -197,17 +197,22 @@ def train_reference(
 ) -> TrainResult:
     """Train the reference: the run ``record`` describes, repeated on ``target``.
 
-    Same algorithm, hyperparameter file (its ``target`` entry), number of envs, seed and
-    env-step budget as the run that produced the policy; resumes an interrupted
-    reference run in ``out``.
+    Same algorithm, settings (the recorded hyperparameters, written to
+    ``out/hyperparams.yml`` under ``target``), seed and env-step budget as the run
+    that produced the policy; resumes an interrupted reference run in ``out``.
     """
-    from policies.train import latest_checkpoint, train
-    from tensegrity_env.io_utils import InputError
+    import yaml
 
-    missing = [k for k in ("algo", "timesteps", "seed") if k not in record]
+    from policies.train import latest_checkpoint, train
+    from tensegrity_env.io_utils import InputError, atomic_write_text
+
+    missing = [k for k in ("algo", "timesteps", "seed", "hyperparams") if k not in record]
     if missing:
         raise InputError(f"the policy has no run record with {', '.join(missing)}: train it first")
     out = Path(out)
+    settings = atomic_write_text(
+        out / "hyperparams.yml", yaml.safe_dump({target: record["hyperparams"]}, sort_keys=False)
+    )
     return train(
         record["algo"],
         target,
@@ -215,8 +220,8 @@ def train_reference(
         timesteps=int(record["timesteps"]),
         seed=int(record["seed"]),
         n_envs=record.get("n_envs"),
-        hyperparams=record.get("hyperparams_file") or None,
-        resume=out.exists() and latest_checkpoint(out) is not None,
+        hyperparams=settings,
+        resume=latest_checkpoint(out) is not None,
         threads=threads,
         command=command,
     )

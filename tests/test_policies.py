@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -89,8 +90,9 @@ def test_normalization_is_saved_and_frozen_at_evaluation(trained: TrainResult) -
     np.testing.assert_allclose(policy.normalize(obs), expected, rtol=1e-5, atol=1e-6)
 
 
-def test_resume_continues_the_timestep_counter(trained: TrainResult) -> None:
-    run = trained.model_path.parent
+def test_resume_continues_the_timestep_counter(trained: TrainResult, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(trained.model_path.parent, run)  # the shared run stays as trained
     ckpts = sorted(p.name for p in (run / "checkpoints").glob("ckpt_*.zip"))
     assert ckpts == ["ckpt_0000001024.zip", "ckpt_0000002048.zip"]
     with pytest.raises(InputError, match="already holds a run"):
@@ -133,18 +135,24 @@ def test_same_episodes_start_identically_in_both_envs() -> None:
     assert abs(sr.returns[0]) < 0.5 and abs(mj.returns[0]) < 0.5  # and nobody moved
 
 
-def test_transfer_command_writes_the_table(trained: TrainResult, tmp_path: Path) -> None:
-    out = tmp_path / "transfer"
+def test_transfer_command_trains_the_reference_with_the_same_budget(
+    trained: TrainResult, tmp_path: Path
+) -> None:
+    out, ref = tmp_path / "transfer", tmp_path / "reference"
     code = cli(["transfer", str(trained.model_path), "--episodes", "2", "--no-video",
-                "--reference", str(trained.model_path), "-o", str(out)])  # fmt: skip
+                "--train-reference", str(ref), "-o", str(out)])  # fmt: skip
     assert code == 0
     doc = json.loads((out / "transfer.json").read_text())
     assert doc["ratio"] == pytest.approx(
         doc["target"]["mean_return"] / doc["source"]["mean_return"]
     )
-    assert doc["reference"]["mean_return"] == pytest.approx(doc["target"]["mean_return"])
+    reference = load_policy(ref)
+    assert reference.record["env_id"] == "IcosahedronMJ-v0"
+    for key in ("algo", "seed", "timesteps", "n_envs", "hyperparams"):
+        assert reference.record[key] == trained.record[key], key
+    assert doc["reference"]["timesteps"] == trained.timesteps
     text = (out / "transfer.md").read_text()
-    assert "transfer ratio" in text and "IcosahedronMJ-v0" in text
+    assert "transfer ratio" in text and "trained directly on IcosahedronMJ-v0" in text
 
 
 @pytest.mark.skipif(not SHIPPED.exists(), reason="no shipped policy")

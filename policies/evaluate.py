@@ -19,6 +19,7 @@ import numpy as np
 
 import tensegrity_env  # noqa: F401  (registers the environments)
 from policies.vec import env_spec
+from tensegrity_env.io_utils import InputError
 
 Policy = Callable[[np.ndarray], np.ndarray]
 
@@ -75,6 +76,10 @@ def episode_starts(source_id: str, n: int, seed: int) -> list[EpisodeStart]:
     env_spec(source_id)
     env = gym.make(source_id)
     try:
+        if not all(hasattr(env.unwrapped, a) for a in ("state", "goal")):
+            raise InputError(
+                f"{source_id}: not a rolling-task env (no state and goal to start from)"
+            )
         starts = []
         for k in range(n):
             env.reset(seed=seed + k)
@@ -102,6 +107,12 @@ def evaluate(policy: Policy, env_id: str, starts: list[EpisodeStart]) -> EvalRes
     env_spec(env_id)
     env = gym.make(env_id)
     try:
+        space = getattr(getattr(policy, "model", None), "observation_space", None)
+        if space is not None and space.shape != env.observation_space.shape:
+            raise InputError(
+                f"{env_id}: observations of shape {env.observation_space.shape} do not fit "
+                f"the policy's {space.shape}"
+            )
         out = [run_episode(env, policy, s) for s in starts]
         dt = float(env.unwrapped.task.control_dt)  # type: ignore[attr-defined]
     finally:

@@ -183,9 +183,13 @@ class KoopmanInt:
         z = (self._relative_motion(kin) - self.motion_mean_) / self.motion_std_
         mask = self.incident_[2].to(z.dtype)[..., None]
         feats = []
+        by_degree: dict[int, list[tuple[int, ...]]] = {}
+        for c in self.monomials_:
+            by_degree.setdefault(len(c), []).append(c)
         for part in (z[..., :6], z[..., 6:]):  # world frame, rod frame
-            mono = [part[..., list(c)].prod(-1) for c in self.monomials_]
-            feats.append(torch.stack(mono, dim=-1) * mask)
+            for monos in by_degree.values():  # one gather and product per degree
+                idx = torch.tensor(monos, device=part.device)  # (M_d, d)
+                feats.append(part[..., idx].prod(-1) * mask)
         B, R = z.shape[:2]
         return torch.cat(feats, dim=-1).reshape(B, R, -1)
 
@@ -239,7 +243,7 @@ class KoopmanInt:
         curve = RidgeCurve(
             n_train=s0.batch_size, n_val=va0.batch_size, n_features=int(self.x_mean_.shape[-1])
         )
-        solutions = [self._solve(tri, lam, s0.batch_size) for lam in cfg.ridge_grid]
+        solutions = self._ridge_solutions(tri, cfg.ridge_grid, s0.batch_size)
         losses = self._val_losses(va0, va1, solutions)
         best = int(np.nanargmin(losses))
         self.weight_, self.bias_ = solutions[best]
@@ -272,35 +276,45 @@ class KoopmanInt:
         self.target_std_ = ystd.clamp_min(1e-3 * float(ystd.max()) + 1e-30)
 
     def _accumulate(self, s0: State, s1: State) -> torch.Tensor:
-        """Per rod, the triangular factor of ``[Z 1 | Y]`` (R, F+7, F+7) by chunked QR.
+        """Per rod, the triangular factor of ``[1 Z | Y]`` (R, F+7, F+7) by chunked QR.
 
-        ``Z`` are the standardised observables, ``1`` the intercept column and ``Y`` the
+        ``1`` is the intercept column, ``Z`` the standardised observables and ``Y`` the
         accelerations; QR (not normal equations) keeps the exact fits exact.
         """
         tri = None
         for x, y in self._chunks(s0, s1):
             z = (x - self.x_mean_) / self.x_std_
-            rows = torch.cat([z, torch.ones_like(z[..., :1]), y], dim=-1).transpose(0, 1)
+            rows = torch.cat([torch.ones_like(z[..., :1]), z, y], dim=-1).transpose(0, 1)
             if tri is not None:
                 rows = torch.cat([tri, rows], dim=1)
             tri = torch.linalg.qr(rows, mode="r")[1]
         assert tri is not None
         return tri
 
-    def _solve(self, tri: torch.Tensor, lam: float, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """Weights (R, F, 6) and biases (R, 6) minimising ``|Zw + b - Y|² + lam n |w|²``."""
-        R, F1 = tri.shape[0], tri.shape[-1] - 6
+    def _ridge_solutions(
+        self, tri: torch.Tensor, ridges: Sequence[float], n: int
+    ) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Weights (R, F, 6) and biases (R, 6) minimising ``|Zw + b - Y|² + lam n |w|²``.
+
+        With the factor of ``[1 Z | Y]``, its first row fixes the (unshrunk) intercept for
+        any ``w``, and the rows below are a ridge problem in ``w`` alone, solved for every
+        weight from one SVD of the (F, F) triangle: ``w = V diag(s / (s² + lam n)) Uᵀ c``.
+        """
+        R, F = tri.shape[0], tri.shape[-1] - 7
         if tri.shape[1] < tri.shape[2]:  # fewer transitions than columns: pad the factor
             tri = torch.cat([tri, tri.new_zeros(R, tri.shape[2] - tri.shape[1], tri.shape[2])], 1)
-        a, rhs = tri[:, :F1, :F1], tri[:, :F1, F1:]
-        ridge = torch.eye(F1, dtype=tri.dtype) * (lam * n) ** 0.5
-        ridge[-1, -1] = 0.0  # the intercept is not shrunk
-        a = torch.cat([a, ridge.expand(R, -1, -1)], dim=1)
-        rhs = torch.cat([rhs, torch.zeros(R, F1, 6, dtype=tri.dtype)], dim=1)
-        sol = torch.linalg.lstsq(a, rhs, rcond=1e-13, driver="gelsd").solution  # (R, F+1, 6)
-        weight = sol[:, :-1] / self.x_std_[:, :, None]
-        bias = sol[:, -1] - torch.einsum("rf,rfk->rk", self.x_mean_, weight)
-        return weight, bias
+        r00, r0z, c0 = tri[:, 0, 0], tri[:, 0, 1 : F + 1], tri[:, 0, F + 1 :]
+        a, c = tri[:, 1 : F + 1, 1 : F + 1], tri[:, 1 : F + 1, F + 1 :]
+        u, sv, vh = torch.linalg.svd(a)
+        uc = u.transpose(1, 2) @ c  # (R, F, 6)
+        out = []
+        for lam in ridges:
+            gain = sv / (sv**2 + lam * n)
+            w = vh.transpose(1, 2) @ (gain[..., None] * uc)  # standardised weights
+            b = (c0 - torch.einsum("rf,rfk->rk", r0z, w)) / r00[:, None]
+            weight = w / self.x_std_[:, :, None]
+            out.append((weight, b - torch.einsum("rf,rfk->rk", self.x_mean_, weight)))
+        return out
 
     def _val_losses(
         self, s0: State, s1: State, solutions: Sequence[tuple[torch.Tensor, torch.Tensor]]

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identification.dataset import Dataset
+from identification.dataset import Dataset, Split
 from identification.effect_fit import fit_effect_params, sample_windows
 from identification.extended import ExtendedIdentifier
 from tensegrity_env.effects import (
@@ -31,6 +31,7 @@ from tensegrity_env.effects import (
 )
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
 from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
 
 #: where a contact fit starts: a generic soft floor, not MuJoCo's values
 CONTACT_START: dict[str, float] = {
@@ -179,16 +180,8 @@ def propose(
         out.append(Proposal(name, None if effect is None else [*current.effects, effect], gate))
 
     # contact: caps reach the floor, and the floor stops them
-    radius = np.array([r.radius for r in topo.rods]).repeat(2)
-    height = split.nodes[..., 2] - radius
-    low, deepest = float((height <= 0).mean()), float(height.min())
-    if low > 0 and deepest > -FLOOR_DEPTH:
-        add(GroundContact(topo, **CONTACT_START), "ground_contact",
-            f"{low:.1%} of end-cap samples at or below z - r = 0; none deeper than {-deepest * 1e3:.1f} mm")  # fmt: skip
-    else:
-        why = "no end cap reaches the floor" if low == 0 else (
-            f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them")  # fmt: skip
-        add(None, "ground_contact", why)
+    ok, why = contact_gate(split, topo)
+    add(GroundContact(topo, **CONTACT_START) if ok else None, "ground_contact", why)
     # slack: springs that lose their stiffness when compressed
     cables, gate = slack_probe(dataset, current, settings)
     add(SlackSprings(topo, springs=cables) if cables else None, "slack_springs", gate)
@@ -206,6 +199,21 @@ def propose(
     else:
         add(None, "control_lag", "no control in this data")
     return out
+
+
+def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
+    """Whether end caps reach the floor and the floor stops them, and why (one line)."""
+    radius = np.array([r.radius for r in topology.rods]).repeat(2)
+    height = split.nodes[..., 2] - radius
+    low, deepest = float((height <= 0).mean()), float(height.min())
+    if low > 0 and deepest > -FLOOR_DEPTH:
+        return True, (
+            f"{low:.1%} of end-cap samples at or below z - r = 0; "
+            f"none deeper than {-deepest * 1e3:.1f} mm"
+        )
+    if low == 0:
+        return False, "no end cap reaches the floor"
+    return False, f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them"
 
 
 def slack_probe(dataset: Dataset, current: Model, settings: FitSettings) -> tuple[list[int], str]:

@@ -15,10 +15,12 @@ import numpy as np
 import torch
 
 from identification.candidates import FitSettings
-from identification.dataset import read_dataset, read_ground_truth, write_dataset
+from identification.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.diagnose import diagnose
 from identification.diagnose_report import fmt_err, ratio, write_params, write_report
 from identification.measured import with_measured_states
+from identification.noisy_diagnose import TrajectorySettings, diagnose_noisy
+from identification.noisy_report import write_noisy_report
 from identification.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from identification.regression import parse_anchor
 from tensegrity_env.effects import EFFECTS, effects_from_document
@@ -49,7 +51,17 @@ def register(sub: Any) -> None:
     p.add_argument("--candidates", default="", metavar="NAMES",
                    help=f"comma-separated subset of {','.join(EFFECTS)}")  # fmt: skip
     p.add_argument("--smoothing", type=float, default=0.01,
-                   help="Gaussian smoothing std [s] for end-cap-only data (default 0.01)")  # fmt: skip
+                   help="Gaussian smoothing std [s] for --method regression on end-cap-only "
+                   "data (default 0.01)")  # fmt: skip
+    p.add_argument("--method", choices=("auto", "regression", "trajectory"), default="auto",
+                   help="regression: one-step regressions on rod states (exact on clean data); "
+                   "trajectory: multi-step fits through the engine on end-cap windows (noisy "
+                   "motion capture); auto: trajectory when the dataset holds end caps only")  # fmt: skip
+    p.add_argument("--window", type=int, default=100,
+                   help="trajectory method: steps per window (default 100)")  # fmt: skip
+    p.add_argument("--windows", type=int, default=8,
+                   help="trajectory method: random windows per split (default 8)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
     p.set_defaults(func=run)
 
     q = sub.add_parser(
@@ -85,7 +97,11 @@ def run_plant(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)  # small tensors: threads only add overhead
-    dataset = with_measured_states(read_dataset(args.dataset), args.smoothing)
+    raw = read_dataset(args.dataset)
+    end_caps_only = not all(s.has_states for s in raw.splits.values())
+    if args.method == "trajectory" or (args.method == "auto" and end_caps_only):
+        return run_trajectory(args, raw)
+    dataset = with_measured_states(raw, args.smoothing)
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start: list[Any] = []
     if args.params is not None:
@@ -118,5 +134,47 @@ def run(args: argparse.Namespace) -> int:
           f"{fmt_err(b['rollout'])} -> {fmt_err(f['rollout'])} ({ratio(b['rollout'], f['rollout'])})")  # fmt: skip
     if result.unexplained:
         print(f"unexplained: {result.unexplained}")
+    print(f"wrote {report} and {params}")
+    return 0
+
+
+def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
+    """The loop through windowed trajectory fits (:mod:`identification.noisy_diagnose`)."""
+    anchors = dict(parse_anchor(a) for a in args.anchor)
+    start = None
+    if args.params is not None:
+        topo, start, doc = load_params(args.params)
+        if not topo.same_as(dataset.topology):
+            raise InputError(f"{args.params}: topology differs from {args.dataset}")
+        anchors.setdefault(f"mass[{topo.rods[0].name}]", float(start.mass[0]))
+        if doc.get("effects"):
+            raise InputError(f"{args.params}: --method trajectory starts from the declared "
+                             "model only (remove its 'effects')")  # fmt: skip
+    names = [n for n in args.candidates.split(",") if n] or None
+    bad = [n for n in names or [] if n not in EFFECTS]
+    if bad:
+        raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
+    if args.window < 2 or args.windows < 1:
+        raise InputError("--window must be >= 2 and --windows >= 1")
+    settings = TrajectorySettings(anchors=anchors, window=args.window, train_windows=args.windows,
+                                  val_windows=args.windows, test_windows=args.windows,
+                                  seed=args.seed)  # fmt: skip
+    out: Path = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result = diagnose_noisy(dataset, settings, args.max_effects, names,
+                                horizon_s=args.horizon, start=start)  # fmt: skip
+    truth = read_ground_truth(args.dataset)
+    report = write_noisy_report(result, out, str(args.dataset), args.horizon,
+                                None if truth is None else truth.effects)  # fmt: skip
+    params = write_params(result, dataset.topology, out / "params.json",  # type: ignore[arg-type]
+                          {"dataset": str(args.dataset), "method": "trajectory",
+                           "seconds": time.perf_counter() - t0})  # fmt: skip
+    b, f = result.baseline_test, result.final_test
+    print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
+    for e in result.model.effects:
+        print(f"  {e.describe()}")
+    print(f"held-out end-cap RMS {b['caps_rms'] * 1e3:.4f} mm -> {f['caps_rms'] * 1e3:.4f} mm")
     print(f"wrote {report} and {params}")
     return 0

@@ -26,11 +26,11 @@ Parameters are shared by every end cap. :data:`MUJOCO_DEFAULT` are MuJoCo's
 defaults (``solref = 0.02 1``, ``solimp = 0.9 0.95 0.001 0.5 2``, friction 1);
 ``identification.effect_fit`` fits them to measured trajectories.
 
-``a0`` needs the other forces on each rod: the effect recomputes the springs from
-the tensions it sees in its ``tension`` hook (list it after effects that change
-tensions) and gravity; control forces and other effects' wrenches are not in
-``a0`` (the engine does not hand them to effects), which makes the contact a little
-softer against them than MuJoCo's.
+``a0`` needs every other force on each rod. Contact is a constraint
+(``constraint = True``): the engine evaluates it last and hands it the total wrench of
+springs, control forces and every other effect, as MuJoCo's constraint solver sees all
+passive and actuator forces. Called directly without that wrench, it uses the springs
+(from the tensions seen in its ``tension`` hook) and gravity.
 """
 
 from __future__ import annotations
@@ -87,6 +87,7 @@ class GroundContact(PhysicalEffect):
     """
 
     name: ClassVar[str] = "ground_contact"
+    constraint: ClassVar[bool] = True
     summary: ClassVar[str] = (
         "end caps meet a floor: soft normal spring-damper + Coulomb friction (MuJoCo-style)"
     )
@@ -133,9 +134,19 @@ class GroundContact(PhysicalEffect):
         return tension
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
-        force, arm = self.contact_forces(state, kin, params)
+        """Contact force and torque on each rod, (B, R, 3) each, world frame.
+
+        ``applied``: the force and torque (B, R, 3) of everything else on each rod
+        (springs, control, other effects), which the engine passes since contact is a
+        constraint; None: the springs' pull alone (gravity is always included).
+        """
+        force, arm = self.contact_forces(state, kin, params, applied)
         return force.sum(2), torch.cross(arm, force, dim=-1).sum(2)
 
     # ------------------------------------------------------------------ physics
@@ -178,9 +189,16 @@ class GroundContact(PhysicalEffect):
         }
 
     def contact_forces(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Contact force on every end cap (B, R, 2, 3) [N] and its arm (B, R, 2, 3) [m]."""
+        """Contact force on every end cap (B, R, 2, 3) [N] and its arm (B, R, 2, 3) [m].
+
+        ``applied``: see :meth:`wrench`.
+        """
         g = self.contact_geometry(state, kin)
         dist = g["dist"]
         B, R = dist.shape[:2]
@@ -206,20 +224,23 @@ class GroundContact(PhysicalEffect):
         edges = n.unsqueeze(-2) + mu * tk
         arm = g["arm"].unsqueeze(-2).expand_as(edges)
         rot = kin.rot  # (B, R, 3, 3)
+        # mass (1 or B, R) and inertia (1 or B, R, 3): params may carry a batch dimension
+        m_b = params.mass if params.mass.dim() == 2 else params.mass[None]
+        i_b = params.inertia if params.inertia.dim() == 3 else params.inertia[None]
         # J M^-1 J^T from the rod's mass and inertia: (B, R, 8, 8)
         lin = edges.reshape(B, R, 8, 3)
         ang_w = torch.cross(arm, edges, dim=-1).reshape(B, R, 8, 3)
-        ang_l = torch.einsum("brji,brej->brei", rot, ang_w) / params.inertia.sqrt()[None, :, None]
-        mass = params.mass[None, :, None, None]
+        ang_l = torch.einsum("brji,brej->brei", rot, ang_w) / i_b.sqrt()[:, :, None]
+        mass = m_b[:, :, None, None]
         A = lin @ lin.transpose(-1, -2) / mass + ang_l @ ang_l.transpose(-1, -2)
-        # free accelerations a0 of the edges: gravity, springs, gyroscopic terms
-        f_s, t_s = self._spring_wrench(kin, params)
-        acc = f_s / params.mass[None, :, None] + params.gravity
+        # free accelerations a0 of the edges: gravity, applied forces, gyroscopic terms
+        f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
+        acc = f_s / m_b[:, :, None] + params.gravity
         omega_l = torch.einsum("brji,brj->bri", rot, state.omega)
         torque_l = torch.einsum("brji,brj->bri", rot, t_s)
-        gyro = torch.cross(omega_l, params.inertia * omega_l, dim=-1)
-        alpha_l = (torque_l - gyro) / params.inertia
-        ang_acc_l = torch.einsum("brei,bri->bre", ang_l, alpha_l * params.inertia.sqrt())
+        gyro = torch.cross(omega_l, i_b * omega_l, dim=-1)
+        alpha_l = (torque_l - gyro) / i_b
+        ang_acc_l = torch.einsum("brei,bri->bre", ang_l, alpha_l * i_b.sqrt())
         a0 = torch.einsum("brei,bri->bre", lin, acc) + ang_acc_l
         # reference accelerations and softness per edge, (B, R, 8)
         v_e = (edges * g["vel"].unsqueeze(-2)).sum(-1).reshape(B, R, 8)

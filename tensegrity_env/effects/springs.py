@@ -96,3 +96,24 @@ class SlackSprings(PhysicalEffect):
         # remove the elastic push of slack cables: -K (l - l0) where l < l0
         dT = -params.stiffness.to(length) * stretch * (stretch < 0) * self.mask(length)
         return torch.einsum("brks,bs->brk", force, dT), torch.einsum("brks,bs->brk", torque, dT)
+
+
+class CompressionStiffness(LinearEffect):
+    """Per-spring stiffness change in compression ``stiffness`` ΔK (S,) [N/m].
+
+    ``T += ΔK (l - l0)`` while ``l < l0``. The probe of the slack-cable candidate: a
+    cable shows ``ΔK = -K`` (it loses its whole elastic push when shorter than rest).
+    """
+
+    name: ClassVar[str] = "compression_stiffness"
+    summary: ClassVar[str] = "spring stiffness changes by ΔK when shorter than rest"
+    PARAMS: ClassVar[dict[str, ParamSpec]] = {
+        "stiffness": ParamSpec("N/m", 0.0, per="spring", positive=False),
+    }
+
+    def basis(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        force, torque, length = spring_unit_wrench(kin, self.topology)
+        short = (length - params.rest_length.to(length)).clamp_max(0.0)  # (B, S)
+        return force * short[:, None, None], torque * short[:, None, None]

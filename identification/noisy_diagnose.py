@@ -1,0 +1,512 @@
+"""The residual loop on measured end caps (motion capture, ~1 mm noise), through the engine.
+
+With noisy end caps, accelerations from differences are useless and smoothing
+biases the regression (more than the effects we look for), so the loop compares
+models by **multi-step prediction of the measured end caps** instead: the
+windowed trajectory fit of :mod:`identification.noisy` (maximum likelihood under
+Gaussian position noise), with each candidate's effect parameters appended to the
+fitted vector (:class:`~identification.effect_coords.EffectCoords`).
+
+Each iteration of :func:`diagnose_noisy`
+
+1. fits every candidate whose gate the data passes **jointly** (declared parameters,
+   the candidate's and the current effects' parameters, each window's initial state)
+   on windows of the training split, starting from the current model;
+2. scores it on **held-out** windows (validation split): only the windows' initial
+   states are fitted there, parameters held, so the held-out sum of squares
+   ``SSE_val`` measures prediction; and by the **BIC** of the training fit,
+   ``m ln(SSE/m) + k ln m`` (``k``: global parameters; the window states are common
+   to every model);
+3. accepts the best candidate only if it lowers the BIC by :data:`MIN_BIC_DROP`, the
+   held-out chi-square ``SSE_val / σ̂²`` by :data:`MIN_CHI2_GAIN` (``σ̂``: the
+   candidate's held-out RMS, the noise estimate), and its values are physical;
+4. flags the attribution when the runner-up also passes, the two held-out
+   chi-squares differ by less than :data:`AMBIGUOUS_CHI2` (the held-out data cannot
+   prefer one) and the two models' predicted end-cap changes correlate above
+   :data:`AMBIGUOUS_CORRELATION`. The runner-up's correlation and chi-square
+   difference are reported either way.
+
+Slack cables are found in two fits: a per-spring stiffness change in compression
+(:class:`~tensegrity_env.effects.springs.CompressionStiffness`) names the springs
+that lose more than :data:`SLACK_LOSS` of ``K`` by :data:`SLACK_SIGNIFICANCE`
+standard errors; the candidate is then those springs as cables.
+
+Errors before and after are measured on the **test** split: the held-out end-cap
+RMS (which cannot fall below the noise) and, when the clean trajectories are known
+(planted data), the one-step and rollout errors against them.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from identification.candidates import CONTACT_START, Model, contact_gate
+from identification.dataset import Dataset, Split
+from identification.effect_coords import EffectCoords
+from identification.extended import evaluate_model
+from identification.noisy import (
+    STATE_KEYS,
+    ParamVector,
+    RodAxes,
+    TrajectoryIdentifier,
+    Windows,
+    _odd,
+    cut_windows,
+    end_caps,
+    fit_windows,
+    parse_anchors,
+    smooth_rod_states,
+    smoothed_regression,
+)
+from tensegrity_env.effects import (
+    CubicStiffness,
+    ForceField,
+    GroundContact,
+    LinearDrag,
+    QuadraticDrag,
+    SlackSprings,
+)
+from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.effects.springs import CompressionStiffness
+from tensegrity_env.engine import Engine
+from tensegrity_env.params import Params
+
+#: a candidate must lower the training BIC by this much ...
+MIN_BIC_DROP = 10.0
+#: ... and the held-out chi-square by this much
+MIN_CHI2_GAIN = 10.0
+#: two passing candidates whose predicted changes correlate above this ...
+AMBIGUOUS_CORRELATION = 0.9
+#: ... and held-out chi-squares closer than this cannot be told apart
+AMBIGUOUS_CHI2 = 10.0
+#: a spring is a cable when compressing it loses this fraction of its stiffness ...
+SLACK_LOSS = 0.5
+#: ... by at least this many standard errors
+SLACK_SIGNIFICANCE = 5.0
+
+
+@dataclass(frozen=True)
+class TrajectorySettings:
+    """How the loop fits end-cap data.
+
+    Attributes:
+        anchors: known values fixing the scale, e.g. ``{"mass[rod0]": 1.95}``.
+        window: steps per window (short windows forgive a missing effect at the start).
+        train_windows, val_windows, test_windows: random windows used per split.
+        base_iter, candidate_iter, state_iter: Levenberg-Marquardt iterations of the
+            declared fit, of each candidate fit, of the held-out state fits.
+        smoothing: Savitzky-Golay window [s] of the starting states and regression.
+        seed: seed of the window draws.
+        progress: print one line per fit.
+    """
+
+    anchors: dict[str, float] = field(default_factory=dict)
+    window: int = 100
+    train_windows: int = 8
+    val_windows: int = 8
+    test_windows: int = 8
+    base_iter: int = 10
+    candidate_iter: int = 10
+    state_iter: int = 15
+    smoothing: float = 0.1
+    seed: int = 0
+
+
+@dataclass
+class TrajFit:
+    """A model fitted through the windows of the training split.
+
+    Attributes:
+        vec: the fitted vector's layout (log-parameters and effect coordinates).
+        theta: fitted values, (n_free + n_effect,).
+        windows: training windows with fitted initial states.
+        sse, m: sum of squared end-cap errors [m^2] and number of residuals.
+        stderr: standard error of every fitted coordinate, (n_free + n_effect,).
+    """
+
+    vec: ParamVector
+    theta: torch.Tensor
+    windows: Windows
+    sse: float
+    m: int
+    stderr: np.ndarray
+    origin: torch.Tensor | None = None
+
+    @property
+    def params(self) -> Params:
+        return self.vec.params(self.vec.full(self.theta.detach()))
+
+    @property
+    def effects(self) -> list[PhysicalEffect]:
+        """The fitted effects, with standard errors as their ``uncertainty``."""
+        if self.vec.coords is None:
+            return []
+        n = self.vec.n_free
+        return self.vec.coords.effects_at(self.theta.detach()[n:], self.stderr[n:])
+
+    @property
+    def k(self) -> int:
+        return len(self.theta)
+
+    @property
+    def bic(self) -> float:
+        return self.m * float(np.log(self.sse / self.m)) + self.k * float(np.log(self.m))
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(self.sse / self.m))
+
+
+@dataclass
+class Candidate:
+    """A candidate fitted and scored (``"nothing"``: the current model)."""
+
+    name: str
+    fit: TrajFit
+    gate: str = ""
+    val_sse: float = float("nan")
+    val_m: int = 0
+    val_windows: Windows | None = None
+    chi2_gain: float = 0.0
+    bic_drop: float = 0.0
+    physical: bool = True
+    accepted: bool = False
+    verdict: str = ""
+    seconds: float = 0.0
+
+    @property
+    def val_rms(self) -> float:
+        return float(np.sqrt(self.val_sse / max(self.val_m, 1)))
+
+
+@dataclass
+class NoisyIteration:
+    """One pass: the current model, every candidate, the choice and the test errors."""
+
+    before: Candidate
+    candidates: list[Candidate]
+    skipped: list[tuple[str, str]]
+    chosen: Candidate | None
+    ambiguous: tuple[str, float] | None
+    test_before: dict[str, float]
+    test_after: dict[str, float] | None = None
+    #: the runner-up that also passed: name, correlation of predicted changes with the
+    #: chosen one's, and how much more the chosen one lowers the held-out chi-square
+    runner_up: tuple[str, float, float] | None = None
+
+
+@dataclass
+class NoisyDiagnoseResult:
+    """What :func:`diagnose_noisy` found (``model``: final params and effects)."""
+
+    iterations: list[NoisyIteration]
+    model: Model
+    baseline_test: dict[str, float]
+    final_test: dict[str, float]
+    settings: dict[str, Any]
+    unexplained: str = ""
+
+
+# ---------------------------------------------------------------------- fits
+class _Data:
+    """Windows of every split, their smoothed starting states, and the fixed context."""
+
+    def __init__(self, dataset: Dataset, s: TrajectorySettings) -> None:
+        self.topology, self.dt = dataset.topology, dataset.dt
+        self.axes = RodAxes.of(self.topology)
+        self.engine = Engine(self.topology, self.dt)
+        self.sg = _odd(s.smoothing / self.dt)
+        self.smooth: dict[str, Any] = {}
+        self.windows: dict[str, Windows] = {}
+        counts = {"train": s.train_windows, "val": s.val_windows, "test": s.test_windows}
+        for k, name in enumerate(("train", "val", "test")):
+            split = dataset.split(name if name in dataset.splits else "test")
+            self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
+            grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
+            win = cut_windows(split.nodes, split.control, grid, s.window)
+            rng = np.random.default_rng([s.seed, k])
+            if win.size > counts[name]:
+                win = win.take(np.sort(rng.choice(win.size, counts[name], replace=False)))
+            self.windows[name] = win
+        self.train: Split = dataset.split("train")
+
+
+def fit_declared(data: _Data, s: TrajectorySettings, start: Params | None = None) -> TrajFit:
+    """The declared model on the training windows, from ``start`` or smoothing + regression.
+
+    Every parameter but the anchors is fitted; the fit starts from ``start`` (a
+    params file) if given, else from the regression on Savitzky-Golay smoothed end
+    caps (far off on fast data: then the joint fits may stop in a poor basin).
+    """
+    if start is None:
+        values = smoothed_regression(
+            data.topology, data.smooth["train"], data.train.control, s.anchors
+        )
+    else:
+        values = params_values(start, data.axes)
+    has_control = bool(np.any(data.train.control != 0))
+    anchors = parse_anchors(data.topology, s.anchors)
+    vec = TrajectoryIdentifier(anchors=s.anchors)._vector(
+        data.topology, data.axes, values, anchors, has_control
+    )
+    fit = _fit(data, vec, data.windows["train"], vec.theta0(), s.base_iter)
+    fit.origin = vec.theta0()
+    return fit
+
+
+def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
+    """``params`` as the trajectory fit's groups (``inertia_perp``: a perpendicular axis)."""
+    p = params.numpy()
+    inertia = np.asarray(p["inertia"])
+    R = inertia.shape[0]
+    return {
+        "stiffness": np.asarray(p["stiffness"], float),
+        "damping": np.asarray(p["damping"], float),
+        "rest_length": np.asarray(p["rest_length"], float),
+        "mass": np.asarray(p["mass"], float),
+        "inertia_perp": inertia[np.arange(R), (axes.axis + 1) % 3],
+        "control_gain": np.atleast_1d(np.asarray(p["control_gain"], float)),
+    }
+
+
+def _fit(
+    data: _Data, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int
+) -> TrajFit:
+    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False)
+    return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * fit.windows.obs.numel(),
+                   fit.windows.obs.numel(), fit.stderr)  # fmt: skip
+
+
+def fit_with(
+    data: _Data, current: TrajFit, effects: Sequence[PhysicalEffect], iters: int
+) -> TrajFit:
+    """Refit jointly with ``effects`` (contact last), from the current model's origin.
+
+    The declared parameters start where ``current`` started (its ``origin``: the
+    params file, or the accepted model's fit), not where it ended: a model without
+    the missing effect drifts to compensate for it, and from there the effect may
+    no longer pay. The windows start from ``current``'s fitted states.
+    """
+    ordered = [e for e in effects if not isinstance(e, GroundContact)]
+    ordered += [e for e in effects if isinstance(e, GroundContact)]
+    origin = current.theta if current.origin is None else current.origin
+    vec = replace(current.vec, start=current.vec.full(origin.detach()),
+                  coords=EffectCoords.of(ordered, _common_axis(data.axes)))  # fmt: skip
+    fit = _fit(data, vec, current.windows, vec.theta0(), iters)
+    fit.origin = fit.theta
+    return fit
+
+
+def _common_axis(axes: RodAxes) -> int | None:
+    """The end-cap axis (rod frame) if every rod has the same one."""
+    return int(axes.axis[0]) if np.all(axes.axis == axes.axis[0]) else None
+
+
+@torch.no_grad()
+def _fixed_engine(data: _Data, fit: TrajFit) -> tuple[Engine, ParamVector]:
+    """The engine with ``fit``'s effects and a vector with nothing free (its params)."""
+    vec = replace(fit.vec, start=fit.vec.full(fit.theta.detach()),
+                  free=torch.zeros_like(fit.vec.free), coords=None)  # fmt: skip
+    return data.engine.with_effects(fit.effects), vec
+
+
+def heldout(data: _Data, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:
+    """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
+    engine, vec = _fixed_engine(data, fit)
+    empty = torch.zeros(0, dtype=torch.float64)
+    w = fit_windows(engine, vec, data.windows[split], empty, iters, tol=0.01, spin=False)
+    m = w.windows.obs.numel()
+    return w.history[-1] * m, m, w.windows
+
+
+@torch.no_grad()
+def predicted_caps(data: _Data, fit: TrajFit, windows: Windows) -> torch.Tensor:
+    """End caps (B, W+1, 2R, 3) [m] of ``fit`` rolled out from ``windows``' states."""
+    engine, vec = _fixed_engine(data, fit)
+    roll = engine.rollout(windows.state, vec.params(vec.start), windows.steps, windows.control)
+    return end_caps(engine, roll.p, roll.q)
+
+
+# ---------------------------------------------------------------------- candidates
+def _proposals(
+    data: _Data, current: TrajFit, names: Sequence[str] | None
+) -> list[tuple[str, Any, str]]:
+    """``(name, effect or None, gate text)`` for every candidate not yet in the model."""
+    topo, have = data.topology, {e.name for e in current.effects}
+    out: list[tuple[str, Any, str]] = []
+
+    def add(name: str, effect: Any, gate: str) -> None:
+        again = name == "slack_springs"  # more cables may show once the first are slack
+        if (again or name not in have) and (names is None or name in names):
+            out.append((name, effect, gate))
+
+    ok, gate = contact_gate(data.train, topo)
+    add("ground_contact", GroundContact(topo, **CONTACT_START) if ok else None, gate)
+    add("slack_springs", "probe", "springs shorter than rest (compression-stiffness probe)")
+    add("linear_drag", LinearDrag(topo), "acts everywhere, opposing v and ω")
+    add("quadratic_drag", QuadraticDrag(topo), "acts everywhere, opposing v|v| and ω|ω|")
+    add("force_field", ForceField(topo), "acts on every rod, always")
+    add("cubic_stiffness", CubicStiffness(topo), "acts along every spring, grows with (l - l0)^3")
+    add("rest_length_offset", None, "rest lengths are fitted already")
+    if np.any(data.train.control != 0):
+        add("control_lag", None, "not yet available for end-cap-only data")
+    else:
+        add("control_lag", None, "no control in this data")
+    return out
+
+
+def slack_cables(data: _Data, current: TrajFit, iters: int) -> tuple[list[int], str]:
+    """Springs that lose stiffness when compressed (a joint fit with a per-spring ΔK).
+
+    Cables already in the model are kept: the result is all cables, old and new, or
+    empty when no new one shows.
+    """
+    old = [e for e in current.effects if isinstance(e, SlackSprings)]
+    known = {int(i) for e in old for i in e.values["springs"].tolist()}
+    probe = fit_with(data, current, [*current.effects, CompressionStiffness(data.topology)], iters)
+    S = data.topology.n_springs
+    dk = probe.theta[-S:].numpy()
+    se = probe.stderr[-S:]
+    k = probe.params.stiffness.numpy()
+    loss = -dk / k
+    found = np.flatnonzero((loss > SLACK_LOSS) & (np.abs(dk) > SLACK_SIGNIFICANCE * se))
+    new = sorted({int(c) for c in found} - known)
+    if not new:
+        free = [s for s in range(S) if s not in known]
+        worst = float(loss[free].max()) if free else 0.0
+        return [], f"no (further) spring loses stiffness when compressed (largest loss {worst:.0%})"
+    return sorted(known | set(new)), (
+        f"{len(new)} {'more ' if known else ''}springs lose "
+        f"{np.median(loss[new]):.0%} of K when compressed"
+    )
+
+
+def _judge(c: Candidate, current: Candidate) -> None:
+    c.bic_drop = current.fit.bic - c.fit.bic
+    sigma2 = c.val_sse / max(c.val_m, 1)
+    c.chi2_gain = (current.val_sse - c.val_sse) / sigma2 if np.isfinite(c.val_sse) else -np.inf
+    if not c.physical:
+        c.verdict = "rejected: identified values are unphysical"
+    elif not c.bic_drop >= MIN_BIC_DROP:
+        c.verdict = f"rejected: BIC drops only {c.bic_drop:.3g} (< {MIN_BIC_DROP:g})"
+    elif not c.chi2_gain >= MIN_CHI2_GAIN:
+        c.verdict = f"rejected: held-out chi-square drops only {c.chi2_gain:.3g}"
+    else:
+        c.accepted = True
+        c.verdict = f"passes (held-out chi-square -{c.chi2_gain:.4g}, ΔBIC -{c.bic_drop:.4g})"
+
+
+def _corr(x: torch.Tensor, y: torch.Tensor) -> float:
+    x, y = x.reshape(-1) - x.mean(), y.reshape(-1) - y.mean()
+    den = float(torch.linalg.vector_norm(x) * torch.linalg.vector_norm(y))
+    return float((x * y).sum()) / den if den > 0 else 0.0
+
+
+# ---------------------------------------------------------------------- the loop
+def diagnose_noisy(
+    dataset: Dataset,
+    settings: TrajectorySettings,
+    max_effects: int = 3,
+    candidates: Sequence[str] | None = None,
+    clean: Dataset | None = None,
+    horizon_s: float = 1.0,
+    start: Params | None = None,
+    log: Callable[[str], None] = print,
+) -> NoisyDiagnoseResult:
+    """Run the loop on end-cap data (see the module docstring).
+
+    ``clean``: the same trajectories without noise, with rod states (planted data),
+    for the test errors against the truth; never used for fitting or selection.
+    """
+    data = _Data(dataset, settings)
+    t0 = time.perf_counter()
+    base = fit_declared(data, settings, start)
+    log(
+        f"declared model: training end-cap RMS {base.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
+    )
+    current = _score(data, Candidate("nothing", base), settings)
+    test_now = _test(data, base, settings, clean, horizon_s)
+    baseline = test_now
+    iterations: list[NoisyIteration] = []
+    for _ in range(max_effects):
+        tried: list[Candidate] = []
+        skipped: list[tuple[str, str]] = []
+        for name, effect, gate in _proposals(data, current.fit, candidates):
+            t1 = time.perf_counter()
+            if effect == "probe":
+                cables, gate = slack_cables(data, current.fit, settings.candidate_iter)
+                effect = SlackSprings(data.topology, springs=cables) if cables else None
+            if effect is None:
+                skipped.append((name, gate))
+                continue
+            fit = fit_with(
+                data, current.fit, [*current.fit.effects, effect], settings.candidate_iter
+            )
+            c = _score(data, Candidate(name, fit, gate), settings)
+            c.physical = all(e.physical() for e in fit.effects)
+            c.seconds = time.perf_counter() - t1
+            _judge(c, current)
+            log("    " + "; ".join(e.describe() for e in fit.effects))
+            log(f"  candidate {name:18s} val RMS {c.val_rms * 1e3:.4f} mm, Δchi2 {c.chi2_gain:+.4g}, "
+                f"ΔBIC {-c.bic_drop:+.4g}: {c.verdict} ({c.seconds:.0f} s)")  # fmt: skip
+            tried.append(c)
+        tried.sort(key=lambda c: (not c.accepted, -c.chi2_gain))
+        chosen = tried[0] if tried and tried[0].accepted else None
+        ambiguous, runner_up = None, None
+        if chosen is not None and len(tried) > 1 and tried[1].accepted:
+            runner = tried[1]
+            ref = predicted_caps(data, current.fit, current.val_windows)  # type: ignore[arg-type]
+            corr = _corr(
+                predicted_caps(data, chosen.fit, current.val_windows) - ref,  # type: ignore[arg-type]
+                predicted_caps(data, runner.fit, current.val_windows) - ref,  # type: ignore[arg-type]
+            )
+            gap = chosen.chi2_gain - runner.chi2_gain
+            runner_up = (runner.name, corr, gap)
+            if corr > AMBIGUOUS_CORRELATION and gap < AMBIGUOUS_CHI2:
+                ambiguous = (runner.name, corr)
+        it = NoisyIteration(current, tried, skipped, chosen, ambiguous, test_now)
+        it.runner_up = runner_up
+        iterations.append(it)
+        if chosen is None:
+            break
+        fit = fit_with(data, chosen.fit, chosen.fit.effects, settings.base_iter)  # converge
+        fit.origin = fit.theta
+        chosen = _score(data, replace(chosen, fit=fit), settings)
+        test_now = _test(data, chosen.fit, settings, clean, horizon_s)
+        it.test_after = test_now
+        note = ""
+        if runner_up is not None:
+            note = (f" (runner-up {runner_up[0]}: predicted changes correlate {runner_up[1]:.3f}, "
+                    f"held-out chi-square {runner_up[2]:.4g} higher"
+                    + ("; CANNOT be told apart)" if ambiguous else ")"))  # fmt: skip
+        log(f"added {chosen.name}{note}")
+        current = chosen
+    model = Model(current.fit.params, current.fit.effects, current.fit.k)
+    return NoisyDiagnoseResult(
+        iterations=iterations, model=model, baseline_test=baseline, final_test=test_now,
+        settings={"anchors": dict(settings.anchors), "window": settings.window,
+                  "min_bic_drop": MIN_BIC_DROP, "min_chi2_gain": MIN_CHI2_GAIN},
+    )  # fmt: skip
+
+
+def _score(data: _Data, c: Candidate, s: TrajectorySettings) -> Candidate:
+    c.val_sse, c.val_m, c.val_windows = heldout(data, c.fit, "val", s.state_iter)
+    return c
+
+
+def _test(
+    data: _Data, fit: TrajFit, s: TrajectorySettings, clean: Dataset | None, horizon_s: float
+) -> dict[str, float]:
+    """Test-split errors: held-out end-cap RMS [m]; against the clean truth if given."""
+    sse, m, _ = heldout(data, fit, "test", s.state_iter)
+    out = {"caps_rms": float(np.sqrt(sse / m))}
+    if clean is not None:
+        ev = evaluate_model(data.topology, fit.params, fit.effects, clean, "test", horizon_s)
+        out.update(one_step=float(ev["one_step"]), rollout=float(ev["rollout"]))
+    return out

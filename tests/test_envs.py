@@ -114,8 +114,8 @@ def test_kernel_self_check_catches_a_different_law() -> None:
     a = twin_assembly()
 
     class Stiffer(GroundContact):
-        def wrench(self, state, kin, params):  # type: ignore[no-untyped-def]
-            force, torque = super().wrench(state, kin, params)
+        def wrench(self, state, kin, params, applied=None):  # type: ignore[no-untyped-def]
+            force, torque = super().wrench(state, kin, params, applied)
             return 1.01 * force, 1.01 * torque
 
     with pytest.raises(KernelMismatch):
@@ -338,9 +338,12 @@ def test_asset_pipeline_regenerates_an_identified_model(tmp_path: Path) -> None:
     assert 0.2 < env.state[:, 2].mean() < 0.45
 
 
-@pytest.mark.slow
 def test_identified_env_tracks_the_twin() -> None:
-    """Same start and random actions: the centres stay within a few cm for a second."""
+    """Same start and random actions: the centres stay within 1 mm for a second.
+
+    Contact is a constraint that reacts to control forces too (as in MuJoCo); when it
+    saw only springs and gravity, the gap under random pushes was 3 mm (median) here.
+    """
     sr, mj = IcosahedronSREnv(goal_distance=(50, 50)), IcosahedronMJEnv(goal_distance=(50, 50))
     gaps = []
     for seed in range(6):
@@ -352,7 +355,7 @@ def test_identified_env_tracks_the_twin() -> None:
             sr.step(a)
             mj.step(a)
         gaps.append(np.linalg.norm(sr.state[:, :3].mean(0) - mj.state[:, :3].mean(0)))
-    assert np.median(gaps) < 0.01 and max(gaps) < 0.03
+    assert np.median(gaps) < 2e-4 and max(gaps) < 1e-3
 
 
 def test_task_options_reach_every_env_and_typos_are_refused() -> None:

@@ -6,7 +6,12 @@ every effect at two fixed points, with no special cases for any of them:
 * ``tension(frame, tension, kin)`` may rewrite the spring tensions (B, S) [N]
   (slack springs, cubic stiffness, rest-length offsets);
 * ``wrench(state, kin, params)`` may add a force and torque (B, R, 3) on each rod
-  about its centre of mass, world frame (drag, contact, force fields).
+  about its centre of mass, world frame (drag, force fields).
+
+An effect with ``constraint = True`` (ground contact) reacts to everything else, as
+MuJoCo's constraint solver does: the engine calls its ``wrench`` last, with
+``applied=(force, torque)``, the total wrench of springs, control and every other
+effect on each rod, so that the contact force depends on how hard the rest pushes.
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ class EffectBase:
     """Default no-op hooks; an effect overrides the ones where it acts."""
 
     name = "effect"
+    #: True for effects solved last against every applied force (see the module docstring)
+    constraint = False
 
     def tension(self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics) -> torch.Tensor:
         return tension

@@ -93,8 +93,15 @@ class Engine:
             arm = torch.einsum("brij,rj->bri", kin.rot, self.control_arms)
             f_u, t_u = point_force_wrench(params.control_gain * control, arm)
             force, torque = force + f_u, torque + t_u
+        constraints = [e for e in self.effects if getattr(e, "constraint", False)]
         for effect in self.effects:
+            if effect in constraints:
+                continue
             extra = effect.wrench(state, kin, params)
+            if extra is not None:
+                force, torque = force + extra[0], torque + extra[1]
+        for effect in constraints:  # contact reacts to everything applied so far
+            extra = effect.wrench(state, kin, params, applied=(force, torque))
             if extra is not None:
                 force, torque = force + extra[0], torque + extra[1]
         # acceleration generation: Newton-Euler through M, I and R

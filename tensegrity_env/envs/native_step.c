@@ -150,7 +150,7 @@ static double impedance(const Model *m, double dist) {
     return m->d_min + y * (m->d_max - m->d_min);
 }
 
-/* contact force and torque on rod r (added to F, T); f_s, t_s: the springs' wrench */
+/* contact force and torque on rod r (added to F, T); f_s, t_s: the wrench of springs and control */
 static void contact_wrench(const Model *m, int r, const double *p, const double *v,
                            const double *omega, const double *M, const double arms[2][3],
                            const double *f_s, const double *t_s, double *F, double *T) {
@@ -164,7 +164,7 @@ static void contact_wrench(const Model *m, int r, const double *p, const double 
     const double mass = m->mass[r], *I = m->inertia + 3 * r;
     double sI[3] = {sqrt(I[0]), sqrt(I[1]), sqrt(I[2])};
     double isI[3] = {1.0 / sI[0], 1.0 / sI[1], 1.0 / sI[2]}, inv_m = 1.0 / mass;
-    /* free accelerations without contact: gravity, springs, gyroscopic terms */
+    /* free accelerations without contact: gravity, springs and control, gyroscopic terms */
     double acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
     for (int i = 0; i < 3; i++) acc[i] = f_s[i] * inv_m + m->g[i];
     rot_t(M, omega, wl);
@@ -403,7 +403,7 @@ static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[
     vl both = act[0] & act[1];
     if (!vany(act[0] | act[1])) return;
     const double mass = m->mass[r], *I = m->inertia + 3 * r;
-    /* free accelerations without contact: gravity, springs, gyroscopic terms */
+    /* free accelerations without contact: gravity, springs and control, gyroscopic terms */
     vd acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
     for (int i = 0; i < 3; i++) acc[i] = f_s[i] * (1.0 / mass) + m->g[i];
     vrot_t(M, x->w, wl);
@@ -480,7 +480,10 @@ static void vsubstep(const Model *m, VRod *x) {
         vrot_c(M[r], m->arm_u + 3 * r, au);
         vcross(au, fu, tu);
         for (int i = 0; i < 3; i++) { F[i] = f_s[i] + fu[i]; T[i] = t_s[i] + tu[i]; }
-        if (m->contact) vcontact(m, r, xr, M[r], arms[r], f_s, t_s, F, T);
+        /* contact is a constraint: it reacts to springs and control together */
+        vd fa[3], ta[3];
+        for (int i = 0; i < 3; i++) { fa[i] = F[i]; ta[i] = T[i]; }
+        if (m->contact) vcontact(m, r, xr, M[r], arms[r], fa, ta, F, T);
         /* Newton-Euler */
         const double mass = m->mass[r], *I = m->inertia + 3 * r;
         vd wl[3], tl[3], Iw[3], gyro[3], acc[3], alpha[3];

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,7 +45,10 @@ def cases(noises: tuple[float, ...], seed: int) -> list[PlantSpec]:
 
 
 def run_case(
-    spec: PlantSpec, smoothing: float = 0.01, settings: TrajectorySettings | None = None
+    spec: PlantSpec,
+    smoothing: float = 0.01,
+    settings: TrajectorySettings | None = None,
+    log: Callable[[str], None] = lambda s: None,
 ) -> dict[str, object]:
     """Diagnose one planted dataset; the row of the table (see the module docstring)."""
     data = planted_dataset(spec)
@@ -54,7 +58,7 @@ def run_case(
         if spec.noise > 0:
             ts = replace(settings or TrajectorySettings(), anchors=anchors, seed=spec.seed)
             r = diagnose_noisy(data.dataset, ts, max_effects=2, clean=data.clean,
-                               start=data.ground_truth.params, log=lambda s: None)  # fmt: skip
+                               start=data.ground_truth.params, log=log)  # fmt: skip
         else:
             ds = with_measured_states(data.dataset, smoothing)
             r = diagnose(ds, FitSettings(anchors=anchors), max_effects=3, horizon_s=1.0,
@@ -110,7 +114,8 @@ def main(argv: list[str] | None = None) -> int:
             strengths and spec.effect != "none" and spec.strength not in strengths
         ):
             continue
-        rows.append(run_case(spec))
+        print(f"{spec.label} ...", flush=True)
+        rows.append(run_case(spec, log=lambda s: print(s, flush=True)))
         print(table(rows[-1:]).splitlines()[-1], flush=True)
         atomic_write_text(
             args.output / "planted_table.json", json.dumps(rows, indent=1, default=str)

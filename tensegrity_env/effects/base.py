@@ -186,7 +186,7 @@ class PhysicalEffect(EffectBase):
         parts = []
         for k, spec in self.PARAMS.items():
             v = self.values[k].detach().cpu().numpy()
-            text = f"{float(v):.4g}" if v.size == 1 else np.array2string(v, precision=3)
+            text = f"{float(v):.4g}" if v.ndim == 0 else np.array2string(v, precision=3)
             parts.append(f"{k}={text} {spec.unit}".rstrip())
         return f"{self.name}: " + ", ".join(parts)
 

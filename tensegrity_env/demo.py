@@ -157,7 +157,7 @@ def step_transfer(out: Path) -> None:
     print(table)
     atomic_write_text(out / "transfer.md", f"# Transfer of the shipped policy\n\n{table}\n")
     try:
-        clip = side_by_side_video(policy, out / "transfer_side_by_side.mp4", seed=1001)
+        clip = side_by_side_video(policy, out / "transfer_side_by_side.mp4", seed=1003)
         print(f"clip (left: identified engine, right: MuJoCo twin, same policy): {clip}")
     except RenderingUnavailable as e:
         print(f"no clip: {e}")

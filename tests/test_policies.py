@@ -235,7 +235,7 @@ def test_ppo_trained_on_the_identified_env_transfers(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_identified_env_policy_matches_one_trained_on_mujoco(tmp_path: Path) -> None:
-    """Same recipe on both envs (the MuJoCo run takes about an hour on one core): the
+    """Same recipe on both envs (the MuJoCo run takes ~25 min on one core): the
     SR-trained policy gets >= 90 % of the MuJoCo-trained one's return in MuJoCo, in less
     training wall time."""
     sr = train("ppo", "IcosahedronSR-v0", tmp_path / "sr", seed=0, progress=False)

@@ -62,4 +62,6 @@ class State:
     @staticmethod
     def stack(states: list[State], dim: int = 1) -> State:
         """Stack a sequence of states along a new time dimension: (B, T, R, ·)."""
-        return State(*(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=False)))
+        return State(
+            *(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=False))
+        )

@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from identification.candidates import FitSettings
 from identification.diagnose import diagnose
@@ -21,12 +20,7 @@ from tensegrity_env.params import load_params
 SMALL = {"n_train": 4, "n_val": 2, "n_test": 2, "steps": 500}
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def run(spec: PlantSpec, horizon: float = 0.5, candidates=None, max_effects: int = 2):

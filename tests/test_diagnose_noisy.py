@@ -27,13 +27,7 @@ from identification.planted import PlantSpec, planted_dataset
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag, QuadraticDrag
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_effect_coords_round_trip_and_hold_axial_drag() -> None:

@@ -32,13 +32,7 @@ from tensegrity_env.engine.kinematics import node_kinematics
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import load_params, save_params
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")

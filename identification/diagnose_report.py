@@ -11,6 +11,7 @@ from identification.diagnose import DiagnoseResult, Scored
 from identification.residuals import summary_table
 from tensegrity_env.effects import effects_to_document
 from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.effects.residual_network import NOT_PHYSICAL
 from tensegrity_env.io_utils import atomic_write_text
 from tensegrity_env.params import save_params
 from tensegrity_env.topology import Topology
@@ -140,13 +141,51 @@ def write_report(
     L += [summary_table(result.final_residual), ""]
     L += [f"**Unexplained:** {result.unexplained}" if result.unexplained
           else "The residual left is noise (round-off or measurement noise).", ""]  # fmt: skip
+    L += _network_section(result)
     return atomic_write_text(out / "report.md", "\n".join(L))
+
+
+#: file names written beside ``params.json`` when a residual network absorbs the rest
+NETWORK_PARAMS = "params_residual_network.json"
+
+
+def _network_section(result: DiagnoseResult) -> list[str]:
+    """Markdown lines about the residual network (none if there is none)."""
+    fit = getattr(result, "residual_network", None)
+    if fit is None:
+        return []
+    L = ["## Residual network (unexplained: NOT a physical effect)", "",
+         f"{fit.effect.describe()}. Fitted jointly with the declared parameters "
+         f"(readout by least squares, then Adam; {fit.seconds:.1f} s). It absorbs structure "
+         "no candidate explains; it names nothing. The physical model above is unchanged.", "",
+         "| held-out | split | loop's model | + residual network | improvement |",
+         "|---|---|---|---|---|"]  # fmt: skip
+    for split, before in fit.before.items():
+        after = fit.after[split]
+        for key, label in (
+            ("one_step", "one-step"),
+            ("rollout", f"{before['horizon_s']:g}-s rollout"),
+        ):
+            L.append(f"| {label} | {split} | {fmt_err(before[key])} | {fmt_err(after[key])} | "
+                     f"{ratio(before[key], after[key])} |")  # fmt: skip
+    moved = ", ".join(f"{k} {v:.1%}" for k, v in fit.moved.items())
+    L += ["", f"Refitted with the network, the declared parameters move by (‖Δ‖/‖p‖): {moved} (a "
+          "large move: the identified values are biased by what the network absorbs).",
+          f"The network and its refitted parameters are in `{NETWORK_PARAMS}` (weights: "
+          f"`{fit.effect.sidecar}`); `params.json` keeps the physical model.", ""]  # fmt: skip
+    return L
 
 
 def write_params(
     result: DiagnoseResult, topology: Topology, path: Path, extra: dict[str, Any]
 ) -> Path:
-    """The extended params file: declared parameters plus the ``effects`` section."""
+    """The extended params file: declared parameters plus the ``effects`` section.
+
+    With a residual network (``result.residual_network``), also writes its weights
+    (sidecar, atomically) and ``params_residual_network.json`` beside ``path``: the
+    declared parameters refitted with it and the effects, the network's entry
+    included; ``params.json``'s ``diagnose.residual_network`` points at both.
+    """
     doc = {
         "effects": effects_to_document(result.model.effects),
         "diagnose": {
@@ -162,6 +201,16 @@ def write_params(
             "unexplained": result.unexplained,
         },
     }
+    fit = getattr(result, "residual_network", None)
+    if fit is not None:
+        directory = Path(path).parent
+        fit.effect.save(directory)
+        note = {"note": NOT_PHYSICAL, "params_file": NETWORK_PARAMS,
+                "sidecar": fit.effect.sidecar, **fit.summary()}  # fmt: skip
+        save_params(directory / NETWORK_PARAMS, topology, fit.params,
+                    _jsonable({"effects": effects_to_document(fit.effects),
+                               "residual_network": note}))  # fmt: skip
+        doc["diagnose"]["residual_network"] = note
     return save_params(path, topology, result.model.params, _jsonable(doc))
 
 

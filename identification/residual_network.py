@@ -231,6 +231,7 @@ def fit_residual_network(
         )
     net.load_state_dict(best_state)
     net.eval()
+    net.requires_grad_(False)  # trained: engines using it need no graph through its weights
     with torch.no_grad():
         train_loss = float(((net.standardised(x) - ys) ** 2).mean())
     effect = ResidualNetwork(topo, net)

@@ -293,6 +293,7 @@ class ResidualNetwork(LinearEffect):
                 raise InputError(f"{path}: the network's features differ from this version's")
             net = ResidualMLP(blob["hidden"], blob["activation"])
             net.load_state_dict(blob["state_dict"])
+            net.requires_grad_(False)  # for use; still differentiable in the state
         except (KeyError, RuntimeError, TypeError, EOFError) as e:
             raise InputError(f"{path}: not a residual-network file ({e})") from None
         return cls(topology, net, sidecar=Path(path).name, info=info)

@@ -57,6 +57,16 @@ def test_network_absorbs_what_no_candidate_explains(drag_run):
     assert isinstance(fit.effects[-1], ResidualNetwork) and fit.effect is fit.effects[-1]
 
 
+def test_opt_out_only_says_structure_is_left(drag_run):
+    data, _ = drag_run
+    settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])})
+    with np.errstate(invalid="ignore", divide="ignore"):
+        result = diagnose(data.dataset, settings, max_effects=0, horizon_s=0.5,
+                          log=lambda s: None, residual_network=False)  # fmt: skip
+    assert result.residual_network is None
+    assert "structure remains" in result.unexplained and "network" not in result.unexplained
+
+
 def test_sidecar_and_params_load_back_into_the_engine(drag_run, tmp_path):
     data, result = drag_run
     fit = result.residual_network

@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         if not topo.same_as(dataset.topology):
             raise InputError(f"{args.params}: topology differs from {args.dataset}")
         anchors.setdefault(f"mass[{topo.rods[0].name}]", float(params.mass[0]))
-        start = effects_from_document(doc, topo)
+        start = effects_from_document(doc, topo, root=args.params.parent)
     names = [n for n in args.candidates.split(",") if n] or None
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:

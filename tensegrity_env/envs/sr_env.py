@@ -35,7 +35,7 @@ def load_env_model(path: str | Path | None = None) -> tuple[Topology, Params, li
     topology, params, doc = load_params(path)
     if not topology.same_as(twin_assembly().topology, atol=1e-9):
         raise InputError(f"{path}: the rolling environments need the icosahedron's topology")
-    effects = effects_from_document(doc, topology)
+    effects = effects_from_document(doc, topology, root=path.parent)
     if not any(getattr(e, "name", "") == "ground_contact" for e in effects):
         raise InputError(
             f"{path}: no 'ground_contact' effect: identify it first (the structure would "

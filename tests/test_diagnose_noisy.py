@@ -55,7 +55,7 @@ def test_effect_columns_of_the_jacobian_match_autograd() -> None:
                                   n_val=1, n_test=1, steps=120))  # fmt: skip
     data = _Data(d.dataset, TrajectorySettings(anchors={"mass[rod0]": 1.0}, train_windows=2,
                                                  window=30))  # fmt: skip
-    base = fit_declared(data, TrajectorySettings(anchors={"mass[rod0]": 1.0}, base_iter=0))
+    _, base = fit_declared(data, TrajectorySettings(anchors={"mass[rod0]": 1.0}, base_iter=0))
     topo = data.topology
     drag = QuadraticDrag(topo, translational=[0.1, 0.2, 0.3], rotational=[0.01, 0.02, 0.03])
     from dataclasses import replace

@@ -29,10 +29,12 @@ import torch
 
 from identification.candidates import FitSettings
 from identification.diagnose import diagnose
-from identification.diagnose_report import fmt_err, ratio
+from identification.diagnose_report import fmt_err, ratio, write_params
+from identification.drop_check import drop_check
 from identification.measured import with_measured_states
 from identification.noisy_diagnose import TrajectorySettings, diagnose_noisy
 from identification.planted import PLANTS, PlantSpec, planted_dataset
+from tensegrity_env.effects import GroundContact
 from tensegrity_env.io_utils import atomic_write_text
 
 
@@ -52,8 +54,12 @@ def run_case(
     settings: TrajectorySettings | None = None,
     log: Callable[[str], None] = lambda s: None,
     start: str = "data",
+    params_out: Path | None = None,
 ) -> dict[str, object]:
-    """Diagnose one planted dataset; the row of the table (see the module docstring)."""
+    """Diagnose one planted dataset; the row of the table (see the module docstring).
+
+    ``params_out``: write the extended params file the loop identified there.
+    """
     data = planted_dataset(spec)
     anchors = {"mass[rod0]": float(data.ground_truth.params.mass[0])}
     t0 = time.perf_counter()
@@ -66,7 +72,12 @@ def run_case(
             ds = with_measured_states(data.dataset, smoothing)
             r = diagnose(ds, FitSettings(anchors=anchors), max_effects=3, horizon_s=1.0,
                          log=lambda s: None)  # fmt: skip
+    if params_out is not None:
+        write_params(r, data.dataset.topology, params_out, {"planted": spec.label})  # type: ignore[arg-type]
     b, f = r.baseline_test, r.final_test
+    drop: float | None = None  # the 2-s drop against MuJoCo, for an identified contact
+    if any(isinstance(e, GroundContact) for e in r.model.effects):
+        drop = drop_check(r.model.params, r.model.effects).worst
     flagged = [f"{it.chosen.name}~{it.ambiguous[0]}" for it in r.iterations
                if it.chosen is not None and it.ambiguous is not None]  # fmt: skip
     return {
@@ -74,15 +85,16 @@ def run_case(
         "noise_mm": spec.noise * 1e3, "named": r.model.names, "flagged": flagged,
         "one_step_before": b["one_step"], "one_step_after": f["one_step"],
         "rollout_before": b["rollout"], "rollout_after": f["rollout"],
-        "seconds": time.perf_counter() - t0, "start": start if spec.noise > 0 else "data",
+        "drop_2s": drop, "seconds": time.perf_counter() - t0, "start": start if spec.noise > 0 else "data",
         "params": [e.describe() for e in r.model.effects],
     }  # fmt: skip
 
 
 def table(rows: list[dict[str, object]]) -> str:
     lines = [
-        "| planted | strength | noise | named | one-step before | after | gain | 1-s rollout before | after | gain |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| planted | strength | noise | named | one-step before | after | gain "
+        "| 1-s rollout before | after | gain | 2-s drop vs MuJoCo |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         named = ", ".join(r["named"]) or "nothing"  # type: ignore[arg-type]
@@ -92,7 +104,8 @@ def table(rows: list[dict[str, object]]) -> str:
                           ("one_step_before", "one_step_after", "rollout_before", "rollout_after"))  # fmt: skip
         lines.append(
             f"| {r['planted']} | {r['strength']} | {r['noise_mm']:g} mm | {named} | {fmt_err(ob)} | "
-            f"{fmt_err(oa)} | {ratio(ob, oa)} | {fmt_err(rb)} | {fmt_err(ra)} | {ratio(rb, ra)} |"
+            f"{fmt_err(oa)} | {ratio(ob, oa)} | {fmt_err(rb)} | {fmt_err(ra)} | {ratio(rb, ra)} "
+            f"| {'-' if r.get('drop_2s') is None else fmt_err(float(r['drop_2s']))} |"  # type: ignore[arg-type]
         )
     return "\n".join(lines)
 
@@ -121,7 +134,9 @@ def main(argv: list[str] | None = None) -> int:
         ):
             continue
         print(f"{spec.label} ...", flush=True)
-        rows.append(run_case(spec, log=lambda s: print(s, flush=True), start=args.start))
+        name = f"params_{spec.effect}_{spec.strength}_{spec.noise * 1e3:g}mm_seed{spec.seed}.json"
+        rows.append(run_case(spec, log=lambda s: print(s, flush=True), start=args.start,
+                             params_out=args.output / name))  # fmt: skip
         print(table(rows[-1:]).splitlines()[-1], flush=True)
         atomic_write_text(
             args.output / "planted_table.json", json.dumps(rows, indent=1, default=str)

@@ -55,6 +55,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -78,6 +79,11 @@ from identification.noisy import (
     parse_anchors,
     smooth_rod_states,
     smoothed_regression,
+)
+from identification.noisy_residuals import (
+    plot_window_residuals,
+    summarize_window_residuals,
+    window_residuals,
 )
 from tensegrity_env.effects import (
     CubicStiffness,
@@ -224,6 +230,10 @@ class NoisyIteration:
     ambiguous: tuple[str, float] | None
     test_before: dict[str, float]
     test_after: dict[str, float] | None = None
+    #: held-out residual numbers of the current model (``summarize_window_residuals``)
+    residual: dict[str, float] = field(default_factory=dict)
+    #: their PNG (against end-cap height, speed and time in the window), if written
+    plot: Path | None = None
     #: the runner-up that also passed: name, correlation of predicted changes with the
     #: chosen one's, and how much more the chosen one lowers the held-out chi-square
     runner_up: tuple[str, float, float] | None = None
@@ -250,23 +260,28 @@ class _Data:
         self.axes = RodAxes.of(self.topology)
         self.engine = Engine(self.topology, self.dt)
         self.sg = _odd(s.smoothing / self.dt)
+        self.dataset, self.seed = dataset, s.seed
         self.smooth: dict[str, Any] = {}
         self.windows: dict[str, Windows] = {}
         counts = {"train": s.train_windows, "val": s.val_windows, "test": s.test_windows,
                   "fit": s.fit_windows}  # fmt: skip
         for k, name in enumerate(("train", "val", "test", "fit")):
-            source = "train" if name == "fit" else name
-            split = dataset.split(source if source in dataset.splits else "test")
-            if source not in self.smooth:
-                self.smooth[source] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
-            self.smooth[name] = self.smooth[source]
-            grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
-            win = cut_windows(split.nodes, split.control, grid, s.window)
-            rng = np.random.default_rng([s.seed, k])
-            if win.size > counts[name]:
-                win = win.take(np.sort(rng.choice(win.size, counts[name], replace=False)))
-            self.windows[name] = win
+            self.windows[name] = self.cut("train" if name == "fit" else name, s.window,
+                                          counts[name], k)  # fmt: skip
+        self.smooth["fit"] = self.smooth["train"]
         self.train: Split = dataset.split("train")
+
+    def cut(self, name: str, steps: int, count: int, stream: int) -> Windows:
+        """``count`` random windows of ``steps`` of split ``name``, states from smoothing."""
+        split = self.dataset.split(name if name in self.dataset.splits else "test")
+        if name not in self.smooth:
+            self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
+        grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
+        win = cut_windows(split.nodes, split.control, grid, steps)
+        rng = np.random.default_rng([self.seed, stream])
+        if win.size > count:
+            win = win.take(np.sort(rng.choice(win.size, count, replace=False)))
+        return win
 
 
 def fit_declared(
@@ -291,7 +306,12 @@ def fit_declared(
     vec = TrajectoryIdentifier(anchors=s.anchors)._vector(
         data.topology, data.axes, values, anchors, has_control
     )
-    many = fit_many(data, vec, vec.theta0(), s, iters=2 * s.base_iter)
+    theta = vec.theta0()
+    if start is None:  # far off: shorter windows first, which forgive a rough start
+        for k, steps in enumerate((max(10, s.window // 4), max(10, s.window // 2))):
+            short = data.cut("train", steps, s.fit_windows * s.window // steps, 10 + k)
+            theta = _fit(data, vec, short, theta, s.base_iter).theta
+    many = fit_many(data, vec, theta, s, iters=2 * s.base_iter)
     fit = _fit(data, vec, data.windows["train"], many.theta, s.base_iter)
     fit.origin = many.theta
     return many, fit
@@ -502,11 +522,13 @@ def diagnose_noisy(
     horizon_s: float = 1.0,
     start: Params | None = None,
     log: Callable[[str], None] = print,
+    plots: Path | None = None,
 ) -> NoisyDiagnoseResult:
     """Run the loop on end-cap data (see the module docstring).
 
     ``clean``: the same trajectories without noise, with rod states (planted data),
     for the test errors against the truth; never used for fitting or selection.
+    ``plots``: folder for each iteration's held-out residual PNG.
     """
     data = _Data(dataset, settings)
     t0 = time.perf_counter()
@@ -555,6 +577,7 @@ def diagnose_noisy(
                 ambiguous = (runner.name, corr)
         it = NoisyIteration(current, tried, skipped, chosen, ambiguous, test_now)
         it.runner_up = runner_up
+        _residuals(data, current, it, plots, len(iterations), dataset)
         iterations.append(it)
         if chosen is None:
             break
@@ -581,6 +604,23 @@ def diagnose_noisy(
                   "fit_windows": settings.fit_windows, "min_bic_drop": MIN_BIC_DROP,
                   "min_chi2_gain": MIN_CHI2_GAIN},
     )  # fmt: skip
+
+
+def _residuals(
+    data: _Data, current: Candidate, it: NoisyIteration, plots: Path | None, k: int,
+    dataset: Dataset,
+) -> None:  # fmt: skip
+    """The current model's held-out (validation) end-cap residuals: numbers and PNG."""
+    assert current.val_windows is not None
+    radius = np.repeat([rod.radius for rod in data.topology.rods], 2)
+    pred = predicted_caps(data, current.fit, current.val_windows)
+    res = window_residuals(pred, current.val_windows.obs, data.dt, radius)
+    it.residual = summarize_window_residuals(res)
+    if plots is not None:
+        label = " + ".join(["declared model", *(e.name for e in current.fit.effects)])
+        noise = float(dataset.attrs.get("measurement_noise_std", 0.0))
+        it.plot = plot_window_residuals(res, plots / f"residuals_{k}.png",
+                                        f"iteration {k}: held-out residuals of {label}", noise)  # fmt: skip
 
 
 def _score(data: _Data, c: Candidate, s: TrajectorySettings) -> Candidate:

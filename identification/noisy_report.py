@@ -66,7 +66,16 @@ def write_noisy_report(
     for e in result.model.effects:
         L += [f"### {e.name}", "", effect_table(e), ""]
     for k, it in enumerate(result.iterations):
-        L += [f"## Iteration {k}", "", candidate_table(it.before, it.candidates), ""]
+        L += [f"## Iteration {k}", ""]
+        if it.residual:
+            r = it.residual
+            L += [f"Held-out end-cap residual of the current model: RMS {r['rms'] * 1e3:.3f} mm; "
+                  f"near the floor {r['near_floor'] * 1e3:.3f} mm vs above {r['above_floor'] * 1e3:.3f} mm; "
+                  f"fastest quarter {r['fast'] * 1e3:.3f} mm vs slowest {r['slow'] * 1e3:.3f} mm; "
+                  f"end of the window {r['late'] * 1e3:.3f} mm vs start {r['early'] * 1e3:.3f} mm.", ""]  # fmt: skip
+        if it.plot is not None:
+            L += [f"![held-out residuals, iteration {k}]({it.plot.name})", ""]
+        L += [candidate_table(it.before, it.candidates), ""]
         for name, why in it.skipped:
             L += [f"- {name}: not tried ({why})"]
         L += [""]

@@ -61,6 +61,9 @@ def register(sub: Any) -> None:
                    help="trajectory method: steps per window (default 100)")  # fmt: skip
     p.add_argument("--windows", type=int, default=8,
                    help="trajectory method: random windows per split (default 8)")  # fmt: skip
+    p.add_argument("--fit-windows", type=int, default=32,
+                   help="trajectory method: training windows of the declared and every accepted "
+                   "model's final fit (default 32)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
     p.set_defaults(func=run)
 
@@ -154,17 +157,17 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:
         raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
-    if args.window < 2 or args.windows < 1:
-        raise InputError("--window must be >= 2 and --windows >= 1")
+    if args.window < 2 or args.windows < 1 or args.fit_windows < 1:
+        raise InputError("--window must be >= 2, --windows and --fit-windows >= 1")
     settings = TrajectorySettings(anchors=anchors, window=args.window, train_windows=args.windows,
                                   val_windows=args.windows, test_windows=args.windows,
-                                  seed=args.seed)  # fmt: skip
+                                  fit_windows=args.fit_windows, seed=args.seed)  # fmt: skip
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     with np.errstate(invalid="ignore", divide="ignore"):
         result = diagnose_noisy(dataset, settings, args.max_effects, names,
-                                horizon_s=args.horizon, start=start)  # fmt: skip
+                                horizon_s=args.horizon, start=start, plots=out)  # fmt: skip
     truth = read_ground_truth(args.dataset)
     report = write_noisy_report(result, out, str(args.dataset), args.horizon,
                                 None if truth is None else truth.effects)  # fmt: skip

@@ -96,6 +96,7 @@ from tensegrity_env.effects import (
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 
 #: a candidate must lower the training BIC by this much ...
@@ -112,6 +113,9 @@ SLACK_LOSS = 0.5
 SLACK_SIGNIFICANCE = 5.0
 #: window prefixes [steps] the initial states are fitted on before the whole window
 GROW = (10, 25, 50)
+#: on data whose end caps reach a floor, the declared model is fitted from the data alone
+#: on windows whose caps all stay this far above touching it [m] (the contact gate closed)
+AIRBORNE = 0.005
 
 
 @dataclass(frozen=True)
@@ -271,13 +275,23 @@ class _Data:
         self.smooth["fit"] = self.smooth["train"]
         self.train: Split = dataset.split("train")
 
-    def cut(self, name: str, steps: int, count: int, stream: int) -> Windows:
-        """``count`` random windows of ``steps`` of split ``name``, states from smoothing."""
+    def cut(
+        self, name: str, steps: int, count: int, stream: int, airborne: bool = False
+    ) -> Windows:
+        """``count`` random windows of ``steps`` of split ``name``, states from smoothing.
+
+        ``airborne``: only windows whose measured end caps all stay :data:`AIRBORNE`
+        above touching the floor (none if there are none).
+        """
         split = self.dataset.split(name if name in self.dataset.splits else "test")
         if name not in self.smooth:
             self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
         win = cut_windows(split.nodes, split.control, grid, steps)
+        if airborne:
+            radius = torch.as_tensor(np.repeat([r.radius for r in self.topology.rods], 2))
+            gap = win.obs[..., 2] - radius
+            win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))
         rng = np.random.default_rng([self.seed, stream])
         if win.size > count:
             win = win.take(np.sort(rng.choice(win.size, count, replace=False)))
@@ -307,19 +321,29 @@ def fit_declared(
         data.topology, data.axes, values, anchors, has_control
     )
     theta = vec.theta0()
+    many_windows = data.windows["fit"]
     if start is None:  # far off: shorter windows first, which forgive a rough start
-        for k, steps in enumerate((max(10, s.window // 4), max(10, s.window // 2))):
-            short = data.cut("train", steps, s.fit_windows * s.window // steps, 10 + k)
-            theta = _fit(data, vec, short, theta, s.base_iter).theta
-    many = fit_many(data, vec, theta, s, iters=2 * s.base_iter)
+        # where end caps reach a floor, only where they are airborne (contact's gate closed)
+        airborne = contact_gate(data.train, data.topology)[0]
+        for k, steps in enumerate((max(10, s.window // 4), max(10, s.window // 2), s.window)):
+            short = data.cut("train", steps, s.fit_windows * s.window // steps, 10 + k, airborne)
+            if short.size == 0:
+                raise InputError(f"no {steps}-step window of the training split is airborne: "
+                                 "give --params (a declared model) for this data")  # fmt: skip
+            if steps < s.window:
+                theta = _fit(data, vec, short, theta, s.base_iter).theta
+            elif airborne:
+                many_windows = short
+    many = fit_many(data, vec, theta, s, iters=2 * s.base_iter, windows=many_windows)
     fit = _fit(data, vec, data.windows["train"], many.theta, s.base_iter)
     fit.origin = many.theta
     return many, fit
 
 
 def fit_many(
-    data: _Data, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int
-) -> TrajFit:
+    data: _Data, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
+    windows: Windows | None = None,
+) -> TrajFit:  # fmt: skip
     """``vec`` refitted jointly on the many windows of the training split, from ``theta``.
 
     The windows' states are fitted first with the model at ``theta``
@@ -329,7 +353,8 @@ def fit_many(
     engine = vec.engine(data.engine, theta.detach())
     fixed = replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
                     coords=None)  # fmt: skip
-    states = fit_states(engine, fixed, data.windows["fit"], s.state_iter, _has_contact(vec))
+    many = data.windows["fit"] if windows is None else windows
+    states = fit_states(engine, fixed, many, s.state_iter, _has_contact(vec))
     fit = _fit(data, vec, states.windows, theta, iters)
     fit.origin = fit.theta
     return fit
@@ -401,7 +426,14 @@ def fit_with(
     origin = current.theta if current.origin is None else current.origin
     vec = replace(current.vec, start=current.vec.full(origin.detach()),
                   coords=EffectCoords.of(ordered, _common_axis(data.axes)))  # fmt: skip
-    fit = _fit(data, vec, current.windows, vec.theta0(), iters)
+    windows = current.windows
+    if _has_contact(vec) and not _has_contact(current.vec):
+        # the states were fitted without a floor: refit them with it (growing prefixes,
+        # axial spins) before anything else moves
+        theta0 = vec.theta0()
+        fixed = replace(vec, start=vec.full(theta0), free=torch.zeros_like(vec.free), coords=None)
+        windows = fit_states(vec.engine(data.engine, theta0), fixed, windows, iters, True).windows
+    fit = _fit(data, vec, windows, vec.theta0(), iters)
     fit.origin = fit.theta
     return fit
 

@@ -13,21 +13,40 @@ from collections.abc import Sequence
 
 from tensegrity_env.io_utils import InputError
 
-#: Modules defining one subcommand each, in the order ``--help`` lists them.
-COMMANDS: tuple[str, ...] = (
-    "identification.commands.generate",
-    "identification.commands.inspect",
-    "identification.commands.identify",
-    "identification.commands.evaluate",
-    "identification.commands.efficiency",
-    "identification.commands.experiment",
-    "identification.commands.diagnose",
-    "policies.commands.train",
-    "policies.commands.transfer",
-)
+#: subcommand -> (the module defining it with ``register(subparsers)``, its one-line help),
+#: in the order ``--help`` lists them. Only the module of the command being run is
+#: imported (torch, MuJoCo and SciPy take seconds), so ``--help`` lists these lines;
+#: ``tests/test_cli.py`` checks they match what each module registers.
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "generate": ("identification.commands.generate",
+                 "roll out randomized MuJoCo trajectories into an HDF5 dataset"),
+    "inspect": ("identification.commands.inspect",
+                "summarize a dataset: topology, time step, splits, arrays, ground truth"),
+    "identify": ("identification.commands.identify",
+                 "identify spring and rod parameters from a dataset by linear regression"),
+    "evaluate": ("identification.commands.evaluate",
+                 "long-horizon position/orientation error of params files against a dataset split"),
+    "efficiency": ("identification.commands.efficiency",
+                   "identify from random 100%%..0.01%% of the training transitions (data efficiency)"),
+    "experiment": ("identification.commands.experiment",
+                   "reproduce the paper's experiments: ours vs Interaction, Interaction+Int, "
+                   "Koopman+Int; parameters; data efficiency"),
+    "diagnose": ("identification.commands.diagnose",
+                 "residual loop: find the missing effect, name it, add it, report errors before/after"),
+    "plant": ("identification.commands.diagnose",
+              "MuJoCo data with an undeclared effect (contact, drag, slack cables) to diagnose"),
+    "train": ("policies.commands.train",
+              "train a PPO or SAC policy on IcosahedronSR-v0 (or any registered env)"),
+    "transfer": ("policies.commands.transfer",
+                 "evaluate a policy in the identified env and the MuJoCo twin (sim-to-sim transfer)"),
+}  # fmt: skip
+#: the modules, each once, in order
+COMMANDS: tuple[str, ...] = tuple(dict.fromkeys(m for m, _ in SUBCOMMANDS.values()))
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
+    """The parser. ``"*"``: every module imported; a subcommand: only its module
+    (the others are listed); None: none imported (all listed, for ``--help``)."""
     parser = argparse.ArgumentParser(
         prog="tensegrity-sr",
         description=(
@@ -37,14 +56,27 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in COMMANDS:
-        importlib.import_module(module).register(sub)
+    wanted = COMMANDS if command == "*" else () if command is None else (SUBCOMMANDS[command][0],)
+    loaded: set[str] = set()
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        if module in wanted:
+            if module not in loaded:
+                importlib.import_module(module).register(sub)
+                loaded.add(module)
+        else:
+            sub.add_parser(name, help=help_text)
     return parser
 
 
+def _command(argv: Sequence[str]) -> str | None:
+    """The subcommand named in ``argv`` (the first word that is one), if any."""
+    return next((a for a in argv if a in SUBCOMMANDS), None)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    command = _command(argv)
+    args = build_parser(command).parse_args(argv)  # None: --help or an error, nothing imported
     try:
         return int(args.func(args) or 0)
     except InputError as e:

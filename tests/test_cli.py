@@ -1,0 +1,33 @@
+"""The command line lists every subcommand without importing any, and the lines match."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import subprocess
+import sys
+
+from tensegrity_env.cli import COMMANDS, SUBCOMMANDS, build_parser
+
+
+def test_listing_matches_what_each_module_registers() -> None:
+    registered = {}
+    for module in COMMANDS:
+        sub = argparse.ArgumentParser().add_subparsers()
+        importlib.import_module(module).register(sub)
+        registered.update({a.dest: (module, a.help) for a in sub._choices_actions})
+    assert registered == SUBCOMMANDS
+
+
+def test_help_imports_no_command_module() -> None:
+    code = (
+        "import sys; from tensegrity_env.cli import build_parser; build_parser(None); "
+        "print(sorted(m for m in ('torch', 'mujoco', 'scipy') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_command_parses_with_only_its_module() -> None:
+    args = build_parser("plant").parse_args(["plant", "none", "-o", "x.h5"])
+    assert args.effect == "none" and callable(args.func)

@@ -112,7 +112,7 @@ SLACK_LOSS = 0.5
 #: ... by at least this many standard errors
 SLACK_SIGNIFICANCE = 5.0
 #: window prefixes [steps] the initial states are fitted on before the whole window
-GROW = (10, 25, 50)
+GROW = (10, 25, 50, 100, 200, 400)
 #: on data whose end caps reach a floor, the declared model is fitted from the data alone
 #: on windows whose caps all stay this far above touching it [m] (the contact gate closed)
 AIRBORNE = 0.005
@@ -132,6 +132,8 @@ class TrajectorySettings:
         seed: seed of the window draws.
         fit_windows: windows of the training split for the declared model's and every
             accepted model's final fit (parameters reported, test errors, next start).
+        fit_window: steps per window of that fit (0: ``window``); longer windows carry
+            more information per sample once the model holds the effect.
     """
 
     anchors: dict[str, float] = field(default_factory=dict)
@@ -145,6 +147,7 @@ class TrajectorySettings:
     smoothing: float = 0.1
     seed: int = 0
     fit_windows: int = 32
+    fit_window: int = 0
 
 
 @dataclass
@@ -270,7 +273,8 @@ class _Data:
         counts = {"train": s.train_windows, "val": s.val_windows, "test": s.test_windows,
                   "fit": s.fit_windows}  # fmt: skip
         for k, name in enumerate(("train", "val", "test", "fit")):
-            self.windows[name] = self.cut("train" if name == "fit" else name, s.window,
+            steps = s.fit_window if name == "fit" and s.fit_window > 0 else s.window
+            self.windows[name] = self.cut("train" if name == "fit" else name, steps,
                                           counts[name], k)  # fmt: skip
         self.smooth["fit"] = self.smooth["train"]
         self.train: Split = dataset.split("train")
@@ -321,7 +325,10 @@ def fit_declared(
         data.topology, data.axes, values, anchors, has_control
     )
     theta = vec.theta0()
+    # windows of ``window`` steps: longer ones would let a model missing an effect drift
     many_windows = data.windows["fit"]
+    if s.fit_window > 0 and s.fit_window != s.window:
+        many_windows = data.cut("train", s.window, s.fit_windows, 3)
     if start is None:  # far off: shorter windows first, which forgive a rough start
         # where end caps reach a floor, only where they are airborne (contact's gate closed)
         airborne = contact_gate(data.train, data.topology)[0]

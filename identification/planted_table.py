@@ -119,6 +119,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--effects", default="", help="comma-separated plants (default: all)")
     p.add_argument("--strengths", default="", help="comma-separated strengths (default: all)")
+    p.add_argument(
+        "--fit-window",
+        type=int,
+        default=0,
+        help="noisy data: steps per window of each model's final fit (0: 100)",
+    )
     p.add_argument("--start", choices=("data", "truth"), default="data",
                    help="noisy data: start from the data alone or from the true declared "
                    "parameters (default: data)")  # fmt: skip
@@ -136,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{spec.label} ...", flush=True)
         name = f"params_{spec.effect}_{spec.strength}_{spec.noise * 1e3:g}mm_seed{spec.seed}.json"
         rows.append(run_case(spec, log=lambda s: print(s, flush=True), start=args.start,
+                             settings=TrajectorySettings(fit_window=args.fit_window),
                              params_out=args.output / name))  # fmt: skip
         print(table(rows[-1:]).splitlines()[-1], flush=True)
         atomic_write_text(

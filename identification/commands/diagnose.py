@@ -64,6 +64,9 @@ def register(sub: Any) -> None:
     p.add_argument("--fit-windows", type=int, default=32,
                    help="trajectory method: training windows of the declared and every accepted "
                    "model's final fit (default 32)")  # fmt: skip
+    p.add_argument("--fit-window", type=int, default=0,
+                   help="trajectory method: steps per window of that final fit (default: "
+                   "--window); longer windows carry more information per sample")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
     p.set_defaults(func=run)
 
@@ -157,11 +160,13 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:
         raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
-    if args.window < 2 or args.windows < 1 or args.fit_windows < 1:
-        raise InputError("--window must be >= 2, --windows and --fit-windows >= 1")
+    if args.window < 2 or args.windows < 1 or args.fit_windows < 1 or args.fit_window < 0:
+        raise InputError("--window must be >= 2, --windows and --fit-windows >= 1, "
+                         "--fit-window >= 0")  # fmt: skip
     settings = TrajectorySettings(anchors=anchors, window=args.window, train_windows=args.windows,
                                   val_windows=args.windows, test_windows=args.windows,
-                                  fit_windows=args.fit_windows, seed=args.seed)  # fmt: skip
+                                  fit_windows=args.fit_windows, fit_window=args.fit_window,
+                                  seed=args.seed)  # fmt: skip
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -433,14 +433,22 @@ def fit_with(
     origin = current.theta if current.origin is None else current.origin
     vec = replace(current.vec, start=current.vec.full(origin.detach()),
                   coords=EffectCoords.of(ordered, _common_axis(data.axes)))  # fmt: skip
-    windows = current.windows
+    windows, theta = current.windows, vec.theta0()
     if _has_contact(vec) and not _has_contact(current.vec):
-        # the states were fitted without a floor: refit them with it (growing prefixes,
-        # axial spins) before anything else moves
-        theta0 = vec.theta0()
-        fixed = replace(vec, start=vec.full(theta0), free=torch.zeros_like(vec.free), coords=None)
-        windows = fit_states(vec.engine(data.engine, theta0), fixed, windows, iters, True).windows
-    fit = _fit(data, vec, windows, vec.theta0(), iters)
+        # The states were fitted without a floor, and the end-cap error is discontinuous
+        # in the parameters (the soft contact's damping force jumps at the onset of an
+        # impact, as in MuJoCo): a step that moves an impact across a time step jumps.
+        # So the contact is fitted on growing prefixes of the windows first (few impacts
+        # each), states (with axial spins) and then everything, each from the last.
+        for n in [g for g in GROW if g < windows.steps] + [windows.steps]:
+            fixed = replace(vec, start=vec.full(theta), free=torch.zeros_like(vec.free),
+                            coords=None)  # fmt: skip
+            part = fit_states(vec.engine(data.engine, theta), fixed, _prefix(windows, n), iters,
+                              True).windows  # fmt: skip
+            if n < windows.steps:
+                theta = _fit(data, vec, part, theta, iters).theta
+            windows = replace(windows, state=part.state)
+    fit = _fit(data, vec, windows, theta, iters)
     fit.origin = fit.theta
     return fit
 

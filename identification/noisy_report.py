@@ -55,7 +55,9 @@ def write_noisy_report(
         "fitted jointly on windows of the training split; held-out windows (validation) "
         "fit only their initial states. A candidate must lower the training BIC by "
         f"{result.settings['min_bic_drop']:g} and the held-out chi-square by "
-        f"{result.settings['min_chi2_gain']:g}.",
+        f"{result.settings['min_chi2_gain']:g}. The declared model and every accepted one "
+        f"are refitted on {result.settings.get('fit_windows', 0)} training windows: the "
+        "parameters below and the test errors come from that fit.",
         "",
     ]
     if planted:

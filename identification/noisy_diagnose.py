@@ -329,18 +329,20 @@ def fit_declared(
     many_windows = data.windows["fit"]
     if s.fit_window > 0 and s.fit_window != s.window:
         many_windows = data.cut("train", s.window, s.fit_windows, 3)
-    if start is None:  # far off: shorter windows first, which forgive a rough start
-        # where end caps reach a floor, only where they are airborne (contact's gate closed)
-        airborne = contact_gate(data.train, data.topology)[0]
-        for k, steps in enumerate((max(10, s.window // 4), max(10, s.window // 2), s.window)):
-            short = data.cut("train", steps, s.fit_windows * s.window // steps, 10 + k, airborne)
-            if short.size == 0:
-                raise InputError(f"no {steps}-step window of the training split is airborne: "
-                                 "give --params (a declared model) for this data")  # fmt: skip
-            if steps < s.window:
-                theta = _fit(data, vec, short, theta, s.base_iter).theta
-            elif airborne:
-                many_windows = short
+    # where end caps reach a floor, only windows where they are airborne (contact's gate
+    # closed): fitted through impacts, the declared model drifts to make up for contact
+    airborne = contact_gate(data.train, data.topology)[0]
+    # far off without a params file: shorter windows first, which forgive a rough start
+    lengths = (max(10, s.window // 4), max(10, s.window // 2)) if start is None else ()
+    for k, steps in enumerate((*lengths, s.window)):
+        short = data.cut("train", steps, s.fit_windows * s.window // steps, 10 + k, airborne)
+        if short.size == 0:
+            raise InputError(f"no {steps}-step window of the training split is airborne: "
+                             "the declared model cannot be fitted apart from contact")  # fmt: skip
+        if steps < s.window:
+            theta = _fit(data, vec, short, theta, s.base_iter).theta
+        elif airborne:
+            many_windows = short
     many = fit_many(data, vec, theta, s, iters=2 * s.base_iter, windows=many_windows)
     fit = _fit(data, vec, data.windows["train"], many.theta, s.base_iter)
     fit.origin = many.theta

@@ -441,14 +441,19 @@ def fit_with(
         # in the parameters (the soft contact's damping force jumps at the onset of an
         # impact, as in MuJoCo): a step that moves an impact across a time step jumps.
         # So the contact is fitted on growing prefixes of the windows first (few impacts
-        # each), states (with axial spins) and then everything, each from the last.
+        # each): the states (with axial spins), then the contact's parameters and the
+        # states (the declared ones held: short prefixes cannot pin them), each stage
+        # from the last; then everything on the whole windows.
+        n_free = vec.n_free
         for n in [g for g in GROW if g < windows.steps] + [windows.steps]:
             fixed = replace(vec, start=vec.full(theta), free=torch.zeros_like(vec.free),
                             coords=None)  # fmt: skip
             part = fit_states(vec.engine(data.engine, theta), fixed, _prefix(windows, n), iters,
                               True).windows  # fmt: skip
             if n < windows.steps:
-                theta = _fit(data, vec, part, theta, iters).theta
+                only = replace(fixed, coords=vec.coords)
+                tail = _fit(data, only, part, theta[n_free:], iters).theta
+                theta = torch.cat([theta[:n_free], tail])
             windows = replace(windows, state=part.state)
     fit = _fit(data, vec, windows, theta, iters)
     fit.origin = fit.theta

@@ -360,8 +360,7 @@ def fit_many(
     starts in the right basin.
     """
     engine = vec.engine(data.engine, theta.detach())
-    fixed = replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
-                    coords=None)  # fmt: skip
+    fixed = _held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
     states = fit_states(engine, fixed, many, s.state_iter, _has_contact(vec))
     fit = _fit(data, vec, states.windows, theta, iters)
@@ -446,8 +445,7 @@ def fit_with(
         # from the last; then everything on the whole windows.
         n_free = vec.n_free
         for n in [g for g in GROW if g < windows.steps] + [windows.steps]:
-            fixed = replace(vec, start=vec.full(theta), free=torch.zeros_like(vec.free),
-                            coords=None)  # fmt: skip
+            fixed = _held(vec, theta)
             part = fit_states(vec.engine(data.engine, theta), fixed, _prefix(windows, n), iters,
                               True).windows  # fmt: skip
             if n < windows.steps:
@@ -468,9 +466,13 @@ def _common_axis(axes: RodAxes) -> int | None:
 @torch.no_grad()
 def _fixed_engine(data: _Data, fit: TrajFit) -> tuple[Engine, ParamVector]:
     """The engine with ``fit``'s effects and a vector with nothing free (its params)."""
-    vec = replace(fit.vec, start=fit.vec.full(fit.theta.detach()),
-                  free=torch.zeros_like(fit.vec.free), coords=None)  # fmt: skip
-    return data.engine.with_effects(fit.effects), vec
+    return data.engine.with_effects(fit.effects), _held(fit.vec, fit.theta)
+
+
+def _held(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
+    """``vec`` at ``theta`` with nothing free and no effect coordinates (states-only fits)."""
+    return replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
+                   coords=None)  # fmt: skip
 
 
 def heldout(data: _Data, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:

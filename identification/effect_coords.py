@@ -46,8 +46,16 @@ class EffectCoords:
     held: tuple[tuple[int, ...], ...] = ()
 
     @classmethod
-    def of(cls, effects: Sequence[PhysicalEffect], axial: int | None = None) -> EffectCoords:
+    def of(
+        cls,
+        effects: Sequence[PhysicalEffect],
+        axial: int | None = None,
+        contact_free: tuple[str, ...] = CONTACT_FREE,
+    ) -> EffectCoords:
         """Coordinates of ``effects``; ``axial``: the rods' common end-cap axis (rod frame).
+
+        ``contact_free``: the contact parameters that are coordinates (``()``: contact
+        held at its values, e.g. found by :mod:`identification.touchdown`).
 
         Rotational drag about that axis is held (at its value, 0 to start): the spin
         about it is invisible in end-cap data, so the data cannot see that drag.
@@ -61,7 +69,7 @@ class EffectCoords:
                 if isinstance(e, (LinearDrag, QuadraticDrag)) and axial is not None:
                     hold = (3 + axial,)
             elif isinstance(e, GroundContact):
-                slots.append(CONTACT_FREE)
+                slots.append(contact_free)
             else:
                 slots.append(())
             held.append(hold)

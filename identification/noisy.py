@@ -196,18 +196,20 @@ def smooth_rod_states(
 
 # ---------------------------------------------------------------------- stage 1
 def smoothed_features(
-    topology: Topology, s: SmoothedStates, control: np.ndarray
+    topology: Topology, s: SmoothedStates, control: np.ndarray, keep: np.ndarray | None = None
 ) -> TransitionFeatures:
     """:class:`TransitionFeatures` at every sample ``t < T`` away from the ends (``s.margin``).
 
     Continuous-time accelerations from the smoothing replace the transition's finite
-    differences; ``control`` is (N, T, R, 3).
+    differences; ``control`` is (N, T, R, 3); ``keep`` (N, T) selects samples (None: all).
     """
     T = control.shape[1]
     t = slice(s.margin, max(s.margin + 1, min(T, s.p.shape[1] - s.margin)))
 
     def pick(arr: np.ndarray) -> torch.Tensor:
-        return torch.as_tensor(arr[:, t].reshape(-1, *arr.shape[2:]), dtype=DTYPE)
+        part = arr[:, t]
+        flat = part.reshape(-1, *arr.shape[2:]) if keep is None else part[keep[:, t]]
+        return torch.as_tensor(flat, dtype=DTYPE)
 
     p, q, omega, alpha, accel = map(pick, (s.p, s.q, s.omega, s.alpha, s.a))
     x_end, xd_end, u = map(pick, (s.x, s.xd, control))
@@ -240,9 +242,11 @@ def smoothed_regression(
     control: np.ndarray,
     anchors: Mapping[str, float] | None = None,
     gravity: Sequence[float] = (0.0, 0.0, -9.81),
+    keep: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Stage 1: linear regression on smoothed end caps (see :func:`smooth_rod_states`).
 
+    ``keep`` (N, T): the samples used (None: all), e.g. those away from a floor.
     Returns natural-unit values: ``stiffness``, ``damping``, ``rest_length`` (S,),
     ``mass``, ``inertia_perp`` (R,) and ``control_gain`` (1,); NaN where the regression
     cannot tell. Samples near the ends, where the filter extrapolates, are not used.
@@ -253,7 +257,7 @@ def smoothed_regression(
     axes = RodAxes.of(topo)
     layout = ParameterLayout.build(topo)
     slots = rod_slots(layout)
-    feat = smoothed_features(topo, smooth, control)
+    feat = smoothed_features(topo, smooth, control, keep)
     P = layout.n_params
     normal = torch.zeros(P + 1, P + 1, dtype=DTYPE)
     accumulate_normal(rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE)), slots, P, normal)

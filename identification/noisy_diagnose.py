@@ -41,9 +41,10 @@ windows brings it near the optimum before anything is compared.
 Window initial states are fitted on **growing prefixes** of each window first
 (:data:`GROW`; :func:`fit_states`): a state from smoothing is poor where an impact
 falls inside the filter's span, and on a long window the fit may then stop in another
-basin. With ground contact in the model the rods' **axial spins** are fitted too:
-friction at an end cap (a sphere of the rod's radius) turns the rod about its axis,
-and that spin changes where the cap slides next.
+basin. The rods' **axial spins** are not fitted, with or without contact: friction at
+an end cap does turn a rod about its axis, but under 1 mm noise the spin is barely
+seen, and the fit stepped to spins of 100+ rad/s whose explicit gyroscopic integration
+(as in MuJoCo's Euler integrator) blew up on longer windows.
 
 Errors before and after are measured on the **test** split: the held-out end-cap
 RMS (which cannot fall below the noise) and, when the clean trajectories are known
@@ -60,17 +61,17 @@ from typing import Any
 
 import numpy as np
 import torch
+from scipy.ndimage import minimum_filter1d
 
 from identification.candidates import CONTACT_START, Model, contact_gate
 from identification.dataset import Dataset, Split
-from identification.effect_coords import EffectCoords
+from identification.effect_coords import CONTACT_FREE, EffectCoords
 from identification.extended import evaluate_model
 from identification.noisy import (
     STATE_KEYS,
     ParamVector,
     RodAxes,
     TrajectoryIdentifier,
-    WindowFit,
     Windows,
     _odd,
     cut_windows,
@@ -85,6 +86,9 @@ from identification.noisy_residuals import (
     summarize_window_residuals,
     window_residuals,
 )
+from identification.param_vector import params_values
+from identification.touchdown import find_touchdowns, search_contact
+from identification.window_states import GROW, fit_states, prefix
 from tensegrity_env.effects import (
     CubicStiffness,
     ForceField,
@@ -98,6 +102,7 @@ from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
 
 #: a candidate must lower the training BIC by this much ...
 MIN_BIC_DROP = 10.0
@@ -111,8 +116,6 @@ AMBIGUOUS_CHI2 = 10.0
 SLACK_LOSS = 0.5
 #: ... by at least this many standard errors
 SLACK_SIGNIFICANCE = 5.0
-#: window prefixes [steps] the initial states are fitted on before the whole window
-GROW = (10, 25, 50, 100, 200, 400)
 #: on data whose end caps reach a floor, the declared model is fitted from the data alone
 #: on windows whose caps all stay this far above touching it [m] (the contact gate closed)
 AIRBORNE = 0.005
@@ -193,7 +196,8 @@ class TrajFit:
 
     @property
     def k(self) -> int:
-        return len(self.theta)
+        """Global parameters: the fitted vector's and the contact's searched ones."""
+        return len(self.theta) + (len(CONTACT_FREE) if _contact_searched(self.vec) else 0)
 
     @property
     def bic(self) -> float:
@@ -278,6 +282,10 @@ class _Data:
                                           counts[name], k)  # fmt: skip
         self.smooth["fit"] = self.smooth["train"]
         self.train: Split = dataset.split("train")
+        #: contact parameters fitted by Levenberg-Marquardt; () once they come from the
+        #: touchdown search (identification.touchdown)
+        self.contact_free: tuple[str, ...] = CONTACT_FREE
+        self.log: Callable[[str], None] = lambda line: None
 
     def cut(
         self, name: str, steps: int, count: int, stream: int, airborne: bool = False
@@ -313,10 +321,14 @@ def fit_declared(
     windows bring it near the optimum), then on the few training windows that
     selection compares candidates on (from there, so both fits share the origin).
     """
+    # where end caps reach a floor, only samples and windows where they are airborne
+    # (contact's gate closed): fitted through impacts, the declared model drifts to make
+    # up for contact
+    airborne = contact_gate(data.train, data.topology)[0]
     if start is None:
-        values = smoothed_regression(
-            data.topology, data.smooth["train"], data.train.control, s.anchors
-        )
+        keep = airborne_samples(data.train.nodes, data.topology, data.sg) if airborne else None
+        values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
+                                     s.anchors, keep=keep)  # fmt: skip
     else:
         values = params_values(start, data.axes)
     has_control = bool(np.any(data.train.control != 0))
@@ -329,9 +341,6 @@ def fit_declared(
     many_windows = data.windows["fit"]
     if s.fit_window > 0 and s.fit_window != s.window:
         many_windows = data.cut("train", s.window, s.fit_windows, 3)
-    # where end caps reach a floor, only windows where they are airborne (contact's gate
-    # closed): fitted through impacts, the declared model drifts to make up for contact
-    airborne = contact_gate(data.train, data.topology)[0]
     # far off without a params file: shorter windows first, which forgive a rough start
     lengths = (max(10, s.window // 4), max(10, s.window // 2)) if start is None else ()
     for k, steps in enumerate((*lengths, s.window)):
@@ -349,6 +358,14 @@ def fit_declared(
     return many, fit
 
 
+def airborne_samples(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
+    """Samples (N, T) whose end caps all stay :data:`AIRBORNE` above touching the floor
+    over the smoothing filter's ``span`` [samples] around them."""
+    radius = np.repeat([r.radius for r in topology.rods], 2)
+    air = ((nodes[..., 2] - radius).min(-1) > AIRBORNE).astype(np.uint8)
+    return minimum_filter1d(air, size=span, axis=1)[:, :-1].astype(bool)
+
+
 def fit_many(
     data: _Data, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
     windows: Windows | None = None,
@@ -362,53 +379,25 @@ def fit_many(
     engine = vec.engine(data.engine, theta.detach())
     fixed = _held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
-    states = fit_states(engine, fixed, many, s.state_iter, _has_contact(vec))
+    states = fit_states(engine, fixed, many, s.state_iter)
     fit = _fit(data, vec, states.windows, theta, iters)
     fit.origin = fit.theta
     return fit
+
+
+def _contact_searched(vec: ParamVector) -> bool:
+    """Whether ``vec`` holds a contact whose parameters came from the touchdown search."""
+    coords = vec.coords
+    return coords is not None and any(
+        isinstance(e, GroundContact) and not slot
+        for e, slot in zip(coords.effects, coords.slots, strict=True)
+    )
 
 
 def _has_contact(vec: ParamVector) -> bool:
     return vec.coords is not None and any(
         isinstance(e, GroundContact) for e in vec.coords.effects_at(vec.coords.start())
     )
-
-
-def _prefix(windows: Windows, steps: int) -> Windows:
-    """The first ``steps`` steps of every window."""
-    ctrl = None if windows.control is None else windows.control[:, :steps]
-    return replace(windows, obs=windows.obs[:, : steps + 1], control=ctrl)
-
-
-def fit_states(
-    engine: Engine, vec: ParamVector, windows: Windows, iters: int, spin: bool = False
-) -> WindowFit:
-    """Only the windows' initial states (``vec``: nothing free), on growing prefixes.
-
-    The states are fitted on the first :data:`GROW` steps of each window, then on the
-    whole window; ``spin``: the axial spins too (from the first prefix of 25 steps on).
-    """
-    empty = torch.zeros(0, dtype=torch.float64)
-    for n in (g for g in GROW if g < windows.steps):
-        w = fit_windows(engine, vec, _prefix(windows, n), empty, iters, tol=0.01,
-                        spin=spin and n >= 25)  # fmt: skip
-        windows = replace(windows, state=w.windows.state)
-    return fit_windows(engine, vec, windows, empty, iters, tol=0.01, spin=spin)
-
-
-def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
-    """``params`` as the trajectory fit's groups (``inertia_perp``: a perpendicular axis)."""
-    p = params.numpy()
-    inertia = np.asarray(p["inertia"])
-    R = inertia.shape[0]
-    return {
-        "stiffness": np.asarray(p["stiffness"], float),
-        "damping": np.asarray(p["damping"], float),
-        "rest_length": np.asarray(p["rest_length"], float),
-        "mass": np.asarray(p["mass"], float),
-        "inertia_perp": inertia[np.arange(R), (axes.axis + 1) % 3],
-        "control_gain": np.atleast_1d(np.asarray(p["control_gain"], float)),
-    }
 
 
 def _fit(
@@ -432,23 +421,29 @@ def fit_with(
     ordered = [e for e in effects if not isinstance(e, GroundContact)]
     ordered += [e for e in effects if isinstance(e, GroundContact)]
     origin = current.theta if current.origin is None else current.origin
+    axis = _common_axis(data.axes)
     vec = replace(current.vec, start=current.vec.full(origin.detach()),
-                  coords=EffectCoords.of(ordered, _common_axis(data.axes)))  # fmt: skip
+                  coords=EffectCoords.of(ordered, axis, data.contact_free))  # fmt: skip
     windows, theta = current.windows, vec.theta0()
     if _has_contact(vec) and not _has_contact(current.vec):
-        # The states were fitted without a floor, and the end-cap error is discontinuous
-        # in the parameters (the soft contact's damping force jumps at the onset of an
-        # impact, as in MuJoCo): a step that moves an impact across a time step jumps.
-        # So the contact is fitted on growing prefixes of the windows first (few impacts
-        # each): the states (with axial spins), then the contact's parameters and the
-        # states (the declared ones held: short prefixes cannot pin them), each stage
-        # from the last; then everything on the whole windows.
+        # The end-cap error is discontinuous in the contact's parameters (see
+        # identification.touchdown): they come from a derivative-free search on the
+        # touchdowns and are held in every fit after it. The states were fitted without
+        # a floor: they are refitted on growing prefixes of the windows. Without
+        # touchdowns (no trajectory starts airborne) the contact is fitted through the
+        # prefixes instead: its parameters and the states, the declared ones held
+        # (short prefixes cannot pin them), each stage from the last.
+        searched = _touchdown_contact(data, vec, theta)
+        if searched is not None:
+            ordered[-1] = searched
+            vec = replace(vec, coords=EffectCoords.of(ordered, axis, ()))
+            theta = vec.theta0()
         n_free = vec.n_free
         for n in [g for g in GROW if g < windows.steps] + [windows.steps]:
             fixed = _held(vec, theta)
-            part = fit_states(vec.engine(data.engine, theta), fixed, _prefix(windows, n), iters,
-                              True).windows  # fmt: skip
-            if n < windows.steps:
+            part = fit_states(vec.engine(data.engine, theta), fixed, prefix(windows, n),
+                              iters).windows  # fmt: skip
+            if n < windows.steps and searched is None:
                 only = replace(fixed, coords=vec.coords)
                 tail = _fit(data, only, part, theta[n_free:], iters).theta
                 theta = torch.cat([theta[:n_free], tail])
@@ -456,6 +451,52 @@ def fit_with(
     fit = _fit(data, vec, windows, theta, iters)
     fit.origin = fit.theta
     return fit
+
+
+def _touchdown_contact(data: _Data, vec: ParamVector, theta: torch.Tensor) -> GroundContact | None:
+    """The contact of ``vec`` (its last effect) searched on the touchdowns, or None.
+
+    The declared parameters and the other effects are held at ``theta``. After a search
+    the contact is held in every later fit (``data.contact_free``).
+    """
+    assert vec.coords is not None
+    effects = vec.coords.effects_at(theta[vec.n_free :].detach())
+    others, contact = effects[:-1], effects[-1]
+    assert isinstance(contact, GroundContact)
+    fixed = _held(vec, theta)
+    engine = data.engine.with_effects(others)
+    radius = np.repeat([r.radius for r in data.topology.rods], 2)
+    grid = {k: getattr(data.smooth["train"], k) for k in STATE_KEYS}
+    t0 = time.perf_counter()
+    touch = find_touchdowns(engine, fixed, data.train.nodes, data.train.control, grid, radius)
+    if touch is None:
+        return None
+    data.log(f"    ground_contact: {touch.size} touchdowns (airborne prefixes fitted to "
+             f"{touch.prefix_rms * 1e3:.3f} mm)")  # fmt: skip
+    found = search_contact(engine, fixed.params(fixed.start), others, contact, touch, data.log)
+    data.log(f"    touchdown search: {found.evaluations} rollouts "
+             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    data.contact_free = ()
+    return found.contact
+
+
+def _research_contact(data: _Data, fit: TrajFit) -> TrajFit:
+    """``fit`` with its searched contact searched again at its declared parameters.
+
+    The first search ran with the declared model fitted on airborne windows only; the
+    fit through every window with the contact held (``fit``) pins it better, and the
+    contact found from there is better too. Without a searched contact: ``fit``.
+    """
+    coords = fit.vec.coords
+    if coords is None or not _contact_searched(fit.vec):
+        return fit
+    data.log("  contact searched again at the refitted declared parameters")
+    found = _touchdown_contact(data, fit.vec, fit.theta)
+    if found is None:
+        return fit
+    effects = [*coords.effects[:-1], found]  # type: ignore[union-attr]
+    new = EffectCoords.of(effects, _common_axis(data.axes), ())
+    return replace(fit, vec=replace(fit.vec, coords=new))
 
 
 def _common_axis(axes: RodAxes) -> int | None:
@@ -478,7 +519,7 @@ def _held(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
 def heldout(data: _Data, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:
     """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
     engine, vec = _fixed_engine(data, fit)
-    w = fit_states(engine, vec, data.windows[split], iters, _has_contact(fit.vec))
+    w = fit_states(engine, vec, data.windows[split], iters)
     m = w.windows.obs.numel()
     return w.history[-1] * m, m, w.windows
 
@@ -587,6 +628,7 @@ def diagnose_noisy(
     ``plots``: folder for each iteration's held-out residual PNG.
     """
     data = _Data(dataset, settings)
+    data.log = log
     t0 = time.perf_counter()
     final, base = fit_declared(data, settings, start)
     log(f"declared model: end-cap RMS {final.rms * 1e3:.3f} mm on {final.windows.size} "
@@ -642,6 +684,8 @@ def diagnose_noisy(
         final = fit_many(data, fit.vec, fit.theta, settings, settings.base_iter)
         log(f"  refitted on {final.windows.size} training windows: end-cap RMS "
             f"{final.rms * 1e3:.3f} mm ({time.perf_counter() - t1:.0f} s)")  # fmt: skip
+        final = _research_contact(data, final)
+        fit = replace(fit, vec=replace(fit.vec, coords=final.vec.coords))
         fit.origin = final.theta
         chosen = _score(data, replace(chosen, fit=fit), settings)
         test_now = _test(data, final, settings, clean, horizon_s)

@@ -117,6 +117,22 @@ class ParamVector:
     gravity: torch.Tensor
     coords: EffectCoords | None = None
 
+    @classmethod
+    def at(cls, topology: Topology, params: Params) -> ParamVector:
+        """``params`` with nothing free (rollouts and state-only fits at known values).
+
+        Inertia follows the vector's convention: ``I_perp`` from a perpendicular axis,
+        ``M r^2 / 2`` on the end-cap axis. Unusable values (a control gain of 0 on data
+        without control) become 1.
+        """
+        axes = RodAxes.of(topology)
+        values = params_values(params, axes)
+        v = np.concatenate([values[g] for g in GROUPS])
+        v[~(np.isfinite(v) & (v > 0))] = 1.0
+        start = torch.as_tensor(np.log(v), dtype=DTYPE)
+        free = torch.zeros(len(start), dtype=torch.bool)
+        return cls(topology, axes, start, free, torch.as_tensor(params.gravity, dtype=DTYPE))
+
     @property
     def n_effect(self) -> int:
         """Number of effect coordinates appended to the free log-parameters."""
@@ -204,3 +220,18 @@ class ParamVector:
             els = labels.get(group, springs)
             out += [group] if els is None else [f"{group}[{e}]" for e in els]
         return out
+
+
+def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
+    """``params`` as the trajectory fit's groups (``inertia_perp``: a perpendicular axis)."""
+    p = params.numpy()
+    inertia = np.asarray(p["inertia"])
+    R = inertia.shape[0]
+    return {
+        "stiffness": np.asarray(p["stiffness"], float),
+        "damping": np.asarray(p["damping"], float),
+        "rest_length": np.asarray(p["rest_length"], float),
+        "mass": np.asarray(p["mass"], float),
+        "inertia_perp": inertia[np.arange(R), (axes.axis + 1) % 3],
+        "control_gain": np.atleast_1d(np.asarray(p["control_gain"], float)),
+    }

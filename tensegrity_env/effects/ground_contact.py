@@ -269,7 +269,9 @@ def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) ->
     for _ in range(ACTIVE_SET_ITERATIONS):
         both = (S.unsqueeze(-1) & S.unsqueeze(-2)).to(H.dtype)
         H_S = H * both + eye * (1.0 - S.to(H.dtype)).unsqueeze(-1)
-        f = torch.linalg.solve(H_S, torch.where(S, -b, torch.zeros_like(b)))
+        f, info = torch.linalg.solve_ex(H_S, torch.where(S, -b, torch.zeros_like(b)))
+        # singular only for a state that has blown up (caps 1e9 m away): no force there
+        f = torch.where((info > 0).unsqueeze(-1), torch.zeros_like(f), f)
         w = (H @ f.unsqueeze(-1)).squeeze(-1) + b
         S_new = mask & ((S & (f > 0)) | (~S & (w < 0)))
         if bool((S_new == S).all()):

@@ -55,6 +55,7 @@ def run_case(
     log: Callable[[str], None] = lambda s: None,
     start: str = "data",
     params_out: Path | None = None,
+    max_effects: int = 2,
 ) -> dict[str, object]:
     """Diagnose one planted dataset; the row of the table (see the module docstring).
 
@@ -66,7 +67,7 @@ def run_case(
     with np.errstate(invalid="ignore", divide="ignore"):
         if spec.noise > 0:
             ts = replace(settings or TrajectorySettings(), anchors=anchors, seed=spec.seed)
-            r = diagnose_noisy(data.dataset, ts, max_effects=2, clean=data.clean, log=log,
+            r = diagnose_noisy(data.dataset, ts, max_effects=max_effects, clean=data.clean, log=log,
                                start=data.ground_truth.params if start == "truth" else None)  # fmt: skip
         else:
             ds = with_measured_states(data.dataset, smoothing)
@@ -125,6 +126,18 @@ def main(argv: list[str] | None = None) -> int:
         default=0,
         help="noisy data: steps per window of each model's final fit (0: 100)",
     )
+    p.add_argument(
+        "--fit-windows",
+        type=int,
+        default=32,
+        help="noisy data: windows of each model's final fit (default 32)",
+    )
+    p.add_argument(
+        "--max-effects",
+        type=int,
+        default=2,
+        help="noisy data: most effects the loop adds (default 2)",
+    )
     p.add_argument("--start", choices=("data", "truth"), default="data",
                    help="noisy data: start from the data alone or from the true declared "
                    "parameters (default: data)")  # fmt: skip
@@ -142,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{spec.label} ...", flush=True)
         name = f"params_{spec.effect}_{spec.strength}_{spec.noise * 1e3:g}mm_seed{spec.seed}.json"
         rows.append(run_case(spec, log=lambda s: print(s, flush=True), start=args.start,
-                             settings=TrajectorySettings(fit_window=args.fit_window),
+                             settings=TrajectorySettings(fit_window=args.fit_window,
+                                                         fit_windows=args.fit_windows),
+                             max_effects=args.max_effects,
                              params_out=args.output / name))  # fmt: skip
         print(table(rows[-1:]).splitlines()[-1], flush=True)
         atomic_write_text(

@@ -38,8 +38,11 @@ import numpy as np
 import torch
 from scipy.optimize import minimize
 
+from identification.candidates import CONTACT_START
+from identification.dataset import Dataset
 from identification.effect_coords import CONTACT_FREE
 from identification.effect_fit import from_free, to_free
+from identification.noisy import _odd, smooth_rod_states
 from identification.param_vector import ParamVector
 from identification.trajectory_fit import STATE_KEYS, cut_windows, end_caps
 from identification.window_states import fit_states
@@ -257,3 +260,33 @@ def _stderr(
     sandwich = bread @ (g.T @ g) @ bread * (n / max(n - 1, 1))
     var = np.maximum(sigma2 * np.diag(bread), np.diag(sandwich))
     return np.sqrt(np.clip(var, 0.0, None))
+
+
+def contact_from_dataset(
+    dataset: Dataset,
+    params: Params,
+    effects: Sequence[PhysicalEffect] = (),
+    start: GroundContact | None = None,
+    split: str = "train",
+    smoothing: float = 0.1,
+    log: Callable[[str], None] = lambda s: None,
+) -> ContactSearch | None:
+    """Contact from a dataset's touchdowns, the declared model known (a calibration).
+
+    ``params`` and ``effects``: the model without contact; ``start``: where the search
+    starts (None: :data:`~identification.candidates.CONTACT_START`); ``smoothing``
+    [s]: the Savitzky-Golay window of the states the airborne fits start from. None
+    when no trajectory of the split starts airborne.
+    """
+    topo, s = dataset.topology, dataset.split(split)
+    vec = ParamVector.at(topo, params)
+    engine = Engine(topo, dataset.dt, list(effects))
+    smooth = smooth_rod_states(s.nodes, dataset.dt, vec.axes, _odd(smoothing / dataset.dt))
+    grid = {k: getattr(smooth, k) for k in STATE_KEYS}
+    radius = np.repeat([r.radius for r in topo.rods], 2)
+    touch = find_touchdowns(engine, vec, s.nodes, s.control, grid, radius)
+    if touch is None:
+        return None
+    log(f"{touch.size} touchdowns; airborne prefixes fitted to {touch.prefix_rms * 1e3:.3f} mm")
+    start = start if start is not None else GroundContact(topo, **CONTACT_START)
+    return search_contact(engine, params, effects, start, touch, log)

@@ -119,8 +119,36 @@ def step_diagnose(out: Path) -> None:
          "--horizon", "0.5", "-o", str(out / "diagnose")])  # fmt: skip
 
 
+def step_touchdowns(out: Path) -> None:
+    banner("7. The same floor through 1 mm motion-capture noise: contact from the touchdowns")
+    from identification.drop_check import DROP_TOLERANCE, drop_check
+    from identification.touchdown import contact_from_dataset
+    from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
+    from tensegrity_env.params import load_params
+
+    path = out / "planted_contact_noisy.h5"
+    cli(["plant", "ground_contact", "--noise", "0.001", "--n-train", "6", "--n-val", "1",
+         "--n-test", "1", "--steps", "500", "--seed", "5", "-o", str(path)])  # fmt: skip
+    _, params, _ = load_params(out / "params.json")  # the calibration of step 2
+    found = contact_from_dataset(read_dataset(path), params, log=print)
+    if found is None:
+        raise SystemExit("no touchdown in the noisy contact data")
+    c = found.contact
+    lines = ["| parameter | identified | MuJoCo |", "|---|---|---|"]
+    for k in ("stiffness", "damping", "friction", "impedance"):
+        lines.append(f"| {k} [{c.PARAMS[k].unit}] | {float(c.values[k]):.4g} ± "
+                     f"{c.uncertainty[k]:.2g} | {MUJOCO_DEFAULT[k]:.4g} |")  # fmt: skip
+    drop = drop_check(params, [c])
+    verdict = "within" if drop.worst < DROP_TOLERANCE else "NOT within"
+    lines.append(f"\n2-s drop and bounce from rest, 3 drops: worst mean end-cap error "
+                 f"{drop.worst * 1e3:.1f} mm ({verdict} {DROP_TOLERANCE * 1e2:g} cm of MuJoCo)")  # fmt: skip
+    print("\n".join(lines))
+    atomic_write_text(out / "contact_from_touchdowns.md",
+                      "# Contact from noisy touchdowns\n\n" + "\n".join(lines) + "\n")  # fmt: skip
+
+
 def step_environments(out: Path) -> None:
-    banner("7. IcosahedronSR-v0 (identified engine) next to IcosahedronMJ-v0 (MuJoCo twin)")
+    banner("8. IcosahedronSR-v0 (identified engine) next to IcosahedronMJ-v0 (MuJoCo twin)")
     from tensegrity_env.envs import IcosahedronMJEnv, IcosahedronSREnv, RenderingUnavailable
     from tensegrity_env.envs.rendering import record_side_by_side
 
@@ -144,7 +172,7 @@ def step_environments(out: Path) -> None:
 
 
 def step_transfer(out: Path) -> None:
-    banner("8. Sim-to-sim transfer: the shipped PPO policy (trained on IcosahedronSR-v0) in MuJoCo")
+    banner("9. Sim-to-sim transfer: the shipped PPO policy (trained on IcosahedronSR-v0) in MuJoCo")
     from policies import SHIPPED_POLICY
     from policies.artifacts import load_policy
     from policies.transfer import side_by_side_video, transfer, transfer_table
@@ -180,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     step_control_gain(out)
     step_experiment(out)
     step_diagnose(out)
+    step_touchdowns(out)
     step_environments(out)
     step_transfer(out)
     banner(f"Done in {time.perf_counter() - t0:.0f} s. Every output is in: {out.resolve()}")

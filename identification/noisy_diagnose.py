@@ -61,8 +61,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.ndimage import minimum_filter1d
 
+from identification.airborne import AIRBORNE, airborne_samples, airborne_stretches, cap_radii
 from identification.candidates import CONTACT_START, Model, contact_gate
 from identification.dataset import Dataset, Split
 from identification.effect_coords import CONTACT_FREE, EffectCoords
@@ -102,7 +102,6 @@ from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
-from tensegrity_env.topology import Topology
 
 #: a candidate must lower the training BIC by this much ...
 MIN_BIC_DROP = 10.0
@@ -116,9 +115,6 @@ AMBIGUOUS_CHI2 = 10.0
 SLACK_LOSS = 0.5
 #: ... by at least this many standard errors
 SLACK_SIGNIFICANCE = 5.0
-#: on data whose end caps reach a floor, the declared model is fitted from the data alone
-#: on windows whose caps all stay this far above touching it [m] (the contact gate closed)
-AIRBORNE = 0.005
 
 
 @dataclass(frozen=True)
@@ -298,7 +294,7 @@ class _Data:
     ) -> Windows:
         """``count`` random windows of ``steps`` of split ``name``, states from smoothing.
 
-        ``airborne``: only windows whose measured end caps all stay :data:`AIRBORNE`
+        ``airborne``: only windows whose measured end caps all stay :data:`~identification.airborne.AIRBORNE`
         above touching the floor (none if there are none).
         """
         split = self.dataset.split(name if name in self.dataset.splits else "test")
@@ -307,8 +303,7 @@ class _Data:
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
         win = cut_windows(split.nodes, split.control, grid, steps)
         if airborne:
-            radius = torch.as_tensor(np.repeat([r.radius for r in self.topology.rods], 2))
-            gap = win.obs[..., 2] - radius
+            gap = win.obs[..., 2] - torch.as_tensor(cap_radii(self.topology))
             win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))
         rng = np.random.default_rng([self.seed, stream])
         if win.size > count:
@@ -358,19 +353,15 @@ def fit_declared(
         if steps < s.window:
             theta = _fit(data, vec, short, theta, s.base_iter).theta
         elif airborne:
-            many_windows = short
+            # each airborne stretch whole: far more precise than cut into windows
+            grid = {key: getattr(data.smooth["train"], key) for key in STATE_KEYS}
+            stretches = airborne_stretches(data.train.nodes, data.train.control, grid,
+                                           data.topology)  # fmt: skip
+            many_windows = short if stretches is None else stretches
     many = fit_many(data, vec, theta, s, iters=2 * s.base_iter, windows=many_windows)
     fit = _fit(data, vec, data.windows["train"], many.theta, s.base_iter)
     fit.origin = many.theta
     return many, fit
-
-
-def airborne_samples(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
-    """Samples (N, T) whose end caps all stay :data:`AIRBORNE` above touching the floor
-    over the smoothing filter's ``span`` [samples] around them."""
-    radius = np.repeat([r.radius for r in topology.rods], 2)
-    air = ((nodes[..., 2] - radius).min(-1) > AIRBORNE).astype(np.uint8)
-    return minimum_filter1d(air, size=span, axis=1)[:, :-1].astype(bool)
 
 
 def fit_many(
@@ -411,8 +402,9 @@ def _fit(
     data: _Data, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int
 ) -> TrajFit:
     fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False)
-    return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * fit.windows.obs.numel(),
-                   fit.windows.obs.numel(), fit.stderr, extra_k=_extra_k(data, vec))  # fmt: skip
+    m = fit.windows.residuals
+    return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
+                   extra_k=_extra_k(data, vec))  # fmt: skip
 
 
 def fit_with(
@@ -527,7 +519,7 @@ def heldout(data: _Data, fit: TrajFit, split: str, iters: int) -> tuple[float, i
     """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
     engine, vec = _fixed_engine(data, fit)
     w = fit_states(engine, vec, data.windows[split], iters)
-    m = w.windows.obs.numel()
+    m = w.windows.residuals
     return w.history[-1] * m, m, w.windows
 
 

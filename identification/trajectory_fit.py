@@ -31,6 +31,8 @@ class Windows:
         control: commands during each step, (B, W, R, 3), or None (no control).
         state: current estimate of each window's initial rod state, (B, R, ·).
         traj, start: trajectory index and first sample of each window, (B,).
+        valid: which samples count, (B, W+1) bool, or None (all): windows of
+            different lengths share one batch, each ending where its valid samples do.
     """
 
     obs: torch.Tensor
@@ -38,6 +40,7 @@ class Windows:
     state: State
     traj: np.ndarray
     start: np.ndarray
+    valid: torch.Tensor | None = None
 
     @property
     def size(self) -> int:
@@ -47,10 +50,24 @@ class Windows:
     def steps(self) -> int:
         return int(self.obs.shape[1]) - 1
 
+    @property
+    def residuals(self) -> int:
+        """Number of end-cap coordinates that count (see ``valid``)."""
+        if self.valid is None:
+            return int(self.obs.numel())
+        return int(self.valid.sum()) * int(self.obs[0, 0].numel())
+
+    def weights(self, t0: int = 0, t1: int | None = None) -> torch.Tensor | None:
+        """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1, 1), or None."""
+        if self.valid is None:
+            return None
+        return self.valid[:, t0:t1, None, None].to(self.obs.dtype)
+
     def take(self, idx: slice | np.ndarray) -> Windows:
         t = torch.as_tensor(np.arange(self.size)[idx])
         ctrl = None if self.control is None else self.control[t]
-        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[t], self.start[t])
+        valid = None if self.valid is None else self.valid[t]
+        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[t], self.start[t], valid)
 
 
 def cut_windows(
@@ -127,7 +144,8 @@ def end_caps(engine: Engine, p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
 def window_residual(
     engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor
 ) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
-    """``f(z, theta)``: engine end caps minus measured, (B, W+1, 2R, 3) [m].
+    """``f(z, theta)``: engine end caps minus measured, (B, W+1, 2R, 3) [m] (0 where
+    not ``win.valid``).
 
     ``z`` (B, n_local) perturbs each window's initial state along ``basis``;
     ``theta`` (n_free,) are the free log-parameters.
@@ -137,7 +155,9 @@ def window_residual(
         state = perturb(win.state, torch.einsum("bl,lrj->brj", z, basis))
         eng = vec.engine(engine, theta)
         roll = eng.rollout(state, vec.params(vec.full(theta)), win.steps, win.control)
-        return end_caps(eng, roll.p, roll.q) - win.obs
+        r = end_caps(eng, roll.p, roll.q) - win.obs
+        w = win.weights()
+        return r if w is None else r * w
 
     return f
 
@@ -192,7 +212,7 @@ def linearize(
         H_gg += gg
         g_g += gt
         sse += part_sse
-        m += part.obs.numel()
+        m += part.residuals
     return NormalEquations(torch.cat(H_ll), torch.cat(H_lg), torch.cat(g_l), H_gg, g_g, sse, m)
 
 
@@ -256,6 +276,10 @@ def gauss_newton_fd(
                 x = torch.cat([x, xe])
             r = (x[0] - win.obs[:, t0 : t0 + len(caps)].flatten(2)).flatten(1)  # (b, m)
             J = (x[1:] - x[:1]).flatten(2) / step  # (n_l + n_g, b, m)
+            w = win.weights(t0, t0 + len(caps))
+            if w is not None:
+                w = w.expand(-1, -1, x.shape[-1], 1).flatten(1)  # (b, m)
+                r, J = r * w, J * w
             Jl, Jg = J[:n_l], J[n_l:]
             H_ll += torch.einsum("ibm,jbm->bij", Jl, Jl)
             H_lg += torch.einsum("ibm,jbm->bij", Jl, Jg)

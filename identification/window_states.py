@@ -25,7 +25,8 @@ GROW = (10, 25, 50, 100, 200, 400)
 def prefix(windows: Windows, steps: int) -> Windows:
     """The first ``steps`` steps of every window."""
     ctrl = None if windows.control is None else windows.control[:, :steps]
-    return replace(windows, obs=windows.obs[:, : steps + 1], control=ctrl)
+    valid = None if windows.valid is None else windows.valid[:, : steps + 1]
+    return replace(windows, obs=windows.obs[:, : steps + 1], control=ctrl, valid=valid)
 
 
 def fit_states(

@@ -64,10 +64,11 @@ class Windows:
         return self.valid[:, t0:t1, None, None].to(self.obs.dtype)
 
     def take(self, idx: slice | np.ndarray) -> Windows:
-        t = torch.as_tensor(np.arange(self.size)[idx])
+        i = np.atleast_1d(np.arange(self.size)[idx])
+        t = torch.as_tensor(i)
         ctrl = None if self.control is None else self.control[t]
         valid = None if self.valid is None else self.valid[t]
-        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[t], self.start[t], valid)
+        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[i], self.start[i], valid)
 
 
 def cut_windows(

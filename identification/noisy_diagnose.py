@@ -371,6 +371,16 @@ def fit_declared(
     return many, fit
 
 
+def fit_declared_model(dataset: Dataset, settings: TrajectorySettings) -> TrajFit:
+    """The declared model alone, fitted on a dataset's end caps (the loop's first stage).
+
+    On data with a floor: from the airborne samples and stretches only (see
+    :func:`fit_declared`), so it can be handed to
+    :func:`identification.touchdown.contact_from_dataset` without a calibration.
+    """
+    return fit_declared(_Data(dataset, settings), settings)[0]
+
+
 def fit_many(
     data: _Data, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
     windows: Windows | None = None,

@@ -78,3 +78,21 @@ def airborne_stretches(
         State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS)),
         traj, start, torch.as_tensor(valid),
     )  # fmt: skip
+
+
+def past_touchdown(stretches: Windows, nodes: np.ndarray, steps: int) -> Windows:
+    """``stretches`` (states fitted) run on ``steps`` past their end where the data allows.
+
+    ``nodes`` (N, T+1, 2R, 3) [m]: the measured end caps the stretches were cut from.
+    A stretch ends where a cap comes near the floor, so the samples added are the
+    touchdown and what follows; only a model with contact can fit them. No control
+    (floor data is drops).
+    """
+    assert stretches.valid is not None
+    T = nodes.shape[1] - 1
+    n = stretches.valid.sum(1).numpy() - 1 + steps  # steps of each window
+    n = np.minimum(n, T - stretches.start)
+    span = np.minimum(stretches.start[:, None] + np.arange(int(n.max()) + 1), T)
+    obs = torch.as_tensor(nodes[stretches.traj[:, None], span], dtype=torch.float64)
+    valid = torch.as_tensor(np.arange(int(n.max()) + 1)[None] <= n[:, None])
+    return Windows(obs, None, stretches.state, stretches.traj, stretches.start, valid)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from identification.airborne import AIRBORNE, airborne_stretches, cap_radii
+from identification.airborne import AIRBORNE, airborne_stretches, cap_radii, past_touchdown
 from identification.drop_check import DROP_TOLERANCE, drop_check
 from identification.noisy import RodAxes, _odd, smooth_rod_states
 from identification.noisy_diagnose import TrajectorySettings, _Data, fit_declared
@@ -49,6 +49,18 @@ def test_stretches_are_airborne_and_end_at_the_touchdown(floor, stretches):
         assert gap[i, a + n + 1 : a + n + 20].min() < AIRBORNE + 4e-3  # it ends at a touch
         assert np.allclose(stretches.obs[b, : n + 1].numpy(), floor.dataset.split("train")
                            .nodes[i, a : a + n + 1])  # fmt: skip
+
+
+def test_stretches_run_on_past_the_touchdown_where_the_data_allows(floor, stretches):
+    nodes = floor.dataset.split("train").nodes
+    T = nodes.shape[1] - 1
+    longer = past_touchdown(stretches, nodes, 150)
+    for b in range(stretches.size):
+        i, a = stretches.traj[b], stretches.start[b]
+        n = min(int(stretches.valid[b].sum()) - 1 + 150, T - a)
+        assert int(longer.valid[b].sum()) - 1 == n
+        assert np.array_equal(longer.obs[b, : n + 1].numpy(), nodes[i, a : a + n + 1])
+    assert longer.residuals > stretches.residuals
 
 
 def test_samples_outside_a_window_do_not_count(floor, stretches):

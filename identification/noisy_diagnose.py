@@ -539,7 +539,7 @@ def _touchdown_contact(data: _Data, vec: ParamVector, theta: torch.Tensor) -> Gr
     assert isinstance(contact, GroundContact)
     fixed = _held(vec, theta)
     engine = data.engine.with_effects(others)
-    radius = np.repeat([r.radius for r in data.topology.rods], 2)
+    radius = cap_radii(data.topology)
     grid = {k: getattr(data.smooth["train"], k) for k in STATE_KEYS}
     t0 = time.perf_counter()
     touch = find_touchdowns(engine, fixed, data.train.nodes, data.train.control, grid, radius)

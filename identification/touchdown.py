@@ -38,6 +38,7 @@ import numpy as np
 import torch
 from scipy.optimize import minimize
 
+from identification.airborne import cap_radii
 from identification.candidates import CONTACT_START
 from identification.dataset import Dataset
 from identification.effect_coords import CONTACT_FREE
@@ -283,7 +284,7 @@ def contact_from_dataset(
     engine = Engine(topo, dataset.dt, list(effects))
     smooth = smooth_rod_states(s.nodes, dataset.dt, vec.axes, _odd(smoothing / dataset.dt))
     grid = {k: getattr(smooth, k) for k in STATE_KEYS}
-    radius = np.repeat([r.radius for r in topo.rods], 2)
+    radius = cap_radii(topo)
     touch = find_touchdowns(engine, vec, s.nodes, s.control, grid, radius)
     if touch is None:
         return None

@@ -64,20 +64,11 @@ def airborne_stretches(
                 runs.append((i, int(a), int(b - 1 - a)))
     if not runs:
         return None
-    W = max(n for _, _, n in runs)
-    T = nodes.shape[1] - 1
     traj = np.array([i for i, _, _ in runs])
     start = np.array([a for _, a, _ in runs])
-    # a window runs on past its stretch where the trajectory allows (not counted)
-    span = np.minimum(start[:, None] + np.arange(W + 1), T)
-    valid = np.arange(W + 1)[None] <= np.array([n for _, _, n in runs])[:, None]
-    ctrl = control[traj[:, None], np.minimum(span[:, :-1], T - 1)]
-    return Windows(
-        torch.as_tensor(nodes[traj[:, None], span], dtype=torch.float64),
-        torch.as_tensor(ctrl, dtype=torch.float64) if np.any(ctrl != 0) else None,
-        State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS)),
-        traj, start, torch.as_tensor(valid),
-    )  # fmt: skip
+    state = State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS))
+    steps = np.array([n for _, _, n in runs])
+    return _padded(nodes, control, traj, start, steps, state)
 
 
 def past_touchdown(stretches: Windows, nodes: np.ndarray, steps: int) -> Windows:
@@ -89,10 +80,31 @@ def past_touchdown(stretches: Windows, nodes: np.ndarray, steps: int) -> Windows
     (floor data is drops).
     """
     assert stretches.valid is not None
-    T = nodes.shape[1] - 1
     n = stretches.valid.sum(1).numpy() - 1 + steps  # steps of each window
-    n = np.minimum(n, T - stretches.start)
-    span = np.minimum(stretches.start[:, None] + np.arange(int(n.max()) + 1), T)
-    obs = torch.as_tensor(nodes[stretches.traj[:, None], span], dtype=torch.float64)
-    valid = torch.as_tensor(np.arange(int(n.max()) + 1)[None] <= n[:, None])
-    return Windows(obs, None, stretches.state, stretches.traj, stretches.start, valid)
+    n = np.minimum(n, nodes.shape[1] - 1 - stretches.start)
+    return _padded(nodes, None, stretches.traj, stretches.start, n, stretches.state)
+
+
+def _padded(
+    nodes: np.ndarray,
+    control: np.ndarray | None,
+    traj: np.ndarray,
+    start: np.ndarray,
+    steps: np.ndarray,
+    state: State,
+) -> Windows:
+    """Windows of ``steps`` (B,) from ``start`` (B,) of trajectories ``traj`` (B,), in one
+    batch as long as the longest; ``valid`` marks each one's own samples. A window runs
+    on past its own end where the trajectory allows (not counted)."""
+    T = nodes.shape[1] - 1
+    W = int(steps.max())
+    span = np.minimum(start[:, None] + np.arange(W + 1), T)
+    valid = torch.as_tensor(np.arange(W + 1)[None] <= steps[:, None])
+    obs = torch.as_tensor(nodes[traj[:, None], span], dtype=torch.float64)
+    ctrl = None if control is None else control[traj[:, None], np.minimum(span[:, :-1], T - 1)]
+    ctrl_t = (
+        torch.as_tensor(ctrl, dtype=torch.float64)
+        if ctrl is not None and np.any(ctrl != 0)
+        else None
+    )
+    return Windows(obs, ctrl_t, state, traj, start, valid)

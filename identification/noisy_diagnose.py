@@ -397,19 +397,27 @@ def fit_declared_model(dataset: Dataset, settings: TrajectorySettings) -> TrajFi
 
 def fit_many(
     data: _Data, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
-    windows: Windows | None = None,
+    windows: Windows | None = None, grow: int = 0,
 ) -> TrajFit:  # fmt: skip
     """``vec`` refitted jointly on the many windows of the training split, from ``theta``.
 
     The windows' states are fitted first with the model at ``theta``
     (:func:`fit_states`), so a fit on windows whose smoothed states are poor (impacts)
-    starts in the right basin.
+    starts in the right basin. ``grow`` > 0: parameters and states are fitted jointly
+    on the windows' first ``grow``, ``2 grow``, ... steps before the whole windows, each
+    stage from the last. A model fitted on short windows can be far enough off that
+    on long ones its states land in other basins and the joint fit stalls there: with
+    quadratic drag (1 mm noise) 300-step windows fitted at 4.65 mm RMS from 100-step
+    parameters.
     """
-    engine = vec.engine(data.engine, theta.detach())
-    fixed = _held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
-    states = fit_states(engine, fixed, many, s.state_iter)
-    fit = _fit(data, vec, states.windows, theta, iters)
+    lengths = list(range(grow, many.steps, grow)) if grow > 0 else []
+    for n in [*lengths, many.steps]:
+        engine = vec.engine(data.engine, theta.detach())
+        states = fit_states(engine, _held(vec, theta), prefix(many, n), s.state_iter)
+        fit = _fit(data, vec, states.windows, theta, iters)
+        theta = fit.theta
+        many = replace(many, state=fit.windows.state)
     fit.origin = fit.theta
     return fit
 
@@ -736,7 +744,8 @@ def diagnose_noisy(
             break
         fit = fit_with(data, chosen.fit, chosen.fit.effects, settings.base_iter)  # converge
         t1 = time.perf_counter()
-        final = fit_many(data, fit.vec, fit.theta, settings, settings.base_iter)
+        final = fit_many(data, fit.vec, fit.theta, settings, settings.base_iter,
+                         grow=settings.window)  # fmt: skip
         log(f"  refitted on {final.windows.size} training windows: end-cap RMS "
             f"{final.rms * 1e3:.3f} mm ({time.perf_counter() - t1:.0f} s)")  # fmt: skip
         fit.origin = final.theta

@@ -10,6 +10,7 @@ import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.logger import Logger
 
 import tensegrity_env  # registers the envs
 from tensegrity_env.assemblies import element
@@ -256,6 +257,7 @@ def test_sb3_trains_on_the_batched_env() -> None:
 
     venv = SB3VecEnv(IcosahedronSRVectorEnv(num_envs=8))
     model = PPO("MlpPolicy", venv, n_steps=8, batch_size=32, n_epochs=1, device="cpu", seed=0)
+    model.set_logger(Logger(folder=None, output_formats=[]))  # no folder in /tmp
     model.learn(total_timesteps=64)
     action, _ = model.predict(venv.reset(), deterministic=True)
     assert action.shape == (8, 18)

@@ -156,7 +156,7 @@ class TrajectorySettings:
     val_windows: int = 8
     test_windows: int = 8
     base_iter: int = 10
-    candidate_iter: int = 10
+    candidate_iter: int = 30
     state_iter: int = 15
     smoothing: float = 0.1
     seed: int = 0

@@ -32,7 +32,7 @@ from identification.diagnose import diagnose
 from identification.diagnose_report import fmt_err, ratio, write_params
 from identification.drop_check import drop_check
 from identification.measured import with_measured_states
-from identification.noisy_diagnose import TrajectorySettings, diagnose_noisy
+from identification.noisy_diagnose import FIT_WINDOW, TrajectorySettings, diagnose_noisy
 from identification.planted import PLANTS, PlantSpec, planted_dataset
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.io_utils import atomic_write_text
@@ -123,8 +123,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--fit-window",
         type=int,
-        default=0,
-        help="noisy data: steps per window of each model's final fit (0: 100)",
+        default=FIT_WINDOW,
+        help=f"noisy data: steps per window of each model's final fit (default {FIT_WINDOW}; "
+        "0: 100)",
     )
     p.add_argument(
         "--fit-windows",

@@ -122,6 +122,47 @@ def test_drag_opposes_motion(ico):
         assert (f * state.v).sum() < 0 and (t * state.omega).sum() < 0
 
 
+def test_box_drag_depends_on_the_roll_end_caps_cannot_see(ico):
+    """MuJoCo's inertia-box fluid model (the quadratic-drag plant, mirrored by
+    QuadraticDrag) acts per axis of each rod's box: rolling a rod about its own axis
+    leaves its end caps where they are but changes |v_x| v_x + |v_y| v_y. Linear drag
+    with equal cross-axis coefficients does not see the roll. Why noisy end caps pin
+    quadratic drag far less well than linear drag (README, noisy end caps)."""
+    from identification.noisy import RodAxes
+    from tensegrity_env.rotations import quat_mul, quat_to_matrix
+
+    topo, params = ico.topology, ico.params
+    state = _random_state(topo, n=8, seed=4)
+    axis = RodAxes.of(topo).axis
+    R = topo.n_rods
+    rot = quat_to_matrix(state.q)
+    along = torch.stack([rot[:, r, :, axis[r]] for r in range(R)], dim=1)  # (B, R, 3) world
+    omega = state.omega - (state.omega * along).sum(-1, keepdim=True) * along  # no spin
+    angle = torch.as_tensor(np.random.default_rng(1).uniform(0, 2 * np.pi, (8, R)))
+    half = torch.zeros(8, R, 4, dtype=torch.float64)
+    half[..., 0] = torch.cos(angle / 2)
+    for r in range(R):
+        half[:, r, 1 + axis[r]] = torch.sin(angle / 2)[:, r]
+    plain = State(state.p, state.v, state.q, omega)
+    rolled = State(state.p, state.v, quat_mul(state.q, half), omega)
+    eng = Engine(topo, 0.01)
+    seen = [node_kinematics(s, eng.end_offsets, eng.anchors) for s in (plain, rolled)]
+    assert torch.allclose(seen[0].x, seen[1].x, atol=1e-12)  # end caps: positions and
+    assert torch.allclose(seen[0].xd, seen[1].xd, atol=1e-12)  # velocities the same
+    drags = {
+        "quadratic": QuadraticDrag(topo, translational=[1.44, 1.44, 0.04],
+                                   rotational=[0.05, 0.05, 0.0]),
+        "linear": LinearDrag(topo, translational=[1.0, 1.0, 0.1], rotational=[0.1, 0.1, 0.0]),
+    }  # fmt: skip
+    gap = {}
+    for name, drag in drags.items():
+        e = Engine(topo, 0.01, effects=[drag])
+        a, b = e.rollout(plain, params, 100), e.rollout(rolled, params, 100)
+        gap[name] = float((a.p[:, -1] - b.p[:, -1]).norm(dim=-1).mean())  # after 1 s [m]
+    assert gap["quadratic"] > 1e-2, gap  # 164 mm measured
+    assert gap["linear"] < 1e-9, gap
+
+
 def test_contact_gate_no_force_above_the_floor(ico):
     state = _random_state(ico.topology, lift=1.0)  # every cap well above z = 0
     eng = Engine(ico.topology, 1e-3)

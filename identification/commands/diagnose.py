@@ -19,7 +19,7 @@ from identification.dataset import Dataset, read_dataset, read_ground_truth, wri
 from identification.diagnose import diagnose
 from identification.diagnose_report import fmt_err, ratio, write_params, write_report
 from identification.measured import with_measured_states
-from identification.noisy_diagnose import TrajectorySettings, diagnose_noisy
+from identification.noisy_diagnose import FIT_WINDOW, TrajectorySettings, diagnose_noisy
 from identification.noisy_report import write_noisy_report
 from identification.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from identification.regression import parse_anchor
@@ -64,9 +64,10 @@ def register(sub: Any) -> None:
     p.add_argument("--fit-windows", type=int, default=32,
                    help="trajectory method: training windows of the declared and every accepted "
                    "model's final fit (default 32)")  # fmt: skip
-    p.add_argument("--fit-window", type=int, default=0,
-                   help="trajectory method: steps per window of that final fit (default: "
-                   "--window); longer windows carry more information per sample")  # fmt: skip
+    p.add_argument("--fit-window", type=int, default=FIT_WINDOW,
+                   help=f"trajectory method: steps per window of that final fit (default "
+                   f"{FIT_WINDOW}; 0: --window); longer windows carry more information per "
+                   "sample")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
     p.set_defaults(func=run)
 

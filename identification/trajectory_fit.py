@@ -326,49 +326,17 @@ def schur_step(
 
 
 @torch.no_grad()
-def window_sse_each(
-    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
-    chunk: int,
-) -> torch.Tensor:  # fmt: skip
-    """Sum of squared end-cap errors of every window, (B,) [m^2] (inf where not finite)."""
-    out = []
-    for start in range(0, win.size, chunk):
-        part = win.take(slice(start, start + chunk))
-        z0 = torch.zeros(part.size, basis.shape[0], dtype=DTYPE)
-        r = window_residual(engine, vec, part, basis)(z0, theta)
-        out.append((r**2).flatten(1).sum(1))
-    return torch.cat(out).nan_to_num(nan=float("inf"))
-
-
 def window_sse(
     engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
     chunk: int,
 ) -> float:  # fmt: skip
     """Sum of squared end-cap errors of all windows [m^2]."""
-    return float(window_sse_each(engine, vec, win, basis, theta, chunk).sum())
-
-
-def _trial(
-    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
-    d_state: torch.Tensor, chunk: int,
-) -> tuple[Windows, float]:  # fmt: skip
-    """The windows after a step, and their sum of squares [m^2] at parameters ``theta``.
-
-    Given the parameters, the windows' errors are independent: each window keeps its
-    stepped state ``⊕ d_state`` (B, R, 12) only where that fits it better than its
-    current one. A few windows whose linearisation fails (fast spins over a long
-    window) would otherwise reject every step for all: with quadratic drag (1 mm
-    noise) the parameters crawled there, 0.13 of 1.44 N s^2/m^2 after 15 iterations.
-    """
-    moved = replace(win, state=perturb(win.state, d_state))
-    each_moved = window_sse_each(engine, vec, moved, basis, theta, chunk)
-    each_kept = window_sse_each(engine, vec, win, basis, theta, chunk)
-    better = each_moved <= each_kept
-    if bool(better.all()):
-        return moved, float(each_moved.sum())
-    state = State(*(torch.where(better.view(-1, *([1] * (a.dim() - 1))), a, b)
-                    for a, b in zip(moved.state.tensors(), win.state.tensors(), strict=True)))  # fmt: skip
-    return replace(win, state=state), float(torch.minimum(each_moved, each_kept).sum())
+    total = 0.0
+    for start in range(0, win.size, chunk):
+        part = win.take(slice(start, start + chunk))
+        z0 = torch.zeros(part.size, basis.shape[0], dtype=DTYPE)
+        total += float((window_residual(engine, vec, part, basis)(z0, theta) ** 2).sum())
+    return total
 
 
 @dataclass(frozen=True)
@@ -434,10 +402,11 @@ def fit_windows(
             d_z, d_theta, pred, _ = schur_step(ne, lam)
             d_theta = (theta + d_theta).clamp(lo, hi) - theta
             d_state = torch.einsum("bl,lrj->brj", d_z, basis)
+            trial = replace(windows, state=perturb(windows.state, d_state))
             try:
-                trial, sse = _trial(engine, vec, windows, basis, theta + d_theta, d_state, chunk)
+                sse = window_sse(engine, vec, trial, basis, theta + d_theta, chunk)
             except torch.linalg.LinAlgError:  # e.g. a contact solve at extreme trial values
-                trial, sse = windows, float("inf")
+                sse = float("inf")
             rho = (ne.sse - sse) / pred if pred > 0 and np.isfinite(sse) else -1.0
             if rho > 0:
                 lam *= 0.1 if rho > 0.9 else max(1 / 3, 1 - (2 * rho - 1) ** 3)

@@ -10,12 +10,9 @@ Reproduce the numbers: ``pytest tests/test_noisy.py`` (about 1 min) and
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import mujoco
 import numpy as np
 import pytest
-import torch
 
 from identification.dataset import Dataset, Split
 from identification.generate import GenerateSpec, InitialConditions, generate_dataset
@@ -29,8 +26,6 @@ from identification.noisy import (
     parse_anchors,
     window_schedule,
 )
-from identification.param_vector import ParamVector
-from identification.trajectory_fit import _trial, perturb, window_sse_each
 from tensegrity_env.assemblies import Assembly, element, icosahedron
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
@@ -159,31 +154,6 @@ def test_finite_difference_gradient_matches_autograd() -> None:
     for a, b in ((fd.g_g, ad.g_g), (fd.g_l, ad.g_l)):
         assert float((a - b).abs().max()) < 1e-5 * float(b.abs().max())
     assert fd.sse == pytest.approx(ad.sse, rel=1e-12)
-
-
-def test_a_step_keeps_each_windows_better_state() -> None:
-    """Given the parameters, windows are independent: a trial step keeps each window's
-    stepped state only where it fits that window better (``trajectory_fit._trial``)."""
-    asm = icosahedron()
-    clean = simulate(asm, n=2, steps=40, seed=6)
-    truth = clean.split("train")
-    grid = {k: getattr(truth, k) for k in ("p", "v", "q", "omega")}
-    windows = cut_windows(truth.nodes, truth.control, grid, 20)  # true states: exact fits
-    axes = RodAxes.of(asm.topology)
-    vec = ParamVector.at(asm.topology, asm.params)
-    engine, basis = Engine(asm.topology, clean.dt), local_basis(axes, spin=False)
-    theta = torch.zeros(0, dtype=torch.float64)
-    kept = window_sse_each(engine, vec, windows, basis, theta, 8)
-    assert float(kept.max()) < 1e-20  # the true states reproduce MuJoCo's end caps
-    d = torch.zeros(windows.size, asm.topology.n_rods, 12, dtype=torch.float64)
-    d[0, :, 3:6] = 0.05  # 5 cm/s more velocity for window 0 only: worse there
-    trial, sse = _trial(engine, vec, windows, basis, theta, d, 8)
-    assert torch.equal(trial.state.v, windows.state.v)  # window 0 kept its state
-    assert sse == pytest.approx(float(kept.sum()), abs=1e-20)
-    start = replace(windows, state=perturb(windows.state, d))  # now the step undoes it
-    trial, sse = _trial(engine, vec, start, basis, theta, -d, 8)
-    assert torch.allclose(trial.state.v, windows.state.v, atol=1e-12)
-    assert sse < 1e-20
 
 
 # ---------------------------------------------------------------------- identification

@@ -85,12 +85,15 @@ def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = 
 
 
 def test_noisy_linear_drag_is_named_and_errors_drop() -> None:
-    """Strong linear drag, seed 13, two candidates (27 s on a 2-core machine)."""
+    """Strong linear drag, seed 13, two candidates: the issue's targets (>= 100x one-step,
+    >= 10x rollout) against the clean trajectories. The final fit runs on the default
+    300-step windows (here each 500-step trajectory whole): 382x and 3034x measured
+    (28.6x one-step on 100-step windows)."""
     _, r = _small("linear_drag", "strong", 13, ["linear_drag", "force_field"])
     assert r.model.names == ["linear_drag"]
     b, f = r.baseline_test, r.final_test
-    assert b["one_step"] / f["one_step"] > 10  # against the clean trajectories (28.6x measured)
-    assert b["rollout"] / f["rollout"] > 10
+    assert b["one_step"] / f["one_step"] >= 100
+    assert b["rollout"] / f["rollout"] >= 10
     assert f["caps_rms"] < 1.1e-3  # at the 1 mm noise
 
 

@@ -226,3 +226,36 @@ def scatter_local_gram(G: torch.Tensor, slots: RodSlots, out: torch.Tensor) -> N
     rows_idx = cols.unsqueeze(2).expand_as(G).reshape(-1)
     cols_idx = cols.unsqueeze(1).expand_as(G).reshape(-1)
     out.index_put_((rows_idx, cols_idx), G.reshape(-1), accumulate=True)
+
+
+def with_hinges(slots: RodSlots, n_params: int, n_springs: int) -> RodSlots:
+    """``slots`` with one more local column per attached spring: its hinge unknown ``ΔK``.
+
+    The hinges are global unknowns ``n_params + s``; the discard column moves to
+    ``n_params + n_springs`` (see :func:`hinge_blocks`).
+    """
+    cols = torch.where(slots.columns == n_params, n_params + n_springs, slots.columns)
+    J = slots.spring.shape[1]
+    padded = slots.sign == 0
+    hinge = torch.where(padded, n_params + n_springs, n_params + slots.spring)
+    return RodSlots(slots.spring, slots.end, slots.sign,
+                    torch.cat([cols, hinge.reshape(-1, J)], dim=1))  # fmt: skip
+
+
+def hinge_blocks(feat: TransitionFeatures, slots: RodSlots, knots: torch.Tensor) -> torch.Tensor:
+    """Local columns (n, R, 6, J) of a stiffness change ``ΔK_s`` below a knot ``τ_s`` [m].
+
+    The spring's tension gains ``ΔK_s min(l_s - τ_s, 0)``: with ``τ_s = l0_s`` and
+    ``ΔK_s = -K_s`` the spring is a cable, with no elastic push when shorter than rest.
+    ``knots`` is (S,); append these to :func:`rod_blocks`' columns (:func:`with_hinges`).
+    """
+    dtype = feat.accel.dtype
+    R, J = slots.spring.shape
+    sign = slots.sign.to(dtype)
+    rods = torch.arange(R).unsqueeze(1).expand(R, J)
+    fdir = sign.unsqueeze(-1) * feat.springs.axis[:, slots.spring]  # (n, R, J, 3)
+    arm = feat.arms[:, rods, slots.end]
+    tdir = torch.einsum("nrji,nrkj->nrki", feat.rot, torch.cross(arm, fdir, dim=-1))
+    unit = torch.cat([fdir, tdir], dim=-1)  # (n, R, J, 6)
+    short = (feat.springs.length[:, slots.spring] - knots.to(dtype)[slots.spring]).clamp_max(0.0)
+    return (unit * -short.unsqueeze(-1)).transpose(2, 3)  # same sign as K's column -l

@@ -63,7 +63,14 @@ from scipy.signal import savgol_filter
 from tqdm.auto import tqdm
 
 from identification.dataset import Dataset, Split
-from identification.design import ParameterLayout, accumulate_normal, rod_blocks, rod_slots
+from identification.design import (
+    ParameterLayout,
+    accumulate_normal,
+    hinge_blocks,
+    rod_blocks,
+    rod_slots,
+    with_hinges,
+)
 from identification.features import TransitionFeatures
 from identification.param_vector import (  # noqa: F401  (re-exported)
     DTYPE,
@@ -243,10 +250,14 @@ def smoothed_regression(
     anchors: Mapping[str, float] | None = None,
     gravity: Sequence[float] = (0.0, 0.0, -9.81),
     keep: np.ndarray | None = None,
+    knots: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Stage 1: linear regression on smoothed end caps (see :func:`smooth_rod_states`).
 
     ``keep`` (N, T): the samples used (None: all), e.g. those away from a floor.
+    ``knots`` (S,) [m]: also fit each spring's stiffness change ``ΔK`` below its knot
+    (:func:`~identification.design.hinge_blocks`), returned as ``compression_stiffness``
+    with its standard error ``compression_stiffness_se`` (S,) [N/m].
     Returns natural-unit values: ``stiffness``, ``damping``, ``rest_length`` (S,),
     ``mass``, ``inertia_perp`` (R,) and ``control_gain`` (1,); NaN where the regression
     cannot tell. Samples near the ends, where the filter extrapolates, are not used.
@@ -259,8 +270,13 @@ def smoothed_regression(
     slots = rod_slots(layout)
     feat = smoothed_features(topo, smooth, control, keep)
     P = layout.n_params
-    normal = torch.zeros(P + 1, P + 1, dtype=DTYPE)
-    accumulate_normal(rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE)), slots, P, normal)
+    S = topo.n_springs if knots is not None else 0
+    blocks = rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE))
+    if knots is not None:
+        blocks = torch.cat([blocks, hinge_blocks(feat, slots, torch.as_tensor(knots))], dim=-1)
+        slots = with_hinges(slots, P, S)
+    normal = torch.zeros(P + S + 1, P + S + 1, dtype=DTYPE)
+    accumulate_normal(blocks, slots, P + S, normal)
     fixed = {}
     rods, springs = [r.name for r in topo.rods], [s.name for s in topo.springs]
     for (group, i), value in parse_anchors(topo, anchors or {}).items():
@@ -281,8 +297,9 @@ def smoothed_regression(
     th = {
         g: [] for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain")
     }
-    for value, group in zip(sol.theta, layout.groups, strict=True):
+    for value, group in zip(sol.theta[:P], layout.groups, strict=True):
         th[group].append(value)
+    hinge = {"compression_stiffness": sol.theta[P:], "compression_stiffness_se": sol.stderr[P:]}
     inertia = np.array(th["inertia"]).reshape(-1, 3)
     perp = np.isfinite(inertia) & (np.eye(3)[axes.axis] == 0)  # the two perpendicular axes
     count = perp.sum(1)
@@ -294,7 +311,7 @@ def smoothed_regression(
             "mass": np.array(th["mass"]),
             "inertia_perp": np.where(count > 0, np.where(perp, inertia, 0).sum(1) / count, np.nan),
             "control_gain": np.array(th["control_gain"]),
-        }
+        } | (hinge if S else {})
 
 
 def _odd(x: float) -> int:

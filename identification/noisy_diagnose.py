@@ -26,10 +26,10 @@ Each iteration of :func:`diagnose_noisy`
    :data:`AMBIGUOUS_CORRELATION`. The runner-up's correlation and chi-square
    difference are reported either way.
 
-Slack cables are found in two fits: a per-spring stiffness change in compression
-(:class:`~tensegrity_env.effects.springs.CompressionStiffness`) names the springs
-that lose more than :data:`SLACK_LOSS` of ``K`` by :data:`SLACK_SIGNIFICANCE`
-standard errors; the candidate is then those springs as cables.
+Slack cables are named by a segmented regression on the smoothed end caps
+(:mod:`identification.slack_regression`: a stiffness change below each spring's rest
+length); the candidate, those springs as cables, is then fitted like the declared
+model, from that regression, and compared with the current model as any other.
 
 The declared model and every accepted one are also fitted on **many** windows of the
 training split (:attr:`TrajectorySettings.fit_windows`; :func:`fit_many`): selection
@@ -100,6 +100,7 @@ from identification.noisy_residuals import (
     window_residuals,
 )
 from identification.param_vector import params_values
+from identification.slack_regression import CABLE_LOSS, CABLE_SIGNIFICANCE, slack_regression
 from identification.touchdown import find_touchdowns, search_contact
 from identification.window_states import GROW, fit_states, prefix
 from tensegrity_env.effects import (
@@ -111,7 +112,6 @@ from tensegrity_env.effects import (
     SlackSprings,
 )
 from tensegrity_env.effects.base import PhysicalEffect
-from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
@@ -126,10 +126,6 @@ MIN_CHI2_GAIN = 10.0
 AMBIGUOUS_CORRELATION = 0.9
 #: ... and held-out chi-squares closer than this cannot be told apart
 AMBIGUOUS_CHI2 = 10.0
-#: a spring is a cable when compressing it loses this fraction of its stiffness ...
-SLACK_LOSS = 0.5
-#: ... by at least this many standard errors
-SLACK_SIGNIFICANCE = 5.0
 
 
 #: steps per window of the final fits (declared model's many-window fit excepted): on
@@ -336,7 +332,11 @@ class _Data:
 
 
 def fit_declared(
-    data: _Data, s: TrajectorySettings, start: Params | None = None
+    data: _Data,
+    s: TrajectorySettings,
+    start: Params | None = None,
+    effects: Sequence[PhysicalEffect] = (),
+    values: dict[str, np.ndarray] | None = None,
 ) -> tuple[TrajFit, TrajFit]:
     """The declared model: its fit on the many windows, and on the training windows.
 
@@ -347,22 +347,29 @@ def fit_declared(
     selection compares candidates on (from there, so both fits share the origin).
     Where end caps reach a floor, the "many windows" are every airborne stretch of the
     training split, each whole (:func:`~identification.airborne.airborne_stretches`).
+
+    ``effects`` are fitted with it (a hypothesis that changes the declared springs, such
+    as slack cables) and ``values`` replace the stage-1 regression (natural units, as
+    :func:`smoothed_regression` returns them).
     """
     # where end caps reach a floor, only samples and windows where they are airborne
     # (contact's gate closed): fitted through impacts, the declared model drifts to make
     # up for contact
     airborne = contact_gate(data.train, data.topology)[0]
-    if start is None:
-        keep = airborne_samples(data.train.nodes, data.topology, data.sg) if airborne else None
+    if values is None and start is None:
         values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
-                                     s.anchors, keep=keep)  # fmt: skip
-    else:
+                                     s.anchors, keep=_airborne_keep(data))  # fmt: skip
+    elif values is None:
+        assert start is not None
         values = params_values(start, data.axes)
     has_control = bool(np.any(data.train.control != 0))
     anchors = parse_anchors(data.topology, s.anchors)
     vec = TrajectoryIdentifier(anchors=s.anchors)._vector(
         data.topology, data.axes, values, anchors, has_control
     )
+    if effects:
+        vec = replace(vec, coords=EffectCoords.of(list(effects), _common_axis(data.axes),
+                                                  data.contact_free))  # fmt: skip
     theta = vec.theta0()
     data.declared_k = int(vec.free.sum())
     # windows of ``window`` steps: longer ones would let a model missing an effect drift
@@ -390,6 +397,13 @@ def fit_declared(
     if airborne and many.windows.valid is not None:
         data.stretches = many.windows
     return many, fit
+
+
+def _airborne_keep(data: _Data) -> np.ndarray | None:
+    """The training samples away from a floor (None: no floor in the data, all of them)."""
+    if not contact_gate(data.train, data.topology)[0]:
+        return None
+    return airborne_samples(data.train.nodes, data.topology, data.sg)
 
 
 def fit_declared_model(dataset: Dataset, settings: TrajectorySettings) -> TrajFit:
@@ -609,7 +623,7 @@ def _proposals(
 
     ok, gate = contact_gate(data.train, topo)
     add("ground_contact", GroundContact(topo, **CONTACT_START) if ok else None, gate)
-    add("slack_springs", "probe", "springs shorter than rest (compression-stiffness probe)")
+    add("slack_springs", "probe", "springs shorter than rest (segmented regression)")
     add("linear_drag", LinearDrag(topo), "acts everywhere, opposing v and ω")
     add("quadratic_drag", QuadraticDrag(topo), "acts everywhere, opposing v|v| and ω|ω|")
     add("force_field", ForceField(topo), "acts on every rod, always")
@@ -622,32 +636,56 @@ def _proposals(
     return out
 
 
-def slack_cables(data: _Data, current: TrajFit, iters: int) -> tuple[list[int], str]:
-    """Springs that lose stiffness when compressed (a joint fit with a per-spring ΔK).
+def slack_hypothesis(
+    data: _Data, current: TrajFit, s: TrajectorySettings
+) -> tuple[SlackSprings | None, str, dict[str, np.ndarray] | None]:
+    """Cables from the segmented regression (:mod:`identification.slack_regression`).
 
-    Cables already in the model are kept: the result is all cables, old and new, or
-    empty when no new one shows.
+    Returns the candidate (every cable, old and new; None when no new one shows), its
+    gate text, and the regression's parameter values it starts from.
     """
     old = [e for e in current.effects if isinstance(e, SlackSprings)]
     known = {int(i) for e in old for i in e.values["springs"].tolist()}
-    probe = fit_with(
-        data, current, [*current.start_effects, CompressionStiffness(data.topology)], iters
-    )
-    S = data.topology.n_springs
-    dk = probe.theta[-S:].numpy()
-    se = probe.stderr[-S:]
-    k = probe.params.stiffness.numpy()
-    loss = -dk / k
-    found = np.flatnonzero((loss > SLACK_LOSS) & (np.abs(dk) > SLACK_SIGNIFICANCE * se))
-    new = sorted({int(c) for c in found} - known)
+    reg = slack_regression(data.topology, data.smooth["train"], data.train.control, s.anchors,
+                           keep=_airborne_keep(data))  # fmt: skip
+    new = sorted(set(reg.cables()) - known)
     if not new:
-        free = [s for s in range(S) if s not in known]
-        worst = float(loss[free].max()) if free else 0.0
-        return [], f"no (further) spring loses stiffness when compressed (largest loss {worst:.0%})"
-    return sorted(known | set(new)), (
-        f"{len(new)} {'more ' if known else ''}springs lose "
-        f"{np.median(loss[new]):.0%} of K when compressed"
-    )
+        free = [i for i in range(data.topology.n_springs) if i not in known]
+        z = reg.significance[free]
+        lo, hi = CABLE_LOSS
+        return (
+            None,
+            (
+                f"no (further) spring loses {lo:.0%}-{hi:.0%} of K when compressed by "
+                f"{CABLE_SIGNIFICANCE:g} standard errors (largest significance {z.max():.3g})"
+            ),
+            None,
+        )
+    cables = sorted(known | set(new))
+    loss = reg.loss[new]
+    gate = (f"{len(new)} {'more ' if known else ''}springs lose {np.median(loss):.0%} of K "
+            f"when compressed (segmented regression, ≥{reg.significance[new].min():.0f} "
+            f"standard errors)")  # fmt: skip
+    return SlackSprings(data.topology, springs=cables), gate, reg.values
+
+
+def fit_slack(
+    data: _Data, current: TrajFit, effect: SlackSprings, values: dict[str, np.ndarray],
+    s: TrajectorySettings,
+) -> TrajFit:  # fmt: skip
+    """The cable hypothesis fitted like the declared model, from its own regression.
+
+    Started from the current model instead, a fit stays near the compromise the springs
+    made for the missing cables (lower stiffness, shorter rest length). With a searched
+    contact in the model (its parameters held) the usual joint fit runs instead.
+    """
+    effects = [*current.start_effects, effect]
+    if _contact_searched(current.vec):
+        return fit_with(data, current, effects, s.candidate_iter)
+    many, fit = fit_declared(data, s, effects=effects, values=values)
+    data.log(f"    {effect.name}: fitted from the segmented regression, end-cap RMS "
+             f"{many.rms * 1e3:.3f} mm on {many.windows.size} windows")  # fmt: skip
+    return fit
 
 
 def _judge(c: Candidate, current: Candidate) -> None:
@@ -704,15 +742,18 @@ def diagnose_noisy(
         skipped: list[tuple[str, str]] = []
         for name, effect, gate in _proposals(data, current.fit, candidates):
             t1 = time.perf_counter()
+            values = None
             if effect == "probe":
-                cables, gate = slack_cables(data, current.fit, settings.candidate_iter)
-                effect = SlackSprings(data.topology, springs=cables) if cables else None
+                effect, gate, values = slack_hypothesis(data, current.fit, settings)
             if effect is None:
                 skipped.append((name, gate))
                 continue
-            fit = fit_with(
-                data, current.fit, [*current.fit.start_effects, effect], settings.candidate_iter
-            )
+            if values is not None:
+                fit = fit_slack(data, current.fit, effect, values, settings)
+            else:
+                fit = fit_with(
+                    data, current.fit, [*current.fit.start_effects, effect], settings.candidate_iter
+                )
             c = _score(data, Candidate(name, fit, gate), settings)
             c.physical = all(e.physical() for e in fit.effects)
             c.seconds = time.perf_counter() - t1

@@ -102,6 +102,7 @@ from identification.noisy_residuals import (
 from identification.param_vector import params_values
 from identification.slack_regression import CABLE_LOSS, CABLE_SIGNIFICANCE, slack_regression
 from identification.touchdown import find_touchdowns, search_contact
+from identification.trajectory_fit import sees_roll
 from identification.window_states import GROW, fit_states, prefix
 from tensegrity_env.effects import (
     CubicStiffness,
@@ -424,13 +425,19 @@ def fit_many(
 
     The windows' states are fitted first with the model at ``theta``
     (:func:`fit_states`), so a fit on windows whose smoothed states are poor (impacts)
-    starts in the right basin.
+    starts in the right basin. With an effect that depends on the rods' roll about their
+    axes (``sees_roll``: quadratic drag), each window's rolls are fitted too: on noisy
+    quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to
+    1.13 mm (1 mm noise), and the drag coefficients from 8 % to 1 % off. Selection's
+    fits leave the roll out: from zero drag its columns are zero, and the fit of the
+    quadratic drag candidate then converged more slowly than the linear one's.
     """
     engine = vec.engine(data.engine, theta.detach())
     fixed = _held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
-    states = fit_states(engine, fixed, many, s.state_iter)
-    fit = _fit(data, vec, states.windows, theta, iters)
+    roll = sees_roll(engine)
+    states = fit_states(engine, fixed, many, s.state_iter, roll=roll)
+    fit = _fit(data, vec, states.windows, theta, iters, roll=roll)
     fit.origin = fit.theta
     return fit
 
@@ -451,12 +458,18 @@ def _has_contact(vec: ParamVector) -> bool:
 
 
 def _fit(
-    data: _Data, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int
-) -> TrajFit:
-    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False)
+    data: _Data, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int,
+    roll: bool = False,
+) -> TrajFit:  # fmt: skip
+    """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too.
+
+    The rolls are state unknowns the other models lack: the BIC counts them.
+    """
+    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False, roll=roll)
     m = fit.windows.residuals
+    rolls = windows.size * data.topology.n_rods if roll else 0  # state unknowns, not common
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
-                   extra_k=_extra_k(data, vec))  # fmt: skip
+                   extra_k=_extra_k(data, vec) + rolls)  # fmt: skip
 
 
 def fit_with(

@@ -104,20 +104,21 @@ def fill_grid(
         grid[k][windows.traj[:, None], span] = arr
 
 
-def local_basis(axes: RodAxes, spin: bool = True) -> torch.Tensor:
+def local_basis(axes: RodAxes, spin: bool = True, roll: bool = False) -> torch.Tensor:
     """Tangents of each window's initial state, (n_local, R, 12).
 
     Per rod: ``δp, δv`` (world), ``δθ`` (rotation vector), ``δω`` (both in the rod frame).
-    The rotation about the axis holding the end caps is left out: it moves nothing.
-    ``spin=False`` also leaves out the angular velocity about that axis (rod frame):
-    it acts only through the tiny gyroscopic term ``I_axial ω_axial``, so short windows
-    cannot tell it from noise.
+    The rotation about the axis holding the end caps is left out unless ``roll``: it
+    moves nothing but an effect that sees it (``sees_roll``, e.g. box-form quadratic
+    drag). ``spin=False`` also leaves out the angular velocity about that axis (rod
+    frame): it acts only through the tiny gyroscopic term ``I_axial ω_axial``, so
+    short windows cannot tell it from noise.
     """
     R = len(axes.axis)
     rows = []
     for r in range(R):
         for j in range(12):
-            if 6 <= j < 9 and j - 6 == axes.axis[r]:
+            if 6 <= j < 9 and j - 6 == axes.axis[r] and not roll:
                 continue
             if j - 9 == axes.axis[r] and not spin:
                 continue
@@ -125,6 +126,11 @@ def local_basis(axes: RodAxes, spin: bool = True) -> torch.Tensor:
             e[r, j] = 1.0
             rows.append(e)
     return torch.stack(rows)
+
+
+def sees_roll(engine: Engine) -> bool:
+    """Whether one of ``engine``'s effects depends on the rods' roll about their axes."""
+    return any(getattr(e, "sees_roll", False) for e in engine.effects)
 
 
 def perturb(state: State, d: torch.Tensor) -> State:
@@ -372,6 +378,7 @@ def fit_windows(
     exact_gradient: bool = False,
     spin: bool = True,
     gate: float | None = None,
+    roll: bool = False,
 ) -> WindowFit:
     """Stage 2: Levenberg-Marquardt on window initial states and free log-parameters.
 
@@ -383,10 +390,10 @@ def fit_windows(
     after ``max_iter`` iterations (one Jacobian each). With ``gate``, nothing is done
     when the first step promises less than ``gate`` (a score test: the new unknowns
     cannot be told from noise). ``progress`` is called with the mean squared error
-    after each iteration; ``exact_gradient``: see :func:`linearize`; ``spin``: see
-    :func:`local_basis`.
+    after each iteration; ``exact_gradient``: see :func:`linearize`; ``spin`` and
+    ``roll``: see :func:`local_basis`.
     """
-    basis = local_basis(vec.axes, spin)
+    basis = local_basis(vec.axes, spin, roll)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # batch of the FD Jacobian
     ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
     dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)

@@ -30,16 +30,19 @@ def prefix(windows: Windows, steps: int) -> Windows:
 
 
 def fit_states(
-    engine: Engine, vec: ParamVector, windows: Windows, iters: int, spin: bool = False
-) -> WindowFit:
+    engine: Engine, vec: ParamVector, windows: Windows, iters: int, spin: bool = False,
+    roll: bool = False,
+) -> WindowFit:  # fmt: skip
     """Only the windows' initial states (``vec``: nothing free), on growing prefixes.
 
-    ``spin``: the axial spins too (from the prefix of 25 steps on). Returns the fit on
-    the whole windows (its ``history[-1]``: mean squared end-cap error [m^2]).
+    ``spin``: the axial spins too (from the prefix of 25 steps on); ``roll``: the rods'
+    roll about their axes (see :func:`~identification.trajectory_fit.local_basis`).
+    Returns the fit on the whole windows (its ``history[-1]``: mean squared end-cap
+    error [m^2]).
     """
     empty = torch.zeros(0, dtype=torch.float64)
     for n in (g for g in GROW if g < windows.steps):
         w = fit_windows(engine, vec, prefix(windows, n), empty, iters, tol=0.01,
-                        spin=spin and n >= 25)  # fmt: skip
+                        spin=spin and n >= 25, roll=roll)  # fmt: skip
         windows = replace(windows, state=w.windows.state)
-    return fit_windows(engine, vec, windows, empty, iters, tol=0.01, spin=spin)
+    return fit_windows(engine, vec, windows, empty, iters, tol=0.01, spin=spin, roll=roll)

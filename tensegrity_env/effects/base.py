@@ -73,6 +73,9 @@ class PhysicalEffect(EffectBase):
     summary: ClassVar[str] = ""
     #: parameter name -> :class:`ParamSpec`
     PARAMS: ClassVar[dict[str, ParamSpec]] = {}
+    #: whether the effect depends on each rod's roll about its own axis (which end caps
+    #: cannot see); fits through end caps then fit each window's roll too
+    sees_roll: ClassVar[bool] = False
 
     def __init__(
         self,

@@ -71,6 +71,9 @@ class QuadraticDrag(_Drag):
     name: ClassVar[str] = "quadratic_drag"
     summary: ClassVar[str] = "quadratic (pressure) drag opposing v|v| and ω|ω|, per rod axis"
     quadratic: ClassVar[bool] = True
+    #: ``|v_x| v_x + |v_y| v_y`` across the rod changes with its roll, even with equal
+    #: cross coefficients (MuJoCo's box drag does too); linear drag with equal ones does not
+    sees_roll: ClassVar[bool] = True
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "translational": ParamSpec("N*s^2/m^2", 0.0, shape=(3,)),
         "rotational": ParamSpec("N*m*s^2", 0.0, shape=(3,)),

@@ -436,29 +436,26 @@ def fit_many(
     quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to
     1.13 mm (1 mm noise), and the drag coefficients from 8 % to 1 % off. The rolls are
     fitted in a second pass, from the fit without them: from a small drag (0.058 of
-    1.44 after the candidate's 10 iterations) a joint fit stopped at 4.3 mm. A third
-    pass adds the axial spins (the roll drifts): in a trial from a roll-only fit at
-    1.217 mm it reached 1.024 mm, coefficients within 0.4 %, and halved the one-step
-    test error (1.09e-7 to 4.66e-8 m). Selection's first fits leave the roll out: from
+    1.44 after the candidate's 10 iterations) a joint fit stopped at 4.3 mm. (A third
+    pass with the axial spins went from 1.217 to 1.024 mm in one trial and from 1.130
+    to 1.461 mm in the loop: not used.) Selection's first fits leave the roll out: from
     zero drag its columns are zero, and the quadratic drag candidate then converged
-    more slowly than the linear one.
+    more slowly than the linear one. Once such an effect is accepted, every later fit
+    and score fits the rolls (``data.roll``).
     """
     engine = vec.engine(data.engine, theta.detach())
     fixed = _held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
     states = fit_states(engine, fixed, many, s.state_iter, roll=data.roll)
     fit = _fit(data, vec, states.windows, theta, iters)
-    if sees_roll(engine):
-        # the rolls only matter once the effect is near its size: fitted from there, then
-        # the axial spins too (the roll drifts by ~0.3 rad in 300 steps at 1 rad/s)
-        for spin in ([False] if not data.roll else []) + [True]:
-            t0 = time.perf_counter()
-            engine = vec.engine(data.engine, fit.theta.detach())
-            states = fit_states(engine, _held(vec, fit.theta), fit.windows, s.state_iter,
-                                spin=spin, roll=True)  # fmt: skip
-            fit = _fit(data, vec, states.windows, fit.theta, iters, roll=True, spin=spin)
-            data.log(f"    rolls{' and spins' if spin else ''} fitted too: end-cap RMS "
-                     f"{fit.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    if sees_roll(engine) and not data.roll:
+        # the rolls only matter once the effect is near its size: fitted from there
+        t0 = time.perf_counter()
+        engine = vec.engine(data.engine, fit.theta.detach())
+        states = fit_states(engine, _held(vec, fit.theta), fit.windows, s.state_iter, roll=True)
+        fit = _fit(data, vec, states.windows, fit.theta, iters, roll=True)
+        data.log(f"    rolls fitted too: end-cap RMS {fit.rms * 1e3:.3f} mm "
+                 f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     fit.origin = fit.theta
     return fit
 
@@ -480,15 +477,15 @@ def _has_contact(vec: ParamVector) -> bool:
 
 def _fit(
     data: _Data, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int,
-    roll: bool | None = None, spin: bool = False,
+    roll: bool | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
-    (None: ``data.roll``), ``spin``: its axial spin. The BIC counts both.
+    (None: ``data.roll``). The BIC counts the rolls.
     """
     roll = data.roll if roll is None else roll
-    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=spin, roll=roll)
+    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False, roll=roll)
     m = fit.windows.residuals
-    rolls = windows.size * data.topology.n_rods * (int(roll) + int(spin))  # not common
+    rolls = windows.size * data.topology.n_rods if roll else 0  # state unknowns, not common
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
                    extra_k=_extra_k(data, vec) + rolls)  # fmt: skip
 

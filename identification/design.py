@@ -159,6 +159,18 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
     )
 
 
+def _unit_wrenches(feat: TransitionFeatures, slots: RodSlots) -> torch.Tensor:
+    """Per unit tension of each attached spring: force (world) and torque (rod frame) on
+    the rod, (n, R, J, 6)."""
+    R, J = slots.spring.shape
+    sign = slots.sign.to(feat.accel.dtype)  # (R, J)
+    rods = torch.arange(R).unsqueeze(1).expand(R, J)
+    fdir = sign.unsqueeze(-1) * feat.springs.axis[:, slots.spring]  # (n, R, J, 3)
+    arm = feat.arms[:, rods, slots.end]  # (n, R, J, 3)
+    tdir = torch.einsum("nrji,nrkj->nrki", feat.rot, torch.cross(arm, fdir, dim=-1))
+    return torch.cat([fdir, tdir], dim=-1)
+
+
 def rod_blocks(
     feat: TransitionFeatures,
     slots: RodSlots,
@@ -174,15 +186,7 @@ def rod_blocks(
     n, R = feat.accel.shape[:2]
     J = slots.spring.shape[1]
     dtype = feat.accel.dtype
-    sign = slots.sign.to(dtype)  # (R, J)
-    rods = torch.arange(R).unsqueeze(1).expand(R, J)
-
-    # per unit tension: force (world) and torque (rod frame) on the rod, (n, R, J, 6)
-    axis = feat.springs.axis[:, slots.spring]  # (n, R, J, 3)
-    arm = feat.arms[:, rods, slots.end]  # (n, R, J, 3)
-    fdir = sign.unsqueeze(-1) * axis
-    tdir = torch.einsum("nrji,nrkj->nrki", feat.rot, torch.cross(arm, fdir, dim=-1))
-    unit = torch.cat([fdir, tdir], dim=-1).permute(1, 0, 3, 2).contiguous()  # (R, n, 6, J)
+    unit = _unit_wrenches(feat, slots).permute(1, 0, 3, 2).contiguous()  # (R, n, 6, J)
     # the scalar multiplying each unit vector for K, K*l0 and c: -l (or -(l - l0)), 1, -l̇
     length = feat.springs.length[:, slots.spring]  # (n, R, J)
     if rest_length is not None:
@@ -250,12 +254,6 @@ def hinge_blocks(feat: TransitionFeatures, slots: RodSlots, knots: torch.Tensor)
     ``knots`` is (S,); append these to :func:`rod_blocks`' columns (:func:`with_hinges`).
     """
     dtype = feat.accel.dtype
-    R, J = slots.spring.shape
-    sign = slots.sign.to(dtype)
-    rods = torch.arange(R).unsqueeze(1).expand(R, J)
-    fdir = sign.unsqueeze(-1) * feat.springs.axis[:, slots.spring]  # (n, R, J, 3)
-    arm = feat.arms[:, rods, slots.end]
-    tdir = torch.einsum("nrji,nrkj->nrki", feat.rot, torch.cross(arm, fdir, dim=-1))
-    unit = torch.cat([fdir, tdir], dim=-1)  # (n, R, J, 6)
+    unit = _unit_wrenches(feat, slots)  # (n, R, J, 6)
     short = (feat.springs.length[:, slots.spring] - knots.to(dtype)[slots.spring]).clamp_max(0.0)
     return (unit * -short.unsqueeze(-1)).transpose(2, 3)  # same sign as K's column -l

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from identification.noisy import smooth_rod_states
 from identification.param_vector import RodAxes
@@ -63,4 +62,3 @@ def test_hinge_columns_vanish_above_the_knot() -> None:
     assert np.all(np.isnan(hinged["compression_stiffness"]))
     for key in ("stiffness", "rest_length", "damping", "mass"):
         assert np.allclose(hinged[key], plain[key], rtol=1e-9), key
-    assert torch.get_num_threads() == 1

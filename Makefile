@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_env.demo --out $(DEMO_DIR)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_sr.demo --out $(DEMO_DIR)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -25,15 +25,15 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from identification.dataset import write_dataset
-from identification.generate import (
+from identification.data.dataset import write_dataset
+from identification.simulation.generate import (
     GenerateSpec,
     ctrl_vectors,
     generate,
     load_truth,
     split_inputs,
 )
-from identification.rollout import default_threads
+from identification.simulation.rollout import default_threads
 from tensegrity_env.mujoco_state import rod_state_to_mj
 
 

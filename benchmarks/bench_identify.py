@@ -50,11 +50,11 @@ import mujoco
 import numpy as np
 import torch
 
-from identification.dataset import Dataset, GroundTruth, Split, read_dataset, read_ground_truth
-from identification.dataset import write_dataset as write_h5
-from identification.generate import GenerateSpec, generate
-from identification.regression import SpringRodIdentifier, evaluate_params, parse_anchor
-from identification.report import group_errors
+from identification.data.dataset import Dataset, GroundTruth, Split, read_dataset, read_ground_truth
+from identification.data.dataset import write_dataset as write_h5
+from identification.linear.regression import SpringRodIdentifier, evaluate_params, parse_anchor
+from identification.report.tables import group_errors
+from identification.simulation.generate import GenerateSpec, generate
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
 from tensegrity_env.mujoco_state import rod_state_to_mj
 from tensegrity_env.params import Params

@@ -1,7 +1,7 @@
 """Build and load small C kernels once per machine, with the system C compiler.
 
 Used by the environments' control step (:mod:`tensegrity_env.envs.native`) and the
-identification's normal equations (:mod:`identification.native_normal`). A kernel is
+identification's normal equations (:mod:`identification.linear.native_normal`). A kernel is
 compiled with ``$CC`` (else ``cc``/``gcc``) into a cache folder
 (``$TENSEGRITY_SR_CACHE``, else ``$XDG_CACHE_HOME/tensegrity-sr`` or
 ``~/.cache/tensegrity-sr``), keyed by the source, the flags and the CPU, and loaded

@@ -1,4 +1,4 @@
-"""The declared model from the airborne stretches of floor data (identification.airborne).
+"""The declared model from the airborne stretches of floor data (identification.trajectory.airborne).
 
 MuJoCo drops onto a floor the identifier is not told about, end caps only, 1 mm noise.
 Each airborne stretch is fitted whole (one window, ``Windows.valid`` masking the rest of
@@ -9,13 +9,18 @@ import numpy as np
 import pytest
 import torch
 
-from identification.airborne import AIRBORNE, airborne_stretches, cap_radii, past_touchdown
-from identification.drop_check import DROP_TOLERANCE, drop_check
-from identification.noisy import RodAxes, _odd, smooth_rod_states
-from identification.noisy_diagnose import TrajectorySettings, _Data, fit_declared
-from identification.param_vector import ParamVector
-from identification.planted import PlantSpec, planted_dataset
-from identification.trajectory_fit import STATE_KEYS, local_basis, window_sse
+from identification.discovery.trajectory_loop import TrajectorySettings, _Data, fit_declared
+from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
+from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.airborne import (
+    AIRBORNE,
+    airborne_stretches,
+    cap_radii,
+    past_touchdown,
+)
+from identification.trajectory.identifier import RodAxes, _odd, smooth_rod_states
+from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.windowed_fit import STATE_KEYS, local_basis, window_sse
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 from tensegrity_env.engine import Engine

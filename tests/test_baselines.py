@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from identification.baselines import (
+from identification.data.dataset import Dataset, GroundTruth
+from identification.experiments.baselines import (
     ConstantVelocity,
     EnginePredictor,
     Interaction,
@@ -17,12 +18,11 @@ from identification.baselines import (
     KoopmanInt,
     TrainConfig,
 )
-from identification.baselines.common import Geometry
-from identification.baselines.evaluate import one_step_errors, rollout_error_curve
-from identification.baselines.koopman import incident_springs, monomial_powers
-from identification.baselines.training import Standardizer
-from identification.dataset import Dataset, GroundTruth
-from identification.generate import GenerateSpec, generate_dataset
+from identification.experiments.baselines.common import Geometry
+from identification.experiments.baselines.evaluate import one_step_errors, rollout_error_curve
+from identification.experiments.baselines.koopman import incident_springs, monomial_powers
+from identification.experiments.baselines.training import Standardizer
+from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
 

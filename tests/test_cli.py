@@ -7,7 +7,7 @@ import importlib
 import subprocess
 import sys
 
-from tensegrity_env.cli import COMMANDS, SUBCOMMANDS, build_parser
+from tensegrity_sr.cli import COMMANDS, SUBCOMMANDS, build_parser
 
 
 def test_listing_matches_what_each_module_registers() -> None:
@@ -21,7 +21,7 @@ def test_listing_matches_what_each_module_registers() -> None:
 
 def test_help_imports_no_command_module() -> None:
     code = (
-        "import sys; from tensegrity_env.cli import build_parser; build_parser(None); "
+        "import sys; from tensegrity_sr.cli import build_parser; build_parser(None); "
         "print(sorted(m for m in ('torch', 'mujoco', 'scipy') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

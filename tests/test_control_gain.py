@@ -7,10 +7,10 @@ from functools import cache
 import numpy as np
 import torch
 
-from identification.generate import GenerateSpec, generate_dataset
-from identification.long_horizon import long_horizon_errors
-from identification.regression import SpringRodIdentifier
-from identification.report import group_errors
+from identification.experiments.long_horizon import long_horizon_errors
+from identification.linear.regression import SpringRodIdentifier
+from identification.report.tables import group_errors
+from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.engine import Engine
 
 FROZEN = ("stiffness", "damping", "rest_length", "mass", "inertia")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from identification.dataset import (
+from identification.data.dataset import (
     STATE_KEYS,
     Dataset,
     GroundTruth,
@@ -18,11 +18,11 @@ from identification.dataset import (
     read_ground_truth,
     write_dataset,
 )
-from identification.generate import GenerateSpec, generate_dataset
-from identification.states import dataset_from_end_caps
-from tensegrity_env.cli import main
+from identification.data.end_caps import dataset_from_end_caps
+from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import FIELDS
+from tensegrity_sr.cli import main
 
 EXAMPLE_MJCF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "x_tensegrity.xml"
 

@@ -7,15 +7,15 @@ import json
 import numpy as np
 import pytest
 
-from identification.candidates import FitSettings
-from identification.diagnose import diagnose
-from identification.extended import ExtendedIdentifier
-from identification.planted import PlantSpec, planted_dataset
-from identification.residuals import compute_residuals, summarize
-from tensegrity_env.cli import main as cli
+from identification.discovery.candidates import FitSettings
+from identification.discovery.diagnose import diagnose
+from identification.discovery.residuals import compute_residuals, summarize
+from identification.linear.extended import ExtendedIdentifier
+from identification.simulation.planted import PlantSpec, planted_dataset
 from tensegrity_env.effects import SlackSprings, effects_from_document
 from tensegrity_env.engine import Engine
 from tensegrity_env.params import load_params
+from tensegrity_sr.cli import main as cli
 
 SMALL = {"n_train": 4, "n_val": 2, "n_test": 2, "steps": 500}
 
@@ -141,8 +141,8 @@ def test_clean_control_full(seed):
 
 def test_indistinguishable_candidates_are_flagged(monkeypatch):
     """Two candidates that predict the same change: the attribution is flagged, with the correlation."""
-    import identification.diagnose as dg
-    from identification.candidates import Proposal
+    import identification.discovery.diagnose as dg
+    from identification.discovery.candidates import Proposal
     from tensegrity_env.effects import QuadraticDrag
 
     def twins(dataset, current, settings, names=None):

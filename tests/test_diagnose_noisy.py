@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 import torch
 
-from identification.candidates import CONTACT_START
-from identification.effect_coords import EffectCoords
-from identification.noisy import linearize, local_basis
-from identification.noisy_diagnose import (
+from identification.discovery.candidates import CONTACT_START
+from identification.discovery.trajectory_loop import (
     TrajectorySettings,
     _Data,
     diagnose_noisy,
     fit_declared,
 )
-from identification.planted import PlantSpec, planted_dataset
+from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.identifier import linearize, local_basis
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag, QuadraticDrag
 
@@ -147,7 +147,7 @@ def test_noisy_linear_drag_from_the_data_alone() -> None:
 
 
 def test_cli_trajectory_method_rejects_bad_windows(tmp_path, capsys) -> None:
-    from tensegrity_env.cli import main as cli
+    from tensegrity_sr.cli import main as cli
 
     path = tmp_path / "noisy.h5"
     cli(["plant", "none", "--noise", "0.001", "--n-train", "1", "--n-val", "1", "--n-test", "1",

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from identification.drop_check import DROP_TOLERANCE, drop_check
-from identification.effect_fit import fit_effect_params, sample_windows
-from identification.features import transitions_of
-from identification.planted import PlantSpec, planted_dataset
+from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
+from identification.linear.features import transitions_of
+from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.effect_fit import fit_effect_params, sample_windows
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import (
     EFFECTS,
@@ -128,7 +128,7 @@ def test_box_drag_depends_on_the_roll_end_caps_cannot_see(ico):
     leaves its end caps where they are but changes |v_x| v_x + |v_y| v_y. Linear drag
     with equal cross-axis coefficients does not see the roll. Why noisy end caps pin
     quadratic drag far less well than linear drag (README, noisy end caps)."""
-    from identification.noisy import RodAxes
+    from identification.trajectory.identifier import RodAxes
     from tensegrity_env.rotations import quat_mul, quat_to_matrix
 
     topo, params = ico.topology, ico.params

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identification.dataset import Dataset, GroundTruth, write_dataset
-from identification.efficiency import EfficiencyResult, run_efficiency, write_outputs
-from identification.generate import GenerateSpec, generate_dataset
-from tensegrity_env.cli import main
+from identification.data.dataset import Dataset, GroundTruth, write_dataset
+from identification.experiments.efficiency import EfficiencyResult, run_efficiency, write_outputs
+from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.io_utils import InputError
+from tensegrity_sr.cli import main
 
 #: 72 of the small preset's 4,800 training transitions: the paper's "73 time steps".
 TINY = 0.015

@@ -328,7 +328,7 @@ def test_rendered_frame_shows_the_structure(cls: type) -> None:
 @pytest.mark.slow
 def test_asset_pipeline_regenerates_an_identified_model(tmp_path: Path) -> None:
     """generate -> identify -> generate on the floor -> diagnose, on small datasets (~1 min)."""
-    from tensegrity_env.assets.make_default_params import main as make_assets
+    from tensegrity_sr.make_default_params import main as make_assets
 
     assert make_assets(["--quick", "--out", str(tmp_path), "--work", str(tmp_path / "work")]) == 0
     params = tmp_path / "icosahedron_rolling_params.json"

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identification.experiment_report import horizons
-from identification.experiments import ASSEMBLIES, MODELS, REFERENCE
-from tensegrity_env.cli import main
+from identification.experiments.paper import ASSEMBLIES, MODELS, REFERENCE
+from identification.experiments.paper_report import horizons
+from tensegrity_sr.cli import main
 
 FIGURES = [f"{kind}_{a}.png" for a in ASSEMBLIES for kind in ("errors", "training")]
 TABLES = ["results.md", "results.json", "efficiency.md", "efficiency.json", "efficiency.png"]

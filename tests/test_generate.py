@@ -10,15 +10,15 @@ import mujoco
 import numpy as np
 import pytest
 
-import identification.generate as gen
-from identification.dataset import SPLITS, STATE_KEYS, Dataset, GroundTruth, read_dataset
-from identification.generate import GenerateSpec, generate, generate_dataset, load_truth
-from identification.rollout import RodFrames
-from identification.states import rod_states_from_nodes
+import identification.simulation.generate as gen
+from identification.data.dataset import SPLITS, STATE_KEYS, Dataset, GroundTruth, read_dataset
+from identification.data.end_caps import rod_states_from_nodes
+from identification.simulation.generate import GenerateSpec, generate, generate_dataset, load_truth
+from identification.simulation.rollout import RodFrames
 from tensegrity_env.assemblies import node_positions
-from tensegrity_env.cli import main
 from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
 from tensegrity_env.rotations import np_quat_to_matrix
+from tensegrity_sr.cli import main
 
 EXAMPLE_MJCF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "x_tensegrity.xml"
 ARRAYS = ("nodes", "control", *STATE_KEYS)

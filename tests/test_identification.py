@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from identification.dataset import Dataset, GroundTruth, Split, write_dataset
-from identification.generate import GenerateSpec, generate_dataset
-from identification.regression import NotFittedError, SpringRodIdentifier
-from identification.report import group_errors
-from tensegrity_env.cli import main
+from identification.data.dataset import Dataset, GroundTruth, Split, write_dataset
+from identification.linear.regression import NotFittedError, SpringRodIdentifier
+from identification.report.tables import group_errors
+from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.engine import State
 from tensegrity_env.params import load_params
+from tensegrity_sr.cli import main
 
 
 @cache
@@ -189,9 +189,14 @@ def test_identify_command_writes_a_params_file(tmp_path, capsys) -> None:
 @pytest.mark.parametrize("known_rest_length", [False, True])
 def test_c_normal_equations_equal_the_pytorch_design(assembly: str, known_rest_length) -> None:
     """The one-pass C kernel builds the same AᵀA as the PyTorch design blocks (with control)."""
-    from identification.design import ParameterLayout, accumulate_normal, rod_blocks, rod_slots
-    from identification.features import transition_features, transitions_of
-    from identification.native_normal import NativeUnavailable, local_gram_native
+    from identification.linear.design import (
+        ParameterLayout,
+        accumulate_normal,
+        rod_blocks,
+        rod_slots,
+    )
+    from identification.linear.features import transition_features, transitions_of
+    from identification.linear.native_normal import NativeUnavailable, local_gram_native
 
     ds, truth = _data(assembly)
     data = ds.split("train")
@@ -210,7 +215,7 @@ def test_c_normal_equations_equal_the_pytorch_design(assembly: str, known_rest_l
         gram = local_gram_native(ds.topology, data, index, slots, g, ds.dt, rest)
     except NativeUnavailable as e:
         pytest.skip(f"no C compiler: {e}")
-    from identification.design import scatter_local_gram
+    from identification.linear.design import scatter_local_gram
 
     c_normal = torch.zeros_like(torch_normal)
     scatter_local_gram(gram, slots, c_normal)

@@ -14,9 +14,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from identification.dataset import Dataset, Split
-from identification.generate import GenerateSpec, InitialConditions, generate_dataset
-from identification.noisy import (
+from identification.data.dataset import Dataset, Split
+from identification.simulation.generate import GenerateSpec, InitialConditions, generate_dataset
+from identification.trajectory.identifier import (
     RodAxes,
     TrajectoryIdentifier,
     add_measurement_noise,

@@ -17,8 +17,8 @@ from policies.goal_frame import VecGoalFrame, to_goal_frame, to_world_actions
 from policies.hyperparams import load_hyperparams
 from policies.train import TrainResult, train
 from policies.transfer import transfer
-from tensegrity_env.cli import main as cli
 from tensegrity_env.io_utils import InputError
+from tensegrity_sr.cli import main as cli
 
 SHIPPED = SHIPPED_POLICY
 #: PPO small enough for a test: 8 envs x 64 steps per rollout

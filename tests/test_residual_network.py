@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import torch
 
-from identification.candidates import FitSettings
-from identification.diagnose import DiagnoseResult, diagnose
-from identification.diagnose_report import NETWORK_PARAMS, write_params, write_report
-from identification.planted import PlantedData, PlantSpec, planted_dataset
+from identification.discovery.candidates import FitSettings
+from identification.discovery.diagnose import DiagnoseResult, diagnose
+from identification.discovery.report import NETWORK_PARAMS, write_params, write_report
+from identification.simulation.planted import PlantedData, PlantSpec, planted_dataset
 from tensegrity_env.effects import ResidualNetwork, effects_from_document
 from tensegrity_env.effects.residual_network import ResidualMLP
 from tensegrity_env.engine import Engine, State

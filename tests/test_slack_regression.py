@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.noisy import smooth_rod_states
-from identification.param_vector import RodAxes
-from identification.planted import PlantSpec, planted_dataset
-from identification.slack_regression import slack_regression
+from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.identifier import smooth_rod_states
+from identification.trajectory.param_vector import RodAxes
+from identification.trajectory.slack_regression import slack_regression
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -50,7 +50,7 @@ def test_springs_that_push_are_not_called_cables() -> None:
 def test_hinge_columns_vanish_above_the_knot() -> None:
     """With every knot below the shortest spring, the hinges see nothing: ΔK is not
     identifiable (NaN) and the other parameters equal the regression without hinges."""
-    from identification.noisy import smoothed_regression
+    from identification.trajectory.identifier import smoothed_regression
 
     d = planted_dataset(PlantSpec("none", "moderate", noise=0.0, seed=44, n_train=2, n_val=1,
                                   n_test=1, steps=300))  # fmt: skip

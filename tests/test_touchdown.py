@@ -1,4 +1,4 @@
-"""Ground contact from the touchdowns of noisy end caps (identification.touchdown).
+"""Ground contact from the touchdowns of noisy end caps (identification.trajectory.touchdown).
 
 MuJoCo data with a floor the identifier is not told about (friction 1, MuJoCo's default
 soft contact), end caps only, 1 mm noise; the declared model is the true one (a prior
@@ -8,13 +8,13 @@ calibration). Seed 5: the bench was tuned on seed 0.
 import numpy as np
 import pytest
 
-from identification.candidates import CONTACT_START
-from identification.drop_check import DROP_TOLERANCE, drop_check
-from identification.noisy import RodAxes, _odd, smooth_rod_states
-from identification.param_vector import ParamVector
-from identification.planted import PlantSpec, planted_dataset
-from identification.touchdown import TOUCH, find_touchdowns, search_contact
-from identification.trajectory_fit import STATE_KEYS
+from identification.discovery.candidates import CONTACT_START
+from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
+from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.identifier import RodAxes, _odd, smooth_rod_states
+from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.touchdown import TOUCH, find_touchdowns, search_contact
+from identification.trajectory.windowed_fit import STATE_KEYS
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 from tensegrity_env.engine import Engine

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 import torch
 
-from identification.param_vector import ParamVector, RodAxes
-from identification.trajectory_fit import Windows, end_caps, local_basis, sees_roll
-from identification.window_states import fit_states
+from identification.trajectory.param_vector import ParamVector, RodAxes
+from identification.trajectory.window_states import fit_states
+from identification.trajectory.windowed_fit import Windows, end_caps, local_basis, sees_roll
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import LinearDrag, QuadraticDrag
 from tensegrity_env.engine import Engine

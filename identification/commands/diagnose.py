@@ -1,7 +1,7 @@
 """``tensegrity-sr diagnose``: find what the model is missing, name it, add it, report.
 
 Also ``tensegrity-sr plant``: MuJoCo data with an effect the identifier is not told
-about (:mod:`identification.planted`), to try the loop on.
+about (:mod:`identification.simulation.planted`), to try the loop on.
 """
 
 from __future__ import annotations
@@ -14,15 +14,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from identification.candidates import FitSettings
-from identification.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
-from identification.diagnose import diagnose
-from identification.diagnose_report import fmt_err, ratio, write_params, write_report
-from identification.measured import with_measured_states
-from identification.noisy_diagnose import FIT_WINDOW, TrajectorySettings, diagnose_noisy
-from identification.noisy_report import write_noisy_report
-from identification.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
-from identification.regression import parse_anchor
+from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
+from identification.data.measured_states import with_measured_states
+from identification.discovery.candidates import FitSettings
+from identification.discovery.diagnose import diagnose
+from identification.discovery.report import fmt_err, ratio, write_params, write_report
+from identification.discovery.trajectory_loop import FIT_WINDOW, TrajectorySettings, diagnose_noisy
+from identification.discovery.trajectory_report import write_noisy_report
+from identification.linear.regression import parse_anchor
+from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from tensegrity_env.effects import EFFECTS, effects_from_document
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import load_params
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
-    """The loop through windowed trajectory fits (:mod:`identification.noisy_diagnose`)."""
+    """The loop through windowed trajectory fits (:mod:`identification.discovery.trajectory_loop`)."""
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start = None
     if args.params is not None:

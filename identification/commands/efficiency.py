@@ -7,9 +7,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from identification.dataset import read_dataset, read_ground_truth
-from identification.efficiency import DEFAULT_FRACTIONS, run_efficiency, write_outputs
-from identification.regression import parse_anchor
+from identification.data.dataset import read_dataset, read_ground_truth
+from identification.experiments.efficiency import DEFAULT_FRACTIONS, run_efficiency, write_outputs
+from identification.linear.regression import parse_anchor
 from tensegrity_env.io_utils import InputError
 
 

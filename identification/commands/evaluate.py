@@ -6,8 +6,12 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from identification.dataset import read_dataset
-from identification.long_horizon import checkpoint_table, long_horizon_errors, plot_long_horizon
+from identification.data.dataset import read_dataset
+from identification.experiments.long_horizon import (
+    checkpoint_table,
+    long_horizon_errors,
+    plot_long_horizon,
+)
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError, atomic_write_text
 from tensegrity_env.params import load_params

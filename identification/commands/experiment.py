@@ -8,8 +8,8 @@ from typing import Any
 
 import torch
 
-from identification.experiment_report import target_checks, write_results
-from identification.experiments import SCALES, run_paper
+from identification.experiments.paper import SCALES, run_paper
+from identification.experiments.paper_report import target_checks, write_results
 from tensegrity_env.io_utils import InputError
 
 

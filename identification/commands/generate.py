@@ -8,8 +8,8 @@ import time
 import warnings
 from pathlib import Path
 
-from identification.dataset import write_dataset
-from identification.generate import PRESETS, GenerateSpec, generate
+from identification.data.dataset import write_dataset
+from identification.simulation.generate import PRESETS, GenerateSpec, generate
 from tensegrity_env.assemblies import ASSEMBLIES
 
 EPILOG = """\

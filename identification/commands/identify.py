@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from identification.dataset import read_dataset, read_ground_truth
-from identification.regression import SpringRodIdentifier, parse_anchor
-from identification.report import group_errors, parameter_table, relative_errors
+from identification.data.dataset import read_dataset, read_ground_truth
+from identification.linear.regression import SpringRodIdentifier, parse_anchor
+from identification.report.tables import group_errors, parameter_table, relative_errors
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import load_params, save_params
 

@@ -8,7 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.dataset import SPLITS, Dataset, GroundTruth, read_dataset, read_ground_truth
+from identification.data.dataset import (
+    SPLITS,
+    Dataset,
+    GroundTruth,
+    read_dataset,
+    read_ground_truth,
+)
 from tensegrity_env.params import UNITS
 
 
@@ -54,7 +60,7 @@ def summary(ds: Dataset, truth: GroundTruth | None) -> str:
     else:
         stored = (
             "end caps only (nodes) and control: rod states are derived from the end caps "
-            "(identification.states.rod_states_from_nodes)"
+            "(identification.data.end_caps.rod_states_from_nodes)"
         )
     lines.append(f"arrays: {stored}")
     control = [np.abs(s.control).max() for s in ds.splits.values() if s.control.size]

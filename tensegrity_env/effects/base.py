@@ -202,7 +202,7 @@ class LinearEffect(PhysicalEffect):
 
     ``wrench = Σ_j θ_j basis_j``: subclasses give :meth:`basis`, the force and torque
     on every rod per unit of each parameter entry. Such an effect can join the linear
-    regression's design matrix (``identification.extended``).
+    regression's design matrix (``identification.linear.extended``).
     """
 
     def basis(

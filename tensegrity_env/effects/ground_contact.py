@@ -24,7 +24,7 @@ own frame of contacts:
 
 Parameters are shared by every end cap. :data:`MUJOCO_DEFAULT` are MuJoCo's
 defaults (``solref = 0.02 1``, ``solimp = 0.9 0.95 0.001 0.5 2``, friction 1);
-``identification.effect_fit`` fits them to measured trajectories.
+``identification.trajectory.effect_fit`` fits them to measured trajectories.
 
 ``a0`` needs every other force on each rod. Contact is a constraint
 (``constraint = True``): the engine evaluates it last and hands it the total wrench of

@@ -1,6 +1,6 @@
 """A small residual network: absorbs structure no physical effect explains. NOT PHYSICAL.
 
-When the residual loop (:mod:`identification.diagnose`) stops with structure left on
+When the residual loop (:mod:`identification.discovery.diagnose`) stops with structure left on
 noise-free data, no candidate of the library explains it. :class:`ResidualNetwork` is
 the paper's "future work" escape hatch: a small MLP, shared by all rods, mapping each
 rod's state features to an extra force and torque about its centre of mass (world
@@ -24,7 +24,7 @@ The network's last layer is linear, so the effect is a
 :class:`~tensegrity_env.effects.base.LinearEffect` in its readout weights θ (6 outputs
 x (hidden + 1)): with the hidden layers held, θ joins the regression's design matrix
 and is solved jointly with the declared parameters, like any linear effect
-(``identification.residual_network``). Inputs are standardised, outputs scaled, by
+(``identification.discovery.residual_network``). Inputs are standardised, outputs scaled, by
 buffers stored with the weights, so the state dict alone rebuilds the network. The
 weights live in a sidecar file beside a params file (``torch.save`` of
 :meth:`ResidualNetwork.state`, written atomically); the params file's ``effects``

@@ -24,7 +24,7 @@ from tensegrity_env.envs.task import TaskOptions, make_task
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
 from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
 
-#: the MuJoCo twin (regenerate: assets/make_default_params.py)
+#: the MuJoCo twin (regenerate: tensegrity_sr/make_default_params.py)
 TWIN_XML = ASSETS / "icosahedron_rolling.xml"
 
 

@@ -20,7 +20,7 @@ from tensegrity_env.params import Params, load_params
 from tensegrity_env.topology import Topology
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
-#: the identified model that ships with the package (regenerate: assets/make_default_params.py)
+#: the identified model that ships with the package (regenerate: tensegrity_sr/make_default_params.py)
 DEFAULT_PARAMS = ASSETS / "icosahedron_rolling_params.json"
 
 

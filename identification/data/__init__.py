@@ -1,0 +1,1 @@
+"""Measured and generated motion as data: the dataset format, end caps to rod states."""

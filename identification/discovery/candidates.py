@@ -1,0 +1,258 @@
+"""Candidate effects of the residual loop: when each may act (its gate), and how it is fitted.
+
+:func:`fit_model` refits the declared parameters jointly with a list of effects:
+linear effects and slack cables inside the regression
+(:class:`~identification.linear.extended.ExtendedIdentifier`), then ground contact (not
+linear in its parameters) through the engine on short trajectory windows
+(:func:`~identification.trajectory.effect_fit.fit_effect_params`) with the regression's
+parameters held. :func:`propose` lists the candidates whose physical gate the data
+passes, each as the current effects plus one new effect.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from identification.data.dataset import Dataset, Split
+from identification.linear.extended import ExtendedIdentifier
+from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
+from identification.trajectory.effect_fit import fit_effect_params, sample_windows
+from tensegrity_env.effects import (
+    ControlLag,
+    CubicStiffness,
+    ForceField,
+    GroundContact,
+    LinearDrag,
+    QuadraticDrag,
+    RestLengthOffset,
+    SlackSprings,
+)
+from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
+from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
+
+#: a spring is a cable when compressing it loses this fraction of its stiffness...
+SLACK_LOSS = 0.5
+#: ... by at least this many standard errors
+SLACK_SIGNIFICANCE = 5.0
+#: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
+#: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
+FLOOR_DEPTH = 0.3
+#: control lag time constants tried [s]
+LAG_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+
+
+@dataclass
+class FitSettings:
+    """How models are fitted.
+
+    Attributes:
+        anchors: known values fixing the scale, e.g. ``{"mass[rod0]": 1.95}``.
+        init_params: starting params (known rest lengths, values for what the data
+            cannot identify).
+        fit_rest_length: identify rest lengths (else they come from ``init_params``).
+        contact_windows: trajectory windows per contact-fit stage (length, count).
+        contact_iterations: Levenberg-Marquardt iterations per contact-fit stage.
+        seed: seed of window draws.
+    """
+
+    anchors: Mapping[str, float] = field(default_factory=dict)
+    init_params: Params | None = None
+    fit_rest_length: bool = True
+    contact_windows: tuple[tuple[int, int], ...] = ((1, 2000),)
+    contact_iterations: int = 20
+    seed: int = 0
+
+
+@dataclass
+class Model:
+    """A fitted model: declared parameters, effects, and bookkeeping.
+
+    Attributes:
+        params: declared parameters.
+        effects: effect modules with identified values (and uncertainty).
+        n_params: number of fitted parameters (for the information criterion).
+        notes: remarks from the fit (effect name -> text).
+    """
+
+    params: Params
+    effects: list[PhysicalEffect]
+    n_params: int
+    notes: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        return [e.name for e in self.effects]
+
+
+def _ordered(effects: Sequence[PhysicalEffect]) -> list[PhysicalEffect]:
+    """Contact last: it reads the springs' tensions after every other effect."""
+    return [e for e in effects if not isinstance(e, GroundContact)] + [
+        e for e in effects if isinstance(e, GroundContact)
+    ]
+
+
+def fit_model(dataset: Dataset, effects: Sequence[PhysicalEffect], settings: FitSettings) -> Model:
+    """Refit the declared parameters jointly with ``effects`` on the training split."""
+    effects = _ordered(effects)
+    est = ExtendedIdentifier(
+        effects=effects,
+        anchors=settings.anchors,
+        init_params=settings.init_params,
+        fit_rest_length=settings.fit_rest_length,
+    ).fit(dataset)
+    fitted = list(est.effects_)
+    n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable))
+    notes: dict[str, str] = {}
+    contacts = [i for i, e in enumerate(fitted) if isinstance(e, GroundContact)]
+    for i in contacts:
+        fitted, extra = _fit_contact(dataset, est.params_, fitted, i, settings)
+        n += len(CONTACT_FREE)
+        notes[fitted[i].name] = extra
+    for e in fitted:
+        if isinstance(e, ControlLag):
+            n += 1
+    return Model(est.params_, fitted, n, notes)
+
+
+def _fit_contact(
+    dataset: Dataset,
+    params: Params,
+    effects: list[PhysicalEffect],
+    i: int,
+    settings: FitSettings,
+) -> tuple[list[PhysicalEffect], str]:
+    free = [(i, k) for k in CONTACT_FREE]
+    split = dataset.split("train")
+    fit = None
+    for length, count in settings.contact_windows:
+        windows = sample_windows(split, length, count, seed=settings.seed + length)
+        fit = fit_effect_params(
+            dataset.topology, dataset.dt, params, effects, free, windows,
+            max_iter=settings.contact_iterations,
+        )  # fmt: skip
+        effects = fit.effects
+    assert fit is not None
+    contact = effects[i]
+    contact.uncertainty = {
+        n.split(".", 1)[1]: float(s) for n, s in zip(fit.names, fit.stderr, strict=True)
+    }
+    rms = float(np.sqrt(fit.history[-1]))
+    return (
+        effects,
+        f"fitted through the engine on {count} windows of {length} steps (RMS {rms:.2e} m)",
+    )
+
+
+# ---------------------------------------------------------------------- proposals
+@dataclass
+class Proposal:
+    """One candidate: the effect added, the full effect list, or why it was not tried."""
+
+    name: str
+    effects: list[PhysicalEffect] | None
+    gate: str
+
+
+def propose(
+    dataset: Dataset, current: Model, settings: FitSettings, names: Sequence[str] | None = None
+) -> list[Proposal]:
+    """Every candidate not yet in the model, gated by what the data shows."""
+    topo = dataset.topology
+    have = set(current.names)
+    split = dataset.split("train")
+    out: list[Proposal] = []
+
+    def add(effect: PhysicalEffect | None, name: str, gate: str) -> None:
+        if name in have or (names is not None and name not in names):
+            return
+        out.append(Proposal(name, None if effect is None else [*current.effects, effect], gate))
+
+    # contact: caps reach the floor, and the floor stops them
+    ok, why = contact_gate(split, topo)
+    add(GroundContact(topo, **CONTACT_START) if ok else None, "ground_contact", why)
+    # slack: springs that lose their stiffness when compressed
+    cables, gate = slack_probe(dataset, current, settings)
+    add(SlackSprings(topo, springs=cables) if cables else None, "slack_springs", gate)
+    # everywhere-acting effects
+    add(LinearDrag(topo), "linear_drag", "acts everywhere, opposing v and ω")
+    add(QuadraticDrag(topo), "quadratic_drag", "acts everywhere, opposing v|v| and ω|ω|")
+    add(ForceField(topo), "force_field", "acts on every rod, always")
+    add(CubicStiffness(topo), "cubic_stiffness", "acts along every spring, grows with (l - l0)^3")
+    if not settings.fit_rest_length:
+        add(RestLengthOffset(topo), "rest_length_offset", "rest lengths are given, not fitted")
+    else:
+        add(None, "rest_length_offset", "rest lengths are fitted already (K*l0 in the regression)")
+    if np.any(split.control != 0):
+        add(ControlLag(topo), "control_lag", "control commands are applied")
+    else:
+        add(None, "control_lag", "no control in this data")
+    return out
+
+
+def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
+    """Whether end caps reach the floor and the floor stops them, and why (one line)."""
+    radius = np.array([r.radius for r in topology.rods]).repeat(2)
+    height = split.nodes[..., 2] - radius
+    low, deepest = float((height <= 0).mean()), float(height.min())
+    if low > 0 and deepest > -FLOOR_DEPTH:
+        return True, (
+            f"{low:.1%} of end-cap samples at or below z - r = 0; "
+            f"none deeper than {-deepest * 1e3:.1f} mm"
+        )
+    if low == 0:
+        return False, "no end cap reaches the floor"
+    return False, f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them"
+
+
+def slack_probe(dataset: Dataset, current: Model, settings: FitSettings) -> tuple[list[int], str]:
+    """Springs whose stiffness drops when compressed: ``ΔK_s (l - l0) [l < l0]`` per spring."""
+    if any(isinstance(e, SlackSprings) for e in current.effects):
+        return [], "already in the model"
+    est = ExtendedIdentifier(
+        effects=[e for e in current.effects if isinstance(e, (LinearEffect, GroundContact))],
+        anchors=settings.anchors, init_params=settings.init_params,
+        fit_rest_length=settings.fit_rest_length, compression_columns=True,
+        reference=current.params,
+    ).fit(dataset)  # fmt: skip
+    dk, se = est.compression_
+    k = est.params_.stiffness.detach().numpy()
+    loss = -dk / k
+    cables = [
+        int(s) for s in np.flatnonzero((loss > SLACK_LOSS) & (np.abs(dk) > SLACK_SIGNIFICANCE * se))
+    ]
+    if not cables:
+        return [], f"no spring loses stiffness when compressed (largest loss {loss.max():.0%})"
+    names = ", ".join(dataset.topology.springs[s].name for s in cables)
+    return (
+        cables,
+        f"{len(cables)} springs lose {np.median(loss[cables]):.0%} of K when compressed: {names}",
+    )
+
+
+def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSettings) -> Model:
+    """Control lag by a search over :data:`LAG_GRID` (the regression refits h for each)."""
+    best: tuple[float, Model] | None = None
+    for tau in LAG_GRID:
+        effects = [*base, ControlLag(dataset.topology, time_constant=tau)]
+        est = ExtendedIdentifier(
+            effects=effects, anchors=settings.anchors, init_params=settings.init_params,
+            fit_rest_length=settings.fit_rest_length,
+        ).fit(dataset)  # fmt: skip
+        rss = est.solution_.rss
+        if best is None or rss < best[0]:
+            n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable)) + 1
+            best = (rss, Model(est.params_, list(est.effects_), n))
+    assert best is not None
+    return best[1]
+
+
+def fit_proposal(dataset: Dataset, proposal: Proposal, settings: FitSettings) -> Model:
+    """Fit a candidate's whole model (jointly)."""
+    assert proposal.effects is not None
+    if proposal.name == "control_lag":
+        return fit_lag(dataset, proposal.effects[:-1], settings)
+    return fit_model(dataset, proposal.effects, settings)

@@ -1,0 +1,1 @@
+"""The paper's experiments, baselines and the checks of identified models."""

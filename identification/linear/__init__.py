@@ -1,0 +1,1 @@
+"""One-step identification by linear regression: design matrix, constrained solve, estimators."""

@@ -1,0 +1,100 @@
+"""Per-transition quantities the regression reads: the 1-D spring frames and rod rates.
+
+For one transition ``t -> t+1`` of MuJoCo's semi-implicit Euler, the accelerations
+that produced it are exactly ``a = (v_{t+1} - v_t) / dt`` and
+``α_l = (ω_l,{t+1} - ω_l,t) / dt`` in each rod's own frame (MuJoCo integrates the
+free joint's body-frame angular velocity coordinate-wise), and every force was
+evaluated at state ``t``. So every equation of motion is linear in the parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from identification.data.dataset import Split
+from tensegrity_env.engine.forces import SpringFrame, spring_frames
+from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.engine.state import State
+from tensegrity_env.rotations import quat_to_matrix
+from tensegrity_env.topology import Topology
+
+
+@dataclass(frozen=True)
+class TransitionFeatures:
+    """Everything the design matrix needs for ``n`` transitions.
+
+    Attributes:
+        accel: linear accelerations (v_{t+1} - v_t)/dt, (n, R, 3) [m/s^2], world.
+        alpha_local: angular accelerations in the rod frame, (n, R, 3) [rad/s^2].
+        omega_local: angular velocity at t in the rod frame, (n, R, 3) [rad/s].
+        rot: R(q_t), (n, R, 3, 3).
+        arms: end-cap offsets from the COM at t, (n, R, 2, 3) [m], world.
+        springs: each spring's length, axis and elongation rate at t.
+        control: commands f_u at t, (n, R, 3), world.
+        control_arm: control arm r_u at t, (n, R, 3) [m], world.
+    """
+
+    accel: torch.Tensor
+    alpha_local: torch.Tensor
+    omega_local: torch.Tensor
+    rot: torch.Tensor
+    arms: torch.Tensor
+    springs: SpringFrame
+    control: torch.Tensor
+    control_arm: torch.Tensor
+
+    @property
+    def n(self) -> int:
+        return int(self.accel.shape[0])
+
+
+def transitions_of(
+    split: Split, index: np.ndarray | None = None
+) -> tuple[State, State, torch.Tensor]:
+    """Flatten a split into transitions: (state_t, state_{t+1}, control_t), batch n.
+
+    ``index`` selects flat transition indices in ``[0, N*T)`` (all when None).
+    """
+    if not split.has_states:
+        raise ValueError("split has end caps only; derive rod states first")
+    N, T = split.n_trajectories, split.n_transitions
+    flat = np.arange(N * T) if index is None else np.asarray(index)
+    traj, t = flat // T, flat % T
+
+    def pick(arr: np.ndarray, off: int) -> torch.Tensor:
+        return torch.as_tensor(arr[traj, t + off])
+
+    s0 = State(*(pick(getattr(split, k), 0) for k in ("p", "v", "q", "omega")))
+    s1 = State(*(pick(getattr(split, k), 1) for k in ("p", "v", "q", "omega")))
+    return s0, s1, torch.as_tensor(split.control[traj, t])
+
+
+def transition_features(
+    topology: Topology, s0: State, s1: State, control: torch.Tensor, dt: float
+) -> TransitionFeatures:
+    """Compute :class:`TransitionFeatures` for a batch of transitions."""
+    dtype = s0.p.dtype
+    ends = torch.as_tensor(topology.end_offsets, dtype=dtype)
+    anchors = torch.as_tensor(topology.anchor_positions, dtype=dtype)
+    kin = node_kinematics(s0, ends, anchors)
+    nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long)
+    frame = spring_frames(kin, nodes[:, 0], nodes[:, 1])
+    rot1 = quat_to_matrix(s1.q)
+    omega_l0 = torch.einsum("brji,brj->bri", kin.rot, s0.omega)
+    omega_l1 = torch.einsum("brji,brj->bri", rot1, s1.omega)
+    arm_u = torch.einsum(
+        "brij,rj->bri", kin.rot, torch.as_tensor(topology.control_arms, dtype=dtype)
+    )
+    return TransitionFeatures(
+        accel=(s1.v - s0.v) / dt,
+        alpha_local=(omega_l1 - omega_l0) / dt,
+        omega_local=omega_l0,
+        rot=kin.rot,
+        arms=kin.arms,
+        springs=frame,
+        control=control.to(dtype),
+        control_arm=arm_u,
+    )

@@ -1,0 +1,436 @@
+"""Identification of K, c, l0, M, I, h by linear regression: the estimator.
+
+Settings go in the constructor, ``fit(dataset) -> self`` learns ``params_`` and the
+identifiability report, ``predict``/``simulate`` run the identified engine and
+``score`` measures one-step and rollout errors on a split::
+
+    est = SpringRodIdentifier(anchors={"mass[rod0]": 1.95}).fit(dataset)
+    est.params_.stiffness        # (S,) [N/m]
+    est.score(dataset, "test")   # {'one_step_position_error': ..., ...}
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from identification.data.dataset import Dataset, Split
+from identification.linear.design import (
+    ParameterLayout,
+    accumulate_normal,
+    rod_blocks,
+    rod_slots,
+    scatter_local_gram,
+)
+from identification.linear.features import transition_features, transitions_of
+from identification.linear.native_normal import NativeUnavailable, local_gram_native
+from identification.linear.solve import Solution, fit_linear_network, solve_constrained
+from tensegrity_env.assemblies import cylinder_inertia
+from tensegrity_env.engine import Engine, State
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import FIELDS, UNITS, Params
+
+GROUP_UNITS = {**UNITS, "stiffness_rest": "N", "inertia": "kg*m^2"}
+FREEZABLE = ("stiffness", "damping", "rest_length", "mass", "inertia", "control_gain")
+
+
+@dataclass(frozen=True)
+class ParameterRow:
+    """One line of the identification table.
+
+    ``status`` is ``identified``, ``anchored`` (given by the user to fix the scale),
+    ``frozen`` (kept from a starting params file), ``ratio`` (identified relative to the
+    scale reference), or ``not identifiable`` (then ``value`` is the assumed value used
+    for simulation, or NaN, and ``note`` says why).
+    """
+
+    name: str
+    group: str
+    element: int
+    value: float
+    stderr: float
+    unit: str
+    status: str
+    note: str = ""
+
+
+class NotFittedError(RuntimeError):
+    """The estimator was used before ``fit``."""
+
+
+class SpringRodIdentifier:
+    """Linear-regression identification of a spring-rod assembly.
+
+    Args:
+        solver: ``"lstsq"`` (exact least squares, default) or ``"network"`` (the paper's
+            single linear layer trained on the MSE loss).
+        shared: one K, c, l0 for all springs and one M, I for all rods.
+        fit_rest_length: identify rest lengths; if False they come from ``init_params``.
+        anchors: known values that fix the common scale, e.g. ``{"mass[rod0]": 1.95}``
+            (a weighed rod). Without any anchor or frozen parameter the result is
+            reported as ratios to ``mass`` of the first rod.
+        init_params: a starting parameter set (for ``freeze``, known rest lengths and
+            the values assumed for parameters the data cannot identify).
+        freeze: Params fields kept at ``init_params`` values, e.g. everything but
+            ``control_gain`` to fit h alone with the other modules frozen.
+        gravity: known gravitational acceleration (3,) [m/s^2].
+        chunk_size: transitions per chunk when building the design.
+        max_transitions: fit on a random subset of this many training transitions.
+        fraction: fit on this random fraction of the training transitions.
+        seed: seed of the random subset and of the network solver.
+        progress: show a progress bar while building the design.
+        backend: how the normal matrix is built: ``"native"`` (one C pass over the
+            states, :mod:`identification.linear.native_normal`), ``"torch"`` (design blocks in
+            PyTorch, chunked) or ``"auto"`` (native where a C compiler works).
+    """
+
+    def __init__(
+        self,
+        solver: str = "lstsq",
+        shared: bool = False,
+        fit_rest_length: bool = True,
+        anchors: Mapping[str, float] | None = None,
+        init_params: Params | None = None,
+        freeze: Sequence[str] = (),
+        gravity: Sequence[float] = (0.0, 0.0, -9.81),
+        chunk_size: int = 2_000,
+        max_transitions: int | None = None,
+        fraction: float | None = None,
+        seed: int = 0,
+        progress: bool = False,
+        backend: str = "auto",
+    ) -> None:
+        if backend not in ("auto", "native", "torch"):
+            raise ValueError(f"backend must be 'auto', 'native' or 'torch', got {backend!r}")
+        if solver not in ("lstsq", "network"):
+            raise ValueError(f"solver must be 'lstsq' or 'network', got {solver!r}")
+        bad = [f for f in freeze if f not in FREEZABLE]
+        if bad:
+            raise InputError(f"cannot freeze {bad}; choose from {list(FREEZABLE)}")
+        if (freeze or not fit_rest_length) and init_params is None:
+            raise InputError("freezing parameters or known rest lengths need init_params")
+        self.solver = solver
+        self.shared = shared
+        self.fit_rest_length = fit_rest_length and "rest_length" not in freeze
+        self.anchors = dict(anchors or {})
+        self.init_params = init_params
+        self.freeze = tuple(freeze)
+        self.gravity = tuple(float(g) for g in gravity)
+        self.chunk_size = chunk_size
+        self.max_transitions = max_transitions
+        self.fraction = fraction
+        self.seed = seed
+        self.progress = progress
+        self.backend = backend
+
+    # ------------------------------------------------------------------ fitting
+    def fit(self, dataset: Dataset, split: str = "train") -> SpringRodIdentifier:
+        """Identify the parameters from the transitions of ``split``."""
+        data = dataset.split(split)
+        if not data.has_states:
+            raise InputError(
+                f"{dataset.path or 'dataset'}: split '{split}' has end caps only; "
+                "derive rod states first (identification.data.end_caps.rod_states_from_nodes)"
+            )
+        topology = dataset.topology
+        layout = ParameterLayout.build(topology, self.shared, self.fit_rest_length)
+        index = self._subset(data)
+        normal, n_rows = self._normal_equations(dataset, data, layout, index)
+        fixed, mode = self._constraints(layout)
+        sol = solve_constrained(normal[:-1, :-1], fixed, n_rows)
+        if self.solver == "network":
+            theta = fit_linear_network(normal[:-1, :-1], fixed, n_rows, seed=self.seed)
+            theta[~sol.identifiable] = np.nan
+            sol = Solution(**{**sol.__dict__, "theta": theta})
+        self.topology_ = topology
+        self.dt_ = dataset.dt
+        self.layout_ = layout
+        self.solution_ = sol
+        self.mode_ = mode
+        self.n_transitions_ = len(index)
+        self.condition_number_ = sol.condition_number
+        self.params_, self.table_ = self._to_params(layout, sol, mode)
+        return self
+
+    def _subset(self, data: Split) -> np.ndarray:
+        total = data.n_trajectories * data.n_transitions
+        n = total
+        if self.fraction is not None:
+            n = max(1, round(self.fraction * total))
+        if self.max_transitions is not None:
+            n = min(n, self.max_transitions)
+        if n >= total:
+            return np.arange(total)
+        return np.sort(np.random.default_rng(self.seed).choice(total, size=n, replace=False))
+
+    def _normal_equations(
+        self, dataset: Dataset, data: Split, layout: ParameterLayout, index: np.ndarray
+    ) -> tuple[torch.Tensor, int]:
+        slots = rod_slots(layout)
+        g = torch.tensor(self.gravity, dtype=torch.float64)
+        rest = None
+        if not layout.fit_rest_length:
+            assert self.init_params is not None
+            rest = self.init_params.rest_length.detach().double()
+        P = layout.n_params
+        normal = torch.zeros(P + 1, P + 1, dtype=torch.float64)
+        n_rows = len(index) * dataset.topology.n_rods * 6
+        if self.backend != "torch":
+            try:
+                gram = local_gram_native(dataset.topology, data, index, slots, g, dataset.dt, rest)
+            except NativeUnavailable as e:
+                if self.backend == "native":
+                    raise
+                warnings.warn(f"C normal equations unavailable ({e}); using PyTorch", stacklevel=3)
+            else:
+                scatter_local_gram(gram, slots, normal)
+                self.backend_ = "native"
+                return normal, n_rows
+        self.backend_ = "torch"
+        chunks = range(0, len(index), self.chunk_size)
+        for start in tqdm(chunks, desc="design", disable=not self.progress, unit="chunk"):
+            s0, s1, u = transitions_of(data, index[start : start + self.chunk_size])
+            feat = transition_features(dataset.topology, s0, s1, u, dataset.dt)
+            accumulate_normal(rod_blocks(feat, slots, g, rest), slots, P, normal)
+        return normal, n_rows
+
+    def _constraints(self, layout: ParameterLayout) -> tuple[dict[int, float], str]:
+        fixed: dict[int, float] = {}
+        for name, value in self.anchors.items():
+            try:
+                fixed[layout.lookup(name)] = float(value)
+            except KeyError:
+                raise InputError(
+                    f"unknown anchor '{name}'; parameters are named like "
+                    f"{layout.names[0]}, {layout.names[-2]}, control_gain"
+                ) from None
+        if self.freeze:
+            assert self.init_params is not None
+            init = self.init_params.numpy()
+            for i, (grp, el) in enumerate(zip(layout.groups, layout.elements, strict=True)):
+                if grp in self.freeze:
+                    fixed[i] = float(np.ravel(init[grp])[max(el, 0)])
+                elif grp == "stiffness_rest" and {"stiffness", "rest_length"} <= set(self.freeze):
+                    fixed[i] = float(
+                        init["stiffness"][max(el, 0)] * init["rest_length"][max(el, 0)]
+                    )
+        if any(v != 0 for v in fixed.values()):
+            return fixed, "frozen" if self.freeze and not self.anchors else "anchored"
+        fixed[layout.index("mass", 0)] = 1.0
+        return fixed, "ratios"
+
+    def _to_params(
+        self, layout: ParameterLayout, sol: Solution, mode: str
+    ) -> tuple[Params, list[ParameterRow]]:
+        topo = layout.topology
+        S, R = topo.n_springs, topo.n_rods
+        theta, stderr = sol.theta, sol.stderr
+        values: dict[str, np.ndarray] = {
+            "stiffness": np.full(S, np.nan),
+            "stiffness_rest": np.full(S, np.nan),
+            "damping": np.full(S, np.nan),
+            "mass": np.full(R, np.nan),
+            "inertia": np.full(3 * R, np.nan),
+            "control_gain": np.full(1, np.nan),
+        }
+        sizes = {k: len(v) for k, v in values.items()}
+        for i, (grp, el) in enumerate(zip(layout.groups, layout.elements, strict=True)):
+            if el == -1 or (grp == "inertia" and layout.shared):
+                sl = slice(None) if grp != "inertia" else slice(el, None, 3)
+                values[grp][sl] = theta[i]
+            else:
+                values[grp][el] = theta[i]
+        assert all(len(v) == sizes[k] for k, v in values.items())
+        if layout.fit_rest_length:
+            rest = values["stiffness_rest"] / values["stiffness"]
+        else:
+            assert self.init_params is not None
+            rest = self.init_params.numpy()["rest_length"]
+        mass = values["mass"]
+        inertia = values["inertia"].reshape(R, 3)
+        assumed, notes = self._assumed_values(topo, mass)
+        fill = {
+            "stiffness": values["stiffness"],
+            "damping": values["damping"],
+            "rest_length": rest,
+            "mass": mass,
+            "inertia": inertia,
+            "control_gain": values["control_gain"],
+        }
+        for f, arr in fill.items():
+            nan = np.isnan(arr)
+            if nan.any() and f in assumed:
+                arr[nan] = np.broadcast_to(assumed[f], arr.shape)[nan]
+        params = Params.create(
+            stiffness=fill["stiffness"],
+            damping=fill["damping"],
+            rest_length=fill["rest_length"],
+            mass=fill["mass"],
+            inertia=fill["inertia"],
+            control_gain=fill["control_gain"][0],
+            gravity=self.gravity,
+        )
+        rows = []
+        for i, (name, grp, el) in enumerate(
+            zip(layout.names, layout.groups, layout.elements, strict=True)
+        ):
+            if sol.fixed[i]:
+                status = "anchored" if name in self.anchors or mode == "ratios" else "frozen"
+                if mode == "ratios":
+                    status = "scale reference (=1)"
+            elif not sol.identifiable[i]:
+                status = "not identifiable"
+            else:
+                status = "ratio" if mode == "ratios" else "identified"
+            note = ""
+            value = float(theta[i])
+            if status == "not identifiable":
+                value = (
+                    float(np.ravel(fill.get(grp, [np.nan]))[max(el, 0)]) if grp in fill else np.nan
+                )
+                note = notes.get(grp, "no value assumed")
+            rows.append(
+                ParameterRow(name, grp, el, value, float(stderr[i]), GROUP_UNITS[grp], status, note)
+            )
+        if layout.fit_rest_length:  # derived rest lengths get their own rows
+            for s in range(S):
+                k_i = layout.index("stiffness", s)
+                kl_i = layout.index("stiffness_rest", s)
+                ok = sol.identifiable[k_i] and sol.identifiable[kl_i]
+                rel = (
+                    np.hypot(stderr[k_i] / theta[k_i], stderr[kl_i] / theta[kl_i]) if ok else np.nan
+                )
+                rows.append(
+                    ParameterRow(
+                        f"rest_length[{topo.springs[s].name}]" if not layout.shared else "rest_length",
+                        "rest_length", s, float(rest[s]), float(abs(rest[s]) * rel), "m",
+                        "identified" if ok else "not identifiable",
+                    )
+                )  # fmt: skip
+                if layout.shared:
+                    break
+        return params, rows
+
+    def _assumed_values(
+        self, topology: Any, mass: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+        """Values used for simulation where the data cannot identify a parameter."""
+        if self.init_params is not None:
+            init = self.init_params.numpy()
+            note = "not identifiable from this data; value kept from the starting params"
+            return {f: init[f] for f in FIELDS}, {f: note for f in (*FIELDS, "stiffness_rest")}
+        lengths = np.array([r.length for r in topology.rods])
+        radii = np.array([r.radius for r in topology.rods])
+        m = np.where(np.isnan(mass), np.nan, mass)
+        inertia = np.stack(
+            [cylinder_inertia(m[r : r + 1], lengths[r], radii[r])[0] for r in range(len(m))]
+        )
+        return (
+            {"inertia": inertia, "damping": np.zeros(1), "control_gain": np.ones(1)},
+            {
+                "inertia": "not excited in this data; assumed solid cylinder of the identified mass",
+                "damping": "not excited in this data; assumed 0",
+                "control_gain": "no control force in this data; assumed 1",
+            },
+        )
+
+    # ------------------------------------------------------------------ using the fit
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "params_"):
+            raise NotFittedError("call fit(dataset) before using the estimator")
+
+    def unidentifiable(self) -> list[str]:
+        """Names of the parameters this data could not identify."""
+        self._check_fitted()
+        return [r.name for r in self.table_ if r.status == "not identifiable"]
+
+    def engine(self) -> Engine:
+        self._check_fitted()
+        missing = [f for f, v in self.params_.numpy().items() if not np.all(np.isfinite(v))]
+        if missing:
+            raise InputError(
+                f"cannot simulate: {missing} not identifiable from this data and no value assumed "
+                f"({', '.join(self.unidentifiable())})"
+            )
+        return Engine(self.topology_, self.dt_)
+
+    def predict(self, state: State, control: torch.Tensor | None = None) -> State:
+        """One engine step from ``state`` (B, R, ·) with the identified parameters."""
+        return self.engine().step(state, self.params_, control)
+
+    def simulate(self, state: State, n_steps: int, control: torch.Tensor | None = None) -> State:
+        """Roll the identified engine out: (B, n_steps + 1, R, ·)."""
+        return self.engine().rollout(state, self.params_, n_steps, control)
+
+    def score(
+        self,
+        dataset: Dataset,
+        split: str = "test",
+        max_one_step: int = 50_000,
+        horizon: int | None = None,
+    ) -> dict[str, Any]:
+        """Errors of the identified engine on ``split``.
+
+        Returns one-step mean position error [m], the rollout mean position error at the
+        end of each trajectory [m], its mean over the horizon [m], and the per-step
+        curve ``rollout_curve`` (T+1,) [m].
+        """
+        self._check_fitted()
+        return evaluate_params(
+            self.topology_, self.params_, dataset, split, max_one_step, horizon, self.seed
+        )
+
+
+def evaluate_params(
+    topology: Any,
+    params: Params,
+    dataset: Dataset,
+    split: str = "test",
+    max_one_step: int = 50_000,
+    horizon: int | None = None,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """One-step and rollout position errors of ``params`` on a split (see ``score``)."""
+    data = dataset.split(split)
+    engine = Engine(topology, dataset.dt)
+    total = data.n_trajectories * data.n_transitions
+    rng = np.random.default_rng(seed)
+    idx = np.sort(rng.choice(total, size=min(total, max_one_step), replace=False))
+    s0, s1, u = transitions_of(data, idx)
+    with torch.no_grad():
+        pred = engine.step(s0, params, u)
+        one_step = float(torch.linalg.vector_norm(pred.p - s1.p, dim=-1).mean())
+        T = data.n_transitions if horizon is None else min(horizon, data.n_transitions)
+        init = State.from_numpy(*(getattr(data, k)[:, 0] for k in ("p", "v", "q", "omega")))
+        ctrl = torch.as_tensor(data.control[:, :T])
+        roll = engine.rollout(init, params, T, ctrl)
+        err = torch.linalg.vector_norm(roll.p - torch.as_tensor(data.p[:, : T + 1]), dim=-1)
+        curve = err.mean(dim=(0, 2)).numpy()
+    return {
+        "one_step_position_error": one_step,
+        "rollout_final_position_error": float(curve[-1]),
+        "rollout_mean_position_error": float(curve.mean()),
+        "rollout_curve": curve,
+        "horizon_steps": T,
+    }
+
+
+_NAME = re.compile(r"^([a-z_]+)(\[[^\]]+\])?$")
+
+
+def parse_anchor(text: str) -> tuple[str, float]:
+    """Parse ``NAME=VALUE`` (e.g. ``mass[rod0]=1.95``)."""
+    name, sep, value = text.partition("=")
+    if not sep or not _NAME.match(name.strip()):
+        raise InputError(f"anchor '{text}' must look like mass[rod0]=1.95")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise InputError(f"anchor '{text}': '{value}' is not a number") from None

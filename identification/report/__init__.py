@@ -1,0 +1,1 @@
+"""Tables and figures shared by identification, discovery and the experiments."""

@@ -1,0 +1,1 @@
+"""MuJoCo ground truth: batched rollouts, randomized datasets, planted (undeclared) effects."""

@@ -1,0 +1,211 @@
+"""MuJoCo data with effects the identifier is not told about (the residual loop's test bench).
+
+:func:`planted_dataset` writes a ground-truth MJCF of the icosahedron with one
+*planted* effect, rolls it out with :func:`identification.simulation.generate.generate`, and
+records the effect in the dataset's ``ground_truth.effects`` list (never read by an
+identifier). Effects and their strengths (:data:`PLANTS`):
+
+============================  =================================================  ====================
+plant                         in MuJoCo                                          strengths
+============================  =================================================  ====================
+``none``                      nothing (the control: no effect may be found)      -
+``ground_contact``            a floor at z = 0 (``GenerateSpec(ground=True)``);  friction μ
+                              the structure falls, bounces and tumbles
+``quadratic_drag``            ``option density`` (inertia-box fluid model)       fluid density ρ
+``linear_drag``               ``option viscosity`` (inertia-box fluid model)     viscosity β
+``slack_springs``             tendon ``springlength = "0 l0"`` (dead band:        number of cables
+                              no spring force shorter than rest)
+============================  =================================================  ====================
+
+``noise`` adds i.i.d. Gaussian noise [m] to every end-cap coordinate and drops the
+rod states, as motion capture would (the clean states stay in the ground truth's
+reach only through the returned :class:`PlantedData`, for evaluation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from identification.data.dataset import Dataset, GroundTruth, Split
+from identification.data.end_caps import rod_states_from_nodes
+from identification.simulation.generate import GenerateSpec, InitialConditions, generate
+from tensegrity_env import assemblies
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.mjcf import SimOptions, to_mjcf
+
+#: plant -> strength name -> value (units in :data:`STRENGTH_UNITS`)
+PLANTS: dict[str, dict[str, float]] = {
+    "none": {"moderate": 0.0},
+    "ground_contact": {"weak": 0.3, "moderate": 1.0, "strong": 2.0},
+    "quadratic_drag": {"weak": 20.0, "moderate": 100.0, "strong": 500.0},
+    "linear_drag": {"weak": 0.1, "moderate": 0.5, "strong": 2.0},
+    "slack_springs": {"weak": 6, "moderate": 12, "strong": 24},
+}
+STRENGTH_UNITS = {
+    "none": "",
+    "ground_contact": "friction coefficient",
+    "quadratic_drag": "fluid density [kg/m^3]",
+    "linear_drag": "fluid viscosity [Pa*s]",
+    "slack_springs": "cable springs",
+}
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """One planted dataset.
+
+    Attributes:
+        effect: a key of :data:`PLANTS`.
+        strength: a strength name of that plant, or a number (its unit in
+            :data:`STRENGTH_UNITS`).
+        noise: end-cap position noise std [m] (0: clean rod states are kept).
+        seed: seed of every random draw (initial states, which springs are cables, noise).
+        n_train, n_val, n_test: trajectories per split.
+        steps: transitions per trajectory.
+        control_std: random control commands [command units] (0: none).
+    """
+
+    effect: str = "none"
+    strength: str | float = "moderate"
+    noise: float = 0.0
+    seed: int = 0
+    n_train: int = 8
+    n_val: int = 4
+    n_test: int = 4
+    steps: int = 1000
+    control_std: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.effect not in PLANTS:
+            raise InputError(
+                f"--plant: unknown effect '{self.effect}' (choose from {sorted(PLANTS)})"
+            )
+        if isinstance(self.strength, str) and self.strength not in PLANTS[self.effect]:
+            raise InputError(
+                f"--strength: '{self.effect}' has strengths {sorted(PLANTS[self.effect])} "
+                "(or give a number)"
+            )
+        if not self.noise >= 0:
+            raise InputError(f"--noise must be >= 0, got {self.noise}")
+
+    @property
+    def value(self) -> float:
+        """The strength as a number."""
+        s = self.strength
+        return float(PLANTS[self.effect][s]) if isinstance(s, str) else float(s)
+
+    @property
+    def label(self) -> str:
+        return f"{self.effect}/{self.strength}/noise={self.noise * 1e3:g}mm/seed={self.seed}"
+
+
+@dataclass
+class PlantedData:
+    """What :func:`planted_dataset` returns.
+
+    Attributes:
+        dataset: what the identifier sees (end caps only when noisy).
+        ground_truth: the true model, with the planted effect in ``effects``.
+        clean: the same trajectories without noise, with rod states (for evaluation).
+        spec: how it was made.
+    """
+
+    dataset: Dataset
+    ground_truth: GroundTruth
+    clean: Dataset
+    spec: PlantSpec
+
+
+def planted_mjcf(spec: PlantSpec) -> tuple[str, dict[str, Any]]:
+    """The ground-truth MJCF text with the planted effect, and its ground-truth record."""
+    a = assemblies.icosahedron()
+    ground = spec.effect == "ground_contact"
+    friction = spec.value if ground else 1.0
+    xml = to_mjcf(
+        a.topology, a.params, SimOptions(ground=ground, friction=friction), a.pose_p, a.pose_q
+    )
+    root = ET.fromstring(xml)
+    record: dict[str, Any] = {"name": spec.effect, "strength": spec.strength, "value": spec.value}
+    if ground:
+        # MuJoCo takes the larger friction of the two geoms: give the rods the same one
+        for geom in root.iter("geom"):
+            if geom.get("type") == "capsule":
+                geom.set("friction", f"{friction!r} 0.005 0.0001")
+        record["params"] = {"friction": friction, "height": 0.0}
+        record["mujoco"] = {"solref": [0.02, 1.0], "solimp": [0.9, 0.95, 0.001, 0.5, 2.0]}
+    elif spec.effect in ("quadratic_drag", "linear_drag"):
+        key = "density" if spec.effect == "quadratic_drag" else "viscosity"
+        root.find("option").set(key, repr(spec.value))  # type: ignore[union-attr]
+        record["mujoco"] = {key: spec.value, "model": "inertia-box fluid"}
+    elif spec.effect == "slack_springs":
+        n = int(spec.value)
+        S = a.topology.n_springs
+        if not 0 < n <= S:
+            raise InputError(f"slack_springs: strength must be 1..{S} cables, got {n}")
+        cables = np.sort(np.random.default_rng([spec.seed, 99]).choice(S, n, replace=False))
+        rest = a.params.numpy()["rest_length"]
+        for k, sp in enumerate(root.find("tendon").findall("spatial")):  # type: ignore[union-attr]
+            if k in cables:
+                sp.set("springlength", f"0 {float(rest[k])!r}")
+        record["params"] = {"springs": cables.tolist()}
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode"), record
+
+
+def planted_dataset(spec: PlantSpec) -> PlantedData:
+    """Generate the planted dataset of ``spec`` (see the module docstring)."""
+    xml, record = planted_mjcf(spec)
+    ground = spec.effect == "ground_contact"
+    initial = InitialConditions(lift=(0.1, 0.5)) if ground else InitialConditions()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "icosahedron.xml"
+        path.write_text(xml)
+        gen = GenerateSpec(
+            mjcf=str(path), n_train=spec.n_train, n_val=spec.n_val, n_test=spec.n_test,
+            steps=spec.steps, seed=spec.seed, ground=ground, control_std=spec.control_std,
+            initial=initial, preset="planted",
+        )  # fmt: skip
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # violent-initial-state warnings: expected here
+            result = generate(gen)
+    clean = result.dataset
+    clean.attrs.update({"assembly": "icosahedron", "planted": dataclasses.asdict(spec)})
+    true_params = assemblies.icosahedron().params
+    effects = [] if spec.effect == "none" else [record]
+    truth = dataclasses.replace(result.ground_truth, params=true_params, effects=effects)
+    dataset = add_noise(clean, spec.noise, spec.seed) if spec.noise > 0 else clean
+    return PlantedData(dataset=dataset, ground_truth=truth, clean=clean, spec=spec)
+
+
+def add_noise(dataset: Dataset, std: float, seed: int = 0) -> Dataset:
+    """A copy with Gaussian noise ``std`` [m] on every end cap; rod states dropped."""
+    splits = {}
+    for k, (name, split) in enumerate(sorted(dataset.splits.items())):
+        rng = np.random.default_rng([seed, 1000 + k])
+        nodes = split.nodes + std * rng.standard_normal(split.nodes.shape)
+        splits[name] = Split(nodes=nodes, control=split.control.copy())
+    attrs = {**dataset.attrs, "measurement_noise_std": float(std)}
+    return Dataset(dataset.topology, dataset.dt, splits, attrs=attrs)
+
+
+def with_rod_states(dataset: Dataset) -> Dataset:
+    """Rod states derived from the end caps where a split has none (finite differences)."""
+    splits = {}
+    for name, s in dataset.splits.items():
+        if s.has_states:
+            splits[name] = s
+        else:
+            st = rod_states_from_nodes(s.nodes, dataset.topology, dataset.dt)
+            splits[name] = Split(nodes=s.nodes, control=s.control, **st)
+    return Dataset(
+        dataset.topology, dataset.dt, splits, attrs=dict(dataset.attrs), path=dataset.path
+    )

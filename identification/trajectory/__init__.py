@@ -1,0 +1,1 @@
+"""Multi-step identification through the differentiable engine: windows, Levenberg-Marquardt fits."""

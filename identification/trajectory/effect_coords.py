@@ -1,0 +1,175 @@
+"""Effect parameters as free coordinates of the trajectory fit (:mod:`identification.trajectory.identifier`).
+
+The windowed trajectory fit minimises end-cap errors over a vector ``theta`` of free
+coordinates. :class:`EffectCoords` appends the parameters of a list of effects to it:
+
+* a :class:`~tensegrity_env.effects.base.LinearEffect` (drag, force field, cubic or
+  compression stiffness) contributes every entry of its ``theta()`` as is (signed,
+  linear: its wrench is linear in them; physical signs are checked afterwards);
+* a :class:`~tensegrity_env.effects.GroundContact` contributes
+  :data:`CONTACT_FREE` in the unconstrained coordinates of
+  :func:`~identification.trajectory.effect_fit.to_free` (log, logit);
+* index-only effects (slack cables) contribute nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from identification.trajectory.effect_fit import from_free, to_free
+from tensegrity_env.effects import GroundContact, LinearDrag, QuadraticDrag
+from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
+
+DTYPE = torch.float64
+#: where a contact fit starts: a generic soft floor, not MuJoCo's values
+CONTACT_START: dict[str, float] = {
+    "stiffness": 1000.0,
+    "damping": 50.0,
+    "friction": 0.5,
+    "impedance": 0.9,
+}
+#: contact parameters fitted through the engine
+CONTACT_FREE = ("stiffness", "damping", "friction", "impedance")
+#: unconstrained contact coordinates stay within this of their start (log/logit units)
+CONTACT_BOX = 5.0
+
+
+@dataclass(frozen=True)
+class EffectCoords:
+    """The free coordinates of ``effects`` (see the module docstring).
+
+    Attributes:
+        effects: the effects at the coordinates' start, in engine order.
+        slots: per effect, ``None`` (linear: ``theta()`` entries), a tuple of contact
+            parameter names, or ``()`` (nothing free).
+    """
+
+    effects: tuple[PhysicalEffect, ...]
+    slots: tuple[tuple[str, ...] | None, ...]
+    held: tuple[tuple[int, ...], ...] = ()
+
+    @classmethod
+    def of(
+        cls,
+        effects: Sequence[PhysicalEffect],
+        axial: int | None = None,
+        contact_free: tuple[str, ...] = CONTACT_FREE,
+    ) -> EffectCoords:
+        """Coordinates of ``effects``; ``axial``: the rods' common end-cap axis (rod frame).
+
+        ``contact_free``: the contact parameters that are coordinates (``()``: contact
+        held at its values, e.g. found by :mod:`identification.trajectory.touchdown`).
+
+        Rotational drag about that axis is held (at its value, 0 to start): the spin
+        about it is invisible in end-cap data, so the data cannot see that drag.
+        """
+        slots: list[tuple[str, ...] | None] = []
+        held: list[tuple[int, ...]] = []
+        for e in effects:
+            hold: tuple[int, ...] = ()
+            if isinstance(e, LinearEffect):
+                slots.append(None)
+                if isinstance(e, (LinearDrag, QuadraticDrag)) and axial is not None:
+                    hold = (3 + axial,)
+            elif isinstance(e, GroundContact):
+                slots.append(contact_free)
+            else:
+                slots.append(())
+            held.append(hold)
+        return cls(tuple(effects), tuple(slots), tuple(held))
+
+    def _held(self, i: int) -> tuple[int, ...]:
+        return self.held[i] if self.held else ()
+
+    def _free_idx(self, i: int) -> np.ndarray:
+        """Free entries of linear effect ``i``'s ``theta()``."""
+        n = int(self.effects[i].theta().numel())  # type: ignore[attr-defined]
+        return np.setdiff1d(np.arange(n), self._held(i))
+
+    def sizes(self) -> list[int]:
+        """Number of coordinates of each effect."""
+        return [len(self._free_idx(i)) if s is None else len(s) for i, s in enumerate(self.slots)]
+
+    @property
+    def n(self) -> int:
+        return sum(self.sizes())
+
+    def start(self) -> torch.Tensor:
+        """The coordinates of :attr:`effects`, (n,)."""
+        out: list[float] = []
+        for i, (e, s) in enumerate(zip(self.effects, self.slots, strict=True)):
+            if s is None:
+                th = e.theta().detach().double()  # type: ignore[attr-defined]
+                out += th[self._free_idx(i)].tolist()
+            else:
+                out += [to_free(e.PARAMS[k], float(e.values[k].reshape(-1)[0])) for k in s]
+        return torch.tensor(out, dtype=DTYPE)
+
+    def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Box on the coordinates: none for linear ones, ±:data:`CONTACT_BOX` for contact."""
+        lo, hi = [], []
+        x0 = self.start()
+        i = 0
+        for s, n in zip(self.slots, self.sizes(), strict=True):
+            for k in range(n):
+                if s is None:
+                    lo.append(-np.inf)
+                    hi.append(np.inf)
+                else:
+                    lo.append(float(x0[i + k]) - CONTACT_BOX)
+                    hi.append(float(x0[i + k]) + CONTACT_BOX)
+            i += n
+        return torch.tensor(lo, dtype=DTYPE), torch.tensor(hi, dtype=DTYPE)
+
+    def effects_at(self, x: torch.Tensor, stderr: np.ndarray | None = None) -> list[PhysicalEffect]:
+        """The effects with coordinates ``x`` (n,) (unvalidated: check ``physical()``).
+
+        ``stderr`` (n,): standard errors of the coordinates, stored as each effect's
+        ``uncertainty`` (delta method for log/logit coordinates).
+        """
+        out: list[PhysicalEffect] = []
+        i = 0
+        for j_e, (e, s, n) in enumerate(zip(self.effects, self.slots, self.sizes(), strict=True)):
+            part = x[i : i + n]
+            se = None if stderr is None else np.asarray(stderr[i : i + n], dtype=float)
+            if s is None:
+                idx = torch.as_tensor(self._free_idx(j_e))
+                full = e.theta().detach().to(part).index_put((idx,), part)  # type: ignore[attr-defined]
+                se_full = None
+                if se is not None:
+                    se_full = np.zeros(full.numel())
+                    se_full[idx.numpy()] = se
+                out.append(e.with_theta(full, se_full))  # type: ignore[attr-defined]
+            elif s:
+                vals = {k: from_free(e.PARAMS[k], part[j]) for j, k in enumerate(s)}
+                new = e.with_values(validate=False, **vals)
+                if se is not None:
+                    for j, k in enumerate(s):
+                        v = float(new.values[k].detach().reshape(-1)[0])
+                        spec = e.PARAMS[k]
+                        slope = (
+                            v * (1 - v)
+                            if spec.unit_interval
+                            else (abs(v) if spec.positive else 1.0)
+                        )
+                        new.uncertainty[k] = slope * float(se[j])
+                out.append(new)
+            else:
+                out.append(e)
+            i += n
+        return out
+
+    def names(self) -> list[str]:
+        """``effect.param`` of every coordinate."""
+        out = []
+        for i, (e, s) in enumerate(zip(self.effects, self.slots, strict=True)):
+            if s is None:
+                keys = [e.theta_names()[k] for k in self._free_idx(i)]  # type: ignore[attr-defined]
+            else:
+                keys = list(s)
+            out += [f"{e.name}.{k}" for k in keys]
+        return out

@@ -1,0 +1,237 @@
+"""The trajectory fit's parameter vector: log-parameters of the declared model per group,
+the rod geometry seen by end caps, anchors, and (optionally) effect coordinates.
+
+Split from :mod:`identification.trajectory.identifier`; see there for the method.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from identification.trajectory.effect_coords import EffectCoords
+from tensegrity_env.engine import Engine
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
+
+DTYPE = torch.float64
+#: the groups of the trajectory fit's log-parameter vector, in order
+GROUPS = ("stiffness", "damping", "rest_length", "mass", "inertia_perp", "control_gain")
+#: the trajectory fit keeps every parameter within a factor e^LOG_BOX (1e4) of its
+#: stage-1 start, so that one the data barely sees cannot run off towards 0, where
+#: its effect (and so its Jacobian column) drops below round-off and it never returns
+LOG_BOX = float(np.log(1e4))
+
+
+# ---------------------------------------------------------------------- rod geometry
+@dataclass(frozen=True)
+class RodAxes:
+    """End caps on a principal axis through the centre of mass, for every rod.
+
+    Attributes:
+        axis: index (0, 1, 2) of the principal axis holding rod r's end caps, (R,).
+        frac: the COM as ``x_0 + frac * (x_1 - x_0)`` between the end caps, (R,).
+        radius: rod radius for the assumed axial inertia ``M r^2 / 2`` [m], (R,).
+    """
+
+    axis: np.ndarray
+    frac: np.ndarray
+    radius: np.ndarray
+
+    @classmethod
+    def of(cls, topology: Topology) -> RodAxes:
+        """Raise :class:`InputError` if some rod's end caps are not on a principal axis."""
+        ends = topology.end_offsets  # (R, 2, 3)
+        axis, frac = [], []
+        for r, e in enumerate(ends):
+            k = int(np.argmax(np.abs(e[1] - e[0])))
+            off = np.delete(e, k, axis=1)
+            scale = np.abs(e).max()
+            if np.abs(off).max() > 1e-9 * scale or abs(e[1, k] - e[0, k]) < 1e-12:
+                raise InputError(
+                    f"rod '{topology.rods[r].name}': end caps are not on a principal axis through "
+                    "the centre of mass; end-cap-only identification needs them there"
+                )
+            axis.append(k)
+            frac.append(-e[0, k] / (e[1, k] - e[0, k]))
+        radius = np.array([max(rod.radius, 1e-3) for rod in topology.rods])
+        return cls(np.array(axis), np.array(frac), radius)
+
+
+# ---------------------------------------------------------------------- parameters
+def parse_anchors(topology: Topology, anchors: Mapping[str, float]) -> dict[tuple[str, int], float]:
+    """``{"mass[rod0]": 1.95}`` -> ``{("mass", 0): 1.95}``.
+
+    Names: ``mass[ROD]``, ``inertia_perp[ROD]`` (or ``inertia[ROD,x]`` for a perpendicular
+    axis), ``stiffness[SPRING]``, ``damping[SPRING]``, ``rest_length[SPRING]``,
+    ``control_gain``. Values must be positive. Raises :class:`InputError`.
+    """
+    rods = {r.name: i for i, r in enumerate(topology.rods)}
+    springs = {s.name: i for i, s in enumerate(topology.springs)}
+    out: dict[tuple[str, int], float] = {}
+    for name, value in anchors.items():
+        group, _, rest = name.partition("[")
+        element = rest.rstrip("]").split(",")[0]
+        key: tuple[str, int] | None = None
+        if name == "control_gain":
+            key = ("control_gain", 0)
+        elif group in ("mass", "inertia_perp", "inertia") and element in rods:
+            key = ("inertia_perp" if group == "inertia" else group, rods[element])
+        elif group in ("stiffness", "damping", "rest_length") and element in springs:
+            key = (group, springs[element])
+        if key is None:
+            raise InputError(
+                f"unknown anchor '{name}'; use mass[{topology.rods[0].name}], "
+                f"stiffness[{topology.springs[0].name}], inertia_perp[ROD], control_gain, ..."
+            )
+        if (
+            group == "inertia"
+            and rest.rstrip("]").split(",")[-1] == "xyz"[RodAxes.of(topology).axis[key[1]]]
+        ):
+            raise InputError(
+                f"anchor '{name}': the axial inertia is not identifiable from end caps"
+            )
+        if not float(value) > 0:
+            raise InputError(f"anchor '{name}' must be positive, got {value}")
+        out[key] = float(value)
+    return out
+
+
+@dataclass(frozen=True)
+class ParamVector:
+    """The trajectory fit's log-parameters: ``log [K, c, l0, M, I_perp, h]`` (n_full,).
+
+    ``free`` marks the fitted entries; the others stay at ``start``. Inertia is
+    ``I_perp`` on both perpendicular axes and the assumed ``M r^2 / 2`` on the axis.
+    """
+
+    topology: Topology
+    axes: RodAxes
+    start: torch.Tensor
+    free: torch.Tensor
+    gravity: torch.Tensor
+    coords: EffectCoords | None = None
+
+    @classmethod
+    def at(cls, topology: Topology, params: Params) -> ParamVector:
+        """``params`` with nothing free (rollouts and state-only fits at known values).
+
+        Inertia follows the vector's convention: ``I_perp`` from a perpendicular axis,
+        ``M r^2 / 2`` on the end-cap axis. Unusable values (a control gain of 0 on data
+        without control) become 1.
+        """
+        axes = RodAxes.of(topology)
+        values = params_values(params, axes)
+        v = np.concatenate([values[g] for g in GROUPS])
+        v[~(np.isfinite(v) & (v > 0))] = 1.0
+        start = torch.as_tensor(np.log(v), dtype=DTYPE)
+        free = torch.zeros(len(start), dtype=torch.bool)
+        return cls(topology, axes, start, free, torch.as_tensor(params.gravity, dtype=DTYPE))
+
+    @property
+    def n_effect(self) -> int:
+        """Number of effect coordinates appended to the free log-parameters."""
+        return 0 if self.coords is None else self.coords.n
+
+    def theta0(self) -> torch.Tensor:
+        """Start of the fitted vector: free log-parameters, then effect coordinates."""
+        tail = [] if self.coords is None else [self.coords.start()]
+        return torch.cat([self.start[self.free], *tail])
+
+    def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Box of the fitted vector (see :data:`LOG_BOX` and :class:`EffectCoords`)."""
+        lo, hi = self.start[self.free] - LOG_BOX, self.start[self.free] + LOG_BOX
+        if self.coords is None:
+            return lo, hi
+        elo, ehi = self.coords.bounds()
+        return torch.cat([lo, elo]), torch.cat([hi, ehi])
+
+    def split(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``theta`` (..., n_free + n_effect) -> log-parameters and effect coordinates."""
+        n = self.n_free
+        return theta[..., :n], theta[..., n:]
+
+    def engine(self, engine: Engine, theta: torch.Tensor) -> Engine:
+        """``engine`` with the effects at the coordinates in ``theta`` (unbatched)."""
+        if self.coords is None:
+            return engine
+        return engine.with_effects(self.coords.effects_at(self.split(theta)[1]))
+
+    def effects(self, theta: torch.Tensor) -> list[Any]:
+        """The fitted effects at ``theta`` (empty without effect coordinates)."""
+        return [] if self.coords is None else self.coords.effects_at(self.split(theta)[1])
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        S, R = self.topology.n_springs, self.topology.n_rods
+        return dict(zip(GROUPS, (S, S, S, R, R, 1), strict=True))
+
+    def offset(self, group: str) -> int:
+        return sum(list(self.sizes.values())[: GROUPS.index(group)])
+
+    @property
+    def n_free(self) -> int:
+        return int(self.free.sum())
+
+    def selector(self) -> torch.Tensor:
+        """(n_full, n_free) 0/1 matrix placing free values into the full vector."""
+        idx = torch.nonzero(self.free)[:, 0]
+        sel = torch.zeros(len(self.free), len(idx), dtype=DTYPE)
+        sel[idx, torch.arange(len(idx))] = 1.0
+        return sel
+
+    def full(self, theta: torch.Tensor) -> torch.Tensor:
+        """Full log vector (..., n_full) from the free values ``theta`` (..., n_free)."""
+        theta = theta[..., : self.n_free]
+        return torch.where(self.free, 0.0, self.start) + theta @ self.selector().T
+
+    def params(self, log_full: torch.Tensor) -> Params:
+        """Engine parameters from a full log vector (n_full,) (differentiable).
+
+        A batch of vectors (B, n_full) gives per-batch parameters, (B, ·), which the
+        engine broadcasts against states of batch B (used to fold tangents).
+        """
+        val = torch.exp(log_full)
+        g = {k: val[..., self.offset(k) : self.offset(k) + n] for k, n in self.sizes.items()}
+        axial = torch.as_tensor(np.eye(3)[self.axes.axis], dtype=DTYPE)  # (R, 3)
+        r2 = torch.as_tensor(self.axes.radius**2 / 2, dtype=DTYPE)
+        inertia = (
+            g["inertia_perp"].unsqueeze(-1) * (1 - axial) + (g["mass"] * r2).unsqueeze(-1) * axial
+        )
+        gain = g["control_gain"][..., 0]
+        return Params(
+            stiffness=g["stiffness"], damping=g["damping"], rest_length=g["rest_length"],
+            mass=g["mass"], inertia=inertia, gravity=self.gravity,
+            control_gain=gain if log_full.dim() == 1 else gain[:, None, None],
+        )  # fmt: skip
+
+    def names(self) -> list[str]:
+        """Name of every entry of the full vector, e.g. ``stiffness[spring3]``."""
+        rods = [r.name for r in self.topology.rods]
+        springs = [s.name for s in self.topology.springs]
+        labels = {"mass": rods, "inertia_perp": rods, "control_gain": None}
+        out = []
+        for group in GROUPS:
+            els = labels.get(group, springs)
+            out += [group] if els is None else [f"{group}[{e}]" for e in els]
+        return out
+
+
+def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
+    """``params`` as the trajectory fit's groups (``inertia_perp``: a perpendicular axis)."""
+    p = params.numpy()
+    inertia = np.asarray(p["inertia"])
+    R = inertia.shape[0]
+    return {
+        "stiffness": np.asarray(p["stiffness"], float),
+        "damping": np.asarray(p["damping"], float),
+        "rest_length": np.asarray(p["rest_length"], float),
+        "mass": np.asarray(p["mass"], float),
+        "inertia_perp": inertia[np.arange(R), (axes.axis + 1) % 3],
+        "control_gain": np.atleast_1d(np.asarray(p["control_gain"], float)),
+    }

@@ -12,7 +12,11 @@ The convention (DESIGN.md) that any MJCF must follow to be read:
   truth only.
 
 Rods are written with an explicit ``<inertial>`` (principal axes = body axes), so
-``M`` and ``I`` are exactly the parameters. Rod-rod collisions are off by default
+``M`` and ``I`` are exactly the parameters. Reading takes each rod's mass, centre of
+mass, principal frame and inertia from the compiled model (``body_mass``,
+``body_ipos``, ``body_iquat``, ``body_inertia``: an ``<inertial>`` element or the
+union of the body's geoms), whatever the body frame; the body frame's origin is kept
+(``Rod.frame_origin``) because MuJoCo's free joint integrates that point. Rod-rod collisions are off by default
 (``contype``/``conaffinity`` bits); with a ground plane, end caps collide with it.
 """
 
@@ -71,7 +75,9 @@ def to_mjcf(
 ) -> str:
     """MJCF text of the assembly with its ground-truth parameters.
 
-    ``pose_p`` (R, 3) and ``pose_q`` (R, 4) give the rods' initial poses (``qpos0``).
+    ``pose_p`` (R, 3) [m] and ``pose_q`` (R, 4) give the rods' initial poses (``qpos0``):
+    centres of mass and principal-frame orientations. Each body frame is the principal
+    frame moved to the rod's ``frame_origin``.
     """
     P = params.numpy()
     R = topology.n_rods
@@ -107,21 +113,34 @@ def to_mjcf(
     for k, anchor in enumerate(topology.anchors):
         ET.SubElement(world, "site", name=f"anchor{k}", pos=_v(anchor), size="0.02", rgba="1 1 0 1")
     ends = topology.end_offsets
+    origins = topology.frame_origins
     for r, rod in enumerate(topology.rods):
-        body = ET.SubElement(world, "body", name=rod.name, pos=_v(pose_p[r]), quat=_v(pose_q[r]))
+        # the body frame is the principal frame moved to the rod's frame_origin
+        o = origins[r]
+        body_pos = pose_p[r] + np_quat_to_matrix(pose_q[r]) @ o if o.any() else pose_p[r]
+        body = ET.SubElement(world, "body", name=rod.name, pos=_v(body_pos), quat=_v(pose_q[r]))
         ET.SubElement(body, "freejoint", name=rod.name)
         ET.SubElement(
-            body, "inertial", pos="0 0 0", mass=_f(P["mass"][r]), diaginertia=_v(P["inertia"][r])
+            body,
+            "inertial",
+            pos=_v(0.0 - o) if o.any() else "0 0 0",
+            mass=_f(P["mass"][r]),
+            diaginertia=_v(P["inertia"][r]),
         )
         ET.SubElement(
             body, "geom", name=f"{rod.name}_geom", type="capsule",
-            fromto=_v(np.concatenate([ends[r, 0], ends[r, 1]])),
+            fromto=_v(np.concatenate([ends[r, 0] - o, ends[r, 1] - o])),
             size=_f(max(rod.radius, 1e-3)), contype=rod_type, conaffinity=rod_aff,
             rgba="0.8 0.3 0.2 1", mass="0",
         )  # fmt: skip
         for e in range(2):
-            ET.SubElement(body, "site", name=f"{rod.name}_end{e}", pos=_v(ends[r, e]), size="0.02")
-        ET.SubElement(body, "site", name=f"{rod.name}_arm", pos=_v(rod.control_arm), size="0.005")
+            ET.SubElement(
+                body, "site", name=f"{rod.name}_end{e}", pos=_v(ends[r, e] - o), size="0.02"
+            )
+        ET.SubElement(
+            body, "site", name=f"{rod.name}_arm", pos=_v(np.asarray(rod.control_arm) - o),
+            size="0.005",
+        )  # fmt: skip
 
     tendon = ET.SubElement(root, "tendon")
     for s, spring in enumerate(topology.springs):
@@ -285,19 +304,11 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
     def to_inertial(i: int, pos_body: np.ndarray) -> tuple[float, float, float]:
         return tuple((Ri[i].T @ (pos_body - ipos[i])).tolist())  # type: ignore[return-value]
 
+    floor = _floor_geoms(m)
     rods = []
     for i, b in enumerate(rod_bodies):
         e0, e1 = (np.asarray(to_inertial(i, m.site_pos[s])) for s in rod_ends[i])
-        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b]
-        radius = next(
-            (
-                float(m.geom_size[g, 0])
-                for g in geoms
-                if int(m.geom_type[g])
-                in (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
-            ),
-            0.0,
-        )
+        radius = _end_cap_radius(m, b, rod_ends[i], floor, src)
         arm = to_inertial(i, m.site_pos[arm_sites[i]]) if i in arm_sites else (0.0, 0.0, 0.0)
         rods.append(
             Rod(
@@ -306,6 +317,7 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
                 radius=radius,
                 end_offsets=(tuple(e0.tolist()), tuple(e1.tolist())),  # type: ignore[arg-type]
                 control_arm=arm,
+                frame_origin=to_inertial(i, np.zeros(3)),
             )
         )
 
@@ -363,10 +375,7 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
         int(mujoco.mjtIntegrator.mjINT_IMPLICIT): "implicit",
         int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): "implicitfast",
     }.get(int(m.opt.integrator), "Euler")
-    has_floor = any(
-        m.geom_bodyid[g] == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
-        for g in range(m.ngeom)
-    )
+    has_floor = bool(floor)
     options = SimOptions(
         timestep=float(m.opt.timestep),
         integrator=integrator,
@@ -385,6 +394,77 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
         body_iquat=iquat,
         actuators=actuators,
     )
+
+
+def _floor_geoms(m: mujoco.MjModel) -> list[int]:
+    """Planes on the world body (the floor), by geom id."""
+    return [
+        g
+        for g in range(m.ngeom)
+        if m.geom_bodyid[g] == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE)
+    ]
+
+
+def _touches(m: mujoco.MjModel, g: int, floor: list[int]) -> bool:
+    """Whether geom ``g`` can collide with any floor plane (contype/conaffinity bits)."""
+    return any(
+        (m.geom_contype[g] & m.geom_conaffinity[f]) or (m.geom_contype[f] & m.geom_conaffinity[g])
+        for f in floor
+    )
+
+
+#: geom types an end cap may be: a sphere centred at the end-cap site, or a capsule or
+#: cylinder with one end of its axis there
+_CAP_TYPES = {
+    int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
+    int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
+    int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder",
+}
+
+
+def _end_cap_radius(
+    m: mujoco.MjModel, body: int, sites: list[int], floor: list[int], src: str
+) -> float:
+    """Contact radius of a rod's end caps [m]: the geom found at each end-cap site.
+
+    A geom is at a site when it is a sphere centred there or a capsule/cylinder whose
+    axis ends there; with a floor, only geoms that can collide with it count. Where
+    several are, the largest radius is the one that meets the floor. 0 without a floor
+    and no such geom; refused when a floor is present and an end cap has none, or
+    when the two end caps' radii differ (one contact radius per rod).
+    """
+    radii = []
+    for s in sites:
+        x = m.site_pos[s]
+        found = [0.0]
+        for g in range(m.ngeom):
+            if m.geom_bodyid[g] != body or int(m.geom_type[g]) not in _CAP_TYPES:
+                continue
+            if floor and not _touches(m, g, floor):
+                continue
+            size, pos = m.geom_size[g], m.geom_pos[g]
+            tol = 1e-9 * (1.0 + float(np.abs(pos).max()) + float(size[0]))
+            if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+                ends = [pos]
+            else:
+                half = np_quat_to_matrix(m.geom_quat[g]) @ np.array([0.0, 0.0, size[1]])
+                ends = [pos - half, pos + half]
+            if any(float(np.linalg.norm(x - e)) <= tol for e in ends):
+                found.append(float(size[0]))
+        if floor and max(found) == 0.0:
+            raise InputError(
+                f"{src}: rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, body)}': no sphere, capsule or"
+                f" cylinder end that meets the floor at end-cap site"
+                f" '{_name(m, mujoco.mjtObj.mjOBJ_SITE, s)}' (ground contact needs the end"
+                " cap's radius)"
+            )
+        radii.append(max(found))
+    if abs(radii[0] - radii[1]) > 1e-12 * (1.0 + max(radii)):
+        raise InputError(
+            f"{src}: rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, body)}': end caps of different"
+            f" radii {radii} (the contact model has one radius per rod)"
+        )
+    return max(radii)
 
 
 def inertial_quat(assembly: MjcfAssembly, body_quat: np.ndarray) -> np.ndarray:

@@ -43,6 +43,10 @@ class Rod:
         radius: radius of the rod's capsule, used for rendering and contact [m].
         end_offsets: the two end caps in the rod's principal frame [m], shape (2, 3).
         control_arm: where control force ``f_u`` acts, in the rod's principal frame [m].
+        frame_origin: the origin of the rod's MuJoCo body frame, in the rod's principal
+            frame [m]: the point whose velocity MuJoCo's free joint integrates. It changes
+            no force, only the integration step (zero when the body frame is at the
+            centre of mass).
     """
 
     name: str
@@ -50,6 +54,7 @@ class Rod:
     radius: float = 0.016
     end_offsets: tuple[Vec3, Vec3] | None = None
     control_arm: Vec3 = (0.0, 0.0, 0.0)
+    frame_origin: Vec3 = (0.0, 0.0, 0.0)
 
     def ends(self) -> np.ndarray:
         """End-cap offsets in the rod frame, shape (2, 3) [m]; default ±length/2 along z."""
@@ -109,6 +114,8 @@ class Topology:
                 raise TopologyError(f"rod '{rod.name}': end_offsets must be two finite 3-vectors")
             if len(rod.control_arm) != 3 or not np.all(np.isfinite(rod.control_arm)):
                 raise TopologyError(f"rod '{rod.name}': control_arm must be a finite 3-vector")
+            if len(rod.frame_origin) != 3 or not np.all(np.isfinite(rod.frame_origin)):
+                raise TopologyError(f"rod '{rod.name}': frame_origin must be a finite 3-vector")
         for a in self.anchors:
             if len(a) != 3 or not np.all(np.isfinite(a)):
                 raise TopologyError(f"{self.name}: anchor {a} is not a finite 3-vector")
@@ -166,6 +173,11 @@ class Topology:
         return np.array([r.control_arm for r in self.rods], dtype=float)
 
     @property
+    def frame_origins(self) -> np.ndarray:
+        """Each rod's body-frame origin in its principal frame, (n_rods, 3) [m]."""
+        return np.array([r.frame_origin for r in self.rods], dtype=float).reshape(-1, 3)
+
+    @property
     def anchor_positions(self) -> np.ndarray:
         """World anchors, shape (n_anchors, 3) [m]."""
         return np.array(self.anchors, dtype=float).reshape(-1, 3)
@@ -208,6 +220,7 @@ class Topology:
                     "radius": r.radius,
                     "end_offsets": r.ends().tolist(),
                     "control_arm": list(r.control_arm),
+                    "frame_origin": list(r.frame_origin),
                 }
                 for r in self.rods
             ],
@@ -225,6 +238,7 @@ class Topology:
                     radius=float(r.get("radius", 0.0)),
                     end_offsets=tuple(tuple(map(float, e)) for e in r["end_offsets"]),  # type: ignore[arg-type]
                     control_arm=tuple(map(float, r.get("control_arm", (0, 0, 0)))),  # type: ignore[arg-type]
+                    frame_origin=tuple(map(float, r.get("frame_origin", (0, 0, 0)))),  # type: ignore[arg-type]
                 )
                 for r in d["rods"]
             )
@@ -255,5 +269,5 @@ class Topology:
             return False
         return all(
             np.allclose(getattr(self, f), getattr(other, f), atol=atol)
-            for f in ("end_offsets", "control_arms", "anchor_positions")
+            for f in ("end_offsets", "control_arms", "frame_origins", "anchor_positions")
         ) and np.allclose([r.length for r in self.rods], [r.length for r in other.rods], atol=atol)

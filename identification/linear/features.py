@@ -3,7 +3,9 @@
 For one transition ``t -> t+1`` of MuJoCo's semi-implicit Euler, the accelerations
 that produced it are exactly ``a = (v_{t+1} - v_t) / dt`` and
 ``α_l = (ω_l,{t+1} - ω_l,t) / dt`` in each rod's own frame (MuJoCo integrates the
-free joint's body-frame angular velocity coordinate-wise), and every force was
+free joint's body-frame angular velocity coordinate-wise; with a body frame off the
+centre of mass, the origin's velocity, see
+:func:`tensegrity_env.engine.integration.step_accelerations`), and every force was
 evaluated at state ``t``. So every equation of motion is linear in the parameters.
 """
 
@@ -16,9 +18,9 @@ import torch
 
 from identification.data.dataset import Split
 from tensegrity_env.engine.forces import SpringFrame, spring_frames
+from tensegrity_env.engine.integration import step_accelerations
 from tensegrity_env.engine.kinematics import node_kinematics
 from tensegrity_env.engine.state import State
-from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
 
 
@@ -82,15 +84,16 @@ def transition_features(
     kin = node_kinematics(s0, ends, anchors)
     nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long)
     frame = spring_frames(kin, nodes[:, 0], nodes[:, 1])
-    rot1 = quat_to_matrix(s1.q)
-    omega_l0 = torch.einsum("brji,brj->bri", kin.rot, s0.omega)
-    omega_l1 = torch.einsum("brji,brj->bri", rot1, s1.omega)
+    origins = topology.frame_origins
+    accel, alpha_l, omega_l0, _ = step_accelerations(
+        s0, s1, dt, torch.as_tensor(origins, dtype=dtype) if origins.any() else None
+    )
     arm_u = torch.einsum(
         "brij,rj->bri", kin.rot, torch.as_tensor(topology.control_arms, dtype=dtype)
     )
     return TransitionFeatures(
-        accel=(s1.v - s0.v) / dt,
-        alpha_local=(omega_l1 - omega_l0) / dt,
+        accel=accel,
+        alpha_local=alpha_l,
         omega_local=omega_l0,
         rot=kin.rot,
         arms=kin.arms,

@@ -22,7 +22,10 @@
  *   index: (n_index,) int64 flat transition indices traj * T + t
  *   end_offsets: (R, 2, 3); anchors: (A, 3); spring_nodes: (S, 2) int32 (caps 2r + e, then anchors)
  *   control_arms: (R, 3); slot_spring, slot_end: (R, J) int32; slot_sign: (R, J)
- *   gravity: (3,); rest_length: (S,) or NULL; out: (R, L, L) accumulated, L = 5 + 3 J
+ *   gravity: (3,); rest_length: (S,) or NULL; frame_origins: (R, 3) body-frame origins in
+ *   the rod frame, or NULL when every body frame is at the COM (accelerations as in
+ *   tensegrity_env/engine/integration.py step_accelerations); out: (R, L, L) accumulated,
+ *   L = 5 + 3 J
  * Returns 0, or -1 when a size is beyond the fixed limits below.
  */
 #include <math.h>
@@ -75,7 +78,7 @@ static inline void cross(const double *a, const double *b, double *o) {
 typedef struct {
     int n_traj, T, R, A, S, J;
     const double *p, *v, *q, *w, *u;
-    const double *end_offsets, *anchors, *control_arms, *slot_sign, *gravity, *rest;
+    const double *end_offsets, *anchors, *control_arms, *slot_sign, *gravity, *rest, *origins;
     const int *spring_nodes, *slot_spring, *slot_end;
     double dt;
 } Problem;
@@ -133,6 +136,19 @@ static void add_transition(const Problem *P, int64_t flat, double *acc) {
         for (int i = 0; i < 3; i++) {
             alpha[i] = (wl1[i] - wl0[i]) / P->dt;
             B[0][i] = (v1[i] - v0[i]) / P->dt - P->gravity[i];
+        }
+        if (P->origins) { /* the body origin o integrates, not the COM (integration.py) */
+            double r0[3], r1[3], c0[3], c1[3], aw[3], t0[3], t1[3];
+            mat_vec(rot[r], P->origins + 3 * r, r0);
+            mat_vec(rot1, P->origins + 3 * r, r1);
+            mat_vec(rot[r], alpha, aw);
+            cross(w0, r0, c0);
+            cross(w1, r1, c1);
+            cross(aw, r0, t0);
+            cross(w0, c0, t1);
+            for (int i = 0; i < 3; i++)
+                B[0][i] = ((v1[i] + c1[i]) - (v0[i] + c0[i])) / P->dt - t0[i] - t1[i]
+                          - P->gravity[i];
         }
         for (int k = 0; k < 3; k++) {  /* alpha_k e_k + w x (e_k w_k) */
             double ek[3] = {0.0, 0.0, 0.0}, c[3];
@@ -197,10 +213,10 @@ int tsr_normal(int n_traj, int T, int R, int A, int S, int J,
                const double *end_offsets, const double *anchors, const int *spring_nodes,
                const double *control_arms, const int *slot_spring, const int *slot_end,
                const double *slot_sign, const double *gravity, const double *rest_length,
-               double dt, int n_threads, double *out) {
+               const double *frame_origins, double dt, int n_threads, double *out) {
     if (R > MAX_RODS || J > MAX_SLOTS || S > MAX_SPRINGS || 2 * R + A > MAX_NODES) return -1;
     const Problem P = {n_traj, T, R, A, S, J, p, v, q, w, control, end_offsets, anchors,
-                       control_arms, slot_sign, gravity, rest_length, spring_nodes,
+                       control_arms, slot_sign, gravity, rest_length, frame_origins, spring_nodes,
                        slot_spring, slot_end, dt};
     const int L = 5 + 3 * J;
     const size_t size = (size_t)R * L * L;

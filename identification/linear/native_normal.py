@@ -35,7 +35,7 @@ def _library() -> tuple[ctypes.CDLL, bool]:
     lib, openmp = build_and_load(SOURCE)
     ptr = ctypes.c_void_p
     c_int, c_i64, c_dbl = ctypes.c_int, ctypes.c_int64, ctypes.c_double
-    lib.tsr_normal.argtypes = [c_int] * 6 + [ptr] * 6 + [c_i64] + [ptr] * 9 + [c_dbl, c_int, ptr]
+    lib.tsr_normal.argtypes = [c_int] * 6 + [ptr] * 6 + [c_i64] + [ptr] * 10 + [c_dbl, c_int, ptr]
     lib.tsr_normal.restype = c_int
     for name in ("rods", "slots", "springs", "nodes"):
         getattr(lib, f"tsr_normal_max_{name}").restype = c_int
@@ -101,6 +101,7 @@ def local_gram_native(
         "gravity": _c(gravity.detach().cpu().numpy(), np.float64),
     }
     rest = None if rest_length is None else _c(rest_length.detach().cpu().numpy(), np.float64)
+    origins = _c(topology.frame_origins, np.float64) if topology.frame_origins.any() else None
     L = slots.n_local
     out = np.zeros((R, L, L))
     status = lib.tsr_normal(
@@ -112,6 +113,7 @@ def local_gram_native(
         args["slot_spring"].ctypes.data, args["slot_end"].ctypes.data,
         args["slot_sign"].ctypes.data, args["gravity"].ctypes.data,
         None if rest is None else rest.ctypes.data,
+        None if origins is None else origins.ctypes.data,
         float(dt), int(threads or torch.get_num_threads()), out.ctypes.data,
     )  # fmt: skip
     if status != 0:

@@ -51,6 +51,9 @@ class Engine:
         self.end_offsets = torch.as_tensor(topology.end_offsets, **kw)  # (R, 2, 3)
         self.anchors = torch.as_tensor(topology.anchor_positions, **kw)  # (A, 3)
         self.control_arms = torch.as_tensor(topology.control_arms, **kw)  # (R, 3)
+        origins = topology.frame_origins
+        # body-frame origins (R, 3) for the integration step; None when all at the COM
+        self.frame_origins = torch.as_tensor(origins, **kw) if origins.any() else None
         nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long, device=self.device)
         self.node_a, self.node_b = nodes[:, 0], nodes[:, 1]
         incidence = torch.zeros(topology.n_nodes, topology.n_springs, **kw)
@@ -113,7 +116,7 @@ class Engine:
         """Advance every assembly in the batch by one time step ``dt``."""
         accel, alpha_l, omega_l = self.accelerations(state, params, control)
         # integration: semi-implicit Euler (MuJoCo's Euler integrator)
-        return semi_implicit_euler(state, accel, alpha_l, omega_l, self.dt)
+        return semi_implicit_euler(state, accel, alpha_l, omega_l, self.dt, self.frame_origins)
 
     def rollout(
         self,

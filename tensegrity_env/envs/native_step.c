@@ -31,7 +31,9 @@
  *   springs (S, 2):     node indices (end caps 2r, 2r+1, then anchors)
  *   model:  end[R][2][3], arm_u[R][3], anchors[A][3], K[S], c[S], l0[S], mass[R],
  *           inertia[R][3], gain, gravity[3], contact[8] = {on, stiffness, damping,
- *           impedance, impedance_min, width, friction, height}, radius[R]
+ *           impedance, impedance_min, width, friction, height}, radius[R],
+ *           origin[R][3] (each rod's body-frame origin in its principal frame: the point
+ *           MuJoCo's free joint integrates, tensegrity_env/engine/integration.py)
  */
 #include <math.h>
 #include <string.h>
@@ -47,7 +49,8 @@ typedef struct {
     double gain, g[3];
     int contact;
     double k_c, b_c, d_max, d_min, width, mu, height, soft;
-    const double *radius;
+    const double *radius, *origin;
+    int has_origin;
     const int *springs;
     int iterations;
     double dt;
@@ -69,7 +72,10 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->k_c = w[1]; m->b_c = w[2]; m->d_max = w[3]; m->d_min = w[4];
     m->width = w[5]; m->mu = w[6]; m->height = w[7]; w += 8;
     m->soft = 2.0 * m->mu * m->mu * (1.0 + m->mu * m->mu); /* R = (1-d)/d soft / M */
-    m->radius = w;
+    m->radius = w; w += R;
+    m->origin = w;
+    m->has_origin = 0;
+    for (int i = 0; i < 3 * R; i++) m->has_origin |= w[i] != 0.0;
 }
 
 static inline void cross(const double *a, const double *b, double *o) {
@@ -493,10 +499,23 @@ static void vsubstep(const Model *m, VRod *x) {
         for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
         vcross(wl, Iw, gyro);
         for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
-        /* semi-implicit Euler: velocities first, then positions with the new velocities */
-        vd wl2[3];
+        /* semi-implicit Euler: velocities first, then positions with the new velocities;
+         * of the body origin R o when it is off the centre of mass */
+        vd wl2[3], ro[3];
+        if (m->has_origin) {
+            vd aw[3], c1[3], c2[3], c3[3];
+            vrot_c(M[r], m->origin + 3 * r, ro);
+            vrot(M[r], alpha, aw);
+            vcross(aw, ro, c1);
+            vcross(xr->w, ro, c2);
+            vcross(xr->w, c2, c3);
+            for (int i = 0; i < 3; i++) {
+                xr->v[i] = (xr->v[i] + c2[i]) + dt * ((acc[i] + c1[i]) + c3[i]);
+                xr->p[i] += ro[i];
+            }
+        }
         for (int i = 0; i < 3; i++) {
-            xr->v[i] += dt * acc[i];
+            if (!m->has_origin) xr->v[i] += dt * acc[i];
             wl2[i] = wl[i] + dt * alpha[i];
             xr->p[i] += dt * xr->v[i];
         }
@@ -519,6 +538,12 @@ static void vsubstep(const Model *m, VRod *x) {
         vd M2[9];
         vrotmat(q, M2);
         vrot(M2, wl2, xr->w);
+        if (m->has_origin) { /* back from the body origin to the centre of mass */
+            vd wr[3];
+            vrot_c(M2, m->origin + 3 * r, ro);
+            vcross(xr->w, ro, wr);
+            for (int i = 0; i < 3; i++) { xr->p[i] -= ro[i]; xr->v[i] -= wr[i]; }
+        }
     }
 }
 

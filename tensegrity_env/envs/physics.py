@@ -157,6 +157,7 @@ class NativeStepper:
             topology.end_offsets.ravel(), topology.control_arms.ravel(),
             topology.anchor_positions.ravel(), P["stiffness"], P["damping"], P["rest_length"],
             P["mass"], P["inertia"].ravel(), [P["control_gain"]], P["gravity"], c, radius,
+            topology.frame_origins.ravel(),
         ]  # fmt: skip
         self._model = np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)

@@ -23,13 +23,21 @@ union of the body's geoms), whatever the body frame; the body frame's origin is 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from collections.abc import Collection
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.mjcf_checks import (
+    Unsupported,
+    check_ignore_names,
+    contact_of,
+    refuse_or_warn,
+    unsupported_features,
+)
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
 from tensegrity_env.topology import Rod, Spring, Topology, TopologyError
@@ -199,6 +207,11 @@ class MjcfAssembly:
         body_ipos: inertial-frame offset in the body frame, (R, 3) [m].
         body_iquat: inertial-frame orientation in the body frame, (R, 4).
         actuators: actuator id of each rod's (x, y, z) control force, (R, 3), -1 if absent.
+        contact: the floor contact the end caps feel, as parameters of
+            :class:`~tensegrity_env.effects.ground_contact.GroundContact` (without
+            ``height``); empty without a floor.
+        slack_springs: springs with a dead band ``springlength="0 L"`` (tension-only
+            cables of rest length L).
     """
 
     topology: Topology
@@ -211,17 +224,26 @@ class MjcfAssembly:
     body_ipos: np.ndarray
     body_iquat: np.ndarray
     actuators: np.ndarray
+    contact: dict[str, float] = field(default_factory=dict)
+    slack_springs: tuple[int, ...] = ()
 
 
 def _name(m: mujoco.MjModel, obj: mujoco.mjtObj, i: int) -> str:
     return mujoco.mj_id2name(m, obj, i) or f"#{i}"
 
 
-def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
+def from_mjcf(
+    source: str | Path, xml: str | None = None, ignore: Collection[str] = ()
+) -> MjcfAssembly:
     """Read an MJCF file (or ``xml`` text, with ``source`` used in messages).
+
+    Every feature that changes the dynamics and is not modelled is refused
+    (:mod:`tensegrity_env.mjcf_checks`), unless named in ``ignore``: then it is
+    accepted with an :class:`~tensegrity_env.mjcf_checks.IgnoredFeatureWarning`.
 
     Raises :class:`InputError` with one line naming the file and the problem.
     """
+    check_ignore_names(ignore)
     src = str(source)
     try:
         if xml is not None:
@@ -306,9 +328,21 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
 
     floor = _floor_geoms(m)
     rods = []
+    cap_geoms: list[int] = []
+    shape_found: list[Unsupported] = []
     for i, b in enumerate(rod_bodies):
         e0, e1 = (np.asarray(to_inertial(i, m.site_pos[s])) for s in rod_ends[i])
-        radius = _end_cap_radius(m, b, rod_ends[i], floor, src)
+        radius, geoms = _end_cap_radius(m, b, rod_ends[i], floor, src)
+        cap_geoms += geoms
+        shapes = {_CAP_TYPES[int(m.geom_type[g])] for g in geoms}
+        if floor and "cylinder" in shapes:
+            shape_found.append(
+                Unsupported("end-cap-shape", f"rod '{_name(m, BODY, b)}' has cylinder end caps")
+            )
+        if len(shapes) > 1 and floor:
+            raise InputError(
+                f"{src}: rod '{_name(m, BODY, b)}': end caps of different shapes {sorted(shapes)}"
+            )
         arm = to_inertial(i, m.site_pos[arm_sites[i]]) if i in arm_sites else (0.0, 0.0, 0.0)
         rods.append(
             Rod(
@@ -318,6 +352,7 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
                 end_offsets=(tuple(e0.tolist()), tuple(e1.tolist())),  # type: ignore[arg-type]
                 control_arm=arm,
                 frame_origin=to_inertial(i, np.zeros(3)),
+                end_cap="sphere" if shapes == {"sphere"} else "capsule",
             )
         )
 
@@ -360,10 +395,17 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
     for b in rod_bodies:
         if m.body_mass[b] <= 0 or np.any(m.body_inertia[b] <= 0):
             raise InputError(f"{src}: rod '{_name(m, BODY, b)}' has non-positive mass or inertia")
+    # what the file says beyond rods and springs: modelled, or refused unless ignored
+    contact, contact_found = contact_of(m, cap_geoms, floor, src)
+    found = unsupported_features(m, rod_bodies, floor, [int(a) for a in actuators[actuators >= 0]])
+    refuse_or_warn(found + contact_found + shape_found, ignore, src)
+    # dead band [0, L]: a tension-only (slack) spring of rest length L
+    low, high = m.tendon_lengthspring[:, 0], m.tendon_lengthspring[:, 1]
+    slack = tuple(int(t) for t in np.nonzero((low == 0) & (high > 0))[0])
     params = Params.create(
         stiffness=stiffness,
         damping=m.tendon_damping.copy(),
-        rest_length=m.tendon_lengthspring[:, 0].copy(),
+        rest_length=np.where((low == 0) & (high > 0), high, low),
         mass=m.body_mass[rod_bodies].copy(),
         inertia=m.body_inertia[rod_bodies].copy(),
         control_gain=gains[0] if gains else 1.0,
@@ -375,12 +417,13 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
         int(mujoco.mjtIntegrator.mjINT_IMPLICIT): "implicit",
         int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): "implicitfast",
     }.get(int(m.opt.integrator), "Euler")
-    has_floor = bool(floor)
     options = SimOptions(
         timestep=float(m.opt.timestep),
         integrator=integrator,
-        ground=has_floor,
+        ground=bool(floor),
+        rod_collisions=any(f.feature == "rod-collisions" for f in found),
         control=bool(gains),
+        friction=contact.get("friction", SimOptions.friction),
     )
     return MjcfAssembly(
         topology=topology,
@@ -393,6 +436,8 @@ def from_mjcf(source: str | Path, xml: str | None = None) -> MjcfAssembly:
         body_ipos=ipos,
         body_iquat=iquat,
         actuators=actuators,
+        contact=contact,
+        slack_springs=slack,
     )
 
 
@@ -424,7 +469,7 @@ _CAP_TYPES = {
 
 def _end_cap_radius(
     m: mujoco.MjModel, body: int, sites: list[int], floor: list[int], src: str
-) -> float:
+) -> tuple[float, list[int]]:
     """Contact radius of a rod's end caps [m]: the geom found at each end-cap site.
 
     A geom is at a site when it is a sphere centred there or a capsule/cylinder whose
@@ -432,11 +477,14 @@ def _end_cap_radius(
     several are, the largest radius is the one that meets the floor. 0 without a floor
     and no such geom; refused when a floor is present and an end cap has none, or
     when the two end caps' radii differ (one contact radius per rod).
+
+    Returns:
+        the radius [m] and the end-cap geoms (ids).
     """
-    radii = []
+    radii, cap_geoms = [], []
     for s in sites:
         x = m.site_pos[s]
-        found = [0.0]
+        found, geoms = [0.0], [-1]
         for g in range(m.ngeom):
             if m.geom_bodyid[g] != body or int(m.geom_type[g]) not in _CAP_TYPES:
                 continue
@@ -451,6 +499,7 @@ def _end_cap_radius(
                 ends = [pos - half, pos + half]
             if any(float(np.linalg.norm(x - e)) <= tol for e in ends):
                 found.append(float(size[0]))
+                geoms.append(g)
         if floor and max(found) == 0.0:
             raise InputError(
                 f"{src}: rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, body)}': no sphere, capsule or"
@@ -459,12 +508,13 @@ def _end_cap_radius(
                 " cap's radius)"
             )
         radii.append(max(found))
+        cap_geoms.append(geoms[int(np.argmax(found))])
     if abs(radii[0] - radii[1]) > 1e-12 * (1.0 + max(radii)):
         raise InputError(
             f"{src}: rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, body)}': end caps of different"
             f" radii {radii} (the contact model has one radius per rod)"
         )
-    return max(radii)
+    return max(radii), [g for g in cap_geoms if g >= 0]
 
 
 def inertial_quat(assembly: MjcfAssembly, body_quat: np.ndarray) -> np.ndarray:

@@ -47,6 +47,9 @@ class Rod:
             frame [m]: the point whose velocity MuJoCo's free joint integrates. It changes
             no force, only the integration step (zero when the body frame is at the
             centre of mass).
+        end_cap: the end caps' shape against a floor, ``"capsule"`` (the ends of a
+            capsule) or ``"sphere"`` (spheres centred on them); it sets MuJoCo's
+            contact frame (see :mod:`tensegrity_env.effects.ground_contact`).
     """
 
     name: str
@@ -55,6 +58,7 @@ class Rod:
     end_offsets: tuple[Vec3, Vec3] | None = None
     control_arm: Vec3 = (0.0, 0.0, 0.0)
     frame_origin: Vec3 = (0.0, 0.0, 0.0)
+    end_cap: str = "capsule"
 
     def ends(self) -> np.ndarray:
         """End-cap offsets in the rod frame, shape (2, 3) [m]; default ±length/2 along z."""
@@ -114,6 +118,10 @@ class Topology:
                 raise TopologyError(f"rod '{rod.name}': end_offsets must be two finite 3-vectors")
             if len(rod.control_arm) != 3 or not np.all(np.isfinite(rod.control_arm)):
                 raise TopologyError(f"rod '{rod.name}': control_arm must be a finite 3-vector")
+            if rod.end_cap not in ("capsule", "sphere"):
+                raise TopologyError(
+                    f"rod '{rod.name}': end_cap must be 'capsule' or 'sphere', got {rod.end_cap!r}"
+                )
             if len(rod.frame_origin) != 3 or not np.all(np.isfinite(rod.frame_origin)):
                 raise TopologyError(f"rod '{rod.name}': frame_origin must be a finite 3-vector")
         for a in self.anchors:
@@ -221,6 +229,7 @@ class Topology:
                     "end_offsets": r.ends().tolist(),
                     "control_arm": list(r.control_arm),
                     "frame_origin": list(r.frame_origin),
+                    "end_cap": r.end_cap,
                 }
                 for r in self.rods
             ],
@@ -239,6 +248,7 @@ class Topology:
                     end_offsets=tuple(tuple(map(float, e)) for e in r["end_offsets"]),  # type: ignore[arg-type]
                     control_arm=tuple(map(float, r.get("control_arm", (0, 0, 0)))),  # type: ignore[arg-type]
                     frame_origin=tuple(map(float, r.get("frame_origin", (0, 0, 0)))),  # type: ignore[arg-type]
+                    end_cap=str(r.get("end_cap", "capsule")),
                 )
                 for r in d["rods"]
             )

@@ -20,12 +20,16 @@ from identification.linear.regression import SpringRodIdentifier
 from identification.report.tables import group_errors
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.effects.ground_contact import GroundContact
+from tensegrity_env.effects.springs import SlackSprings
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.envs.physics import NativeStepper
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import from_mjcf, to_mjcf
+from tensegrity_env.mjcf_checks import IgnoredFeatureWarning
 from tensegrity_env.mujoco_state import mj_to_rod_state
 from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_env.topology import Topology
+from tensegrity_sr.cli import main
 
 CAP_RADIUS = 0.175  # sphere end caps [m]
 ROD_RADIUS = 0.016  # the thin tube between them [m]
@@ -56,6 +60,7 @@ def lab_mjcf(
     friction: float = 0.9,
     extra: str = "",
     rest_fraction: float = 0.9,
+    floor_attrs: str = "",
 ) -> str:
     """MJCF text of the lab-style 3-bar prism.
 
@@ -63,16 +68,19 @@ def lab_mjcf(
         attach: where cables attach: ``"centre"`` (the end-cap centres), ``"surface"``
             (sites on the sphere surfaces, a cap radius from the centres) or ``"mid"``
             (the vertical cables end at a site 60 % along the neighbouring rod).
-        floor: a plane at z = 0 with sliding friction ``friction``.
+        floor: a plane at z = 0; every geom has sliding friction ``friction``.
+        floor_attrs: more attributes of the floor geom (``solref``, ``condim``, ...).
         extra: MJCF appended inside ``<mujoco>`` (actuators, equality constraints, ...).
         rest_fraction: every cable's rest length as a fraction of its length in qpos0.
     """
     parts = ['<mujoco model="lab3bar">', '<option timestep="0.001" integrator="Euler"/>']
+    if floor:
+        parts.append(f'<default><geom friction="{friction} 0.005 0.0001"/></default>')
     parts.append("<worldbody>")
     if floor:
         parts.append(
             f'<geom name="floor" type="plane" size="0 0 1" contype="1" conaffinity="2"'
-            f' friction="{friction} 0.005 0.0001"/>'
+            f" {floor_attrs}/>"
         )
     for i, (b, t) in enumerate(prism_ends()):
         quat = np.asarray(BODY_QUATS[i]) / np.linalg.norm(BODY_QUATS[i])
@@ -237,3 +245,106 @@ def test_identify_recovers_every_parameter_with_off_centre_body_frames(
         anchors={"mass[r0]": float(truth.params.mass[0])}, backend="torch"
     ).fit(ds)
     assert torch.allclose(est_torch.params_.stiffness, est.params_.stiffness, rtol=1e-9)
+
+
+# ---------------------------------------------------------------------- what the file says
+def test_floor_contact_is_read_from_the_file_and_reproduces_mujoco() -> None:
+    xml = lab_mjcf(floor=True, friction=0.9, floor_attrs='solref="-5000 -50"')
+    asm = from_mjcf("<lab>", xml=xml)
+    dmax = 0.95  # MuJoCo's default solimp
+    assert asm.options.ground and asm.options.friction == 0.9
+    assert asm.contact["friction"] == 0.9
+    assert asm.contact["stiffness"] == pytest.approx(5000 / dmax**2, rel=1e-12)
+    assert asm.contact["damping"] == pytest.approx(50 / dmax, rel=1e-12)
+    # lower the prism so its three bottom end caps sink 5 mm into the floor
+    m, d = _random_state(asm, seed=5)
+    d.qvel[:] *= 0.1
+    for r in range(3):
+        d.qpos[asm.rod_qpos[r] + 2] -= 0.3 - CAP_RADIUS + 0.005
+    state = _rod_state(asm, d)
+    mujoco.mj_step(m, d)
+    contact = GroundContact(asm.topology, height=0.0, **asm.contact)
+    with torch.no_grad():
+        bare = Engine(asm.topology, 1e-3).step(state, asm.params)
+        full = Engine(asm.topology, 1e-3, effects=[contact]).step(state, asm.params)
+    ref = _rod_state(asm, d)
+    assert float((bare.v - ref.v).abs().max()) > 1e-3  # the floor pushes
+    assert float((full.v - ref.v).abs().max()) <= 1e-9  # MuJoCo's solver tolerance
+
+
+def test_ground_truth_records_the_files_friction_and_contact(tmp_path: Path) -> None:
+    path = tmp_path / "lab.xml"
+    path.write_text(lab_mjcf(floor=True, friction=0.7, floor_attrs='solref="0.01 0.8"'))
+    _, truth = generate_dataset(GenerateSpec(mjcf=str(path), n_train=1, n_val=0, n_test=0,
+                                             steps=5))  # fmt: skip
+    (contact,) = truth.effects
+    assert contact["name"] == "ground_contact"
+    assert contact["params"]["friction"] == 0.7
+    # the rods keep solref 0.02 1: MuJoCo mixes the pair half and half (solmix 1 each)
+    tc, zeta = 0.5 * (0.01 + 0.02), 0.5 * (0.8 + 1.0)
+    assert contact["params"]["stiffness"] == pytest.approx(1 / (0.95**2 * tc**2 * zeta**2))
+    assert contact["params"]["damping"] == pytest.approx(2 / (0.95 * tc))
+    assert truth.sim["friction"] == 0.7
+
+
+@pytest.mark.parametrize(
+    ("feature", "change"),
+    [
+        ("condim", lambda x: lab_mjcf(floor=True, floor_attrs='condim="6"')),
+        ("cone", lambda x: x.replace("<option ", '<option cone="elliptic" ')),
+        ("rod-collisions", lambda x: x.replace('contype="2" conaffinity="1"',
+                                                'contype="3" conaffinity="3"')),
+        ("equality", lambda x: x.replace("</mujoco>",
+                                         '<equality><weld body1="r0" body2="r1"/></equality>'
+                                         "</mujoco>")),
+        ("tendon-limits", lambda x: x.replace('<spatial name="c0"',
+                                              '<spatial name="c0" range="0 2"')),
+        ("integrator", lambda x: x.replace('integrator="Euler"', 'integrator="RK4"')),
+        ("joint-dynamics", lambda x: x.replace('<freejoint name="r1"/>',
+                                               '<joint name="r1" type="free" damping="0.1"/>')),
+        ("actuators", lambda x: x.replace("</mujoco>",
+                                          '<actuator><motor joint="r0" gear="0 0 1 0 0 0"/>'
+                                          "</actuator></mujoco>")),
+    ],
+)  # fmt: skip
+def test_unmodelled_features_are_refused_by_name_unless_ignored(feature: str, change) -> None:
+    xml = change(lab_mjcf(floor=feature == "cone"))
+    with pytest.raises(InputError, match=f"--ignore {feature}"):
+        from_mjcf("<lab>", xml=xml)
+    with pytest.warns(IgnoredFeatureWarning, match="ignoring"):
+        asm = from_mjcf("<lab>", xml=xml, ignore=[feature])
+    assert asm.topology.n_rods == 3
+
+
+def test_dead_band_springs_are_tension_only_cables() -> None:
+    xml = lab_mjcf()
+    xml = xml.replace('springlength="', 'springlength="0 ', 2)  # c0 and c1 become cables
+    asm = from_mjcf("<lab>", xml=xml)
+    plain = from_mjcf("<lab>", xml=lab_mjcf())
+    assert asm.slack_springs == (0, 1)
+    assert torch.equal(asm.params.rest_length, plain.params.rest_length)
+    # slack cables (shorter than rest) push nothing, as MuJoCo's dead band
+    m, d = _random_state(asm, seed=6)
+    state = _rod_state(asm, d)
+    lengths = d.ten_length.copy()
+    mujoco.mj_forward(m, d)
+    assert np.all(d.ten_length[:2] < asm.params.rest_length.numpy()[:2] / 0.9 + 1)  # sanity
+    mujoco.mj_step(m, d)
+    cables = SlackSprings(asm.topology, springs=list(asm.slack_springs))
+    with torch.no_grad():
+        step = Engine(asm.topology, 1e-3, effects=[cables]).step(state, asm.params)
+    assert float((step.v - _rod_state(asm, d).v).abs().max()) <= 1e-12
+    assert lengths.shape == (9,)
+
+
+def test_generate_refuses_with_one_line_and_accepts_with_ignore(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "lab.xml"
+    path.write_text(lab_mjcf().replace("<option ", '<option density="1.2" '))
+    out = tmp_path / "d.h5"
+    assert main(["generate", "--mjcf", str(path), "--steps", "5", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "fluid" in err and "--ignore fluid" in err and "Traceback" not in err
+    assert not out.exists()
+    args = ["generate", "--mjcf", str(path), "--steps", "5", "--ignore", "fluid", "-o", str(out)]
+    assert main([*args, "--no-progress"]) == 0
+    assert "warning:" in capsys.readouterr().err and out.exists()

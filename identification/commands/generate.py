@@ -11,6 +11,7 @@ from pathlib import Path
 from identification.data.dataset import write_dataset
 from identification.simulation.generate import PRESETS, GenerateSpec, generate
 from tensegrity_env.assemblies import ASSEMBLIES
+from tensegrity_env.mjcf_checks import FEATURES
 
 EPILOG = """\
 presets:
@@ -55,6 +56,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     p.add_argument("--ground", action="store_true", help="add a floor at z = 0 and start above it")
     p.add_argument(
+        "--ignore",
+        action="append",
+        default=[],
+        metavar="FEATURE",
+        choices=sorted(FEATURES),
+        help="accept an MJCF feature the model does not have (simulated by MuJoCo, left out of"
+        " the model, with a warning); repeatable; see docs/mjcf.md",
+    )
+    p.add_argument(
         "--control-std",
         type=float,
         default=None,
@@ -86,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         ground=args.ground,
         control_std=args.control_std,
         threads=args.threads,
+        ignore=tuple(args.ignore),
     )
     name = Path(spec.mjcf).stem if spec.mjcf is not None else spec.assembly
     output = args.output or Path(f"{name}_{spec.preset}.h5")

@@ -42,8 +42,11 @@ from tqdm.auto import tqdm
 from identification.data.dataset import SPLITS, Dataset, GroundTruth, Split
 from identification.simulation.rollout import RodFrames, Roller, roll_and_convert
 from tensegrity_env import assemblies
+from tensegrity_env.effects.ground_contact import GroundContact
+from tensegrity_env.effects.springs import SlackSprings
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, SimOptions, from_mjcf, to_mjcf
+from tensegrity_env.mjcf_checks import IgnoredFeatureWarning, check_ignore_names
 from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
 from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix, random_quaternions
 from tensegrity_env.topology import Topology
@@ -104,6 +107,8 @@ class GenerateSpec:
         initial: initial-condition randomization.
         threads: MuJoCo rollout threads (None: all CPU cores).
         chunk: trajectories per rollout call (None: automatic).
+        ignore: MJCF features the model leaves out that the user accepts anyway
+            (names of :data:`tensegrity_env.mjcf_checks.FEATURES`; warned about).
     """
 
     assembly: str = "icosahedron"
@@ -120,8 +125,11 @@ class GenerateSpec:
     initial: InitialConditions = field(default_factory=InitialConditions)
     threads: int | None = None
     chunk: int | None = None
+    ignore: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "ignore", tuple(self.ignore))
+        check_ignore_names(self.ignore)
         if self.mjcf is None and self.assembly not in assemblies.ASSEMBLIES:
             raise InputError(
                 f"--assembly: unknown assembly '{self.assembly}' "
@@ -214,11 +222,16 @@ class Truth:
         return float(self.asm.model.opt.timestep)
 
     def ground_truth(self) -> GroundTruth:
+        """The true model: params, simulation options, MJCF and the effects the file has
+        beyond linear springs (floor contact with the file's friction, solref and
+        solimp; tension-only springs), in their ``to_dict`` form."""
         effects = []
         if self.ground:
-            effects.append(
-                {"name": "ground_contact", "height": 0.0, "friction": self.asm.options.friction}
-            )
+            contact = self.asm.contact or {"friction": self.asm.options.friction}
+            effects.append(GroundContact(self.topology, height=0.0, **contact).to_dict())
+        if self.asm.slack_springs:
+            cables = list(self.asm.slack_springs)
+            effects.append(SlackSprings(self.topology, springs=cables).to_dict())
         return GroundTruth(
             params=self.asm.params,
             sim=dataclasses.asdict(dataclasses.replace(self.asm.options, ground=self.ground)),
@@ -263,7 +276,7 @@ def load_truth(spec: GenerateSpec) -> Truth:
 
 def _load_user_mjcf(spec: GenerateSpec) -> Truth:
     path = Path(str(spec.mjcf))
-    asm = from_mjcf(path)
+    asm = from_mjcf(path, ignore=spec.ignore)
     xml = path.read_text()
     ground = asm.options.ground
     if spec.ground and not ground:
@@ -284,7 +297,9 @@ def _load_user_mjcf(spec: GenerateSpec) -> Truth:
         floor.size = [0.0, 0.0, 0.05]
         floor.contype, floor.conaffinity = 1, 3
         xml = mspec.to_xml()
-        asm = from_mjcf(path, xml=xml)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IgnoredFeatureWarning)  # said once, above
+            asm = from_mjcf(path, xml=xml, ignore=spec.ignore)
         ground = True
     nominal = mj_to_rod_state(asm, asm.model.qpos0.copy(), np.zeros(asm.model.nv))
     truth = Truth(asm, xml, nominal["p"], nominal["q"], ground, path.stem)

@@ -171,6 +171,7 @@ def planted_dataset(spec: PlantSpec) -> PlantedData:
             mjcf=str(path), n_train=spec.n_train, n_val=spec.n_val, n_test=spec.n_test,
             steps=spec.steps, seed=spec.seed, ground=ground, control_std=spec.control_std,
             initial=initial, preset="planted",
+            ignore=("fluid",) if spec.effect in ("quadratic_drag", "linear_drag") else (),
         )  # fmt: skip
         import warnings
 

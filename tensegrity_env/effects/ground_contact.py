@@ -7,8 +7,9 @@ soft constraint (so the engine reproduces the MuJoCo twin), written in each rod'
 own frame of contacts:
 
 * every touching end cap has four friction-pyramid edges ``e = n ± μ t_k``
-  (``n = ẑ``; ``t_1`` the horizontal direction from the rod centre to the cap,
-  ``t_2 = n × t_1``), acting at the contact point ``(x, y, height + dist / 2)``;
+  (``n = ẑ``; ``t_1`` the horizontal direction from the rod centre to the cap for
+  capsule end caps, the world ``y`` axis for sphere end caps, as MuJoCo's contact
+  frames; ``t_2 = n × t_1``), acting at the contact point ``(x, y, height + dist / 2)``;
 * each edge wants the **reference acceleration** ``a_ref = -B v_e - K d(dist) dist``
   (``v_e`` the contact point's velocity along the edge): a spring of stiffness ``K``
   [1/s²] and a damper ``B`` [1/s] per unit effective mass, i.e. a normal stiffness
@@ -26,7 +27,10 @@ Parameters are shared by every end cap. :data:`MUJOCO_DEFAULT` are MuJoCo's
 defaults (``solref = 0.02 1``, ``solimp = 0.9 0.95 0.001 0.5 2``, friction 1);
 ``identification.trajectory.effect_fit`` fits them to measured trajectories.
 
-``a0`` needs every other force on each rod. Contact is a constraint
+``a0`` is MuJoCo's ``J qacc`` without contact: with a rod's body frame off its centre
+of mass (``Rod.frame_origin``), it includes the centripetal acceleration
+``ω × (ω × r_o)`` of the body origin, whose velocity the free joint integrates.
+It needs every other force on each rod. Contact is a constraint
 (``constraint = True``): the engine evaluates it last and hands it the total wrench of
 springs, control forces and every other effect, as MuJoCo's constraint solver sees all
 passive and actuator forces. Called directly without that wrench, it uses the springs
@@ -116,6 +120,11 @@ class GroundContact(PhysicalEffect):
         inc[self._node_a, idx] = 1.0
         inc[self._node_b, idx] = -1.0
         self._incidence = inc
+        #: rods with sphere end caps (their contact frame is fixed in the world), (R,)
+        self._sphere = torch.tensor([r.end_cap == "sphere" for r in topology.rods])
+        origins = topology.frame_origins
+        #: body-frame origins in each rod's principal frame (R, 3) [m], None at the COM
+        self._origins = torch.as_tensor(origins) if origins.any() else None
         self._seen: tuple[Kinematics, SpringFrame, torch.Tensor] | None = None
 
     def check(self) -> None:
@@ -179,6 +188,12 @@ class GroundContact(PhysicalEffect):
         x_axis = torch.zeros_like(horiz)
         x_axis[..., 0] = 1.0
         tangent = torch.where(norm > 1e-12, horiz / norm.clamp_min(1e-12), x_axis)
+        if self._sphere.any():  # MuJoCo's sphere-plane contact frame: t_1 = y, fixed
+            y_axis = torch.zeros_like(horiz)
+            y_axis[..., 1] = 1.0
+            tangent = torch.where(
+                self._sphere.to(tangent.device)[None, :, None, None], y_axis, tangent
+            )
         return {
             "dist": dist,
             "arm": arm,
@@ -236,6 +251,11 @@ class GroundContact(PhysicalEffect):
         # free accelerations a0 of the edges: gravity, applied forces, gyroscopic terms
         f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
         acc = f_s / m_b[:, :, None] + params.gravity
+        if self._origins is not None:
+            # MuJoCo's constraint acceleration is J qacc: it carries the centripetal
+            # acceleration of the body origin a free joint integrates
+            r_o = torch.einsum("brij,rj->bri", rot, self._origins.to(acc))
+            acc = acc + torch.cross(state.omega, torch.cross(state.omega, r_o, dim=-1), dim=-1)
         omega_l = torch.einsum("brji,brj->bri", rot, state.omega)
         torque_l = torch.einsum("brji,brj->bri", rot, t_s)
         gyro = torch.cross(omega_l, i_b * omega_l, dim=-1)

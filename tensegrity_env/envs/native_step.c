@@ -33,7 +33,8 @@
  *           inertia[R][3], gain, gravity[3], contact[8] = {on, stiffness, damping,
  *           impedance, impedance_min, width, friction, height}, radius[R],
  *           origin[R][3] (each rod's body-frame origin in its principal frame: the point
- *           MuJoCo's free joint integrates, tensegrity_env/engine/integration.py)
+ *           MuJoCo's free joint integrates, tensegrity_env/engine/integration.py),
+ *           sphere[R] (1: sphere end caps, whose contact frame is fixed in the world)
  */
 #include <math.h>
 #include <string.h>
@@ -49,7 +50,7 @@ typedef struct {
     double gain, g[3];
     int contact;
     double k_c, b_c, d_max, d_min, width, mu, height, soft;
-    const double *radius, *origin;
+    const double *radius, *origin, *sphere;
     int has_origin;
     const int *springs;
     int iterations;
@@ -74,6 +75,7 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->soft = 2.0 * m->mu * m->mu * (1.0 + m->mu * m->mu); /* R = (1-d)/d soft / M */
     m->radius = w; w += R;
     m->origin = w;
+    m->sphere = w + 3 * R;
     m->has_origin = 0;
     for (int i = 0; i < 3 * R; i++) m->has_origin |= w[i] != 0.0;
 }
@@ -192,6 +194,7 @@ static void contact_wrench(const Model *m, int r, const double *p, const double 
         double nrm = sqrt(arms[k][0] * arms[k][0] + arms[k][1] * arms[k][1]);
         double t1x = 1.0, t1y = 0.0;
         if (nrm > 1e-12) { t1x = arms[k][0] / nrm; t1y = arms[k][1] / nrm; }
+        if (m->sphere[r] != 0.0) { t1x = 0.0; t1y = 1.0; }
         double d = impedance(m, dist[k]);
         double sft = (1.0 - d) / d * m->soft * inv_m, kd = m->k_c * d * dist[k];
         double tan[2][2] = {{t1x, t1y}, {-t1y, t1x}};
@@ -317,6 +320,7 @@ static void vcontact_cap(const Model *m, int r, const VRod *x, const vd *M, cons
     vd nrm = vsqrt(arm[0] * arm[0] + arm[1] * arm[1]);
     vl ok = nrm > 1e-12;
     vd t1x = vsel(ok, arm[0] / nrm, vsplat(1.0)), t1y = vsel(ok, arm[1] / nrm, vsplat(0.0));
+    if (m->sphere[r] != 0.0) { t1x = vsplat(0.0); t1y = vsplat(1.0); }
     /* impedance d(|dist|), softness and the spring term of the reference acceleration */
     vd xi = (vsel(*dist < 0, -*dist, *dist)) / m->width;
     xi = vsel(xi > 1, vsplat(1.0), xi);
@@ -412,6 +416,15 @@ static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[
     /* free accelerations without contact: gravity, springs and control, gyroscopic terms */
     vd acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
     for (int i = 0; i < 3; i++) acc[i] = f_s[i] * (1.0 / mass) + m->g[i];
+    vd fs_o[3]; /* f_s plus M times the body origin's centripetal acceleration (J qacc) */
+    for (int i = 0; i < 3; i++) fs_o[i] = f_s[i];
+    if (m->has_origin) {
+        vd ro[3], c1[3], c2[3];
+        vrot_c(M, m->origin + 3 * r, ro);
+        vcross(x->w, ro, c1);
+        vcross(x->w, c1, c2);
+        for (int i = 0; i < 3; i++) { acc[i] += c2[i]; fs_o[i] += mass * c2[i]; }
+    }
     vrot_t(M, x->w, wl);
     vrot_t(M, t_s, tl);
     for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
@@ -428,7 +441,7 @@ static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[
         double p[3], v[3], w[3], Ms[9], a2[2][3], fs[3], ts[3], Fl[3] = {0}, Tl[3] = {0};
         for (int i = 0; i < 3; i++) {
             p[i] = x->p[i][l]; v[i] = x->v[i][l]; w[i] = x->w[i][l];
-            fs[i] = f_s[i][l]; ts[i] = t_s[i][l];
+            fs[i] = fs_o[i][l]; ts[i] = t_s[i][l];
             a2[0][i] = arms[0][i][l]; a2[1][i] = arms[1][i][l];
         }
         for (int i = 0; i < 9; i++) Ms[i] = M[i][l];

@@ -158,6 +158,7 @@ class NativeStepper:
             topology.anchor_positions.ravel(), P["stiffness"], P["damping"], P["rest_length"],
             P["mass"], P["inertia"].ravel(), [P["control_gain"]], P["gravity"], c, radius,
             topology.frame_origins.ravel(),
+            [float(r.end_cap == "sphere") for r in topology.rods],
         ]  # fmt: skip
         self._model = np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)

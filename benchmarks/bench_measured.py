@@ -1,0 +1,168 @@
+"""The closed loop on measured data: identify and diagnose, run as a user would.
+
+For each cell of the matrix (setting x rate x noise x dropouts x planted effect x
+seed) this script writes motion-capture-like data with its own MuJoCo script
+(``benchmarks/measured_plant.py``: end caps only, noise, gap-filled dropouts),
+runs ``tensegrity-sr identify`` and ``tensegrity-sr diagnose`` on it through the
+command line, and records:
+
+* whether each command succeeded, crashed (a traceback) or stopped with a message
+  (its last line), its exit code and wall time;
+* the effects ``diagnose`` named against the planted ones;
+* relative parameter errors against the truth (masses, inertias, stiffness, damping,
+  rest lengths) of both params files, and any unphysical value written;
+* the open-loop rollout error over the first second of each clean test trajectory,
+  from its true initial state, of the declared model (``identify``: "before") and of
+  the diagnosed model (``diagnose``: "after"), stepped at <= 1 ms between samples;
+* the 2-sigma coverage of the stated standard errors.
+
+Results accumulate in ``docs/results/measured.json`` (one record per cell label; a
+rerun replaces that cell's record) and ``docs/results/measured.md`` is generated from
+it. Default: the 120 Hz / 1 mm / no-dropout cells of both settings, seed 0.
+
+    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/bench_measured.py            # default cells
+    python benchmarks/bench_measured.py --settings flight --effects none,linear_drag
+    python benchmarks/bench_measured.py --all                                   # whole matrix
+    python benchmarks/bench_measured.py --report-only                           # rewrite the .md
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from measured_plant import PLANTED, SETTINGS, Cell, write_cell
+from measured_report import evaluate_cell, write_markdown
+
+from tensegrity_env.io_utils import atomic_write_text
+
+ROOT = Path(__file__).resolve().parent.parent
+RATES, NOISES, DROPOUTS = (60.0, 120.0, 240.0, 1000.0), (0.5, 1.0, 2.0), (0.0, 2.0)
+
+
+def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str, Any]:
+    """Run ``tensegrity-sr ARGS`` in ``folder``; returns status, exit code, wall time, last line."""
+    cmd = [sys.executable, "-m", "tensegrity_sr.cli", *args]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env,
+                           cwd=folder)  # fmt: skip
+    except subprocess.TimeoutExpired as e:
+        out = (e.stdout or b"").decode() if isinstance(e.stdout, bytes) else (e.stdout or "")
+        (folder / log).write_text(out)
+        return {"status": "timeout", "code": None, "seconds": timeout,
+                "message": f"no result within {timeout:g} s", "command": shlex.join(args)}  # fmt: skip
+    wall = time.perf_counter() - t0
+    (folder / log).write_text(f"$ {shlex.join(cmd)}\n{p.stdout}\n--- stderr ---\n{p.stderr}")
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    if "Traceback (most recent call last)" in p.stderr:
+        status = "crash"
+    elif p.returncode != 0:
+        status = "failed"
+    else:
+        status = "ok"
+    message = lines[-1] if (lines and status != "ok") else ""
+    return {"status": status, "code": p.returncode, "seconds": round(wall, 2),
+            "message": message, "command": shlex.join(args)}  # fmt: skip
+
+
+def run_cell(cell: Cell, work: Path, timeout: float, diagnose_args: list[str]) -> dict[str, Any]:
+    """Write the cell's data, run identify and diagnose on it, evaluate both results."""
+    folder = work / cell.label.replace("/", "_")
+    t0 = time.perf_counter()
+    data = write_cell(cell, folder)
+    record: dict[str, Any] = {"cell": cell.__dict__ | {"label": cell.label},
+                              "expected": list(cell.expected),
+                              "data_seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
+    anchor = f"mass[rod0]={float(data.truth.params.mass[0])!r}"
+    ident = folder / "identify.json"
+    diag = folder / "diagnose"
+    for f in (ident, diag / "params.json"):
+        f.unlink(missing_ok=True)
+    record["identify"] = run_cli(
+        ["identify", "measured.h5", "--anchor", anchor, "-o", ident.name],
+        folder, "identify.log", timeout,
+    )  # fmt: skip
+    record["diagnose"] = run_cli(
+        ["diagnose", "measured.h5", "--anchor", anchor, "-o", diag.name, *diagnose_args],
+        folder, "diagnose.log", timeout,
+    )  # fmt: skip
+    record.update(evaluate_cell(data, ident, diag / "params.json"))
+    return record
+
+
+def matrix(args: argparse.Namespace) -> list[Cell]:
+    """The cells selected by the command line."""
+
+    def pick(text: str | None, full: tuple[Any, ...], cast: Any) -> list[Any]:
+        return list(full) if args.all and text is None else [cast(x) for x in text.split(",")]
+
+    settings = pick(args.settings, SETTINGS, str)
+    rates = pick(args.rates, RATES, float)
+    noises = [n * 1e-3 for n in pick(args.noise, NOISES, float)]
+    drops = [d / 100 for d in pick(args.dropout, DROPOUTS, float)]
+    effects = pick(args.effects, tuple(PLANTED), str)
+    bad = [e for e in effects if e not in PLANTED] + [s for s in settings if s not in SETTINGS]
+    if bad:
+        raise SystemExit(f"error: unknown setting/effect {bad} (effects: {', '.join(PLANTED)})")
+    seeds = range(args.seed0, args.seed0 + args.seeds)
+    return [Cell(s, r, n, d, e, k) for s, r, n, d, e, k in
+            itertools.product(settings, rates, noises, drops, effects, seeds)]  # fmt: skip
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--settings", help=f"comma-separated of {','.join(SETTINGS)} (default both)")
+    ap.add_argument("--rates", help="sample rates [Hz] (default 120)")
+    ap.add_argument("--noise", help="end-cap noise std [mm] (default 1)")
+    ap.add_argument("--dropout", help="dropped samples [%%] (default 0)")
+    ap.add_argument("--effects", help=f"planted effects of {','.join(PLANTED)} (default all)")
+    ap.add_argument("--seeds", type=int, default=1, help="seeds per cell (default 1)")
+    ap.add_argument("--seed0", type=int, default=0, help="first seed (default 0)")
+    ap.add_argument("--all", action="store_true", help="every value of unspecified axes")
+    ap.add_argument("--timeout", type=float, default=3600, help="seconds per command")
+    ap.add_argument("--diagnose-args", default="", help="extra diagnose options, one string")
+    ap.add_argument("--workdir", type=Path, help="where cell data and logs go (default: temp)")
+    ap.add_argument("--json", type=Path, default=ROOT / "docs/results/measured.json")
+    ap.add_argument("--md", type=Path, default=ROOT / "docs/results/measured.md")
+    ap.add_argument("--report-only", action="store_true", help="only regenerate --md from --json")
+    args = ap.parse_args()
+    if not args.all:
+        args.settings = args.settings or ",".join(SETTINGS)
+        args.rates, args.noise = args.rates or "120", args.noise or "1"
+        args.dropout, args.effects = args.dropout or "0", args.effects or ",".join(PLANTED)
+    results: dict[str, Any] = {"cells": {}}
+    if args.json.is_file():
+        results = json.loads(args.json.read_text())
+    if not args.report_only:
+        work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_measured_"))
+        extra = shlex.split(args.diagnose_args)
+        for cell in matrix(args):
+            print(f"{cell.label} ...", flush=True)
+            rec = run_cell(cell, work, args.timeout, extra)
+            rec["diagnose_args"] = args.diagnose_args
+            results["cells"][cell.label] = rec
+            atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
+            print(f"  identify {rec['identify']['status']}, diagnose {rec['diagnose']['status']} "
+                  f"({rec['diagnose']['seconds']} s), named {rec.get('named')}", flush=True)  # fmt: skip
+        print(f"data and logs in {work}")
+    write_markdown(results, args.md)
+    print(f"wrote {args.json} and {args.md}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

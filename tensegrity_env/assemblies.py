@@ -43,10 +43,19 @@ class Assembly:
 
 
 def node_positions(topology: Topology, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """End caps then anchors in world coordinates for rod poses ``p`` (R,3), ``q`` (R,4)."""
-    R = np_quat_to_matrix(q)  # (R, 3, 3)
-    ends = p[:, None, :] + np.einsum("rij,rkj->rki", R, topology.end_offsets)
-    return np.concatenate([ends.reshape(-1, 3), topology.anchor_positions], axis=0)
+    """All nodes in world coordinates: end caps, anchors, then attachment points.
+
+    ``p`` (..., R, 3) [m] and ``q`` (..., R, 4) are rod poses; returns (..., n_nodes, 3) [m].
+    """
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    rod = topology.node_rod
+    on = rod >= 0
+    rot = np_quat_to_matrix(q)[..., rod[on], :, :]  # (..., n_rod_nodes, 3, 3)
+    x = np.broadcast_to(topology.node_offsets, (*p.shape[:-2], topology.n_nodes, 3)).copy()
+    x[..., on, :] = p[..., rod[on], :] + np.einsum(
+        "...nij,nj->...ni", rot, topology.node_offsets[on]
+    )
+    return x
 
 
 def cylinder_inertia(mass: np.ndarray, length: float, radius: float) -> np.ndarray:

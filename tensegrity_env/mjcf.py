@@ -2,10 +2,14 @@
 
 The convention (DESIGN.md) that any MJCF must follow to be read:
 
-* a **rod** is a body with one free joint and (at least) two sites, its end caps;
-* a **spring** is a spatial tendon through exactly two sites, each a rod end cap or a
-  site on the world body (a fixed anchor), with ``stiffness``, ``damping`` and
-  ``springlength``;
+* a **rod** is a body with one free joint and (at least) two sites, its end caps:
+  the points motion capture tracks and the floor touches. With more sites, the end
+  caps are the two at the rod's ends along its long axis (the principal axis of least
+  inertia; of sites equally far out, the one nearest the axis), or the sites named
+  in ``end_caps``;
+* a **spring** is a spatial tendon through exactly two sites, each a site on a rod (an
+  end cap, or any other site: an attachment point) or a site on the world body (a
+  fixed anchor), with ``stiffness``, ``damping`` and ``springlength``;
 * optional **control**: ``general`` actuators with a site transmission on a rod site
   (the arm ``r_u``) and a ``refsite`` on the world body (so the force direction is fixed
   in the world); the actuator gain is the control gain ``h`` and belongs to the ground
@@ -145,6 +149,11 @@ def to_mjcf(
             ET.SubElement(
                 body, "site", name=f"{rod.name}_end{e}", pos=_v(ends[r, e] - o), size="0.02"
             )
+        for k, point in enumerate(rod.attachments):
+            ET.SubElement(
+                body, "site", name=f"{rod.name}_point{k}", pos=_v(np.asarray(point) - o),
+                size="0.01",
+            )  # fmt: skip
         ET.SubElement(
             body, "site", name=f"{rod.name}_arm", pos=_v(np.asarray(rod.control_arm) - o),
             size="0.005",
@@ -177,6 +186,9 @@ def to_mjcf(
 def _site_of_node(topology: Topology, node: int) -> str:
     if topology.is_anchor(node):
         return f"anchor{node - 2 * topology.n_rods}"
+    if node >= 2 * topology.n_rods:
+        rod = int(topology.node_rod[node])
+        return f"{topology.rods[rod].name}_point{node - topology.point_node(rod, 0)}"
     return f"{topology.rods[node // 2].name}_end{node % 2}"
 
 
@@ -233,9 +245,15 @@ def _name(m: mujoco.MjModel, obj: mujoco.mjtObj, i: int) -> str:
 
 
 def from_mjcf(
-    source: str | Path, xml: str | None = None, ignore: Collection[str] = ()
+    source: str | Path,
+    xml: str | None = None,
+    ignore: Collection[str] = (),
+    end_caps: Collection[str] = (),
 ) -> MjcfAssembly:
     """Read an MJCF file (or ``xml`` text, with ``source`` used in messages).
+
+    ``end_caps`` names the end-cap sites (two per rod) where the convention (the two
+    sites at a rod's ends along its axis) does not find them.
 
     Every feature that changes the dynamics and is not modelled is refused
     (:mod:`tensegrity_env.mjcf_checks`), unless named in ``ignore``: then it is
@@ -303,21 +321,6 @@ def from_mjcf(
             )
         tendon_sites.append((int(m.wrap_objid[adr]), int(m.wrap_objid[adr + 1])))
 
-    # end caps of each rod: its sites used by springs, else its non-arm sites
-    rod_ends: list[list[int]] = []
-    used = {s for pair in tendon_sites for s in pair}
-    for i, b in enumerate(rod_bodies):
-        sites = [s for s in range(m.nsite) if m.site_bodyid[s] == b]
-        spring_sites = [s for s in sites if s in used]
-        others = [s for s in sites if s != arm_sites.get(i)]
-        ends = spring_sites if len(spring_sites) == 2 else others
-        if len(spring_sites) > 2 or len(ends) != 2:
-            raise InputError(
-                f"{src}: rod '{_name(m, BODY, b)}' needs exactly two end-cap sites, "
-                f"found {len(spring_sites) if len(spring_sites) > 2 else len(ends)}"
-            )
-        rod_ends.append(sorted(ends))
-
     # geometry in each rod's inertial (principal) frame
     ipos = np.array([m.body_ipos[b] for b in rod_bodies])
     iquat = np.array([m.body_iquat[b] for b in rod_bodies])
@@ -325,6 +328,26 @@ def from_mjcf(
 
     def to_inertial(i: int, pos_body: np.ndarray) -> tuple[float, float, float]:
         return tuple((Ri[i].T @ (pos_body - ipos[i])).tolist())  # type: ignore[return-value]
+
+    # end caps of each rod (named, or by convention); its other spring sites are
+    # attachment points, in order of first use
+    named = _named_sites(m, end_caps, src)
+    rod_ends: list[list[int]] = []
+    rod_points: list[list[int]] = [[] for _ in rod_bodies]
+    for i, b in enumerate(rod_bodies):
+        sites = [s for s in range(m.nsite) if m.site_bodyid[s] == b]
+        local = {s: np.asarray(to_inertial(i, m.site_pos[s])) for s in sites}
+        axis = int(np.argmin(m.body_inertia[b]))
+        rod_ends.append(
+            _end_cap_sites(m, b, sites, arm_sites.get(i), local, axis, named, src)
+        )
+    for pair in tendon_sites:
+        for s in pair:
+            b = int(m.site_bodyid[s])
+            if b in rod_index:
+                i = rod_index[b]
+                if s not in rod_ends[i] and s not in rod_points[i]:
+                    rod_points[i].append(s)
 
     floor = _floor_geoms(m)
     rods = []
@@ -353,6 +376,7 @@ def from_mjcf(
                 control_arm=arm,
                 frame_origin=to_inertial(i, np.zeros(3)),
                 end_cap="sphere" if shapes == {"sphere"} else "capsule",
+                attachments=tuple(to_inertial(i, m.site_pos[s]) for s in rod_points[i]),
             )
         )
 
@@ -360,27 +384,33 @@ def from_mjcf(
     node_of_site: dict[int, int] = {}
     for i, ends in enumerate(rod_ends):
         node_of_site[ends[0]], node_of_site[ends[1]] = 2 * i, 2 * i + 1
-    anchors: list[tuple[float, float, float]] = []
+    world_sites = [
+        s for pair in tendon_sites for s in pair if s not in node_of_site and m.site_bodyid[s] == 0
+    ]
+    anchor_sites = list(dict.fromkeys(world_sites))  # in order of first use
+    anchors = [tuple(m.site_pos[s].tolist()) for s in anchor_sites]
+    for k, s in enumerate(anchor_sites):
+        node_of_site[s] = 2 * len(rods) + k
+    n_point = 2 * len(rods) + len(anchors)
+    for points in rod_points:
+        for s in points:
+            node_of_site[s] = n_point
+            n_point += 1
     springs = []
     for t, pair in enumerate(tendon_sites):
-        nodes = []
         for s in pair:
             if s not in node_of_site:
                 body = m.site_bodyid[s]
-                if body != 0:
-                    raise InputError(
-                        f"{src}: spring '{_name(m, TEN, t)}' attaches to site '{_name(m, SITE, s)}'"
-                        f" on body '{_name(m, BODY, body)}', which is not a rod end or the world"
-                    )
-                node_of_site[s] = 2 * len(rods) + len(anchors)
-                anchors.append(tuple(m.site_pos[s].tolist()))  # type: ignore[arg-type]
-            nodes.append(node_of_site[s])
-        springs.append(Spring(_name(m, TEN, t), nodes[0], nodes[1]))
+                raise InputError(
+                    f"{src}: spring '{_name(m, TEN, t)}' attaches to site '{_name(m, SITE, s)}'"
+                    f" on body '{_name(m, BODY, body)}', which is neither a rod nor the world"
+                )
+        springs.append(Spring(_name(m, TEN, t), node_of_site[pair[0]], node_of_site[pair[1]]))
     try:
         topology = Topology(
             rods=tuple(rods),
             springs=tuple(springs),
-            anchors=tuple(anchors),
+            anchors=tuple(anchors),  # type: ignore[arg-type]
             name=m.names[: m.names.index(b"\0")].decode() or "assembly",
         )
     except TopologyError as e:
@@ -439,6 +469,66 @@ def from_mjcf(
         contact=contact,
         slack_springs=slack,
     )
+
+
+def _named_sites(m: mujoco.MjModel, names: Collection[str], src: str) -> set[int]:
+    """Site ids of the ``end_caps`` names; an unknown name is refused."""
+    out = set()
+    for name in names:
+        s = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, name)
+        if s < 0:
+            raise InputError(f"{src}: end-cap site '{name}' does not exist")
+        out.add(int(s))
+    return out
+
+
+def _end_cap_sites(
+    m: mujoco.MjModel,
+    body: int,
+    sites: list[int],
+    arm: int | None,
+    local: dict[int, np.ndarray],
+    axis: int,
+    named: set[int],
+    src: str,
+) -> list[int]:
+    """The two end-cap sites of a rod, in site order.
+
+    The sites named in ``end_caps`` when the rod has any; else its only two sites
+    besides the control arm; else the site at each end along the rod's long axis
+    (``axis`` of the principal frame, positions ``local``), the one nearest the axis
+    among sites equally far out (a site on an end cap's surface beside its centre).
+    """
+    rod = _name(m, mujoco.mjtObj.mjOBJ_BODY, body)
+    why = "the end caps are the points motion capture tracks and the floor touches"
+    mine = [s for s in sites if s in named]
+    if named and mine:
+        if len(mine) != 2:
+            raise InputError(f"{src}: rod '{rod}': {len(mine)} end-cap sites named, needs 2 ({why})")
+        return sorted(mine)
+    cands = [s for s in sites if s != arm]
+    if len(cands) < 2:
+        raise InputError(
+            f"{src}: rod '{rod}' has {len(cands)} site(s) besides its control arm and needs two"
+            f" end-cap sites ({why})"
+        )
+    if len(cands) == 2:
+        return sorted(cands)
+    along = np.array([local[s][axis] for s in cands])
+    off = np.array([np.linalg.norm(np.delete(local[s], axis)) for s in cands])
+    tol = 1e-9 * (1.0 + float(np.ptp(along)))
+    ends = []
+    for extreme in (along.min(), along.max()):
+        out = [k for k in range(len(cands)) if abs(along[k] - extreme) <= tol]
+        near = [k for k in out if off[k] <= off[out].min() + tol]
+        if len(near) > 1:
+            names = ", ".join(f"'{_name(m, mujoco.mjtObj.mjOBJ_SITE, cands[k])}'" for k in near)
+            raise InputError(
+                f"{src}: rod '{rod}': cannot tell which of sites {names} is the end cap ({why});"
+                " name the end-cap sites (end_caps)"
+            )
+        ends.append(cands[near[0]])
+    return sorted(ends)
 
 
 def _floor_geoms(m: mujoco.MjModel) -> list[int]:

@@ -5,8 +5,11 @@ A :class:`Topology` is the fixed description of an assembly, never differentiate
 * **rods** are rigid bodies. Each has a length, a radius, two end nodes (end caps)
   given as offsets in the rod's principal (inertial) frame, and a control arm ``r_u``:
   the point, in the same frame, where a control force ``f_u`` acts.
-* **nodes** are points springs attach to: either a rod's end cap, or a fixed world
-  anchor (for the paper's one-rod element, whose springs are tied to the world).
+* **nodes** are points springs attach to: a rod's end cap, a fixed world anchor (for
+  the paper's one-rod element, whose springs are tied to the world), or an
+  **attachment point** anywhere on a rod (``Rod.attachments``: a cable tied to a
+  sphere's surface or a motor partway along the rod). The two end caps of a rod are
+  the points motion capture tracks; springs may use any node.
 * **springs** connect two nodes. Tension acts along the line between them.
 
 The graph has one vertex per rod and per spring and directed edges
@@ -15,7 +18,8 @@ The graph has one vertex per rod and per spring and directed edges
 the rod), exactly as in the paper.
 
 Node numbering is global: the ``2 * n_rods`` rod end caps first (rod ``r`` owns nodes
-``2r`` and ``2r + 1``), then the world anchors in order.
+``2r`` and ``2r + 1``), then the world anchors in order, then every rod's attachment
+points, rod by rod (:meth:`Topology.point_node`).
 """
 
 from __future__ import annotations
@@ -50,6 +54,8 @@ class Rod:
         end_cap: the end caps' shape against a floor, ``"capsule"`` (the ends of a
             capsule) or ``"sphere"`` (spheres centred on them); it sets MuJoCo's
             contact frame (see :mod:`tensegrity_env.effects.ground_contact`).
+        attachments: more points springs attach to, in the rod's principal frame [m],
+            each (x, y, z); not tracked by motion capture.
     """
 
     name: str
@@ -59,6 +65,7 @@ class Rod:
     control_arm: Vec3 = (0.0, 0.0, 0.0)
     frame_origin: Vec3 = (0.0, 0.0, 0.0)
     end_cap: str = "capsule"
+    attachments: tuple[Vec3, ...] = ()
 
     def ends(self) -> np.ndarray:
         """End-cap offsets in the rod frame, shape (2, 3) [m]; default ±length/2 along z."""
@@ -124,6 +131,11 @@ class Topology:
                 )
             if len(rod.frame_origin) != 3 or not np.all(np.isfinite(rod.frame_origin)):
                 raise TopologyError(f"rod '{rod.name}': frame_origin must be a finite 3-vector")
+            for a in rod.attachments:
+                if len(a) != 3 or not np.all(np.isfinite(a)):
+                    raise TopologyError(
+                        f"rod '{rod.name}': attachment point {a} is not a finite 3-vector"
+                    )
         for a in self.anchors:
             if len(a) != 3 or not np.all(np.isfinite(a)):
                 raise TopologyError(f"{self.name}: anchor {a} is not a finite 3-vector")
@@ -156,18 +168,56 @@ class Topology:
         return len(self.anchors)
 
     @property
+    def n_points(self) -> int:
+        """Attachment points on rods besides the end caps, all rods together."""
+        return sum(len(r.attachments) for r in self.rods)
+
+    @property
     def n_nodes(self) -> int:
-        return 2 * self.n_rods + self.n_anchors
+        return 2 * self.n_rods + self.n_anchors + self.n_points
 
     def is_anchor(self, node: int) -> bool:
-        return node >= 2 * self.n_rods
+        return 2 * self.n_rods <= node < 2 * self.n_rods + self.n_anchors
+
+    def point_node(self, rod: int, k: int) -> int:
+        """Global node index of attachment point ``k`` of rod ``rod``."""
+        if not 0 <= k < len(self.rods[rod].attachments):
+            raise IndexError(f"rod '{self.rods[rod].name}' has no attachment point {k}")
+        before = sum(len(r.attachments) for r in self.rods[:rod])
+        return 2 * self.n_rods + self.n_anchors + before + k
 
     # ------------------------------------------------------------------ arrays
     @property
     def node_rod(self) -> np.ndarray:
         """Rod owning each node, -1 for world anchors, shape (n_nodes,)."""
         return np.concatenate(
-            [np.repeat(np.arange(self.n_rods), 2), -np.ones(self.n_anchors, dtype=int)]
+            [
+                np.repeat(np.arange(self.n_rods), 2),
+                -np.ones(self.n_anchors, dtype=int),
+                self.point_rods,
+            ]
+        )
+
+    @property
+    def point_rods(self) -> np.ndarray:
+        """Rod owning each attachment point, in node order, shape (n_points,)."""
+        return np.array(
+            [r for r, rod in enumerate(self.rods) for _ in rod.attachments], dtype=int
+        )
+
+    @property
+    def point_offsets(self) -> np.ndarray:
+        """Attachment points in their rods' principal frames, (n_points, 3) [m]."""
+        return np.array(
+            [a for rod in self.rods for a in rod.attachments], dtype=float
+        ).reshape(-1, 3)
+
+    @property
+    def node_offsets(self) -> np.ndarray:
+        """Every node's position in its rod's principal frame, world anchors in the
+        world frame, shape (n_nodes, 3) [m]."""
+        return np.concatenate(
+            [self.end_offsets.reshape(-1, 3), self.anchor_positions, self.point_offsets]
         )
 
     @property
@@ -195,9 +245,28 @@ class Topology:
         """Node index at each spring end, shape (n_springs, 2)."""
         return np.array([[s.node_a, s.node_b] for s in self.springs], dtype=int).reshape(-1, 2)
 
+    def off_axis_points(self, atol: float = 1e-9) -> list[str]:
+        """Attachment points off the line through their rod's end caps, by node name.
+
+        Placing them needs the rod's twist about that line, which two tracked end caps
+        do not give (rod states derived from end caps alone cannot place them).
+        """
+        out = []
+        for r, rod in enumerate(self.rods):
+            e = rod.ends()
+            axis = (e[1] - e[0]) / np.linalg.norm(e[1] - e[0])
+            for k, a in enumerate(rod.attachments):
+                rel = np.asarray(a) - e[0]
+                if np.linalg.norm(rel - (rel @ axis) * axis) > atol * (1.0 + rod.length):
+                    out.append(self.node_name(self.point_node(r, k)))
+        return out
+
     def node_name(self, node: int) -> str:
         if self.is_anchor(node):
             return f"anchor{node - 2 * self.n_rods}"
+        if node >= 2 * self.n_rods:
+            rod = int(self.node_rod[node])
+            return f"{self.rods[rod].name}/point{node - self.point_node(rod, 0)}"
         return f"{self.rods[node // 2].name}/end{node % 2}"
 
     # ------------------------------------------------------------------ graph
@@ -230,6 +299,7 @@ class Topology:
                     "control_arm": list(r.control_arm),
                     "frame_origin": list(r.frame_origin),
                     "end_cap": r.end_cap,
+                    "attachments": [list(a) for a in r.attachments],
                 }
                 for r in self.rods
             ],
@@ -249,6 +319,7 @@ class Topology:
                     control_arm=tuple(map(float, r.get("control_arm", (0, 0, 0)))),  # type: ignore[arg-type]
                     frame_origin=tuple(map(float, r.get("frame_origin", (0, 0, 0)))),  # type: ignore[arg-type]
                     end_cap=str(r.get("end_cap", "capsule")),
+                    attachments=tuple(tuple(map(float, a)) for a in r.get("attachments", [])),  # type: ignore[misc]
                 )
                 for r in d["rods"]
             )
@@ -273,11 +344,17 @@ class Topology:
             other.n_rods,
             other.n_springs,
             other.n_anchors,
-        ):
+        ) or not np.array_equal(self.point_rods, other.point_rods):
             return False
         if not np.array_equal(self.spring_nodes, other.spring_nodes):
             return False
         return all(
             np.allclose(getattr(self, f), getattr(other, f), atol=atol)
-            for f in ("end_offsets", "control_arms", "frame_origins", "anchor_positions")
+            for f in (
+                "end_offsets",
+                "control_arms",
+                "frame_origins",
+                "anchor_positions",
+                "point_offsets",
+            )
         ) and np.allclose([r.length for r in self.rods], [r.length for r in other.rods], atol=atol)

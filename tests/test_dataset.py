@@ -186,7 +186,7 @@ def _bad_mjcf(tmp_path: Path, old: str, new: str) -> Path:
         (  # a spring tied to a body that is neither a rod nor the world
             "  </worldbody>",
             '    <body name="bracket" pos="0 0 1"><site name="hook"/></body>\n  </worldbody>',
-            "not a rod end or the world",
+            "neither a rod nor the world",
         ),
         ('stiffness="200"', 'stiffness="0"', "non-positive stiffness"),
         ('stiffness="200"', 'stiffness="-50"', "stiffness"),

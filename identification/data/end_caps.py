@@ -85,6 +85,13 @@ def rod_states_from_nodes(
         )
     if nodes.shape[-3] < 2:
         raise InputError("end caps: need at least 2 samples in time")
+    off_axis = topology.off_axis_points()
+    if off_axis:
+        raise InputError(
+            f"end caps: springs attach at points off their rod's axis ({', '.join(off_axis[:3])}"
+            f"{', ...' if len(off_axis) > 3 else ''}); placing them needs each rod's twist,"
+            " which two tracked end caps do not give (record rod states)"
+        )
     if not np.isfinite(dt) or dt <= 0:
         raise InputError(f"end caps: time step dt must be positive, got {dt}")
     x0, x1 = nodes[..., 0 : 2 * R : 2, :], nodes[..., 1 : 2 * R : 2, :]  # (..., T+1, R, 3)

@@ -52,7 +52,7 @@ from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import ResidualMLP, ResidualNetwork, rod_features
 from tensegrity_env.engine import Engine
-from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
 from tensegrity_env.params import Params
 
 DTYPE = torch.float64
@@ -147,6 +147,7 @@ def missing_wrench(
         s0,
         torch.as_tensor(topo.end_offsets, dtype=DTYPE),
         torch.as_tensor(topo.anchor_positions, dtype=DTYPE),
+        AttachmentPoints.of(topo),
     )
     x = rod_features(s0, kin)
     y = torch.cat([force, torque], dim=-1)

@@ -44,7 +44,6 @@ from identification.linear.features import transition_features, transitions_of
 from identification.report.plots import save_figure
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine
-from tensegrity_env.engine.kinematics import node_kinematics
 from tensegrity_env.params import Params
 
 DTYPE = torch.float64
@@ -118,7 +117,7 @@ def compute_residuals(
     rot = feat.rot
     force = params.mass[None, :, None] * (feat.accel - acc)
     torque = torch.einsum("nrij,nrj->nri", rot, params.inertia * (feat.alpha_local - alpha_l))
-    kin = node_kinematics(s0, engine.end_offsets, engine.anchors)
+    kin = engine.kinematics(s0)
     tension, stretch, rate = _spring_split(kin, topology, params, force, torque)
     cap_force = _cap_split(kin.arms, force, torque)
     R = topology.n_rods

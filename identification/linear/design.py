@@ -1,7 +1,8 @@
 """The design matrix: each rod's six equations of motion, linear in the parameters.
 
 For rod ``r`` and one transition, with ``σ = ±1`` the side of spring ``s`` the rod
-holds (``+1`` at node a), ``e_s`` the spring axis, ``ρ`` the end-cap arm and ``R`` the
+holds (``+1`` at node a), ``e_s`` the spring axis, ``ρ`` the lever arm of the rod's
+attachment point (an end cap or any point on the rod) and ``R`` the
 rod rotation, the paper's decomposition gives six homogeneous linear equations::
 
     M_r (a - g)                         - Σ_s σ (K_s l_s - K_s l0_s + c_s l̇_s) e_s          - h f_u           = 0
@@ -110,13 +111,13 @@ class RodSlots:
 
     Attributes:
         spring: spring index per slot, (R, J); 0 where padded.
-        end: which end cap (0/1) of the rod the spring holds, (R, J).
+        node: the node (end cap or attachment point) where the rod holds the spring, (R, J).
         sign: +1 if the rod holds the spring's node a, -1 for node b, 0 where padded, (R, J).
         columns: global unknown index of each local column, (R, L); ``n_params`` = discard.
     """
 
     spring: torch.Tensor
-    end: torch.Tensor
+    node: torch.Tensor
     sign: torch.Tensor
     columns: torch.Tensor
 
@@ -132,7 +133,7 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
     attached = [topo.springs_of_rod(r) for r in range(R)]
     J = max(1, max(len(a) for a in attached))
     spring = np.zeros((R, J), dtype=np.int64)
-    end = np.zeros((R, J), dtype=np.int64)
+    node = np.zeros((R, J), dtype=np.int64)
     sign = np.zeros((R, J))
     node_rod = topo.node_rod
     discard = layout.n_params
@@ -145,7 +146,7 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
         for j, s in enumerate(attached[r]):
             a, b = topo.springs[s].node_a, topo.springs[s].node_b
             mine = a if node_rod[a] == r else b
-            spring[r, j], end[r, j], sign[r, j] = s, mine % 2, 1.0 if mine == a else -1.0
+            spring[r, j], node[r, j], sign[r, j] = s, mine, 1.0 if mine == a else -1.0
             columns[r, 4 + 3 * j] = layout.index("stiffness", s)
             if layout.fit_rest_length:
                 columns[r, 5 + 3 * j] = layout.index("stiffness_rest", s)
@@ -153,7 +154,7 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
         columns[r, L - 1] = layout.index("control_gain")
     return RodSlots(
         spring=torch.as_tensor(spring),
-        end=torch.as_tensor(end),
+        node=torch.as_tensor(node),
         sign=torch.as_tensor(sign),
         columns=torch.as_tensor(columns),
     )
@@ -162,11 +163,9 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
 def _unit_wrenches(feat: TransitionFeatures, slots: RodSlots) -> torch.Tensor:
     """Per unit tension of each attached spring: force (world) and torque (rod frame) on
     the rod, (n, R, J, 6)."""
-    R, J = slots.spring.shape
     sign = slots.sign.to(feat.accel.dtype)  # (R, J)
-    rods = torch.arange(R).unsqueeze(1).expand(R, J)
     fdir = sign.unsqueeze(-1) * feat.springs.axis[:, slots.spring]  # (n, R, J, 3)
-    arm = feat.arms[:, rods, slots.end]  # (n, R, J, 3)
+    arm = feat.arms[:, slots.node]  # (n, R, J, 3)
     tdir = torch.einsum("nrji,nrkj->nrki", feat.rot, torch.cross(arm, fdir, dim=-1))
     return torch.cat([fdir, tdir], dim=-1)
 
@@ -242,7 +241,7 @@ def with_hinges(slots: RodSlots, n_params: int, n_springs: int) -> RodSlots:
     J = slots.spring.shape[1]
     padded = slots.sign == 0
     hinge = torch.where(padded, n_params + n_springs, n_params + slots.spring)
-    return RodSlots(slots.spring, slots.end, slots.sign,
+    return RodSlots(slots.spring, slots.node, slots.sign,
                     torch.cat([cols, hinge.reshape(-1, J)], dim=1))  # fmt: skip
 
 

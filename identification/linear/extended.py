@@ -41,7 +41,7 @@ from identification.linear.regression import SpringRodIdentifier
 from tensegrity_env.effects import ControlLag, GroundContact, LinearEffect, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine, State
-from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
 from tensegrity_env.params import Params
 
 DTYPE = torch.float64
@@ -143,7 +143,7 @@ class ExtendedIdentifier(SpringRodIdentifier):
         cols = slots.columns.clone()
         cols[cols == P] = P + E
         cols = torch.cat([cols, (P + torch.arange(E)).expand(R, E)], dim=1)
-        slots_ext = RodSlots(slots.spring, slots.end, slots.sign, cols)
+        slots_ext = RodSlots(slots.spring, slots.node, slots.sign, cols)
         g = torch.tensor(self.gravity, dtype=DTYPE)
         rest = None
         if not layout.fit_rest_length:
@@ -156,11 +156,12 @@ class ExtendedIdentifier(SpringRodIdentifier):
         kept = 0.0
         ends = torch.as_tensor(topo.end_offsets, dtype=DTYPE)
         anchors = torch.as_tensor(topo.anchor_positions, dtype=DTYPE)
+        points = AttachmentPoints.of(topo)
         for start in range(0, len(index), self.chunk_size):
             s0, s1, u = transitions_of(data, index[start : start + self.chunk_size])
             feat = transition_features(topo, s0, s1, u, dataset.dt)
             A = rod_blocks(feat, slots, g, rest)  # (n, R, 6, L)
-            kin = node_kinematics(s0, ends, anchors)
+            kin = node_kinematics(s0, ends, anchors, points)
             l0 = ref.rest_length.double() if ref is not None else None
             if slack is not None and l0 is not None:
                 taut = (feat.springs.length > l0) | (slack.mask(l0) == 0)  # (n, S)

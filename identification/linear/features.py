@@ -19,7 +19,7 @@ import torch
 from identification.data.dataset import Split
 from tensegrity_env.engine.forces import SpringFrame, spring_frames
 from tensegrity_env.engine.integration import step_accelerations
-from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.topology import Topology
 
@@ -33,7 +33,8 @@ class TransitionFeatures:
         alpha_local: angular accelerations in the rod frame, (n, R, 3) [rad/s^2].
         omega_local: angular velocity at t in the rod frame, (n, R, 3) [rad/s].
         rot: R(q_t), (n, R, 3, 3).
-        arms: end-cap offsets from the COM at t, (n, R, 2, 3) [m], world.
+        arms: every node's offset from its rod's COM at t (end caps, anchors as zero,
+            attachment points), (n, N, 3) [m], world.
         springs: each spring's length, axis and elongation rate at t.
         control: commands f_u at t, (n, R, 3), world.
         control_arm: control arm r_u at t, (n, R, 3) [m], world.
@@ -81,7 +82,7 @@ def transition_features(
     dtype = s0.p.dtype
     ends = torch.as_tensor(topology.end_offsets, dtype=dtype)
     anchors = torch.as_tensor(topology.anchor_positions, dtype=dtype)
-    kin = node_kinematics(s0, ends, anchors)
+    kin = node_kinematics(s0, ends, anchors, AttachmentPoints.of(topology, dtype))
     nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long)
     frame = spring_frames(kin, nodes[:, 0], nodes[:, 1])
     origins = topology.frame_origins
@@ -96,7 +97,7 @@ def transition_features(
         alpha_local=alpha_l,
         omega_local=omega_l0,
         rot=kin.rot,
-        arms=kin.arms,
+        arms=kin.node_arms,
         springs=frame,
         control=control.to(dtype),
         control_arm=arm_u,

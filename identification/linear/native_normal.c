@@ -11,7 +11,8 @@
  *   column 4 + 3 j + m : [f_j ; t_j] * s_jm                  (spring slot j: K, K l0, c)
  *   column L - 1       : [-f_u ; -R^T (r_u x f_u)]           (control gain)
  *
- * with f_j = sign * axis (world), t_j = R^T (arm x f_j) (rod frame) and
+ * with f_j = sign * axis (world), t_j = R^T (arm x f_j) (rod frame, arm: the lever of
+ * the node where the rod holds spring j, an end cap or any attachment point) and
  * s_j = (-l, 1, -ldot) (or (-(l - l0), 0, -ldot) when rest lengths are known),
  * so the Gram is H[b(c)][b(c')] * s(c) * s(c') with H the 6-D Gram of the 5 + J bases.
  * Same conventions as the PyTorch path (features.py, design.py): quaternions w, x, y, z;
@@ -20,8 +21,9 @@
  * Layout (C order, float64 unless said):
  *   p, v, omega: (n_traj, T + 1, R, 3); q: (n_traj, T + 1, R, 4); control: (n_traj, T, R, 3)
  *   index: (n_index,) int64 flat transition indices traj * T + t
- *   end_offsets: (R, 2, 3); anchors: (A, 3); spring_nodes: (S, 2) int32 (caps 2r + e, then anchors)
- *   control_arms: (R, 3); slot_spring, slot_end: (R, J) int32; slot_sign: (R, J)
+ *   node_rod: (N,) int32, the rod owning each node or -1 for a world anchor; node_offsets:
+ *   (N, 3), each node in its rod's frame (anchors: world position); spring_nodes: (S, 2) int32
+ *   control_arms: (R, 3); slot_spring, slot_node: (R, J) int32; slot_sign: (R, J)
  *   gravity: (3,); rest_length: (S,) or NULL; frame_origins: (R, 3) body-frame origins in
  *   the rod frame, or NULL when every body frame is at the COM (accelerations as in
  *   tensegrity_env/engine/integration.py step_accelerations); out: (R, L, L) accumulated,
@@ -76,10 +78,10 @@ static inline void cross(const double *a, const double *b, double *o) {
 }
 
 typedef struct {
-    int n_traj, T, R, A, S, J;
+    int n_traj, T, R, N, S, J;
     const double *p, *v, *q, *w, *u;
-    const double *end_offsets, *anchors, *control_arms, *slot_sign, *gravity, *rest, *origins;
-    const int *spring_nodes, *slot_spring, *slot_end;
+    const double *node_offsets, *control_arms, *slot_sign, *gravity, *rest, *origins;
+    const int *node_rod, *spring_nodes, *slot_spring, *slot_node;
     double dt;
 } Problem;
 
@@ -88,29 +90,28 @@ static void add_transition(const Problem *P, int64_t flat, double *acc) {
     const int R = P->R, J = P->J, L = 5 + 3 * J, nb = 5 + J;
     const int64_t traj = flat / P->T, t = flat % P->T;
     const int64_t s0 = (traj * (P->T + 1) + t) * R, s1 = s0 + R;
-    double rot[MAX_RODS][9], arm[MAX_RODS][2][3];
+    double rot[MAX_RODS][9], arm[MAX_NODES][3];
     double x[MAX_NODES][3], xd[MAX_NODES][3];
     double len[MAX_SPRINGS], rate[MAX_SPRINGS], axis[MAX_SPRINGS][3];
 
-    for (int r = 0; r < R; r++) {
+    for (int r = 0; r < R; r++) quat_to_matrix(P->q + 4 * (s0 + r), rot[r]);
+    for (int n = 0; n < P->N; n++) {
+        const int r = P->node_rod[n];
+        const double *off = P->node_offsets + 3 * n;
+        if (r < 0) { /* a world anchor */
+            for (int i = 0; i < 3; i++) { x[n][i] = off[i]; xd[n][i] = 0.0; arm[n][i] = 0.0; }
+            continue;
+        }
         const double *pr = P->p + 3 * (s0 + r), *vr = P->v + 3 * (s0 + r);
         const double *wr = P->w + 3 * (s0 + r);
-        quat_to_matrix(P->q + 4 * (s0 + r), rot[r]);
-        for (int e = 0; e < 2; e++) {
-            double wxa[3];
-            mat_vec(rot[r], P->end_offsets + 6 * r + 3 * e, arm[r][e]);
-            cross(wr, arm[r][e], wxa);
-            for (int i = 0; i < 3; i++) {
-                x[2 * r + e][i] = pr[i] + arm[r][e][i];
-                xd[2 * r + e][i] = vr[i] + wxa[i];
-            }
+        double wxa[3];
+        mat_vec(rot[r], off, arm[n]);
+        cross(wr, arm[n], wxa);
+        for (int i = 0; i < 3; i++) {
+            x[n][i] = pr[i] + arm[n][i];
+            xd[n][i] = vr[i] + wxa[i];
         }
     }
-    for (int a = 0; a < P->A; a++)
-        for (int i = 0; i < 3; i++) {
-            x[2 * R + a][i] = P->anchors[3 * a + i];
-            xd[2 * R + a][i] = 0.0;
-        }
     for (int s = 0; s < P->S; s++) {
         const int na = P->spring_nodes[2 * s], nbn = P->spring_nodes[2 * s + 1];
         double d[3], n2 = 0.0, rt = 0.0;
@@ -159,10 +160,10 @@ static void add_transition(const Problem *P, int64_t flat, double *acc) {
         }
         for (int j = 0; j < J; j++) {
             const double sg = P->slot_sign[r * J + j];
-            const int s = P->slot_spring[r * J + j], e = P->slot_end[r * J + j];
+            const int s = P->slot_spring[r * J + j], nd = P->slot_node[r * J + j];
             double f[3], tw[3];
             for (int i = 0; i < 3; i++) f[i] = sg * axis[s][i];
-            cross(arm[r][e], f, tw);
+            cross(arm[nd], f, tw);
             for (int i = 0; i < 3; i++) B[4 + j][i] = f[i];
             mat_t_vec(rot[r], tw, &B[4 + j][3]);
             scal[j][0] = P->rest ? -(len[s] - P->rest[s]) : -len[s];
@@ -207,17 +208,17 @@ static void add_transition(const Problem *P, int64_t flat, double *acc) {
     }
 }
 
-int tsr_normal(int n_traj, int T, int R, int A, int S, int J,
+int tsr_normal(int n_traj, int T, int R, int N, int S, int J,
                const double *p, const double *v, const double *q, const double *w,
                const double *control, const int64_t *index, int64_t n_index,
-               const double *end_offsets, const double *anchors, const int *spring_nodes,
-               const double *control_arms, const int *slot_spring, const int *slot_end,
+               const int *node_rod, const double *node_offsets, const int *spring_nodes,
+               const double *control_arms, const int *slot_spring, const int *slot_node,
                const double *slot_sign, const double *gravity, const double *rest_length,
                const double *frame_origins, double dt, int n_threads, double *out) {
-    if (R > MAX_RODS || J > MAX_SLOTS || S > MAX_SPRINGS || 2 * R + A > MAX_NODES) return -1;
-    const Problem P = {n_traj, T, R, A, S, J, p, v, q, w, control, end_offsets, anchors,
-                       control_arms, slot_sign, gravity, rest_length, frame_origins, spring_nodes,
-                       slot_spring, slot_end, dt};
+    if (R > MAX_RODS || J > MAX_SLOTS || S > MAX_SPRINGS || N > MAX_NODES) return -1;
+    const Problem P = {n_traj, T, R, N, S, J, p, v, q, w, control, node_offsets,
+                       control_arms, slot_sign, gravity, rest_length, frame_origins, node_rod,
+                       spring_nodes, slot_spring, slot_node, dt};
     const int L = 5 + 3 * J;
     const size_t size = (size_t)R * L * L;
     const int64_t n_chunks = (n_index + CHUNK - 1) / CHUNK;

@@ -75,28 +75,28 @@ def local_gram_native(
         NativeUnavailable: the kernel cannot be built, or the assembly is beyond its limits.
     """
     lib, _ = _library()
-    R, S, A = topology.n_rods, topology.n_springs, len(topology.anchor_positions)
+    R, S, N = topology.n_rods, topology.n_springs, topology.n_nodes
     J = int(slots.spring.shape[1])
     limits = {
         "rods": R,
         "slots": J,
         "springs": S,
-        "nodes": 2 * R + A,
+        "nodes": N,
     }
     for name, value in limits.items():
         if value > getattr(lib, f"tsr_normal_max_{name}")():
             raise NativeUnavailable(f"{value} {name} is beyond the C kernel's limit")
     p, v, q, w = (_c(getattr(split, k), np.float64) for k in ("p", "v", "q", "omega"))
     control = _c(split.control, np.float64)
-    N, T1 = p.shape[:2]
+    T1 = p.shape[1]
     args = {
         "index": _c(index, np.int64),
-        "end_offsets": _c(topology.end_offsets, np.float64),
-        "anchors": _c(np.reshape(topology.anchor_positions, (-1, 3)), np.float64),
+        "node_rod": _c(topology.node_rod, np.int32),
+        "node_offsets": _c(topology.node_offsets, np.float64),
         "spring_nodes": _c(topology.spring_nodes, np.int32),
         "control_arms": _c(topology.control_arms, np.float64),
         "slot_spring": _c(slots.spring.numpy(), np.int32),
-        "slot_end": _c(slots.end.numpy(), np.int32),
+        "slot_node": _c(slots.node.numpy(), np.int32),
         "slot_sign": _c(slots.sign.numpy(), np.float64),
         "gravity": _c(gravity.detach().cpu().numpy(), np.float64),
     }
@@ -105,12 +105,12 @@ def local_gram_native(
     L = slots.n_local
     out = np.zeros((R, L, L))
     status = lib.tsr_normal(
-        N, T1 - 1, R, A, S, J,
+        p.shape[0], T1 - 1, R, N, S, J,
         p.ctypes.data, v.ctypes.data, q.ctypes.data, w.ctypes.data, control.ctypes.data,
         args["index"].ctypes.data, len(args["index"]),
-        args["end_offsets"].ctypes.data, args["anchors"].ctypes.data,
+        args["node_rod"].ctypes.data, args["node_offsets"].ctypes.data,
         args["spring_nodes"].ctypes.data, args["control_arms"].ctypes.data,
-        args["slot_spring"].ctypes.data, args["slot_end"].ctypes.data,
+        args["slot_spring"].ctypes.data, args["slot_node"].ctypes.data,
         args["slot_sign"].ctypes.data, args["gravity"].ctypes.data,
         None if rest is None else rest.ctypes.data,
         None if origins is None else origins.ctypes.data,

@@ -444,10 +444,13 @@ def rollout_split(
 
 # ---------------------------------------------------------------------- checks
 def spring_lengths(topology: Topology, nodes: np.ndarray) -> np.ndarray:
-    """Spring lengths (..., S) [m] from end caps (..., 2R, 3) and the topology's anchors."""
-    lead = nodes.shape[:-2]
-    anchors = np.broadcast_to(topology.anchor_positions, (*lead, topology.n_anchors, 3))
-    x = np.concatenate([nodes, anchors], axis=-2)
+    """Spring lengths (..., S) [m] from all nodes (..., n_nodes, 3) [m], or from the end
+    caps (..., 2R, 3) and the topology's anchors when no spring uses another point."""
+    x = nodes
+    if nodes.shape[-2] == 2 * topology.n_rods and topology.n_points == 0:
+        lead = nodes.shape[:-2]
+        anchors = np.broadcast_to(topology.anchor_positions, (*lead, topology.n_anchors, 3))
+        x = np.concatenate([nodes, anchors], axis=-2)
     # node -> spring difference operator (S, n_nodes): one small matmul per sample
     sn = topology.spring_nodes
     diff = np.zeros((topology.n_springs, topology.n_nodes))
@@ -466,13 +469,16 @@ def spring_excitation(
     time [m], and the min and max spring length relative to the nominal pose.
     """
     topo = truth.topology
-    nominal = spring_lengths(
-        topo, assemblies.node_positions(topo, truth.pose_p, truth.pose_q)[: 2 * topo.n_rods]
-    )
+    nominal = spring_lengths(topo, assemblies.node_positions(topo, truth.pose_p, truth.pose_q))
     stride = max(1, round(every / truth.dt))
     stds, lo, hi = [], np.inf, -np.inf
     for s in splits.values():
-        lengths = spring_lengths(topo, np.ascontiguousarray(s.nodes[:, ::stride]))
+        nodes = (
+            assemblies.node_positions(topo, s.p[:, ::stride], s.q[:, ::stride])
+            if s.has_states
+            else np.ascontiguousarray(s.nodes[:, ::stride])
+        )
+        lengths = spring_lengths(topo, nodes)
         stds.append(lengths.std(axis=1).ravel())
         ratio = lengths / nominal
         lo, hi = min(lo, float(ratio.min())), max(hi, float(ratio.max()))

@@ -103,7 +103,7 @@ from identification.trajectory.windowed_fit import (  # noqa: F401  (re-exported
 )
 from tensegrity_env.engine import Engine
 from tensegrity_env.engine.forces import spring_frames
-from tensegrity_env.engine.kinematics import Kinematics
+from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
@@ -223,11 +223,20 @@ def smoothed_features(
     n, R = p.shape[:2]
     rot = quat_to_matrix(q)
     anchors = torch.as_tensor(topology.anchor_positions, dtype=DTYPE).expand(n, -1, -1)
+    x_all, xd_all = [x_end, anchors], [xd_end, torch.zeros_like(anchors)]
+    points, point_arms = AttachmentPoints.of(topology), None
+    if points is not None:  # on the rod axes (refused otherwise), placed by the smoothing
+        v = pick(s.v)
+        point_arms = torch.einsum("npij,pj->npi", rot[:, points.rod], points.offset)
+        x_all.append(p[:, points.rod] + point_arms)
+        xd_all.append(v[:, points.rod] + torch.cross(omega[:, points.rod], point_arms, dim=-1))
     kin = Kinematics(
         rot=rot,
         arms=x_end.reshape(n, R, 2, 3) - p.unsqueeze(2),
-        x=torch.cat([x_end, anchors], dim=1),
-        xd=torch.cat([xd_end, torch.zeros_like(anchors)], dim=1),
+        x=torch.cat(x_all, dim=1),
+        xd=torch.cat(xd_all, dim=1),
+        points=points,
+        point_arms=point_arms,
     )
     nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long)
     arm_u = torch.einsum("nrij,rj->nri", rot, torch.as_tensor(topology.control_arms, dtype=DTYPE))
@@ -236,7 +245,7 @@ def smoothed_features(
         alpha_local=torch.einsum("nrji,nrj->nri", rot, alpha),
         omega_local=torch.einsum("nrji,nrj->nri", rot, omega),
         rot=rot,
-        arms=kin.arms,
+        arms=kin.node_arms,
         springs=spring_frames(kin, nodes[:, 0], nodes[:, 1]),
         control=u,
         control_arm=arm_u,
@@ -400,6 +409,12 @@ class TrajectoryIdentifier:
 
     def _fit(self, dataset: Dataset, split: str) -> TrajectoryIdentifier:
         topo, data = dataset.topology, dataset.split(split)
+        off_axis = topo.off_axis_points()
+        if off_axis:
+            raise InputError(
+                f"springs attach at points off their rod's axis ({', '.join(off_axis[:3])}); "
+                "placing them needs each rod's twist, which smoothed end caps do not give"
+            )
         axes = RodAxes.of(topo)
         anchors = parse_anchors(topo, self.anchors)
         sg = _odd(self.smoothing / dataset.dt)

@@ -269,13 +269,17 @@ def spring_unit_wrench(
     length = torch.linalg.vector_norm(d, dim=-1)
     axis = d / length.unsqueeze(-1)  # (B, S, 3)
     S, R = topology.n_springs, topology.n_rods
-    inc = torch.zeros(topology.n_nodes, S, dtype=kin.x.dtype, device=kin.x.device)
+    # node_rod one-hot (N, R) and each node's lever (B, N, 3): end caps, anchors, points
+    member = torch.zeros(kin.x.shape[1], R, dtype=kin.x.dtype, device=kin.x.device)
+    node_rod = torch.as_tensor(topology.node_rod, device=kin.x.device)
+    on_rod = torch.nonzero(node_rod >= 0)[:, 0]
+    member[on_rod, node_rod[on_rod]] = 1.0
+    inc = torch.zeros(kin.x.shape[1], S, dtype=kin.x.dtype, device=kin.x.device)
     idx = torch.arange(S, device=kin.x.device)
     inc[a, idx] = 1.0
     inc[b, idx] = -1.0
-    node_f = (
-        inc[: 2 * R].reshape(R, 2, S)[None, :, :, None, :] * axis.transpose(1, 2)[:, None, None]
-    )  # (B, R, 2, 3, S)
-    force = node_f.sum(2)
-    torque = torch.cross(kin.arms.unsqueeze(-1).expand_as(node_f), node_f, dim=-2).sum(2)
+    node_f = inc[None, :, None, :] * axis.transpose(1, 2)[:, None]  # (B, N, 3, S)
+    force = torch.einsum("nr,bnks->brks", member, node_f)
+    lever = kin.node_arms.unsqueeze(-1).expand_as(node_f)
+    torque = torch.einsum("nr,bnks->brks", member, torch.cross(lever, node_f, dim=-2))
     return force, torque, length

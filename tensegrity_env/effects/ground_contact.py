@@ -47,7 +47,7 @@ from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
 from tensegrity_env.engine.forces import (
     SpringFrame,
     hooke_tension,
-    node_forces_to_wrench,
+    kinematics_wrench,
     spring_frames,
     tension_to_node_forces,
 )
@@ -167,7 +167,7 @@ class GroundContact(PhysicalEffect):
             frame = spring_frames(kin, a, b)
             tension = hooke_tension(frame, params.stiffness, params.damping, params.rest_length)
         nodes = tension_to_node_forces(tension, frame, self._incidence.to(tension))
-        return node_forces_to_wrench(nodes, kin.arms)
+        return kinematics_wrench(nodes, kin)
 
     def contact_geometry(self, state: State, kin: Kinematics) -> dict[str, torch.Tensor]:
         """Per end cap (B, R, 2): ``dist`` [m] (< 0 in contact), ``slip`` [m/s], ``vn`` [m/s].

@@ -55,20 +55,38 @@ def tension_to_node_forces(
 
 
 def node_forces_to_wrench(
-    node_forces: torch.Tensor, arms: torch.Tensor
+    node_forces: torch.Tensor,
+    arms: torch.Tensor,
+    point_arms: torch.Tensor | None = None,
+    point_rod: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Force and torque about the centre of mass on each rod from its end-cap forces.
+    """Force and torque about the centre of mass on each rod from its node forces.
 
     Args:
         node_forces: forces on all nodes, (B, N, 3) [N]; anchors are ignored.
         arms: world offsets of the end caps, (B, R, 2, 3) [m].
+        point_arms: world offsets of the attachment points (the last P nodes), (B, P, 3)
+            [m], with ``point_rod`` (P,) their rods; None without attachment points.
 
     Returns:
         force (B, R, 3) [N] and torque (B, R, 3) [N*m], world frame.
     """
     B, R = arms.shape[:2]
     f_end = node_forces[:, : 2 * R].reshape(B, R, 2, 3)
-    return f_end.sum(2), torch.cross(arms, f_end, dim=-1).sum(2)
+    force, torque = f_end.sum(2), torch.cross(arms, f_end, dim=-1).sum(2)
+    if point_arms is not None and point_rod is not None:
+        f_pt = node_forces[:, node_forces.shape[1] - point_arms.shape[1] :]
+        force = force.index_add(1, point_rod, f_pt)
+        torque = torque.index_add(1, point_rod, torch.cross(point_arms, f_pt, dim=-1))
+    return force, torque
+
+
+def kinematics_wrench(
+    node_forces: torch.Tensor, kin: Kinematics
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`node_forces_to_wrench` with the end caps and attachment points of ``kin``."""
+    rods = None if kin.points is None else kin.points.rod
+    return node_forces_to_wrench(node_forces, kin.arms, kin.point_arms, rods)
 
 
 def point_force_wrench(force: torch.Tensor, arm: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

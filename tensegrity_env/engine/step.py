@@ -10,13 +10,13 @@ from tensegrity_env.engine.acceleration import angular_acceleration_local, linea
 from tensegrity_env.engine.effects import Effect
 from tensegrity_env.engine.forces import (
     hooke_tension,
-    node_forces_to_wrench,
+    kinematics_wrench,
     point_force_wrench,
     spring_frames,
     tension_to_node_forces,
 )
 from tensegrity_env.engine.integration import semi_implicit_euler
-from tensegrity_env.engine.kinematics import node_kinematics
+from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics, node_kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -51,6 +51,7 @@ class Engine:
         self.end_offsets = torch.as_tensor(topology.end_offsets, **kw)  # (R, 2, 3)
         self.anchors = torch.as_tensor(topology.anchor_positions, **kw)  # (A, 3)
         self.control_arms = torch.as_tensor(topology.control_arms, **kw)  # (R, 3)
+        self.points = AttachmentPoints.of(topology, dtype, self.device)
         origins = topology.frame_origins
         # body-frame origins (R, 3) for the integration step; None when all at the COM
         self.frame_origins = torch.as_tensor(origins, **kw) if origins.any() else None
@@ -64,6 +65,10 @@ class Engine:
 
     def with_effects(self, effects: Sequence[Effect]) -> Engine:
         return Engine(self.topology, self.dt, effects, self.dtype, self.device)
+
+    def kinematics(self, state: State) -> Kinematics:
+        """Every node's position and velocity (end caps, anchors, attachment points)."""
+        return node_kinematics(state, self.end_offsets, self.anchors, self.points)
 
     # ------------------------------------------------------------------ one step
     def accelerations(
@@ -82,15 +87,13 @@ class Engine:
             [rad/s] in each rod's frame.
         """
         # kinematics: end caps and their velocities
-        kin = node_kinematics(state, self.end_offsets, self.anchors)
+        kin = self.kinematics(state)
         # force generation: every spring reduced to a scalar tension along its axis
         frame = spring_frames(kin, self.node_a, self.node_b)
         tension = hooke_tension(frame, params.stiffness, params.damping, params.rest_length)
         for effect in self.effects:
             tension = effect.tension(frame, tension, kin)
-        force, torque = node_forces_to_wrench(
-            tension_to_node_forces(tension, frame, self.incidence), kin.arms
-        )
+        force, torque = kinematics_wrench(tension_to_node_forces(tension, frame, self.incidence), kin)
         # control forces h * f_u at the arm r_u
         if control is not None:
             arm = torch.einsum("brij,rj->bri", kin.rot, self.control_arms)

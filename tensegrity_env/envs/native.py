@@ -30,4 +30,5 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
     lib.tsr_step.restype = c_int
     lib.tsr_max_rods.restype = c_int
     lib.tsr_max_nodes.restype = c_int
+    lib.tsr_max_points.restype = c_int
     return lib, openmp

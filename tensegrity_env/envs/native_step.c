@@ -28,13 +28,15 @@
  * Layouts (all double, row-major):
  *   state   (B, R, 13): p[3] v[3] q[4] (w x y z) omega[3], world frame; in/out
  *   control (B, R, 3):  commands f_u, world frame
- *   springs (S, 2):     node indices (end caps 2r, 2r+1, then anchors)
+ *   springs (S, 2):     node indices (end caps 2r, 2r+1, then anchors, then attachment points)
  *   model:  end[R][2][3], arm_u[R][3], anchors[A][3], K[S], c[S], l0[S], mass[R],
  *           inertia[R][3], gain, gravity[3], contact[8] = {on, stiffness, damping,
  *           impedance, impedance_min, width, friction, height}, radius[R],
  *           origin[R][3] (each rod's body-frame origin in its principal frame: the point
  *           MuJoCo's free joint integrates, tensegrity_env/engine/integration.py),
- *           sphere[R] (1: sphere end caps, whose contact frame is fixed in the world)
+ *           sphere[R] (1: sphere end caps, whose contact frame is fixed in the world),
+ *           n_points, point_rod[P], point_offset[P][3] (spring attachment points on rods
+ *           besides the end caps, in their rods' principal frames)
  */
 #include <math.h>
 #include <string.h>
@@ -43,6 +45,7 @@
 #define TSR_MAX_NODES 64
 #define TSR_W 8 /* assemblies per SIMD block */
 #define TSR_MAX_EDGES 8
+#define TSR_MAX_POINTS 32
 
 typedef struct {
     int R, S, A;
@@ -52,6 +55,8 @@ typedef struct {
     double k_c, b_c, d_max, d_min, width, mu, height, soft;
     const double *radius, *origin, *sphere;
     int has_origin;
+    int P, point_rod[TSR_MAX_POINTS];
+    const double *point_offset;
     const int *springs;
     int iterations;
     double dt;
@@ -78,6 +83,11 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->sphere = w + 3 * R;
     m->has_origin = 0;
     for (int i = 0; i < 3 * R; i++) m->has_origin |= w[i] != 0.0;
+    w += 4 * R;
+    m->P = (int)w[0]; w += 1;
+    for (int k = 0; k < m->P && k < TSR_MAX_POINTS; k++) m->point_rod[k] = (int)w[k];
+    w += m->P;
+    m->point_offset = w;
 }
 
 static inline void cross(const double *a, const double *b, double *o) {
@@ -452,8 +462,8 @@ static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[
 
 /* one physics step of W assemblies (R rods each) */
 static void vsubstep(const Model *m, VRod *x) {
-    const int R = m->R, N = 2 * m->R + m->A;
-    vd M[TSR_MAX_RODS][9], arms[TSR_MAX_RODS][2][3];
+    const int R = m->R, N0 = 2 * m->R + m->A, N = N0 + m->P;
+    vd M[TSR_MAX_RODS][9], arms[TSR_MAX_RODS][2][3], parms[TSR_MAX_POINTS][3];
     vd nx[TSR_MAX_NODES][3], nv[TSR_MAX_NODES][3], nf[TSR_MAX_NODES][3];
     /* kinematics: end caps and their velocities */
     for (int r = 0; r < R; r++) {
@@ -473,6 +483,16 @@ static void vsubstep(const Model *m, VRod *x) {
             nx[2 * R + a][i] = vsplat(m->anchors[3 * a + i]);
             nv[2 * R + a][i] = vsplat(0.0);
         }
+    for (int k = 0; k < m->P; k++) { /* attachment points besides the end caps */
+        const int r = m->point_rod[k];
+        vd wxa[3];
+        vrot_c(M[r], m->point_offset + 3 * k, parms[k]);
+        vcross(x[r].w, parms[k], wxa);
+        for (int i = 0; i < 3; i++) {
+            nx[N0 + k][i] = x[r].p[i] + parms[k][i];
+            nv[N0 + k][i] = x[r].v[i] + wxa[i];
+        }
+    }
     for (int n = 0; n < N; n++)
         for (int i = 0; i < 3; i++) nf[n][i] = vsplat(0.0);
     /* springs: scalar tension along each spring's axis, +T e on node a, -T e on node b */
@@ -493,6 +513,12 @@ static void vsubstep(const Model *m, VRod *x) {
         vcross(arms[r][0], f0, t0);
         vcross(arms[r][1], f1, t1);
         for (int i = 0; i < 3; i++) { f_s[i] = f0[i] + f1[i]; t_s[i] = t0[i] + t1[i]; }
+        for (int k = 0; k < m->P; k++) {
+            if (m->point_rod[k] != r) continue;
+            vd tk[3];
+            vcross(parms[k], nf[N0 + k], tk);
+            for (int i = 0; i < 3; i++) { f_s[i] += nf[N0 + k][i]; t_s[i] += tk[i]; }
+        }
         /* control h f_u at the arm R r_u */
         vd fu[3], au[3], tu[3];
         for (int i = 0; i < 3; i++) fu[i] = m->gain * xr->u[i];
@@ -568,6 +594,7 @@ int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iteratio
     if (R > TSR_MAX_RODS || 2 * R + A > TSR_MAX_NODES) return -1;
     Model m;
     unpack(&m, model, springs, R, S, A);
+    if (m.P > TSR_MAX_POINTS || 2 * R + A + m.P > TSR_MAX_NODES) return -1;
     m.iterations = iterations;
     m.dt = dt;
     const int blocks = (B + TSR_W - 1) / TSR_W;
@@ -612,4 +639,5 @@ int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iteratio
 
 int tsr_max_rods(void) { return TSR_MAX_RODS; }
 int tsr_max_nodes(void) { return TSR_MAX_NODES; }
+int tsr_max_points(void) { return TSR_MAX_POINTS; }
 int tsr_lanes(void) { return TSR_W; }

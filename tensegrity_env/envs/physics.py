@@ -130,6 +130,7 @@ class NativeStepper:
         if (
             topology.n_rods > self._lib.tsr_max_rods()
             or topology.n_nodes > self._lib.tsr_max_nodes()
+            or topology.n_points > self._lib.tsr_max_points()
         ):
             raise ValueError(f"{topology.name}: too large for the native kernel")
         self.topology = topology
@@ -159,6 +160,8 @@ class NativeStepper:
             P["mass"], P["inertia"].ravel(), [P["control_gain"]], P["gravity"], c, radius,
             topology.frame_origins.ravel(),
             [float(r.end_cap == "sphere") for r in topology.rods],
+            [float(topology.n_points)], topology.point_rods.astype(float),
+            topology.point_offsets.ravel(),
         ]  # fmt: skip
         self._model = np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)

@@ -17,6 +17,7 @@ from identification.linear.features import transitions_of
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.forces import node_forces_to_wrench
 from tensegrity_env.engine.kinematics import Kinematics, node_kinematics
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import quat_integrate, quat_to_matrix
 from tensegrity_env.topology import Topology
@@ -40,6 +41,11 @@ class Geometry:
     """
 
     def __init__(self, topology: Topology, dtype: torch.dtype = torch.float64) -> None:
+        if topology.n_points:
+            raise InputError(
+                f"{topology.name}: the baselines take springs at rod end caps only"
+                f" ({topology.n_points} attachment points elsewhere)"
+            )
         self.topology = topology
         self.n_rods, self.n_springs = topology.n_rods, topology.n_springs
         self.end_offsets = torch.as_tensor(topology.end_offsets, dtype=dtype)  # (R, 2, 3) [m]

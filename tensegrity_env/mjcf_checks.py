@@ -37,7 +37,7 @@ FEATURES: dict[str, str] = {
     "nonlinear-springs": "springs are linear (stiffness/damping polynomials, yield or dead "
     "bands other than tension-only are not modelled)",
     "joint-dynamics": "free-joint damping, armature, friction loss and springs are not modelled",
-    "actuators": "only world-frame site forces and tendon actuators are control inputs",
+    "actuators": "only world-frame site forces are control inputs (cable actuators are not)",
     "fluid": "fluid drag (density, viscosity, wind, fluid shapes) is not modelled",
     "gravcomp": "gravity compensation is not modelled",
     "disabled-physics": "disabling springs, dampers, actuation or constraints is not modelled",

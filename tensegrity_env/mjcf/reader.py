@@ -1,0 +1,300 @@
+"""Read an MJCF model into rods, springs and ground-truth parameters (the convention of
+:mod:`tensegrity_env.mjcf`); refuse what the spring-rod model cannot honour."""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.mjcf.end_caps import (
+    CAP_TYPES,
+    end_cap_radius,
+    end_cap_sites,
+    floor_geoms,
+    mj_name,
+    named_sites,
+)
+from tensegrity_env.mjcf.writer import SimOptions
+from tensegrity_env.mjcf_checks import (
+    Unsupported,
+    check_ignore_names,
+    contact_of,
+    refuse_or_warn,
+    unsupported_features,
+)
+from tensegrity_env.params import Params
+from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
+from tensegrity_env.topology import Rod, Spring, Topology, TopologyError
+
+
+@dataclass(frozen=True)
+class MjcfAssembly:
+    """What :func:`from_mjcf` reads back: the graph, the parameters and the MuJoCo maps.
+
+    Attributes:
+        topology: rods, anchors, springs.
+        params: ground-truth parameters (``control_gain`` from the actuators, 1 if none).
+        options: simulation options found in the model.
+        model: the compiled MuJoCo model.
+        rod_bodies: MuJoCo body id of each rod, (R,).
+        rod_qpos: qpos address of each rod's free joint, (R,).
+        rod_qvel: qvel address of each rod's free joint, (R,).
+        body_ipos: inertial-frame offset in the body frame, (R, 3) [m].
+        body_iquat: inertial-frame orientation in the body frame, (R, 4).
+        actuators: actuator id of each rod's (x, y, z) control force, (R, 3), -1 if absent.
+        contact: the floor contact the end caps feel, as parameters of
+            :class:`~tensegrity_env.effects.ground_contact.GroundContact` (without
+            ``height``); empty without a floor.
+        slack_springs: springs with a dead band ``springlength="0 L"`` (tension-only
+            cables of rest length L).
+    """
+
+    topology: Topology
+    params: Params
+    options: SimOptions
+    model: mujoco.MjModel
+    rod_bodies: np.ndarray
+    rod_qpos: np.ndarray
+    rod_qvel: np.ndarray
+    body_ipos: np.ndarray
+    body_iquat: np.ndarray
+    actuators: np.ndarray
+    contact: dict[str, float] = field(default_factory=dict)
+    slack_springs: tuple[int, ...] = ()
+
+
+def from_mjcf(
+    source: str | Path,
+    xml: str | None = None,
+    ignore: Collection[str] = (),
+    end_caps: Collection[str] = (),
+) -> MjcfAssembly:
+    """Read an MJCF file (or ``xml`` text, with ``source`` used in messages).
+
+    ``end_caps`` names the end-cap sites (two per rod) where the convention (the two
+    sites at a rod's ends along its axis) does not find them.
+
+    Every feature that changes the dynamics and is not modelled is refused
+    (:mod:`tensegrity_env.mjcf_checks`), unless named in ``ignore``: then it is
+    accepted with an :class:`~tensegrity_env.mjcf_checks.IgnoredFeatureWarning`.
+
+    Raises :class:`InputError` with one line naming the file and the problem.
+    """
+    check_ignore_names(ignore)
+    src = str(source)
+    try:
+        if xml is not None:
+            model = mujoco.MjModel.from_xml_string(xml)
+        else:
+            if not Path(src).is_file():
+                raise InputError(f"{src}: no such MJCF file")
+            model = mujoco.MjModel.from_xml_path(src)
+    except ValueError as e:
+        raise InputError(f"{src}: MuJoCo cannot load it ({str(e).splitlines()[0]})") from None
+    m = model
+    BODY, SITE, TEN = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_TENDON
+
+    # rods: bodies with exactly one free joint
+    rod_bodies = [
+        b
+        for b in range(1, m.nbody)
+        if m.body_jntnum[b] == 1 and m.jnt_type[m.body_jntadr[b]] == mujoco.mjtJoint.mjJNT_FREE
+    ]
+    if not rod_bodies:
+        raise InputError(f"{src}: no rods (bodies with a free joint) found")
+    for b in range(1, m.nbody):
+        if b not in rod_bodies and m.body_jntnum[b] > 0:
+            raise InputError(
+                f"{src}: body '{mj_name(m, BODY, b)}' has joints but is not a free rod"
+            )
+    rod_index = {b: i for i, b in enumerate(rod_bodies)}
+
+    # control actuators: site transmission on a rod site, refsite on the world body
+    arm_sites: dict[int, int] = {}
+    actuators = -np.ones((len(rod_bodies), 3), dtype=int)
+    gains: list[float] = []
+    for a in range(m.nu):
+        if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_SITE:
+            continue
+        site, ref = m.actuator_trnid[a]
+        body = m.site_bodyid[site]
+        gear = m.actuator_gear[a]
+        axis = int(np.argmax(np.abs(gear[:3])))
+        if body not in rod_index or ref < 0 or m.site_bodyid[ref] != 0:
+            raise InputError(
+                f"{src}: actuator '{mj_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)}' is not a world-frame"
+                " force on a rod site (needs site= on a rod and refsite= on the world body)"
+            )
+        arm_sites[rod_index[body]] = site
+        actuators[rod_index[body], axis] = a
+        gains.append(float(m.actuator_gainprm[a, 0] * gear[axis]))
+    if gains and not np.allclose(gains, gains[0]):
+        raise InputError(f"{src}: control actuators have different gains {sorted(set(gains))}")
+
+    # the sites springs attach to
+    tendon_sites: list[tuple[int, int]] = []
+    for t in range(m.ntendon):
+        adr, num = m.tendon_adr[t], m.tendon_num[t]
+        types = m.wrap_type[adr : adr + num]
+        if num != 2 or not np.all(types == mujoco.mjtWrap.mjWRAP_SITE):
+            raise InputError(
+                f"{src}: tendon '{mj_name(m, TEN, t)}' is not a two-site spatial tendon (a spring)"
+            )
+        tendon_sites.append((int(m.wrap_objid[adr]), int(m.wrap_objid[adr + 1])))
+
+    # geometry in each rod's inertial (principal) frame
+    ipos = np.array([m.body_ipos[b] for b in rod_bodies])
+    iquat = np.array([m.body_iquat[b] for b in rod_bodies])
+    Ri = np_quat_to_matrix(iquat)  # inertial frame -> body frame
+
+    def to_inertial(i: int, pos_body: np.ndarray) -> tuple[float, float, float]:
+        return tuple((Ri[i].T @ (pos_body - ipos[i])).tolist())  # type: ignore[return-value]
+
+    # end caps of each rod (named, or by convention); its other spring sites are
+    # attachment points, in order of first use
+    named = named_sites(m, end_caps, src)
+    rod_ends: list[list[int]] = []
+    rod_points: list[list[int]] = [[] for _ in rod_bodies]
+    for i, b in enumerate(rod_bodies):
+        sites = [s for s in range(m.nsite) if m.site_bodyid[s] == b]
+        local = {s: np.asarray(to_inertial(i, m.site_pos[s])) for s in sites}
+        axis = int(np.argmin(m.body_inertia[b]))
+        rod_ends.append(end_cap_sites(m, b, sites, arm_sites.get(i), local, axis, named, src))
+    for pair in tendon_sites:
+        for s in pair:
+            b = int(m.site_bodyid[s])
+            if b in rod_index:
+                i = rod_index[b]
+                if s not in rod_ends[i] and s not in rod_points[i]:
+                    rod_points[i].append(s)
+
+    floor = floor_geoms(m)
+    rods = []
+    cap_geoms: list[int] = []
+    shape_found: list[Unsupported] = []
+    for i, b in enumerate(rod_bodies):
+        e0, e1 = (np.asarray(to_inertial(i, m.site_pos[s])) for s in rod_ends[i])
+        radius, geoms = end_cap_radius(m, b, rod_ends[i], floor, src)
+        cap_geoms += geoms
+        shapes = {CAP_TYPES[int(m.geom_type[g])] for g in geoms}
+        if floor and "cylinder" in shapes:
+            shape_found.append(
+                Unsupported("end-cap-shape", f"rod '{mj_name(m, BODY, b)}' has cylinder end caps")
+            )
+        if len(shapes) > 1 and floor:
+            raise InputError(
+                f"{src}: rod '{mj_name(m, BODY, b)}': end caps of different shapes {sorted(shapes)}"
+            )
+        arm = to_inertial(i, m.site_pos[arm_sites[i]]) if i in arm_sites else (0.0, 0.0, 0.0)
+        rods.append(
+            Rod(
+                name=mj_name(m, BODY, b),
+                length=float(np.linalg.norm(e1 - e0)),
+                radius=radius,
+                end_offsets=(tuple(e0.tolist()), tuple(e1.tolist())),  # type: ignore[arg-type]
+                control_arm=arm,
+                frame_origin=to_inertial(i, np.zeros(3)),
+                end_cap="sphere" if shapes == {"sphere"} else "capsule",
+                attachments=tuple(to_inertial(i, m.site_pos[s]) for s in rod_points[i]),
+            )
+        )
+
+    # nodes: end caps by rod, then world anchors in order of first use
+    node_of_site: dict[int, int] = {}
+    for i, ends in enumerate(rod_ends):
+        node_of_site[ends[0]], node_of_site[ends[1]] = 2 * i, 2 * i + 1
+    world_sites = [
+        s for pair in tendon_sites for s in pair if s not in node_of_site and m.site_bodyid[s] == 0
+    ]
+    anchor_sites = list(dict.fromkeys(world_sites))  # in order of first use
+    anchors = [tuple(m.site_pos[s].tolist()) for s in anchor_sites]
+    for k, s in enumerate(anchor_sites):
+        node_of_site[s] = 2 * len(rods) + k
+    n_point = 2 * len(rods) + len(anchors)
+    for points in rod_points:
+        for s in points:
+            node_of_site[s] = n_point
+            n_point += 1
+    springs = []
+    for t, pair in enumerate(tendon_sites):
+        for s in pair:
+            if s not in node_of_site:
+                body = m.site_bodyid[s]
+                raise InputError(
+                    f"{src}: spring '{mj_name(m, TEN, t)}' attaches to site '{mj_name(m, SITE, s)}'"
+                    f" on body '{mj_name(m, BODY, body)}', which is neither a rod nor the world"
+                )
+        springs.append(Spring(mj_name(m, TEN, t), node_of_site[pair[0]], node_of_site[pair[1]]))
+    try:
+        topology = Topology(
+            rods=tuple(rods),
+            springs=tuple(springs),
+            anchors=tuple(anchors),  # type: ignore[arg-type]
+            name=m.names[: m.names.index(b"\0")].decode() or "assembly",
+        )
+    except TopologyError as e:
+        raise InputError(f"{src}: {e}") from None
+
+    stiffness = m.tendon_stiffness.copy()
+    for t in range(m.ntendon):
+        if stiffness[t] <= 0:
+            raise InputError(f"{src}: spring '{mj_name(m, TEN, t)}' has non-positive stiffness")
+        if m.tendon_damping[t] < 0:
+            raise InputError(f"{src}: spring '{mj_name(m, TEN, t)}' has negative damping")
+    for b in rod_bodies:
+        if m.body_mass[b] <= 0 or np.any(m.body_inertia[b] <= 0):
+            raise InputError(f"{src}: rod '{mj_name(m, BODY, b)}' has non-positive mass or inertia")
+    # what the file says beyond rods and springs: modelled, or refused unless ignored
+    contact, contact_found = contact_of(m, cap_geoms, floor, src)
+    found = unsupported_features(m, rod_bodies, floor, [int(a) for a in actuators[actuators >= 0]])
+    refuse_or_warn(found + contact_found + shape_found, ignore, src)
+    # dead band [0, L]: a tension-only (slack) spring of rest length L
+    low, high = m.tendon_lengthspring[:, 0], m.tendon_lengthspring[:, 1]
+    slack = tuple(int(t) for t in np.nonzero((low == 0) & (high > 0))[0])
+    params = Params.create(
+        stiffness=stiffness,
+        damping=m.tendon_damping.copy(),
+        rest_length=np.where((low == 0) & (high > 0), high, low),
+        mass=m.body_mass[rod_bodies].copy(),
+        inertia=m.body_inertia[rod_bodies].copy(),
+        control_gain=gains[0] if gains else 1.0,
+        gravity=m.opt.gravity.copy(),
+    )
+    integrator = {
+        int(mujoco.mjtIntegrator.mjINT_EULER): "Euler",
+        int(mujoco.mjtIntegrator.mjINT_RK4): "RK4",
+        int(mujoco.mjtIntegrator.mjINT_IMPLICIT): "implicit",
+        int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): "implicitfast",
+    }.get(int(m.opt.integrator), "Euler")
+    options = SimOptions(
+        timestep=float(m.opt.timestep),
+        integrator=integrator,
+        ground=bool(floor),
+        rod_collisions=any(f.feature == "rod-collisions" for f in found),
+        control=bool(gains),
+        friction=contact.get("friction", SimOptions.friction),
+    )
+    return MjcfAssembly(
+        topology=topology,
+        params=params,
+        options=options,
+        model=model,
+        rod_bodies=np.array(rod_bodies),
+        rod_qpos=np.array([m.jnt_qposadr[m.body_jntadr[b]] for b in rod_bodies]),
+        rod_qvel=np.array([m.jnt_dofadr[m.body_jntadr[b]] for b in rod_bodies]),
+        body_ipos=ipos,
+        body_iquat=iquat,
+        actuators=actuators,
+        contact=contact,
+        slack_springs=slack,
+    )
+
+
+def inertial_quat(assembly: MjcfAssembly, body_quat: np.ndarray) -> np.ndarray:
+    """Orientation of each rod's principal frame from body quaternions (..., R, 4)."""
+    return np_quat_mul(body_quat, np.broadcast_to(assembly.body_iquat, body_quat.shape))

@@ -13,10 +13,13 @@ import pytest
 import torch
 from test_mjcf_lab import CAP_RADIUS, _random_state, _rod_state, lab_mjcf
 
+from identification.data.end_caps import rod_states_from_nodes
 from identification.linear.regression import SpringRodIdentifier
 from identification.report.tables import group_errors
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.assemblies import node_positions
+from tensegrity_env.effects.ground_contact import GroundContact
+from tensegrity_env.effects.springs import SlackSprings
 from tensegrity_env.engine import Engine
 from tensegrity_env.envs.physics import NativeStepper
 from tensegrity_env.io_utils import InputError
@@ -155,3 +158,35 @@ def test_identify_recovers_every_parameter_with_springs_anywhere(
     assert est.score(ds, "test")["one_step_position_error"] <= 1e-12
     est_torch = SpringRodIdentifier(anchors=anchor, backend="torch").fit(ds)
     assert torch.allclose(est_torch.params_.stiffness, est.params_.stiffness, rtol=1e-9)
+
+
+def test_slack_cables_at_attachment_points_match_mujocos_dead_band() -> None:
+    xml = lab_mjcf("surface").replace('springlength="', 'springlength="0 ', 3)
+    asm = from_mjcf("<lab>", xml=xml)
+    assert asm.slack_springs == (0, 1, 2)
+    m, d = _random_state(asm, seed=13)
+    state = _rod_state(asm, d)
+    mujoco.mj_step(m, d)
+    cables = SlackSprings(asm.topology, springs=list(asm.slack_springs))
+    with torch.no_grad():
+        step = Engine(asm.topology, 1e-3, effects=[cables]).step(state, asm.params)
+    assert float((step.v - _rod_state(asm, d).v).abs().max()) <= 1e-12
+
+
+def test_native_kernel_with_floor_contact_and_attachment_points() -> None:
+    asm = from_mjcf("<lab>", xml=lab_mjcf("mid"))
+    contact = GroundContact(asm.topology, friction=0.9)
+    stepper = NativeStepper(asm.topology, asm.params, [contact], 1e-3, 2, threads=1)
+    assert stepper.verify(asm.params, [contact]) <= 1e-13
+
+
+def test_end_caps_alone_cannot_place_points_off_the_rod_axis() -> None:
+    surface = from_mjcf("<lab>", xml=lab_mjcf("surface")).topology
+    assert len(surface.off_axis_points()) == 6
+    nodes = np.zeros((2, 2 * surface.n_rods, 3))
+    nodes[:, 1::2, 2] = 1.0
+    with pytest.raises(InputError, match="twist"):
+        rod_states_from_nodes(nodes, surface, 1e-3)
+    # the motor sites lie on the rod axis: end caps place them; the surface sites do not
+    mid = from_mjcf("<lab>", xml=lab_mjcf("mid")).topology
+    assert [n.split("/")[1] for n in mid.off_axis_points()] == ["point0", "point1"] * 3

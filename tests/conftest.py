@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+
+# Headless rendering: MuJoCo picks its GL backend when first imported, and a test module may
+# import mujoco before anything of ours sets the default.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 from collections.abc import Iterator
 
 import pytest

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import tensegrity_env  # noqa: F401  (registers the envs, MUJOCO_GL)
-from tensegrity_env.effects import GroundContact, effects_to_document
+from tensegrity_env.effects import GroundContact
 from tensegrity_env.envs import (
     IcosahedronMJEnv,
     IcosahedronMJVectorEnv,
@@ -44,7 +44,7 @@ from tensegrity_env.envs import (
 )
 from tensegrity_env.envs.physics import default_threads
 from tensegrity_env.envs.twin import twin_assembly
-from tensegrity_env.params import save_params
+from tensegrity_env.model import Model
 
 
 def best_of(fns: list[Callable[[], float]], repeats: int) -> list[float]:
@@ -134,8 +134,7 @@ def fidelity(episodes: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         a = twin_assembly()
         true_path = Path(tmp) / "true_params.json"
-        save_params(true_path, a.topology, a.params,
-                    {"effects": effects_to_document([GroundContact(a.topology)])})  # fmt: skip
+        Model(a.topology, a.params, [GroundContact(a.topology)]).save(true_path)
         rows = [
             ("identified params, random actions", IcosahedronSREnv(goal_distance=(100.0, 100.0)), 1.0),
             ("identified params, no control", IcosahedronSREnv(goal_distance=(100.0, 100.0)), 0.0),

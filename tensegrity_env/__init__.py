@@ -5,10 +5,19 @@ identified engine) and ``IcosahedronMJ-v0`` (its MuJoCo twin), each with a nativ
 batched ``vector_entry_point`` (see :mod:`tensegrity_env.envs`). On a Linux machine
 without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
 imported) so that rendering works headless; set it yourself to override.
+
+:class:`~tensegrity_env.model.Model` (topology, params, effects, dt; ``params.json``)
+is imported on first use, so that importing the package stays fast.
 """
 
 import os
 import sys
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from tensegrity_env.model import Model
+
+__all__ = ["Model"]
 
 if sys.platform.startswith("linux") and not (
     os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
@@ -33,3 +42,11 @@ def _register_envs() -> None:
 
 
 _register_envs()
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Model":
+        from tensegrity_env.model import Model
+
+        return Model
+    raise AttributeError(f"module 'tensegrity_env' has no attribute {name!r}")

@@ -1,4 +1,6 @@
-"""Physical parameters of a spring-rod assembly and the versioned ``params.json`` file.
+"""Physical parameters of a spring-rod assembly and the header of the ``params.json`` file.
+
+:class:`tensegrity_env.model.Model` reads and writes the whole document.
 
 :class:`Params` is a frozen dataclass of torch tensors so it can be differentiated
 through the engine (make any field ``requires_grad``) and moved between devices and
@@ -17,8 +19,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from tensegrity_env.io_utils import InputError, atomic_write_text
-from tensegrity_env.topology import Topology, TopologyError
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.topology import Topology
 
 PARAMS_FORMAT = "tensegrity-sr/params"
 PARAMS_VERSION = 1
@@ -154,10 +156,12 @@ class Params:
 
 # ---------------------------------------------------------------------- params.json
 def params_to_dict(params: Params) -> dict[str, Any]:
+    """The ``params`` section: field -> nested lists (units in :data:`UNITS`)."""
     return {f: v.tolist() for f, v in params.numpy().items()}
 
 
 def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
+    """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``."""
     missing = [f for f in FIELDS if f not in d]
     if missing:
         raise InputError(f"{source}: missing parameter(s) {missing}")
@@ -165,29 +169,6 @@ def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
         return Params.create(**{f: d[f] for f in FIELDS})
     except (ValueError, TypeError) as e:
         raise InputError(f"{source}: malformed parameter values ({e})") from None
-
-
-def save_params(
-    path: str | Path,
-    topology: Topology,
-    params: Params,
-    extra: Mapping[str, Any] | None = None,
-) -> Path:
-    """Write a versioned ``params.json`` (atomically: temporary file, then rename).
-
-    ``extra`` holds further top-level sections, for example ``identifiability``
-    (what the data could and could not determine), ``effects`` (modules the residual
-    loop added) or ``provenance``.
-    """
-    doc: dict[str, Any] = {
-        "format": PARAMS_FORMAT,
-        "version": PARAMS_VERSION,
-        "units": UNITS,
-        "topology": topology.to_dict(),
-        "params": params_to_dict(params),
-    }
-    doc.update(extra or {})
-    return atomic_write_text(path, json.dumps(doc, indent=2) + "\n")
 
 
 def load_params_document(path: str | Path) -> dict[str, Any]:
@@ -205,14 +186,3 @@ def load_params_document(path: str | Path) -> dict[str, Any]:
         raise InputError(f"{p}: params version {doc.get('version')} is not supported")
     return doc
 
-
-def load_params(path: str | Path) -> tuple[Topology, Params, dict[str, Any]]:
-    """Read ``params.json``: returns (topology, params, whole document)."""
-    doc = load_params_document(path)
-    try:
-        topology = Topology.from_dict(doc["topology"])
-    except (KeyError, TopologyError) as e:
-        raise InputError(f"{path}: bad topology ({e})") from None
-    params = params_from_dict(doc.get("params", {}), source=str(path))
-    params.validate(topology, source=str(path))
-    return topology, params, doc

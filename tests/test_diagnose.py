@@ -12,9 +12,8 @@ from identification.discovery.diagnose import diagnose
 from identification.discovery.residuals import compute_residuals, summarize
 from identification.linear.extended import ExtendedIdentifier
 from identification.simulation.planted import PlantSpec, planted_dataset
-from tensegrity_env.effects import SlackSprings, effects_from_document
-from tensegrity_env.engine import Engine
-from tensegrity_env.params import load_params
+from tensegrity_env.effects import SlackSprings
+from tensegrity_env.model import Model
 from tensegrity_sr.cli import main as cli
 
 SMALL = {"n_train": 4, "n_val": 2, "n_test": 2, "steps": 500}
@@ -106,11 +105,10 @@ def test_cli_writes_report_and_params_the_engine_loads(tmp_path):
     report = (out / "report.md").read_text()
     assert "Added: linear_drag" in report and "residuals_0.png" in report
     assert (out / "residuals_0.png").stat().st_size > 10_000
-    topology, _, doc = load_params(out / "params.json")
-    effects = effects_from_document(doc, topology)
-    assert [e.name for e in effects] == ["linear_drag"]
+    model = Model.load(out / "params.json")
+    assert model.effect_names == ["linear_drag"]
     assert json.loads((out / "params.json").read_text())["diagnose"]["added"] == ["linear_drag"]
-    Engine(topology, 1e-3, effects=effects)  # runs the extended model
+    model.engine()  # runs the extended model
 
 
 # ---------------------------------------------------------------------- thorough

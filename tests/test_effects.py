@@ -23,12 +23,11 @@ from tensegrity_env.effects import (
     SlackSprings,
     effect_from_dict,
     effects_from_document,
-    effects_to_document,
 )
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.kinematics import node_kinematics
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import load_params, save_params
+from tensegrity_env.model import Model
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -77,10 +76,9 @@ def test_to_dict_round_trip(ico):
 
 def test_params_file_round_trips_into_the_engine(ico, tmp_path):
     effects = [e for e in _examples(ico.topology) if not isinstance(e, ControlLag)]
-    path = save_params(tmp_path / "p.json", ico.topology, ico.params,
-                       {"effects": effects_to_document(effects)})  # fmt: skip
-    topology, params, doc = load_params(path)
-    loaded = effects_from_document(doc, topology)
+    path = Model(ico.topology, ico.params, effects).save(tmp_path / "p.json")
+    model = Model.load(path)
+    topology, params, loaded = model.topology, model.params, list(model.effects)
     assert [e.name for e in loaded] == [e.name for e in effects]
     state = _random_state(ico.topology, lift=-0.55)  # some end caps below the floor
     a = Engine(ico.topology, 1e-3, effects=effects).step(state, ico.params)

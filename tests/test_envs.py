@@ -14,7 +14,7 @@ from stable_baselines3.common.logger import Logger
 
 import tensegrity_env  # registers the envs
 from tensegrity_env.assemblies import element
-from tensegrity_env.effects import GroundContact, effects_to_document
+from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.envs import (
     IcosahedronMJEnv,
@@ -34,7 +34,8 @@ from tensegrity_env.envs.physics import (
 from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, load_env_model
 from tensegrity_env.envs.twin import face_down_pose, twin_assembly, twin_mjcf
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import load_params, save_params
+from tensegrity_env.model import Model
+from tensegrity_env.params import load_params_document
 
 RNG = np.random.default_rng(0)
 
@@ -268,16 +269,14 @@ def test_params_path_loads_another_model(tmp_path: Path) -> None:
     a = twin_assembly()
     stiff = a.params.replace(stiffness=a.params.stiffness * 2)
     path = tmp_path / "stiff.json"
-    save_params(
-        path, a.topology, stiff, {"effects": effects_to_document([GroundContact(a.topology)])}
-    )
+    Model(a.topology, stiff, [GroundContact(a.topology)]).save(path)
     env = IcosahedronSREnv(params_path=path)
     assert torch.allclose(env.sim.params.stiffness, stiff.stiffness)
-    save_params(tmp_path / "no_contact.json", a.topology, a.params)
+    Model(a.topology, a.params).save(tmp_path / "no_contact.json")
     with pytest.raises(InputError, match="ground_contact"):
         IcosahedronSREnv(params_path=tmp_path / "no_contact.json")
     e = element()
-    save_params(tmp_path / "element.json", e.topology, e.params)
+    Model(e.topology, e.params).save(tmp_path / "element.json")
     with pytest.raises(InputError, match="icosahedron"):
         IcosahedronSREnv(params_path=tmp_path / "element.json")
 
@@ -285,11 +284,11 @@ def test_params_path_loads_another_model(tmp_path: Path) -> None:
 def test_shipped_assets_are_identified_and_in_sync() -> None:
     twin = Path(tensegrity_env.__file__).parent / "assets" / "icosahedron_rolling.xml"
     assert twin.read_text() == twin_mjcf(ground=True)
-    _, params, doc = load_params(DEFAULT_PARAMS)
-    _, _, effects = load_env_model(DEFAULT_PARAMS)
-    assert [e.name for e in effects] == ["ground_contact"]
+    doc = load_params_document(DEFAULT_PARAMS)
+    model = load_env_model(DEFAULT_PARAMS)
+    assert model.effect_names == ["ground_contact"] and model.dt == 1e-3
     truth = twin_assembly().params
-    errors = params.relative_error(truth)
+    errors = model.params.relative_error(truth)
     assert max(float(v.max()) for v in errors.values()) < 1e-6  # clean data: exact
     assert doc["provenance"]["environment_assets"]["quick"] is False
 

@@ -14,7 +14,7 @@ from identification.linear.regression import NotFittedError, SpringRodIdentifier
 from identification.report.tables import group_errors
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.engine import State
-from tensegrity_env.params import load_params
+from tensegrity_env.model import Model
 from tensegrity_sr.cli import main
 
 
@@ -173,8 +173,9 @@ def test_identify_command_writes_a_params_file(tmp_path, capsys) -> None:
     assert code == 0
     text = capsys.readouterr().out
     assert "stiffness[spring0]" in text and "N/m" in text and "rel. error" in text
-    topology, params, doc = load_params(out)
-    assert topology.same_as(ds.topology)
+    model = Model.load(out)
+    topology, params, doc = model.topology, model.params, json.loads(out.read_text())
+    assert topology.same_as(ds.topology) and model.effects == ()
     assert doc["identifiability"]["mode"] == "anchored"
     assert max(doc["relative_error_vs_ground_truth"].values()) < 1e-6
     np.testing.assert_allclose(params.stiffness.numpy(), truth.params.stiffness.numpy(), rtol=1e-7)

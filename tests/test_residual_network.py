@@ -17,7 +17,8 @@ from tensegrity_env.effects import ResidualNetwork, effects_from_document
 from tensegrity_env.effects.residual_network import ResidualMLP
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import load_params
+from tensegrity_env.model import Model
+from tensegrity_env.params import load_params_document
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -71,23 +72,25 @@ def test_sidecar_and_params_load_back_into_the_engine(drag_run, tmp_path):
     data, result = drag_run
     fit = result.residual_network
     write_report(result, tmp_path, "drag", 0.5)
-    write_params(result, data.dataset.topology, tmp_path / "params.json", {})
+    write_params(result, tmp_path / "params.json", {})
     report = (tmp_path / "report.md").read_text()
     assert "Residual network (unexplained: NOT a physical effect)" in report
     # params.json keeps the physical model and points at the network's files (read as
-    # JSON: this drag-blind fit has an axial inertia <= 0, which load_params refuses)
+    # JSON: this drag-blind fit has an axial inertia <= 0, which Model.load refuses)
     doc = json.loads((tmp_path / "params.json").read_text())
     assert doc["effects"] == []
     assert doc["diagnose"]["residual_network"]["params_file"] == NETWORK_PARAMS
     assert np.allclose(doc["params"]["mass"], result.model.params.mass.numpy())
     # the network's own params file: refitted parameters, the network entry, the sidecar
-    topology, params, doc = load_params(tmp_path / NETWORK_PARAMS)
+    model = Model.load(tmp_path / NETWORK_PARAMS, dt=data.dataset.dt)
+    topology, params = model.topology, model.params
+    doc = load_params_document(tmp_path / NETWORK_PARAMS)
     entry = json.loads((tmp_path / NETWORK_PARAMS).read_text())["effects"][-1]
     assert entry["name"] == "residual_network" and entry["unexplained"] is True
     assert (tmp_path / entry["sidecar"]).is_file()
     with pytest.raises(InputError, match="not found"):
         effects_from_document(doc, topology, root=tmp_path / "elsewhere")
-    loaded = effects_from_document(doc, topology, root=tmp_path)
+    loaded = list(model.effects)
     split = data.dataset.split("test")
     state = State(*(torch.as_tensor(getattr(split, k)[:, ::50].reshape(-1, *getattr(split, k).shape[2:]))
                     for k in ("p", "v", "q", "omega")))  # fmt: skip

@@ -23,9 +23,9 @@ from identification.discovery.trajectory_loop import FIT_WINDOW, TrajectorySetti
 from identification.discovery.trajectory_report import write_noisy_report
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
-from tensegrity_env.effects import EFFECTS, effects_from_document
+from tensegrity_env.effects import EFFECTS
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import load_params
+from tensegrity_env.model import Model
 
 
 def register(sub: Any) -> None:
@@ -112,11 +112,11 @@ def run(args: argparse.Namespace) -> int:
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start: list[Any] = []
     if args.params is not None:
-        topo, params, doc = load_params(args.params)
-        if not topo.same_as(dataset.topology):
+        model = Model.load(args.params, dt=dataset.dt)
+        if not model.topology.same_as(dataset.topology):
             raise InputError(f"{args.params}: topology differs from {args.dataset}")
-        anchors.setdefault(f"mass[{topo.rods[0].name}]", float(params.mass[0]))
-        start = effects_from_document(doc, topo, root=args.params.parent)
+        anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
+        start = list(model.effects)
     names = [n for n in args.candidates.split(",") if n] or None
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:
@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     truth = read_ground_truth(args.dataset)
     report = write_report(result, out, str(args.dataset), args.horizon,
                           None if truth is None else truth.effects)  # fmt: skip
-    params = write_params(result, dataset.topology, out / "params.json",
+    params = write_params(result, out / "params.json",
                           {"dataset": str(args.dataset), "seconds": time.perf_counter() - t0})  # fmt: skip
     b, f = result.baseline_test, result.final_test
     print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
@@ -150,11 +150,12 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start = None
     if args.params is not None:
-        topo, start, doc = load_params(args.params)
-        if not topo.same_as(dataset.topology):
+        model = Model.load(args.params, dt=dataset.dt)
+        if not model.topology.same_as(dataset.topology):
             raise InputError(f"{args.params}: topology differs from {args.dataset}")
-        anchors.setdefault(f"mass[{topo.rods[0].name}]", float(start.mass[0]))
-        if doc.get("effects"):
+        start = model.params
+        anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(start.mass[0]))
+        if model.effects:
             raise InputError(f"{args.params}: --method trajectory starts from the declared "
                              "model only (remove its 'effects')")  # fmt: skip
     names = [n for n in args.candidates.split(",") if n] or None
@@ -177,7 +178,7 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
     truth = read_ground_truth(args.dataset)
     report = write_noisy_report(result, out, str(args.dataset), args.horizon,
                                 None if truth is None else truth.effects)  # fmt: skip
-    params = write_params(result, dataset.topology, out / "params.json",  # type: ignore[arg-type]
+    params = write_params(result, out / "params.json",
                           {"dataset": str(args.dataset), "method": "trajectory",
                            "seconds": time.perf_counter() - t0})  # fmt: skip
     b, f = result.baseline_test, result.final_test

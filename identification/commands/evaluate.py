@@ -14,7 +14,7 @@ from identification.experiments.long_horizon import (
 )
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError, atomic_write_text
-from tensegrity_env.params import load_params
+from tensegrity_env.model import Model
 
 
 def register(sub: Any) -> None:
@@ -51,10 +51,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("give one --label per --params")
     curves = {}
     for label, path in zip(labels, args.params, strict=True):
-        topology, params, _ = load_params(path)
-        if not topology.same_as(dataset.topology):
+        model = Model.load(path, dt=dataset.dt)
+        if not model.topology.same_as(dataset.topology):
             raise InputError(f"{path}: topology differs from {args.dataset}")
-        curves[label] = long_horizon_errors(Engine(topology, dataset.dt), params, split)
+        curves[label] = long_horizon_errors(Engine(model.topology, model.dt), model.params, split)
     table = checkpoint_table(curves, dataset.dt)
     args.output.mkdir(parents=True, exist_ok=True)
     atomic_write_text(

@@ -13,7 +13,7 @@ from identification.data.dataset import read_dataset, read_ground_truth
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import group_errors, parameter_table, relative_errors
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import load_params, save_params
+from tensegrity_env.model import Model
 
 
 def register(sub: Any) -> None:
@@ -60,8 +60,9 @@ def run(args: argparse.Namespace) -> int:
     anchors = dict(parse_anchor(a) for a in args.anchor)
     init = None
     if args.init is not None:
-        init_topology, init, _ = load_params(args.init)
-        if not init_topology.same_as(dataset.topology):
+        init_model = Model.load(args.init)
+        init = init_model.params
+        if not init_model.topology.same_as(dataset.topology):
             raise InputError(f"{args.init}: topology differs from {args.dataset}")
     freeze = tuple(f for f in args.freeze.split(",") if f)
     if args.fraction is not None and not 0 < args.fraction <= 1:
@@ -125,6 +126,6 @@ def run(args: argparse.Namespace) -> int:
         extra["relative_error_vs_ground_truth"] = {
             r.name: e for r, e in zip(est.table_, errs, strict=True) if np.isfinite(e)
         }
-    save_params(args.output, dataset.topology, est.params_, extra)
+    Model(dataset.topology, est.params_, dt=dataset.dt).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

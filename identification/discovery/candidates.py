@@ -31,6 +31,7 @@ from tensegrity_env.effects import (
     SlackSprings,
 )
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
+from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
@@ -67,25 +68,32 @@ class FitSettings:
     seed: int = 0
 
 
-@dataclass
-class Model:
-    """A fitted model: declared parameters, effects, and bookkeeping.
+@dataclass(frozen=True)
+class FittedModel:
+    """A model fitted by the residual loop, with the bookkeeping of the fit.
 
     Attributes:
-        params: declared parameters.
-        effects: effect modules with identified values (and uncertainty).
+        model: topology, declared parameters, effects (identified values and
+            uncertainty) and time step.
         n_params: number of fitted parameters (for the information criterion).
         notes: remarks from the fit (effect name -> text).
     """
 
-    params: Params
-    effects: list[PhysicalEffect]
+    model: Model
     n_params: int
     notes: dict[str, str] = field(default_factory=dict)
 
     @property
+    def params(self) -> Params:
+        return self.model.params
+
+    @property
+    def effects(self) -> list[PhysicalEffect]:
+        return list(self.model.effects)
+
+    @property
     def names(self) -> list[str]:
-        return [e.name for e in self.effects]
+        return self.model.effect_names
 
 
 def _ordered(effects: Sequence[PhysicalEffect]) -> list[PhysicalEffect]:
@@ -95,7 +103,9 @@ def _ordered(effects: Sequence[PhysicalEffect]) -> list[PhysicalEffect]:
     ]
 
 
-def fit_model(dataset: Dataset, effects: Sequence[PhysicalEffect], settings: FitSettings) -> Model:
+def fit_model(
+    dataset: Dataset, effects: Sequence[PhysicalEffect], settings: FitSettings
+) -> FittedModel:
     """Refit the declared parameters jointly with ``effects`` on the training split."""
     effects = _ordered(effects)
     est = ExtendedIdentifier(
@@ -115,7 +125,7 @@ def fit_model(dataset: Dataset, effects: Sequence[PhysicalEffect], settings: Fit
     for e in fitted:
         if isinstance(e, ControlLag):
             n += 1
-    return Model(est.params_, fitted, n, notes)
+    return FittedModel(Model(dataset.topology, est.params_, fitted, dataset.dt), n, notes)
 
 
 def _fit_contact(
@@ -158,7 +168,10 @@ class Proposal:
 
 
 def propose(
-    dataset: Dataset, current: Model, settings: FitSettings, names: Sequence[str] | None = None
+    dataset: Dataset,
+    current: FittedModel,
+    settings: FitSettings,
+    names: Sequence[str] | None = None,
 ) -> list[Proposal]:
     """Every candidate not yet in the model, gated by what the data shows."""
     topo = dataset.topology
@@ -208,7 +221,9 @@ def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
     return False, f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them"
 
 
-def slack_probe(dataset: Dataset, current: Model, settings: FitSettings) -> tuple[list[int], str]:
+def slack_probe(
+    dataset: Dataset, current: FittedModel, settings: FitSettings
+) -> tuple[list[int], str]:
     """Springs whose stiffness drops when compressed: ``ΔK_s (l - l0) [l < l0]`` per spring."""
     if any(isinstance(e, SlackSprings) for e in current.effects):
         return [], "already in the model"
@@ -233,9 +248,9 @@ def slack_probe(dataset: Dataset, current: Model, settings: FitSettings) -> tupl
     )
 
 
-def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSettings) -> Model:
+def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSettings) -> FittedModel:
     """Control lag by a search over :data:`LAG_GRID` (the regression refits h for each)."""
-    best: tuple[float, Model] | None = None
+    best: tuple[float, FittedModel] | None = None
     for tau in LAG_GRID:
         effects = [*base, ControlLag(dataset.topology, time_constant=tau)]
         est = ExtendedIdentifier(
@@ -245,12 +260,13 @@ def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSetti
         rss = est.solution_.rss
         if best is None or rss < best[0]:
             n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable)) + 1
-            best = (rss, Model(est.params_, list(est.effects_), n))
+            model = Model(dataset.topology, est.params_, est.effects_, dataset.dt)
+            best = (rss, FittedModel(model, n))
     assert best is not None
     return best[1]
 
 
-def fit_proposal(dataset: Dataset, proposal: Proposal, settings: FitSettings) -> Model:
+def fit_proposal(dataset: Dataset, proposal: Proposal, settings: FitSettings) -> FittedModel:
     """Fit a candidate's whole model (jointly)."""
     assert proposal.effects is not None
     if proposal.name == "control_lag":

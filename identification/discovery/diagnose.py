@@ -42,7 +42,7 @@ import torch
 from identification.data.dataset import Dataset
 from identification.discovery.candidates import (
     FitSettings,
-    Model,
+    FittedModel,
     Proposal,
     fit_model,
     fit_proposal,
@@ -86,7 +86,7 @@ class Scored:
     """
 
     name: str
-    model: Model
+    model: FittedModel
     val: dict[str, Any]
     bic: float
     physical: bool = True
@@ -139,7 +139,7 @@ class DiagnoseResult:
     """
 
     iterations: list[Iteration]
-    model: Model
+    model: FittedModel
     baseline_test: dict[str, Any]
     final_test: dict[str, Any]
     final_residual: dict[str, float]
@@ -149,7 +149,7 @@ class DiagnoseResult:
     residual_network: ResidualFit | None = None
 
 
-def one_step_bic(dataset: Dataset, model: Model, max_transitions: int = 20_000) -> float:
+def one_step_bic(dataset: Dataset, model: FittedModel, max_transitions: int = 20_000) -> float:
     """``n ln(SSE/n) + k ln(n)`` of the one-step position errors on the training split."""
     data = dataset.split("train")
     N, T = data.n_trajectories, data.n_transitions
@@ -167,7 +167,7 @@ def one_step_bic(dataset: Dataset, model: Model, max_transitions: int = 20_000) 
     return n * np.log(max(sse / n, ROUND_OFF**2)) + model.n_params * np.log(n)
 
 
-def predicted_change(dataset: Dataset, a: Model, b: Model, split: str) -> np.ndarray:
+def predicted_change(dataset: Dataset, a: FittedModel, b: FittedModel, split: str) -> np.ndarray:
     """One-step predictions of ``b`` minus ``a`` on a split's transitions, flattened."""
     data = dataset.split(split)
     N, T = data.n_trajectories, data.n_transitions
@@ -188,7 +188,9 @@ def _corr(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.mean((x - x.mean()) * (y - y.mean())) / (sx * sy)) if sx > 0 and sy > 0 else 0.0
 
 
-def _score(dataset: Dataset, name: str, model: Model, val_split: str, horizon_s: float) -> Scored:
+def _score(
+    dataset: Dataset, name: str, model: FittedModel, val_split: str, horizon_s: float
+) -> Scored:
     val = evaluate_model(
         dataset.topology, model.params, model.effects, dataset, val_split, horizon_s
     )
@@ -301,7 +303,7 @@ def _judge(s: Scored, current: Scored) -> None:
         s.verdict = f"passes (one-step error -{gain:.1%})"
 
 
-def _label(model: Model) -> str:
+def _label(model: FittedModel) -> str:
     return "declared model" + ("".join(f" + {n}" for n in model.names))
 
 
@@ -330,7 +332,7 @@ def _finish(
 
 
 def _absorb(
-    dataset: Dataset, model: Model, settings: FitSettings, horizon_s: float,
+    dataset: Dataset, model: FittedModel, settings: FitSettings, horizon_s: float,
     log: Callable[[str], None],
 ) -> tuple[ResidualFit | None, str]:  # fmt: skip
     """Fit the residual network; keep it if it lowers the test one-step error. (fit, note)"""

@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from identification.discovery.diagnose import DiagnoseResult, Scored
 from identification.discovery.residuals import summary_table
-from tensegrity_env.effects import effects_to_document
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import NOT_PHYSICAL
 from tensegrity_env.io_utils import atomic_write_text
-from tensegrity_env.params import save_params
-from tensegrity_env.topology import Topology
+
+if TYPE_CHECKING:
+    from identification.discovery.trajectory_loop import NoisyDiagnoseResult
 
 
 def fmt_err(x: float) -> str:
@@ -177,9 +177,9 @@ def _network_section(result: DiagnoseResult) -> list[str]:
 
 
 def write_params(
-    result: DiagnoseResult, topology: Topology, path: Path, extra: dict[str, Any]
+    result: DiagnoseResult | NoisyDiagnoseResult, path: Path, extra: dict[str, Any]
 ) -> Path:
-    """The extended params file: declared parameters plus the ``effects`` section.
+    """The extended params file: the model found (:meth:`Model.save`) and a ``diagnose`` section.
 
     With a residual network (``result.residual_network``), also writes its weights
     (sidecar, atomically) and ``params_residual_network.json`` beside ``path``: the
@@ -187,7 +187,6 @@ def write_params(
     included; ``params.json``'s ``diagnose.residual_network`` points at both.
     """
     doc = {
-        "effects": effects_to_document(result.model.effects),
         "diagnose": {
             **extra,
             "added": [it.chosen.name for it in result.iterations if it.chosen is not None],
@@ -207,11 +206,10 @@ def write_params(
         fit.effect.save(directory)
         note = {"note": NOT_PHYSICAL, "params_file": NETWORK_PARAMS,
                 "sidecar": fit.effect.sidecar, **fit.summary()}  # fmt: skip
-        save_params(directory / NETWORK_PARAMS, topology, fit.params,
-                    _jsonable({"effects": effects_to_document(fit.effects),
-                               "residual_network": note}))  # fmt: skip
+        network_model = result.model.model.replace(params=fit.params, effects=fit.effects)
+        network_model.save(directory / NETWORK_PARAMS, _jsonable({"residual_network": note}))
         doc["diagnose"]["residual_network"] = note
-    return save_params(path, topology, result.model.params, _jsonable(doc))
+    return result.model.model.save(path, _jsonable(doc))
 
 
 def _jsonable(x: Any) -> Any:

@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
-from identification.discovery.candidates import FitSettings, Model
+from identification.discovery.candidates import FitSettings, FittedModel
 from identification.linear.extended import ExtendedIdentifier, commands_for, evaluate_model
 from identification.linear.features import transition_features, transitions_of
 from tensegrity_env.effects import GroundContact
@@ -116,7 +116,7 @@ class ResidualFit:
 
 def missing_wrench(
     dataset: Dataset,
-    model: Model,
+    model: FittedModel,
     split: str = "train",
     max_transitions: int = 20_000,
     seed: int = 0,
@@ -156,7 +156,7 @@ def missing_wrench(
 
 def fit_residual_network(
     dataset: Dataset,
-    model: Model,
+    model: FittedModel,
     settings: FitSettings | None = None,
     split: str = "train",
     val_split: str = "val",
@@ -219,7 +219,10 @@ def fit_residual_network(
     k = len(others)
     net = effects[k].network
     params = est.params_
-    physical = Model(params, [e for i, e in enumerate(effects) if i != k], model.n_params)
+    physical = FittedModel(
+        model.model.replace(params=params, effects=[e for i, e in enumerate(effects) if i != k]),
+        model.n_params,
+    )
     # 2. fine-tune every layer on what the refitted model still misses
     x, y = missing_wrench(dataset, physical, split, max_transitions, seed)
     xv, yv = missing_wrench(dataset, physical, val_split, max_transitions // 2, seed + 1)

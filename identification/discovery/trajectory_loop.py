@@ -74,7 +74,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset, Split
-from identification.discovery.candidates import Model, contact_gate
+from identification.discovery.candidates import FittedModel, contact_gate
 from identification.discovery.end_cap_residuals import (
     plot_window_residuals,
     summarize_window_residuals,
@@ -123,6 +123,7 @@ from tensegrity_env.effects import (
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 
 #: steps past each touchdown the declared model is refitted on, contact held
@@ -282,7 +283,7 @@ class NoisyDiagnoseResult:
     """What :func:`diagnose_noisy` found (``model``: final params and effects)."""
 
     iterations: list[NoisyIteration]
-    model: Model
+    model: FittedModel
     baseline_test: dict[str, float]
     final_test: dict[str, float]
     settings: dict[str, Any]
@@ -839,7 +840,7 @@ def diagnose_noisy(
                     + ("; CANNOT be told apart)" if ambiguous else ")"))  # fmt: skip
         log(f"added {chosen.name}{note}")
         current = chosen
-    model = Model(final.params, final.effects, final.k)
+    model = FittedModel(Model(dataset.topology, final.params, final.effects, dataset.dt), final.k)
     return NoisyDiagnoseResult(
         iterations=iterations, model=model, baseline_test=baseline, final_test=test_now,
         settings={"anchors": dict(settings.anchors), "window": settings.window,

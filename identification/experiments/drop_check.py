@@ -25,11 +25,12 @@ import torch
 
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate_dataset
 from identification.trajectory.effect_fit import rollout_caps
-from tensegrity_env.effects import GroundContact, effects_from_document
+from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import Params, load_params
+from tensegrity_env.model import Model
+from tensegrity_env.params import Params
 
 #: the issue's target: a 2-s drop-and-bounce within this of MuJoCo [m]
 DROP_TOLERANCE = 0.02
@@ -96,9 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=21, help="seed of the drop heights (default 21)")
     args = p.parse_args(argv)
     try:
-        topology, params, doc = load_params(args.params)
-        effects = effects_from_document(doc, topology, root=args.params.parent)
-        r = drop_check(params, effects, args.drops, args.seed)
+        model = Model.load(args.params)
+        r = drop_check(model.params, model.effects, args.drops, args.seed)
     except InputError as e:
         print(f"error: {args.params}: {e}", file=sys.stderr)
         return 2

@@ -74,7 +74,7 @@ def run_case(
             r = diagnose(ds, FitSettings(anchors=anchors), max_effects=3, horizon_s=1.0,
                          log=lambda s: None)  # fmt: skip
     if params_out is not None:
-        write_params(r, data.dataset.topology, params_out, {"planted": spec.label})  # type: ignore[arg-type]
+        write_params(r, params_out, {"planted": spec.label})
     b, f = r.baseline_test, r.final_test
     drop: float | None = None  # the 2-s drop against MuJoCo, for an identified contact
     if any(isinstance(e, GroundContact) for e in r.model.effects):

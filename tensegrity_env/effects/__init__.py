@@ -7,8 +7,8 @@ Every effect is a small module subclassing
 maps each effect's ``name`` to its class; the params file's ``effects`` list holds
 ``effect.to_dict()`` entries, and::
 
-    topology, params, doc = load_params("params.json")
-    engine = Engine(topology, dt, effects=effects_from_document(doc, topology))
+    model = Model.load("params.json")  # tensegrity_env.model.Model
+    engine = model.engine()
 
 runs the extended model. A :class:`~tensegrity_env.effects.residual_network.ResidualNetwork`
 entry (what the residual loop could not explain, NOT a physical effect) keeps its
@@ -70,7 +70,7 @@ def effect_from_dict(
 def effects_from_document(
     doc: Mapping[str, Any], topology: Topology, root: str | Path | None = None
 ) -> list[PhysicalEffect]:
-    """The effects listed in a params document (``load_params(...)[2]``); [] if none.
+    """The effects listed in a params document (``load_params_document``); [] if none.
 
     ``root``: the params file's directory (sidecar files are relative to it).
     """
@@ -81,7 +81,7 @@ def effects_from_document(
 
 
 def effects_to_document(effects: Sequence[PhysicalEffect]) -> list[dict[str, Any]]:
-    """The ``effects`` section of a params file (pass as ``save_params(extra={"effects": ...})``)."""
+    """The ``effects`` section of a params file (``Model.save`` writes it)."""
     return [e.to_dict() for e in effects]
 
 

@@ -4,44 +4,41 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Unpack
+from typing import Unpack
 
 import numpy as np
 import torch
 
-from tensegrity_env.effects import effects_from_document
 from tensegrity_env.envs.base import RollingEnv, settle
 from tensegrity_env.envs.physics import Backend, make_stepper
 from tensegrity_env.envs.task import TaskOptions, make_task
 from tensegrity_env.envs.twin import TWIN_TIMESTEP, face_down_pose, twin_assembly
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, SimOptions, from_mjcf, to_mjcf
-from tensegrity_env.params import Params, load_params
-from tensegrity_env.topology import Topology
+from tensegrity_env.model import Model
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 #: the identified model that ships with the package (regenerate: tensegrity_sr/make_default_params.py)
 DEFAULT_PARAMS = ASSETS / "icosahedron_rolling_params.json"
 
 
-def load_env_model(path: str | Path | None = None) -> tuple[Topology, Params, list[Any]]:
-    """Topology, parameters and effects of an identified icosahedron params file.
+def load_env_model(path: str | Path | None = None) -> Model:
+    """The identified icosahedron model of a params file, stepped at the twin's 1 ms.
 
     Raises :class:`InputError` if the file is not an icosahedron (the rolling task
     needs its geometry) or has no ground contact effect (it would fall through the
     floor).
     """
     path = Path(path) if path is not None else DEFAULT_PARAMS
-    topology, params, doc = load_params(path)
-    if not topology.same_as(twin_assembly().topology, atol=1e-9):
+    model = Model.load(path, dt=TWIN_TIMESTEP)
+    if not model.topology.same_as(twin_assembly().topology, atol=1e-9):
         raise InputError(f"{path}: the rolling environments need the icosahedron's topology")
-    effects = effects_from_document(doc, topology, root=path.parent)
-    if not any(getattr(e, "name", "") == "ground_contact" for e in effects):
+    if "ground_contact" not in model.effect_names:
         raise InputError(
             f"{path}: no 'ground_contact' effect: identify it first (the structure would "
             "fall through the floor)"
         )
-    return topology, params, effects
+    return model
 
 
 class SRSimulator:
@@ -66,8 +63,10 @@ class SRSimulator:
         threads: int | None = None,
     ) -> None:
         self.params_path = Path(params_path) if params_path is not None else DEFAULT_PARAMS
-        self.topology, self.params, self.effects = load_env_model(self.params_path)
-        self.dt, self.frame_skip = TWIN_TIMESTEP, int(frame_skip)
+        self.model = load_env_model(self.params_path)
+        self.topology, self.params = self.model.topology, self.model.params
+        self.effects = self.model.effects
+        self.dt, self.frame_skip = self.model.dt, int(frame_skip)
         self.control_dt = self.dt * self.frame_skip
         self.stepper = make_stepper(
             self.topology, self.params, self.effects, self.dt, self.frame_skip, backend, device,

@@ -1,34 +1,154 @@
-"""Small I/O helpers shared by every command: user-facing errors and atomic writes."""
+"""Small I/O helpers shared by every command: user-facing errors, output checks, atomic writes.
+
+The rules every command that writes follows:
+
+* **Outputs are checked before any work starts** (:func:`check_output_file`,
+  :func:`check_output_dir`): the path is not inside a file, a file output is not a
+  folder (and a folder output not a file), and files can be created where it goes.
+  A failed check is an :class:`InputError` (one line, exit 2).
+* **Existing outputs are never replaced silently**: an existing output file, or an
+  output folder that already holds files, is refused with its path unless the
+  command's ``--force`` (:func:`add_force_option`) is given; with ``--force`` the
+  files of the same name are replaced.
+* **Nothing half-written is left under a final name**: files are written beside
+  their final path and renamed only when complete (:func:`atomic_path`); SIGTERM
+  raises :class:`Terminated` in the main thread (:func:`sigterm_raises`) so that, as
+  for Ctrl-C, every temporary file is removed on the way out.
+"""
 
 from __future__ import annotations
 
+import argparse
 import os
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
+
+#: exit status of a run ended by SIGTERM (128 + 15, as a shell reports it)
+TERMINATED_EXIT = 128 + signal.SIGTERM
 
 
 class InputError(Exception):
     """Bad user input: the CLI prints ``error: <message>`` on one line and exits 2."""
 
 
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that ``finally`` blocks and context managers run."""
+
+
 @contextmanager
-def atomic_path(path: str | Path, suffix: str = "") -> Iterator[Path]:
+def sigterm_raises() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` (main thread only; else a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        raise Terminated(signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def add_force_option(parser: argparse.ArgumentParser) -> None:
+    """Add the ``--force`` flag every writing command shares."""
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing outputs (without it an existing output file, or an output "
+        "folder that holds files, is refused)",
+    )
+
+
+def _nearest_existing(path: Path) -> Path:
+    """``path`` or its closest ancestor that exists."""
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _check_creatable(path: Path, option: str) -> None:
+    """Raise unless files (and missing folders) can be created at ``path``'s location."""
+    anchor = _nearest_existing(path.parent)
+    if not anchor.is_dir():
+        raise InputError(f"{option} {path}: {anchor} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".write-check.", dir=anchor)
+    except OSError as e:
+        raise InputError(f"{option} {path}: cannot create files in {anchor} ({e.strerror})") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def check_output_file(path: str | Path, force: bool = False, option: str = "-o") -> Path:
+    """Check an output file before any work: creatable, not a folder, not replaced unasked.
+
+    Args:
+        path: the file the command will write.
+        force: allow replacing an existing file.
+        option: the option that named it, for the message (e.g. ``"-o"``).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`. Raises :class:`InputError` otherwise.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{option} {p}: is a folder; name a file")
+    _check_creatable(p, option)
+    if (p.exists() or p.is_symlink()) and not force:
+        raise InputError(f"{option} {p}: exists (pass --force to replace it)")
+    return p
+
+
+def check_output_dir(path: str | Path, force: bool = False, option: str = "-o") -> Path:
+    """Check an output folder before any work: creatable, not a file, not reused unasked.
+
+    A folder that already holds files is refused unless ``force`` (then files of the
+    same name are replaced; others are left). Returns ``path`` as a Path.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{option} {p}: is a file; name a folder")
+    if p.is_dir():
+        if not force and any(p.iterdir()):
+            raise InputError(f"{option} {p}: folder exists and holds files (pass --force to "
+                             "replace them)")  # fmt: skip
+        _check_creatable(p / "x", option)
+    else:
+        _check_creatable(p, option)
+    return p
+
+
+@contextmanager
+def atomic_path(
+    path: str | Path, suffix: str = "", keep_extension: bool = False
+) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` only on success.
 
-    An interrupted writer leaves at most a ``.tmp`` file, never a file under the
-    final name that looks complete.
+    The temporary file is ``.<name>.<random><suffix>.tmp``, or with ``keep_extension``
+    ``.<name>.<random>.tmp<extension of path>`` (for writers that pick the format from
+    the extension). An interrupted writer (an exception, Ctrl-C, or SIGTERM under
+    :func:`sigterm_raises`) leaves neither the temporary file nor a file under the
+    final name.
     """
     final = Path(path)
     final.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=suffix + ".tmp", dir=final.parent)
-    os.close(fd)
+    tail = ".tmp" + final.suffix if keep_extension else suffix + ".tmp"
+    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=tail, dir=final.parent)
     tmp_path = Path(tmp)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp's 0600 would make outputs private
     try:
+        os.close(fd)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp's 0600 would make outputs private
         yield tmp_path
         os.replace(tmp_path, final)
     finally:

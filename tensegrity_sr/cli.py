@@ -11,7 +11,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import TERMINATED_EXIT, InputError, Terminated, sigterm_raises
 
 #: subcommand -> (the module defining it with ``register(subparsers)``, its one-line help),
 #: in the order ``--help`` lists them. Only the module of the command being run is
@@ -74,17 +74,22 @@ def _command(argv: Sequence[str]) -> str | None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one subcommand; returns its exit status (2: bad input, 130: Ctrl-C, 143: SIGTERM)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command = _command(argv)
     args = build_parser(command).parse_args(argv)  # None: --help or an error, nothing imported
     try:
-        return int(args.func(args) or 0)
+        with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: temporary files are removed
+            return int(args.func(args) or 0)
     except InputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return TERMINATED_EXIT
 
 
 if __name__ == "__main__":

@@ -126,6 +126,9 @@ def test_command_prints_the_table(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "| 1.5% | 72 | 1 |" in captured.out
     assert (out / "efficiency.png").is_file() and (out / "efficiency.md").is_file()
     anchor = f"mass[rod0]={float(truth.params.mass[0])!r}"
-    assert main([*argv, "--anchor", anchor]) == 0
+    assert main([*argv, "--anchor", anchor]) == 2  # the folder holds the first run's files
+    assert f"{out}: folder exists" in capsys.readouterr().err
+    assert main([*argv, "--anchor", anchor, "--force"]) == 0
     assert "absolute values" in capsys.readouterr().out
-    assert main(["efficiency", str(path), "-o", str(out), "--fractions", "2"]) == 2
+    assert main(["efficiency", str(path), "-o", str(tmp_path / "new"), "--fractions", "2"]) == 2
+    assert "--fractions" in capsys.readouterr().err

@@ -181,7 +181,7 @@ def test_identify_command_writes_a_params_file(tmp_path, capsys) -> None:
     np.testing.assert_allclose(params.stiffness.numpy(), truth.params.stiffness.numpy(), rtol=1e-7)
     json.dumps(doc)  # plain JSON
     # a bad anchor is one clear line and exit 2
-    code = main(["identify", str(path), "--anchor", "mass[nope]=1", "-o", str(out)])
+    code = main(["identify", str(path), "--anchor", "mass[nope]=1", "-o", str(tmp_path / "b.json")])
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert code == 2 and err.startswith("error:") and "mass[nope]" in err
 

@@ -24,7 +24,12 @@ from identification.discovery.trajectory_report import write_noisy_report
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from tensegrity_env.effects import EFFECTS
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import (
+    InputError,
+    add_force_option,
+    check_output_dir,
+    check_output_file,
+)
 from tensegrity_env.model import Model
 
 
@@ -69,6 +74,7 @@ def register(sub: Any) -> None:
                    f"{FIT_WINDOW}; 0: --window); longer windows carry more information per "
                    "sample")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
+    add_force_option(p)
     p.set_defaults(func=run)
 
     q = sub.add_parser(
@@ -86,10 +92,12 @@ def register(sub: Any) -> None:
     q.add_argument("--n-test", type=int, default=4)
     q.add_argument("--steps", type=int, default=1000)
     q.add_argument("-o", "--output", type=Path, required=True, help="dataset file to write")
+    add_force_option(q)
     q.set_defaults(func=run_plant)
 
 
 def run_plant(args: argparse.Namespace) -> int:
+    check_output_file(args.output, args.force)
     try:
         strength: str | float = float(args.strength)
     except ValueError:
@@ -103,6 +111,7 @@ def run_plant(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.output, args.force)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
     raw = read_dataset(args.dataset)
     end_caps_only = not all(s.has_states for s in raw.splits.values())

@@ -10,7 +10,7 @@ from typing import Any
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.experiments.efficiency import DEFAULT_FRACTIONS, run_efficiency, write_outputs
 from identification.linear.regression import parse_anchor
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, add_force_option, check_output_dir
 
 
 def register(sub: Any) -> None:
@@ -48,10 +48,12 @@ def register(sub: Any) -> None:
     )  # fmt: skip
     p.add_argument("--solver", choices=("lstsq", "network"), default="lstsq",
                    help="exact least squares (default) or the paper's linear layer trained on MSE")  # fmt: skip
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.output, args.force)
     if args.horizon is not None and args.horizon < 1:
         raise InputError(f"--horizon must be >= 1, got {args.horizon}")
     bad = [f for f in args.fractions if not 0 < f <= 1]

@@ -13,7 +13,12 @@ from identification.experiments.long_horizon import (
     plot_long_horizon,
 )
 from tensegrity_env.engine import Engine
-from tensegrity_env.io_utils import InputError, atomic_write_text
+from tensegrity_env.io_utils import (
+    InputError,
+    add_force_option,
+    atomic_write_text,
+    check_output_dir,
+)
 from tensegrity_env.model import Model
 
 
@@ -35,11 +40,14 @@ def register(sub: Any) -> None:
         "--label", action="append", default=[], help="name per --params (default: file stem)"
     )
     p.add_argument("--split", default="test", help="split to evaluate (default test)")
-    p.add_argument("-o", "--output", type=Path, default=Path("evaluation"), help="output folder")
+    p.add_argument("-o", "--output", type=Path, default=Path("evaluation"),
+                   help="output folder (default evaluation)")  # fmt: skip
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.output, args.force)
     dataset = read_dataset(args.dataset, splits=(args.split,))
     split = dataset.split(args.split)
     if not split.has_states:

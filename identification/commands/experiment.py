@@ -10,7 +10,7 @@ import torch
 
 from identification.experiments.paper import SCALES, run_paper
 from identification.experiments.paper_report import target_checks, write_results
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, add_force_option, check_output_dir
 
 
 def register(sub: Any) -> None:
@@ -38,10 +38,12 @@ def register(sub: Any) -> None:
     p.add_argument("--threads", type=int, default=1,
                    help="torch CPU threads (default 1: the many small batched ops of "
                    "rollouts and MLP training run fastest on one, above all on a shared machine)")  # fmt: skip
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.output, args.force)
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     command = f"tensegrity-sr experiment {args.which} --scale {args.scale} -o {args.output}"

@@ -11,6 +11,7 @@ from pathlib import Path
 from identification.data.dataset import write_dataset
 from identification.simulation.generate import PRESETS, GenerateSpec, generate
 from tensegrity_env.assemblies import ASSEMBLIES
+from tensegrity_env.io_utils import add_force_option, check_output_file
 from tensegrity_env.mjcf_checks import FEATURES
 
 EPILOG = """\
@@ -75,6 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "-o", "--output", type=Path, help="HDF5 file to write (default: <assembly>_<preset>.h5)"
     )
+    add_force_option(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -99,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         ignore=tuple(args.ignore),
     )
     name = Path(spec.mjcf).stem if spec.mjcf is not None else spec.assembly
-    output = args.output or Path(f"{name}_{spec.preset}.h5")
+    output = check_output_file(args.output or Path(f"{name}_{spec.preset}.h5"), args.force)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

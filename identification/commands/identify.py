@@ -12,7 +12,7 @@ import numpy as np
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import group_errors, parameter_table, relative_errors
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.model import Model
 
 
@@ -32,8 +32,10 @@ def register(sub: Any) -> None:
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset written by 'generate' or by the API")
     p.add_argument(
-        "-o", "--output", type=Path, default=Path("params.json"), help="params file to write"
-    )
+        "-o", "--output", type=Path, default=Path("params.json"),
+        help="params file to write (default params.json)",
+    )  # fmt: skip
+    add_force_option(p)
     p.add_argument(
         "--anchor", action="append", default=[], metavar="NAME=VALUE",
         help="a known parameter value fixing the scale, e.g. mass[rod0]=1.95 (repeatable)",
@@ -56,6 +58,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_file(args.output, args.force)
     dataset = read_dataset(args.dataset)
     anchors = dict(parse_anchor(a) for a in args.anchor)
     init = None

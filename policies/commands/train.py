@@ -53,8 +53,11 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from policies.train import train
+    from tensegrity_env.io_utils import check_output_dir
 
     out = args.output or Path("runs") / f"{args.algo}_{args.env}_s{args.seed}"
+    # a folder holding a run is continued with --resume, never replaced (train() says so)
+    check_output_dir(out, force=True)
     result = train(
         args.algo,
         args.env,

@@ -9,7 +9,12 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tensegrity_env.io_utils import InputError, atomic_write_text
+from tensegrity_env.io_utils import (
+    InputError,
+    add_force_option,
+    atomic_write_text,
+    check_output_dir,
+)
 
 
 def register(sub: Any) -> None:
@@ -47,6 +52,7 @@ def register(sub: Any) -> None:
                      help="train the reference on the target into DIR (same algo, budget, seed)")  # fmt: skip
     p.add_argument("--threads", type=int, default=1,
                    help="physics threads when training the reference, 0 for every core")  # fmt: skip
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -62,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
     )
     from policies.vec import env_spec
 
+    check_output_dir(args.output, args.force)
+    if args.train_reference is not None:  # an existing reference run is resumed, not replaced
+        check_output_dir(args.train_reference, force=True, option="--train-reference")
     if args.episodes < 1:
         raise InputError("--episodes must be >= 1")
     env_spec(args.source), env_spec(args.target)  # unknown ids fail before any work

@@ -27,6 +27,7 @@ import imageio.v2 as imageio
 import mujoco
 import numpy as np
 
+from tensegrity_env.io_utils import atomic_path
 from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.mujoco_state import rod_state_to_mj
 
@@ -181,18 +182,18 @@ class SceneRenderer:
 
 # ---------------------------------------------------------------------- videos
 def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 20.0) -> Path:
-    """Write RGB frames (H, W, 3) uint8 to ``path``: ``.mp4`` (H.264) or ``.gif``."""
+    """Write RGB frames (H, W, 3) uint8 to ``path``: ``.mp4`` (H.264) or ``.gif`` (atomically)."""
     out = Path(path)
     if not frames:
         raise ValueError("no frames to write")
-    out.parent.mkdir(parents=True, exist_ok=True)
     suffix = out.suffix.lower()
-    if suffix == ".gif":
-        imageio.mimsave(out, list(frames), duration=1000.0 / fps, loop=0)
-    elif suffix == ".mp4":
-        imageio.mimsave(out, list(frames), fps=fps, macro_block_size=1)
-    else:
+    if suffix not in (".gif", ".mp4"):
         raise ValueError(f"{out}: video must end in .mp4 or .gif")
+    with atomic_path(out, keep_extension=True) as tmp:
+        if suffix == ".gif":
+            imageio.mimsave(tmp, list(frames), duration=1000.0 / fps, loop=0)
+        else:
+            imageio.mimsave(tmp, list(frames), fps=fps, macro_block_size=1)
     return out
 
 

@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_DIR ?= demo_out
 
-.PHONY: demo test lint bench clean
+.PHONY: demo demo-full test lint bench clean
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
@@ -15,8 +15,12 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e ".[dev]"
 	touch $(STAMP)
 
+# DEMO_DIR is the demo's own scratch folder: a rerun replaces its files (--force)
 demo: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_sr.demo --out $(DEMO_DIR)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_sr.demo --out $(DEMO_DIR) --force
+
+demo-full: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_sr.demo --full --out $(DEMO_DIR)_full --force
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -30,4 +34,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_identify.py
 
 clean:
-	rm -rf $(VENV) $(DEMO_DIR) build *.egg-info
+	rm -rf $(VENV) $(DEMO_DIR) $(DEMO_DIR)_full build *.egg-info

@@ -1,7 +1,14 @@
-"""``make demo``: the main job end to end on small embedded defaults, in a few minutes.
+"""``make demo``: every capability end to end on small embedded defaults.
 
 Generates MuJoCo ground truth, identifies the icosahedron and the one-rod element by
-linear regression, and writes every table and figure into one folder, named at the end.
+linear regression, finds planted effects, compares the identified env with its MuJoCo
+twin and transfers the shipped policy, writing every table and figure into one folder
+named at the end. ``--full`` (``make demo-full``) runs the same steps on the larger
+defaults of the documentation.
+
+Each step is a function ``step_<name>(demo: Demo)`` listed in :data:`STEPS`; adding a
+step is writing one such function and adding it there. ``Demo.size(small, full)``
+picks a size, ``Demo.cli(...)`` runs a ``tensegrity-sr`` command.
 """
 
 from __future__ import annotations
@@ -9,7 +16,10 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import torch
@@ -21,32 +31,65 @@ from identification.report.tables import group_errors, parameter_table
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.engine import State
-from tensegrity_env.io_utils import atomic_write_text
+from tensegrity_env.io_utils import (
+    TERMINATED_EXIT,
+    InputError,
+    Terminated,
+    atomic_write_text,
+    check_output_dir,
+    sigterm_raises,
+)
 from tensegrity_sr.cli import main as cli
+
+T = TypeVar("T")
+
+
+@dataclass
+class Demo:
+    """What every step gets: the output folder and the demo's settings.
+
+    Attributes:
+        out: the folder every output goes into.
+        full: the larger defaults (``--full``) instead of the small ones.
+        force: replace outputs of an earlier run in ``out``.
+    """
+
+    out: Path
+    full: bool = False
+    force: bool = False
+
+    def size(self, small: T, full: T) -> T:
+        """``small`` for ``make demo``, ``full`` for ``make demo-full``."""
+        return full if self.full else small
+
+    def cli(self, *argv: object, writes: bool = True) -> None:
+        """Run ``tensegrity-sr ARGV`` (with ``--force`` under ``--force`` when it writes)."""
+        args = [str(a) for a in argv] + (["--force"] if writes and self.force else [])
+        code = cli(args)
+        if code:
+            raise SystemExit(code)
 
 
 def banner(text: str) -> None:
     print(f"\n{'=' * 78}\n{text}\n{'=' * 78}", flush=True)
 
 
-def step_generate(out: Path) -> Path:
-    banner("1. MuJoCo ground truth: free icosahedron (6 rods, 24 springs), no control forces")
-    path = out / "icosahedron_small.h5"
-    code = cli(["generate", "--preset", "small", "--seed", "0", "-o", str(path)])
-    if code:
-        raise SystemExit(code)
-    cli(["inspect", str(path)])
-    return path
+def step_generate(demo: Demo) -> None:
+    banner("MuJoCo ground truth: free icosahedron (6 rods, 24 springs), no control forces")
+    path = demo.out / "icosahedron_small.h5"
+    demo.cli("generate", "--preset", "small", "--seed", "0", "--no-progress", "-o", path)
+    demo.cli("inspect", path, writes=False)
 
 
-def step_identify(out: Path, data_path: Path) -> None:
-    banner("2. Identify K, c, l0, M, I, h by linear regression (rod0 weighed as the anchor)")
+def step_identify(demo: Demo) -> None:
+    banner("Identify K, c, l0, M, I, h by linear regression (rod0 weighed as the anchor)")
+    out = demo.out
+    data_path = out / "icosahedron_small.h5"
     truth = read_ground_truth(data_path)
     assert truth is not None
     # a user weighs one rod; here the scale gets its anchor from the simulator's rod0
     mass0 = float(truth.params.mass[0])
-    params_path = out / "params.json"
-    cli(["identify", str(data_path), "--anchor", f"mass[rod0]={mass0!r}", "-o", str(params_path)])
+    demo.cli("identify", data_path, "--anchor", f"mass[rod0]={mass0!r}", "-o", out / "params.json")
 
     dataset = read_dataset(data_path)
     est = SpringRodIdentifier(anchors={"mass[rod0]": mass0}).fit(dataset)
@@ -76,59 +119,61 @@ def step_identify(out: Path, data_path: Path) -> None:
     print(f"figure: {out / 'rollout_icosahedron.png'}")
 
 
-def step_element(out: Path) -> None:
-    banner("3. The paper's basic element: one rod held by two springs")
+def step_element(demo: Demo) -> None:
+    banner("The paper's basic element: one rod held by two springs")
     spec = GenerateSpec(
         assembly="element", n_train=8, n_val=0, n_test=2, steps=300, seed=1, control_std=1.0
     )
     dataset, truth = generate_dataset(spec)
-    path = write_dataset(out / "element_small.h5", dataset, truth)
+    path = write_dataset(demo.out / "element_small.h5", dataset, truth)
     est = SpringRodIdentifier(anchors={"mass[rod0]": float(truth.params.mass[0])}).fit(dataset)
     print(parameter_table(est.table_, truth.params))
     worst = group_errors(est.table_, truth.params)
     print(f"largest relative error: {max(worst.values()):.2e}   (dataset: {path})")
 
 
-def step_control_gain(out: Path) -> None:
-    banner("4. Control gain h: perturbation forces, every other module frozen (paper Sec. 4.4)")
+def step_control_gain(demo: Demo) -> None:
+    banner("Control gain h: perturbation forces, every other module frozen (paper Sec. 4.4)")
+    out = demo.out
     path = out / "icosahedron_perturbed.h5"
-    cli(["generate", "--preset", "perturbed", "--n-train", "2", "--n-test", "2", "--steps", "4000",
-         "--seed", "1", "-o", str(path)])  # fmt: skip
+    demo.cli("generate", "--preset", "perturbed", "--n-train", 2, "--n-test", 2,
+             "--steps", demo.size(2000, 4000), "--seed", 1, "--no-progress", "-o", path)  # fmt: skip
     params_h = out / "params_with_h.json"
-    cli(["identify", str(path), "--init", str(out / "params.json"), "--freeze",
-         "stiffness,damping,rest_length,mass,inertia", "--horizon", "1000", "-o", str(params_h)])  # fmt: skip
+    demo.cli("identify", path, "--init", out / "params.json", "--freeze",
+             "stiffness,damping,rest_length,mass,inertia", "--horizon", 1000, "-o", params_h)  # fmt: skip
     print("\nBefore (h not identifiable without control, assumed 1) and after (h identified):")
-    cli(["evaluate", str(path), "--params", str(out / "params.json"), "--label", "before: h assumed 1",
-         "--params", str(params_h), "--label", "after: h identified", "-o", str(out / "long_horizon")])  # fmt: skip
+    demo.cli("evaluate", path, "--params", out / "params.json", "--label", "before: h assumed 1",
+             "--params", params_h, "--label", "after: h identified", "-o", out / "long_horizon")  # fmt: skip
 
 
-def step_experiment(out: Path) -> None:
-    banner("5. The paper's experiments: ours vs Interaction, Interaction+Int, Koopman+Int")
-    cli(["experiment", "paper", "--scale", "small", "-o", str(out / "experiment")])
+def step_experiment(demo: Demo) -> None:
+    banner("The paper's experiments: ours vs Interaction, Interaction+Int, Koopman+Int")
+    demo.cli("experiment", "paper", "--scale", "small", "-o", demo.out / "experiment")
 
 
-def step_diagnose(out: Path) -> None:
-    banner("6. The closed loop: MuJoCo data with an undeclared floor; find it, name it, add it")
-    path = out / "planted_contact.h5"
-    cli(["plant", "ground_contact", "--n-train", "4", "--n-val", "2", "--n-test", "2",
-         "--steps", "500", "--seed", "0", "-o", str(path)])  # fmt: skip
+def step_diagnose(demo: Demo) -> None:
+    banner("The closed loop: MuJoCo data with an undeclared floor; find it, name it, add it")
+    path = demo.out / "planted_contact.h5"
+    demo.cli("plant", "ground_contact", "--n-train", 4, "--n-val", 2, "--n-test", 2,
+             "--steps", 500, "--seed", 0, "-o", path)  # fmt: skip
     truth = read_ground_truth(path)
     assert truth is not None
     mass0 = float(truth.params.mass[0])  # a weighed rod fixes the scale, as in step 2
-    cli(["diagnose", str(path), "--anchor", f"mass[rod0]={mass0!r}", "--max-effects", "2",
-         "--horizon", "0.5", "-o", str(out / "diagnose")])  # fmt: skip
+    demo.cli("diagnose", path, "--anchor", f"mass[rod0]={mass0!r}", "--max-effects", 2,
+             "--horizon", 0.5, "-o", demo.out / "diagnose")  # fmt: skip
 
 
-def step_touchdowns(out: Path) -> None:
-    banner("7. The same floor through 1 mm motion-capture noise, from the data alone")
+def step_touchdowns(demo: Demo) -> None:
+    banner("The same floor through 1 mm motion-capture noise, from the data alone")
     from identification.discovery.trajectory_loop import TrajectorySettings, fit_declared_model
     from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
     from identification.trajectory.touchdown import contact_from_dataset
     from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 
+    out = demo.out
     path = out / "planted_contact_noisy.h5"
-    cli(["plant", "ground_contact", "--noise", "0.001", "--n-train", "6", "--n-val", "1",
-         "--n-test", "1", "--steps", "500", "--seed", "5", "-o", str(path)])  # fmt: skip
+    demo.cli("plant", "ground_contact", "--noise", 0.001, "--n-train", demo.size(6, 6),
+             "--n-val", 1, "--n-test", 1, "--steps", 500, "--seed", 5, "-o", path)  # fmt: skip
     dataset, truth = read_dataset(path), read_ground_truth(path)
     assert truth is not None
     # the declared model from the airborne stretches of the same data (no calibration),
@@ -161,8 +206,8 @@ def step_touchdowns(out: Path) -> None:
                       + "\n".join(lines) + "\n")  # fmt: skip
 
 
-def step_slack(out: Path) -> None:
-    banner("8. Which springs are cables? Segmented regression through 1 mm noise")
+def step_slack(demo: Demo) -> None:
+    banner("Which springs are cables? Segmented regression through 1 mm noise")
     from identification.trajectory.identifier import smooth_rod_states
     from identification.trajectory.param_vector import RodAxes
     from identification.trajectory.slack_regression import (
@@ -171,9 +216,9 @@ def step_slack(out: Path) -> None:
         slack_regression,
     )
 
-    path = out / "planted_slack_noisy.h5"
-    cli(["plant", "slack_springs", "--noise", "0.001", "--n-train", "4", "--n-val", "1",
-         "--n-test", "1", "--seed", "3", "-o", str(path)])  # fmt: skip
+    path = demo.out / "planted_slack_noisy.h5"
+    demo.cli("plant", "slack_springs", "--noise", 0.001, "--n-train", 4, "--n-val", 1,
+             "--n-test", 1, "--seed", 3, "-o", path)  # fmt: skip
     dataset, truth = read_dataset(path), read_ground_truth(path)
     assert truth is not None
     topo, train = dataset.topology, dataset.split("train")
@@ -192,12 +237,12 @@ def step_slack(out: Path) -> None:
     verdict = "every planted cable and nothing else" if named == true else "NOT the planted set"
     lines += ["", f"named {len(named)} cables: {verdict} (planted {len(true)})"]
     print("\n".join(lines))
-    atomic_write_text(out / "slack_cables.md", "# Cables from noisy end caps\n\n"
+    atomic_write_text(demo.out / "slack_cables.md", "# Cables from noisy end caps\n\n"
                       + "\n".join(lines) + "\n")  # fmt: skip
 
 
-def step_environments(out: Path) -> None:
-    banner("9. IcosahedronSR-v0 (identified engine) next to IcosahedronMJ-v0 (MuJoCo twin)")
+def step_environments(demo: Demo) -> None:
+    banner("IcosahedronSR-v0 (identified engine) next to IcosahedronMJ-v0 (MuJoCo twin)")
     from tensegrity_env.envs import IcosahedronMJEnv, IcosahedronSREnv, RenderingUnavailable
     from tensegrity_env.envs.rendering import record_side_by_side
 
@@ -210,7 +255,7 @@ def step_environments(out: Path) -> None:
     sr, mj = IcosahedronSREnv(**kw), IcosahedronMJEnv(**kw)
     try:
         clip = record_side_by_side(
-            sr, mj, out / "envs_side_by_side.mp4", push_to_goal, max_steps=80
+            sr, mj, demo.out / "envs_side_by_side.mp4", push_to_goal, max_steps=80
         )
         print(f"clip (left: identified engine, right: MuJoCo twin, same start and actions): {clip}")
     except RenderingUnavailable as e:
@@ -220,10 +265,8 @@ def step_environments(out: Path) -> None:
           f"{sr.distance_to_goal:.2f} m (identified) and {mj.distance_to_goal:.2f} m (twin)")  # fmt: skip
 
 
-def step_transfer(out: Path) -> None:
-    banner(
-        "10. Sim-to-sim transfer: the shipped PPO policy (trained on IcosahedronSR-v0) in MuJoCo"
-    )
+def step_transfer(demo: Demo) -> None:
+    banner("Sim-to-sim transfer: the shipped PPO policy (trained on IcosahedronSR-v0) in MuJoCo")
     from policies import SHIPPED_POLICY
     from policies.artifacts import load_policy
     from policies.transfer import side_by_side_video, transfer, transfer_table
@@ -231,15 +274,41 @@ def step_transfer(out: Path) -> None:
 
     policy = load_policy(SHIPPED_POLICY)
     print(f"policy: {SHIPPED_POLICY.name}, trained with: {policy.record.get('command', '?')}")
-    result = transfer(policy, episodes=5, seed=1000)
+    result = transfer(policy, episodes=demo.size(5, 20), seed=1000)
     table = transfer_table(result, f"shipped {policy.algo}")
     print(table)
-    atomic_write_text(out / "transfer.md", f"# Transfer of the shipped policy\n\n{table}\n")
+    atomic_write_text(demo.out / "transfer.md", f"# Transfer of the shipped policy\n\n{table}\n")
     try:
-        clip = side_by_side_video(policy, out / "transfer_side_by_side.mp4", seed=1003)
+        clip = side_by_side_video(policy, demo.out / "transfer_side_by_side.mp4", seed=1003)
         print(f"clip (left: identified engine, right: MuJoCo twin, same policy): {clip}")
     except RenderingUnavailable as e:
         print(f"no clip: {e}")
+
+
+#: the demo's steps, in order: name -> function (steps read what earlier steps wrote)
+STEPS: dict[str, Callable[[Demo], None]] = {
+    "generate": step_generate,
+    "identify": step_identify,
+    "element": step_element,
+    "control_gain": step_control_gain,
+    "experiment": step_experiment,
+    "diagnose": step_diagnose,
+    "touchdowns": step_touchdowns,
+    "slack": step_slack,
+    "environments": step_environments,
+    "transfer": step_transfer,
+}
+
+
+def run(demo: Demo, steps: list[str]) -> dict[str, float]:
+    """Run ``steps`` (names of :data:`STEPS`) in order; returns each one's wall time [s]."""
+    seconds: dict[str, float] = {}
+    for i, name in enumerate(steps, 1):
+        print(f"\n[{i}/{len(steps)}] {name}", flush=True)
+        t0 = time.perf_counter()
+        STEPS[name](demo)
+        seconds[name] = time.perf_counter() - t0
+    return seconds
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -249,22 +318,37 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--out", type=Path, default=Path("demo_out"), help="folder for every output"
     )
+    parser.add_argument("--full", action="store_true",
+                        help="the larger defaults (make demo-full) instead of the small ones")  # fmt: skip
+    parser.add_argument("--force", action="store_true",
+                        help="replace the outputs of an earlier run in --out")  # fmt: skip
+    parser.add_argument("--steps", default=",".join(STEPS), metavar="NAMES",
+                        help=f"comma-separated steps to run, in order (default: all: "
+                        f"{','.join(STEPS)}; later steps read what earlier ones wrote)")  # fmt: skip
     args = parser.parse_args(argv)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    data_path = step_generate(out)
-    step_identify(out, data_path)
-    step_element(out)
-    step_control_gain(out)
-    step_experiment(out)
-    step_diagnose(out)
-    step_touchdowns(out)
-    step_slack(out)
-    step_environments(out)
-    step_transfer(out)
-    banner(f"Done in {time.perf_counter() - t0:.0f} s. Every output is in: {out.resolve()}")
-    for f in sorted(out.iterdir()):
+    steps = [s for s in args.steps.split(",") if s]
+    try:
+        bad = [s for s in steps if s not in STEPS]
+        if bad:
+            raise InputError(f"--steps: unknown step(s) {', '.join(bad)} (known: {', '.join(STEPS)})")
+        demo = Demo(check_output_dir(args.out, args.force, option="--out"), args.full, args.force)
+        demo.out.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        with sigterm_raises():
+            seconds = run(demo, steps)
+    except InputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return TERMINATED_EXIT
+    banner(f"Done in {time.perf_counter() - t0:.0f} s "
+           f"({', '.join(f'{k} {v:.0f} s' for k, v in seconds.items())}). "
+           f"Every output is in: {demo.out.resolve()}")  # fmt: skip
+    for f in sorted(demo.out.iterdir()):
         print(f"  {f.name}")
     return 0
 

@@ -97,7 +97,8 @@ def run_cell(cell: Cell, work: Path, timeout: float, diagnose_args: list[str]) -
         folder, "identify.log", timeout,
     )  # fmt: skip
     record["diagnose"] = run_cli(
-        ["diagnose", "measured.h5", "--anchor", anchor, "-o", diag.name, *diagnose_args],
+        ["diagnose", "measured.h5", "--anchor", anchor, "-o", diag.name, "--force",
+         *diagnose_args],
         folder, "diagnose.log", timeout,
     )  # fmt: skip
     record.update(evaluate_cell(data, ident, diag / "params.json"))

@@ -19,6 +19,7 @@ The rules every command that writes follows:
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import tempfile
@@ -65,6 +66,36 @@ def add_force_option(parser: argparse.ArgumentParser) -> None:
         help="replace existing outputs (without it an existing output file, or an output "
         "folder that holds files, is refused)",
     )
+
+
+def check_number(
+    option: str,
+    value: float | None,
+    low: float | None = None,
+    *,
+    strict: bool = False,
+    high: float | None = None,
+) -> None:
+    """Raise :class:`InputError` naming ``option`` unless ``value`` is finite and in range.
+
+    ``None`` (an option left unset) passes. The range is ``value >= low`` (``> low``
+    with ``strict``) and ``value <= high``; either bound may be None.
+    """
+    if value is None:
+        return
+    bounds = []
+    if low is not None:
+        bounds.append(f"{'>' if strict else '>='} {low:g}")
+    if high is not None:
+        bounds.append(f"<= {high:g}")
+    ok = math.isfinite(value) and (
+        low is None or (value > low if strict else value >= low)
+    ) and (high is None or value <= high)
+    if not ok:
+        raise InputError(
+            f"{option} must be a finite number{' ' if bounds else ''}{' and '.join(bounds)}, "
+            f"got {value!r}"
+        )
 
 
 def _nearest_existing(path: Path) -> Path:

@@ -8,7 +8,7 @@ import os
 # import mujoco before anything of ours sets the default.
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import pytest
 import torch
@@ -21,3 +21,20 @@ def one_torch_thread() -> Iterator[None]:
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture
+def one_line_error(capsys: pytest.CaptureFixture[str]) -> Callable[..., str]:
+    """``one_line_error(*words)``: the captured stderr is exactly one ``error:`` line
+    holding every word, with no traceback; returns that line."""
+
+    def check(*words: str) -> str:
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: "), err
+        assert "Traceback" not in err
+        for w in words:
+            assert w in lines[0], (w, lines[0])
+        return lines[0]
+
+    return check

@@ -28,17 +28,6 @@ GENERATE = ["generate", "--n-train", "2", "--n-val", "0", "--n-test", "1", "--st
             "--no-progress"]  # fmt: skip
 
 
-def one_line_error(capsys: pytest.CaptureFixture[str], *words: str) -> str:
-    """The captured stderr: exactly one ``error:`` line holding every word, no traceback."""
-    err = capsys.readouterr().err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), err
-    assert "Traceback" not in err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
-    return lines[0]
-
-
 @pytest.fixture
 def dataset(tmp_path: Path) -> Path:
     path = tmp_path / "data" / "tiny.h5"
@@ -46,55 +35,54 @@ def dataset(tmp_path: Path) -> Path:
     return path
 
 
-def test_generate_into_proc_is_refused_before_any_work(capsys, monkeypatch) -> None:
+def test_generate_into_proc_is_refused_before_any_work(one_line_error, monkeypatch) -> None:
     import identification.simulation.generate as gen
 
     monkeypatch.setattr(gen, "rollout_split", lambda *a, **k: pytest.fail("work started"))
     assert main([*GENERATE, "-o", "/proc/x/y.h5"]) == 2
-    one_line_error(capsys, "-o /proc/x/y.h5", "cannot create files in /proc")
+    one_line_error("-o /proc/x/y.h5", "cannot create files in /proc")
     assert not Path("/proc/x/y.h5").exists()
 
 
-def test_output_inside_a_file_is_refused(tmp_path: Path, capsys) -> None:
+def test_output_inside_a_file_is_refused(tmp_path: Path, one_line_error) -> None:
     (tmp_path / "file.txt").write_text("a file\n")
     out = tmp_path / "file.txt" / "y.h5"
     assert main([*GENERATE, "-o", str(out)]) == 2
-    one_line_error(capsys, str(out), f"{tmp_path / 'file.txt'} is a file, not a folder")
+    one_line_error(str(out), f"{tmp_path / 'file.txt'} is a file, not a folder")
     assert (tmp_path / "file.txt").read_text() == "a file\n"
 
 
-def test_output_file_that_is_a_folder_is_refused(tmp_path: Path, capsys) -> None:
+def test_output_file_that_is_a_folder_is_refused(tmp_path: Path, one_line_error) -> None:
     assert main([*GENERATE, "-o", str(tmp_path)]) == 2
-    one_line_error(capsys, str(tmp_path), "is a folder")
+    one_line_error(str(tmp_path), "is a folder")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_existing_file_is_kept_without_force_and_replaced_with_it(
-    tmp_path: Path, capsys
+    tmp_path: Path, one_line_error
 ) -> None:
     out = tmp_path / "data.h5"
     out.write_bytes(b"precious")
     assert main([*GENERATE, "-o", str(out)]) == 2
-    one_line_error(capsys, f"-o {out}: exists", "--force")
+    one_line_error(f"-o {out}: exists", "--force")
     assert out.read_bytes() == b"precious"
     assert main([*GENERATE, "-o", str(out), "--force"]) == 0
     assert read_dataset(out).n_steps == 3 * 20
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data.h5"]  # no temporary left
 
 
-def test_identify_output_checked_before_the_fit(dataset: Path, capsys) -> None:
+def test_identify_output_checked_before_the_fit(dataset: Path, one_line_error) -> None:
     assert main(["identify", str(dataset), "-o", "/proc/x/params.json"]) == 2
-    one_line_error(capsys, "-o /proc/x/params.json")
-    capsys.readouterr()
+    one_line_error("-o /proc/x/params.json")
 
 
 def test_identify_default_output_is_not_replaced(
-    dataset: Path, tmp_path: Path, monkeypatch, capsys
+    dataset: Path, tmp_path: Path, monkeypatch, one_line_error
 ) -> None:
     monkeypatch.chdir(tmp_path)
     Path("params.json").write_text("{}\n")
     assert main(["identify", str(dataset)]) == 2
-    one_line_error(capsys, "-o params.json: exists", "--force")
+    one_line_error("-o params.json: exists", "--force")
     assert Path("params.json").read_text() == "{}\n"
 
 
@@ -110,24 +98,24 @@ def test_identify_default_output_is_not_replaced(
     ids=lambda a: a[0],
 )
 def test_output_folders_that_hold_files_or_are_files_are_refused(
-    argv: list[str], tmp_path: Path, capsys
+    argv: list[str], tmp_path: Path, one_line_error
 ) -> None:
     folder = tmp_path / "out"
     folder.mkdir()
     (folder / "report.md").write_text("earlier run\n")
     assert main([*argv, "-o", str(folder)]) == 2
-    one_line_error(capsys, f"-o {folder}: folder exists and holds files", "--force")
+    one_line_error(f"-o {folder}: folder exists and holds files", "--force")
     assert [p.name for p in folder.iterdir()] == ["report.md"]
     assert main([*argv, "-o", str(folder / "report.md")]) == 2
-    one_line_error(capsys, "is a file; name a folder")
+    one_line_error("is a file; name a folder")
 
 
-def test_plant_and_train_outputs_are_checked(tmp_path: Path, capsys) -> None:
+def test_plant_and_train_outputs_are_checked(tmp_path: Path, one_line_error) -> None:
     (tmp_path / "f").write_text("")
     assert main(["plant", "none", "-o", str(tmp_path / "f" / "x.h5")]) == 2
-    one_line_error(capsys, "is a file, not a folder")
+    one_line_error("is a file, not a folder")
     assert main(["train", "ppo", "-o", str(tmp_path / "f")]) == 2
-    one_line_error(capsys, "is a file; name a folder")
+    one_line_error("is a file; name a folder")
 
 
 def test_check_helpers_create_nothing(tmp_path: Path) -> None:

@@ -27,6 +27,7 @@ from tensegrity_env.effects import EFFECTS
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
+    check_number,
     check_output_dir,
     check_output_file,
 )
@@ -112,6 +113,10 @@ def run_plant(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     check_output_dir(args.output, args.force)
+    check_number("--max-effects", args.max_effects, 0)
+    check_number("--horizon", args.horizon, 0, strict=True)
+    check_number("--smoothing", args.smoothing, 0, strict=True)
+    check_number("--seed", args.seed, 0)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
     raw = read_dataset(args.dataset)
     end_caps_only = not all(s.has_states for s in raw.splits.values())

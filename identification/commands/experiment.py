@@ -10,7 +10,7 @@ import torch
 
 from identification.experiments.paper import SCALES, run_paper
 from identification.experiments.paper_report import target_checks, write_results
-from tensegrity_env.io_utils import InputError, add_force_option, check_output_dir
+from tensegrity_env.io_utils import InputError, add_force_option, check_number, check_output_dir
 
 
 def register(sub: Any) -> None:
@@ -44,6 +44,7 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_output_dir(args.output, args.force)
+    check_number("--seed", args.seed, 0)
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     command = f"tensegrity-sr experiment {args.which} --scale {args.scale} -o {args.output}"

@@ -12,7 +12,12 @@ import numpy as np
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import group_errors, parameter_table, relative_errors
-from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
+from tensegrity_env.io_utils import (
+    InputError,
+    add_force_option,
+    check_number,
+    check_output_file,
+)
 from tensegrity_env.model import Model
 
 
@@ -59,6 +64,8 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force)
+    check_number("--horizon", args.horizon, 1)
+    check_number("--seed", args.seed, 0)
     dataset = read_dataset(args.dataset)
     anchors = dict(parse_anchor(a) for a in args.anchor)
     init = None

@@ -148,6 +148,8 @@ class GenerateSpec:
             raise InputError(f"control_hold: must be positive, got {self.control_hold}")
         if self.threads is not None and self.threads < 1:
             raise InputError(f"--threads: must be >= 1, got {self.threads}")
+        if self.seed < 0:
+            raise InputError(f"--seed: must be >= 0, got {self.seed}")
 
     @classmethod
     def from_preset(cls, name: str, **overrides: Any) -> GenerateSpec:

@@ -37,7 +37,7 @@ from identification.data.dataset import Dataset, GroundTruth, Split
 from identification.data.end_caps import rod_states_from_nodes
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate
 from tensegrity_env import assemblies
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, check_number
 from tensegrity_env.mjcf import SimOptions, to_mjcf
 
 #: plant -> strength name -> value (units in :data:`STRENGTH_UNITS`)
@@ -92,8 +92,11 @@ class PlantSpec:
                 f"--strength: '{self.effect}' has strengths {sorted(PLANTS[self.effect])} "
                 "(or give a number)"
             )
-        if not self.noise >= 0:
-            raise InputError(f"--noise must be >= 0, got {self.noise}")
+        check_number("--noise", self.noise, 0.0)
+        if not isinstance(self.strength, str):
+            check_number("--strength", self.strength, 0.0)
+        if self.seed < 0:
+            raise InputError(f"--seed: must be >= 0, got {self.seed}")
 
     @property
     def value(self) -> float:

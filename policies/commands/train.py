@@ -53,11 +53,16 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from policies.train import train
-    from tensegrity_env.io_utils import check_output_dir
+    from tensegrity_env.io_utils import check_number, check_output_dir
 
     out = args.output or Path("runs") / f"{args.algo}_{args.env}_s{args.seed}"
     # a folder holding a run is continued with --resume, never replaced (train() says so)
     check_output_dir(out, force=True)
+    for option, value, low in (("--timesteps", args.timesteps, 1), ("--seed", args.seed, 0),
+                               ("--n-envs", args.n_envs, 1), ("--threads", args.threads, 0),
+                               ("--checkpoint-every", args.checkpoint_every, 1),
+                               ("--torch-threads", args.torch_threads, 1)):  # fmt: skip
+        check_number(option, value, low)
     result = train(
         args.algo,
         args.env,

@@ -13,6 +13,7 @@ from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
     atomic_write_text,
+    check_number,
     check_output_dir,
 )
 
@@ -73,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
         check_output_dir(args.train_reference, force=True, option="--train-reference")
     if args.episodes < 1:
         raise InputError("--episodes must be >= 1")
+    check_number("--seed", args.seed, 0)
+    check_number("--threads", args.threads, 0)
     env_spec(args.source), env_spec(args.target)  # unknown ids fail before any work
     policy = load_policy(args.policy)
     label = f"{policy.algo} ({policy.path})"

@@ -104,7 +104,13 @@ class PhysicalEffect(EffectBase):
 
     def _tensor(self, key: str, spec: ParamSpec, value: Any) -> torch.Tensor:
         if spec.integer:
-            return torch.as_tensor(np.asarray(value, dtype=np.int64).reshape(-1))
+            try:
+                idx = np.asarray(value, dtype=float).reshape(-1)
+            except (TypeError, ValueError) as e:
+                raise InputError(f"effect '{self.name}': '{key}' is not numeric ({e})") from None
+            if not (np.isfinite(idx).all() and (idx == np.round(idx)).all()):
+                raise InputError(f"effect '{self.name}': '{key}' must be whole numbers")
+            return torch.as_tensor(idx.astype(np.int64))
         if isinstance(value, torch.Tensor):
             t = value if value.is_floating_point() else value.double()
         else:

@@ -4,7 +4,9 @@ A :class:`RollingEnv` is a :class:`RollingTask` on a :class:`Simulator`: somethi
 that holds one assembly's packed rod state (R, 13), steps it ``frame_skip`` physics
 steps under a command (R, 3), and knows the MuJoCo model to draw it with. The two
 environments differ only in their simulator, so their spaces, observations,
-rewards, terminations and resets are the same code.
+rewards, terminations, resets and their handling of bad input are the same code:
+``step`` before the first ``reset`` raises :class:`gymnasium.error.ResetNeeded`, and
+actions follow :data:`~tensegrity_env.envs.task.ACTION_POLICY`.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tensegrity_env.envs.rendering import SceneRenderer
-from tensegrity_env.envs.task import RollingTask, rod_axes
+from tensegrity_env.envs.task import RollingTask, check_action, rod_axes
 from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.topology import Topology
 
@@ -54,6 +56,12 @@ def settle(sim: Simulator, x0: np.ndarray, seconds: float = SETTLE_SECONDS) -> n
 class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
     """A :class:`RollingTask` on one :class:`Simulator` (see the concrete envs' docs).
 
+    ``step`` before the first ``reset`` raises :class:`gymnasium.error.ResetNeeded`.
+    An action of the wrong shape, or with a NaN or infinite entry, raises ValueError
+    naming the expected shape or the bad entries, before any physics runs; physics
+    that diverges under finite actions ends the episode (terminated, reward 0,
+    ``info["physics_diverged"]``).
+
     Args:
         sim: the physics.
         rest: the resting pose (R, 13) resets start from.
@@ -88,6 +96,7 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.goal = np.zeros(2)
         self._distance = 0.0
         self._renderer: SceneRenderer | None = None
+        self._needs_reset = True
 
     # ------------------------------------------------------------------ gym API
     def reset(
@@ -108,10 +117,14 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.sim.set_state(x)
         self.state, self.goal = self.sim.get_state(), goal
         self._distance = float(self.task.distance(self.state[None], self.goal[None])[0])
+        self._needs_reset = False
         return self._obs(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        command = self.task.commands(np.asarray(action)[None], self.n_rods)
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = check_action(action, self.action_space.shape)  # type: ignore[arg-type]
+        command = self.task.commands(a[None], self.n_rods)
         self.sim.step(command[0])
         x = self.sim.get_state()
         if not np.all(np.isfinite(x)):

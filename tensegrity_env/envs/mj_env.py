@@ -155,8 +155,10 @@ class MJBatch:
 class IcosahedronMJEnv(RollingEnv):
     """The MuJoCo twin of :class:`~tensegrity_env.envs.sr_env.IcosahedronSREnv`.
 
-    Identical action and observation spaces, task, rewards, terminations and reset
-    procedure (see ``IcosahedronSREnv`` for the tables); the physics is MuJoCo with
+    Identical action and observation spaces, task, rewards, terminations, reset
+    procedure and handling of bad input (a NaN or misshapen action raises
+    ``ValueError``, ``step`` before ``reset`` raises ``ResetNeeded``; see
+    ``IcosahedronSREnv`` for the tables); the physics is MuJoCo with
     the true parameters and contact, and the actuators apply ``h_true * f_u``. Its
     resting pose is settled in MuJoCo from the same face-down nominal pose. It is
     the ground truth for checking what a policy trained on the identified env does

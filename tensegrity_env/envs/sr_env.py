@@ -171,6 +171,11 @@ class IcosahedronSREnv(RollingEnv):
     ``info["physics_diverged"]``; ``truncated`` at the time limit (300 steps = 15 s,
     applied by ``gym.make``'s ``TimeLimit``).
 
+    **Bad input** (the same in ``IcosahedronMJ-v0`` and the vector envs): ``step``
+    before the first ``reset`` raises ``gymnasium.error.ResetNeeded``; an action of a
+    shape other than (18,), or with a NaN or infinite entry, raises ``ValueError``
+    naming the expected shape or the bad entries, before any physics runs.
+
     **Reset** (deterministic for a seed): the model's own resting pose, settled once
     from the face-down nominal pose, turned by a random yaw, perturbed by
     ``reset_noise_scale``; the goal 2-4 m away in a random direction.

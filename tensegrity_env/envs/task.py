@@ -18,6 +18,35 @@ import numpy as np
 #: entries of ``info`` and of each vector-env info array, per step
 REWARD_TERMS = ("reward_progress", "reward_control", "reward_goal")
 
+#: what every environment (single, twin, vector) does with an action, stated once
+ACTION_POLICY = (
+    "An action of the wrong shape, or with a NaN or infinite entry, raises ValueError "
+    "(naming the expected shape or the bad entries) before any physics runs; finite "
+    "actions outside [-1, 1] are clipped. Physics that diverges under finite actions "
+    "ends the episode (terminated, reward 0, info['physics_diverged'])."
+)
+
+
+def check_action(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as float64 of ``shape``, else ValueError (see :data:`ACTION_POLICY`).
+
+    Args:
+        action: the action(s) given to ``step``.
+        shape: the expected shape: ``(3R,)`` for one env, ``(N, 3R)`` for N envs.
+    """
+    try:
+        a = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"action must be numbers of shape {shape}") from None
+    if a.shape != shape:
+        raise ValueError(f"action has shape {a.shape}, expected {shape} (3 force commands per rod)")
+    bad = np.argwhere(~np.isfinite(a))
+    if bad.size:
+        entries = [int(i[0]) if a.ndim == 1 else tuple(int(j) for j in i) for i in bad[:6]]
+        more = f" and {len(bad) - 6} more" if len(bad) > 6 else ""
+        raise ValueError(f"action entries {entries}{more} are NaN or infinite")
+    return a
+
 
 class TaskOptions(TypedDict, total=False):
     """The task's keyword arguments every environment takes (see :class:`RollingTask`)."""

@@ -16,7 +16,11 @@ for the others; ``infos["_final_obs"]`` is the mask) and the ending step's info 
 ``infos["final_info"]``. Reward terms, ``distance_to_goal``, ``is_success`` and the
 positions are arrays (N,) in ``infos`` for every env. Environment ``i`` is seeded
 with ``seed + i``, exactly as ``SyncVectorEnv`` seeds N single envs, so the batch
-equals N single ``IcosahedronSR-v0`` envs stepped with the same actions.
+equals N single ``IcosahedronSR-v0`` envs stepped with the same actions, and bad
+input is handled as by the single envs: ``step`` before ``reset`` raises
+:class:`gymnasium.error.ResetNeeded`; actions of a shape other than ``(N, 3R)`` or
+with NaN or infinite entries raise ValueError naming them, before any physics runs;
+diverged physics ends that env's episode (``infos["physics_diverged"]``).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Unpack
 
+import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium import spaces
@@ -35,7 +40,7 @@ from tensegrity_env.envs.mj_env import MJBatch, MJSimulator, twin_rest_pose
 from tensegrity_env.envs.physics import Backend
 from tensegrity_env.envs.rendering import SceneRenderer
 from tensegrity_env.envs.sr_env import SRSimulator, rest_pose
-from tensegrity_env.envs.task import RollingTask, TaskOptions, make_task, rod_axes
+from tensegrity_env.envs.task import RollingTask, TaskOptions, check_action, make_task, rod_axes
 from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.topology import Topology
 
@@ -90,6 +95,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self._last_obs = np.zeros((self.num_envs, n_obs), dtype=np.float32)
         self._renderer: SceneRenderer | None = None
+        self._needs_reset = True
 
     # ------------------------------------------------------------------ physics hooks
     def _set_states(self, idx: np.ndarray, x: np.ndarray) -> None:
@@ -134,12 +140,16 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             self._distance = self.task.distance(self._get_states(), self.goals)
         obs = self.task.observe(self._get_states(), self.goals, self._axes)
         self._last_obs = obs
+        self._needs_reset = False
         return obs, self._base_info(self._get_states())
 
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        commands = self.task.commands(np.asarray(actions), self.n_rods)
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = check_action(actions, self.action_space.shape)  # type: ignore[arg-type]
+        commands = self.task.commands(a, self.n_rods)
         self._step_physics(commands)
         x = self._get_states()
         bad = ~np.all(np.isfinite(x), axis=(1, 2))

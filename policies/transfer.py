@@ -11,7 +11,6 @@ the same algorithm trained directly on the target with the same step budget.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -152,13 +151,11 @@ def side_by_side_video(
     """One episode (seed ``seed``) in ``source`` (left) and ``target`` (right), to MP4/GIF.
 
     Both start from the source's seeded state and goal; the policy sees each env's own
-    observation. Written under a temporary name, then renamed (atomic).
+    observation; each half is labelled with what it shows (identified model or MuJoCo).
+    Written atomically (:func:`~tensegrity_env.envs.rendering.write_video`).
     """
-    from tensegrity_env.envs.rendering import write_video
+    from tensegrity_env.envs.rendering import env_label, side_by_side, write_video
 
-    final = Path(path)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = final.with_name(f".{final.stem}.partial{final.suffix}")
     kw = {"render_mode": "rgb_array", "width": width, "height": height}
     left, right = gym.make(source, **kw), gym.make(target, **kw)
     try:
@@ -166,7 +163,8 @@ def side_by_side_video(
         base = left.unwrapped
         opts = {"state": base.state.copy(), "goal": base.goal.copy()}  # type: ignore[attr-defined]
         obs_r, _ = right.reset(seed=seed, options=opts)
-        frames = [np.concatenate([left.render(), right.render()], axis=1)]  # type: ignore[list-item]
+        names = env_label(left), env_label(right)
+        frames = [side_by_side(left.render(), right.render(), *names)]  # type: ignore[arg-type]
         done_l = done_r = False
         for _ in range(max_steps):
             if not done_l:
@@ -175,17 +173,13 @@ def side_by_side_video(
             if not done_r:
                 obs_r, _, t, u, _ = right.step(policy(obs_r))
                 done_r = t or u
-            frames.append(np.concatenate([left.render(), right.render()], axis=1))  # type: ignore[list-item]
+            frames.append(side_by_side(left.render(), right.render(), *names))  # type: ignore[arg-type]
             if done_l and done_r:
                 break
-        write_video(frames, tmp, fps=left.metadata.get("render_fps", 20))
-        os.replace(tmp, final)
+        return write_video(frames, path, fps=left.metadata.get("render_fps", 20))
     finally:
         left.close()
         right.close()
-        if tmp.exists():
-            tmp.unlink()
-    return final
 
 
 def train_reference(

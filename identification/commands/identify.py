@@ -11,7 +11,12 @@ import numpy as np
 
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
-from identification.report.tables import group_errors, parameter_table, relative_errors
+from identification.report.tables import (
+    error_text,
+    group_errors,
+    parameter_table,
+    relative_errors,
+)
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
@@ -106,10 +111,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"\n(no test errors: {e})")
         else:
             print(
-                f"\nTest split: one-step position error {scores['one_step_position_error']:.3e} m; "
-                f"rollout over {scores['horizon_steps']} steps: mean "
-                f"{scores['rollout_mean_position_error']:.3e} m, final "
-                f"{scores['rollout_final_position_error']:.3e} m"
+                f"\nTest split: one-step position error "
+                f"{error_text(scores['one_step_position_error'], '.3e')}; rollout over "
+                f"{scores['horizon_steps']} steps: mean "
+                f"{error_text(scores['rollout_mean_position_error'], '.3e')}, final "
+                f"{error_text(scores['rollout_final_position_error'], '.3e')}"
             )
     extra = {
         "identifiability": {

@@ -52,6 +52,7 @@ from identification.discovery.residual_network import ResidualFit, fit_residual_
 from identification.discovery.residuals import compute_residuals, plot_residuals, summarize
 from identification.linear.extended import commands_for, evaluate_model
 from identification.linear.features import transitions_of
+from identification.report.tables import error_text
 from tensegrity_env.effects import ResidualNetwork
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
@@ -225,7 +226,8 @@ def diagnose(
     )
     current = _score(dataset, "nothing", model, val_split, horizon_s)
     log(f"declared model{' + ' + ', '.join(model.names) if model.names else ''}: held-out "
-        f"one-step {current.val['one_step']:.3e} m, {horizon_s:g}-s rollout {current.val['rollout']:.3e} m")  # fmt: skip
+        f"one-step {error_text(current.val['one_step'], '.3e')}, {horizon_s:g}-s rollout "
+        f"{error_text(current.val['rollout'], '.3e')}")  # fmt: skip
     iterations: list[Iteration] = []
     test_now = baseline
     for k in range(max_effects + 1):
@@ -255,8 +257,8 @@ def diagnose(
             s = _score(dataset, p.name, fitted, val_split, horizon_s)
             s.seconds, s.gate = time.perf_counter() - t0, p.gate
             _judge(s, current)
-            log(f"  candidate {p.name:20s} one-step {s.val['one_step']:.3e} m, rollout "
-                f"{s.val['rollout']:.3e} m, ΔBIC {s.bic - current.bic:+.3g}: {s.verdict} ({s.seconds:.1f} s)")  # fmt: skip
+            log(f"  candidate {p.name:20s} one-step {error_text(s.val['one_step'], '.3e')}, "
+                f"rollout {error_text(s.val['rollout'], '.3e')}, ΔBIC {s.bic - current.bic:+.3g}: {s.verdict} ({s.seconds:.1f} s)")  # fmt: skip
             tried.append(s)
         tried.sort(key=lambda s: (not s.accepted, _finite(s.val["one_step"])))
         chosen = tried[0] if tried and tried[0].accepted else None

@@ -9,6 +9,7 @@ import numpy as np
 
 from identification.discovery.diagnose import DiagnoseResult, Scored
 from identification.discovery.residuals import summary_table
+from identification.report.tables import error_text
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import NOT_PHYSICAL
 from tensegrity_env.io_utils import atomic_write_text
@@ -19,7 +20,7 @@ if TYPE_CHECKING:
 
 def fmt_err(x: float) -> str:
     """An error [m] for a table; a diverged rollout (NaN or inf) says so."""
-    return f"{x:.3g} m" if np.isfinite(x) else "diverged"
+    return error_text(x)
 
 
 def ratio(before: float, after: float) -> str:

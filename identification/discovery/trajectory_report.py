@@ -5,15 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from identification.discovery.report import effect_table, fmt_err, ratio
 from identification.discovery.trajectory_loop import Candidate, NoisyDiagnoseResult
+from identification.report.tables import error_text
 from tensegrity_env.io_utils import atomic_write_text
 
 
 def _mm(x: float) -> str:
-    return f"{x * 1e3:.4f} mm" if np.isfinite(x) else "diverged"
+    return error_text(x, ".4f", "mm", 1e3)
 
 
 def candidate_table(current: Candidate, tried: list[Candidate]) -> str:

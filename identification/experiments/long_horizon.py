@@ -18,6 +18,7 @@ import torch
 
 from identification.data.dataset import Split
 from identification.report.plots import save_figure
+from identification.report.tables import error_text
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import quat_conj, quat_mul
@@ -65,7 +66,10 @@ def checkpoint_table(curves: dict[str, dict[str, np.ndarray]], dt: float) -> str
     lines = [head, "|" + "---|" * (len(steps) + 1)]
     for name, c in curves.items():
         cells = [
-            f"{c['position'][s] * 1e3:.3g} mm / {np.degrees(c['orientation'][s]):.3g}°"
+            f"{error_text(c['position'][s], '.3g', 'mm', 1e3)} / "
+            f"{np.degrees(c['orientation'][s]):.3g}°"
+            if np.isfinite(c["position"][s]) and np.isfinite(c["orientation"][s])
+            else "diverged"
             for s in steps
         ]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")

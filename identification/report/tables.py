@@ -10,6 +10,12 @@ from identification.linear.regression import ParameterRow
 from tensegrity_env.params import Params
 
 
+def error_text(x: float, spec: str = ".3g", unit: str = "m", scale: float = 1.0) -> str:
+    """An error for consoles and reports alike: ``x * scale`` formatted by ``spec`` with
+    ``unit``, or ``diverged`` where the rollout it measures diverged (NaN or inf)."""
+    return f"{x * scale:{spec}} {unit}" if np.isfinite(x) else "diverged"
+
+
 def truth_value(row: ParameterRow, truth: Params, scale: float = 1.0) -> float:
     """The true value of a table row (divided by ``scale`` for ratio results)."""
     t = truth.numpy()

@@ -170,6 +170,9 @@ class IcosahedronMJEnv(RollingEnv):
         frame_skip, render_mode, width, height, **task: as ``IcosahedronSREnv``.
     """
 
+    #: what videos call this env
+    label = "MuJoCo (IcosahedronMJ-v0)"
+
     def __init__(
         self,
         xml_path: str | Path | None = None,

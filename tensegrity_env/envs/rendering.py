@@ -12,6 +12,9 @@ variable is unset). Where no OpenGL context can be made, rendering raises
 :func:`write_video` writes frames to MP4 (imageio-ffmpeg) or GIF;
 :func:`record_episode` and :func:`record_side_by_side` roll an env (or the
 identified env and its twin from the same state under the same actions) into one.
+Side-by-side frames (:func:`side_by_side`) carry each half's name drawn into the
+image (:func:`label_frame`): an env's ``label`` attribute, e.g. "identified model
+(IcosahedronSR-v0)" and "MuJoCo (IcosahedronMJ-v0)".
 """
 
 from __future__ import annotations
@@ -180,6 +183,45 @@ class SceneRenderer:
             self._viewer = None
 
 
+# ---------------------------------------------------------------------- labels
+def env_label(env: Any) -> str:
+    """What a video calls ``env``: its ``label`` (e.g. "MuJoCo (IcosahedronMJ-v0)"),
+    else its registered id, else its class name."""
+    base = getattr(env, "unwrapped", env)
+    label = getattr(base, "label", None)
+    if label:
+        return str(label)
+    spec = getattr(env, "spec", None)
+    return spec.id if spec is not None else type(base).__name__
+
+
+def label_frame(frame: np.ndarray, text: str) -> np.ndarray:
+    """A copy of ``frame`` (H, W, 3) uint8 with ``text`` in white on a dark band, top left.
+
+    The font height is about 1/18 of the frame height (at least 10 px).
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    image = Image.fromarray(np.ascontiguousarray(frame[..., :3], dtype=np.uint8))
+    draw = ImageDraw.Draw(image)
+    try:
+        font: Any = ImageFont.load_default(size=max(10, frame.shape[0] // 18))
+    except (TypeError, OSError):  # Pillow without FreeType: its fixed bitmap font
+        font = ImageFont.load_default()
+    pad = max(3, frame.shape[0] // 80)
+    left, top, right, bottom = draw.textbbox((2 * pad, 2 * pad), text, font=font)
+    draw.rectangle((left - pad, top - pad, right + pad, bottom + pad), fill=(20, 20, 20))
+    draw.text((2 * pad, 2 * pad), text, fill=(255, 255, 255), font=font)
+    return np.asarray(image)
+
+
+def side_by_side(
+    left: np.ndarray, right: np.ndarray, left_label: str, right_label: str
+) -> np.ndarray:
+    """Two frames (H, W, 3) side by side (H, 2W, 3), each labelled with what it shows."""
+    return np.concatenate([label_frame(left, left_label), label_frame(right, right_label)], axis=1)
+
+
 # ---------------------------------------------------------------------- videos
 def write_video(frames: Sequence[np.ndarray], path: str | Path, fps: float = 20.0) -> Path:
     """Write RGB frames (H, W, 3) uint8 to ``path``: ``.mp4`` (H.264) or ``.gif`` (atomically)."""
@@ -231,14 +273,16 @@ def record_side_by_side(
     """Both envs from ``left``'s seeded initial state under the same actions, side by side.
 
     ``policy`` sees ``left``'s observations (random actions if None). Typically the
-    identified env on the left and its MuJoCo twin on the right.
+    identified env on the left and its MuJoCo twin on the right; each half is
+    labelled with :func:`env_label`.
     """
     left.reset(seed=seed)
     state, goal = left.unwrapped.state.copy(), left.unwrapped.goal.copy()
     obs, _ = left.reset(options={"state": state, "goal": goal})
     right.reset(options={"state": state, "goal": goal})
     rng = np.random.default_rng(seed)
-    frames = [np.concatenate([left.render(), right.render()], axis=1)]
+    names = env_label(left), env_label(right)
+    frames = [side_by_side(left.render(), right.render(), *names)]
     for _ in range(max_steps):
         action = (
             rng.uniform(-1, 1, left.action_space.shape).astype(np.float32)
@@ -247,7 +291,7 @@ def record_side_by_side(
         )
         obs, _, t1, u1, _ = left.step(action)
         _, _, t2, u2, _ = right.step(action)
-        frames.append(np.concatenate([left.render(), right.render()], axis=1))
+        frames.append(side_by_side(left.render(), right.render(), *names))
         if t1 or u1 or t2 or u2:
             break
     return write_video(frames, path, fps=left.metadata.get("render_fps", 20))

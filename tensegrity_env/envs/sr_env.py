@@ -198,6 +198,9 @@ class IcosahedronSREnv(RollingEnv):
             :class:`~tensegrity_env.envs.task.RollingTask`.
     """
 
+    #: what videos call this env
+    label = "identified model (IcosahedronSR-v0)"
+
     def __init__(
         self,
         params_path: str | Path | None = None,

@@ -161,14 +161,16 @@ def params_to_dict(params: Params) -> dict[str, Any]:
 
 
 def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
+    if not isinstance(d, Mapping):
+        raise InputError(f"{source}: 'params' must be a mapping of field to values")
     """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``."""
     missing = [f for f in FIELDS if f not in d]
     if missing:
         raise InputError(f"{source}: missing parameter(s) {missing}")
     try:
         return Params.create(**{f: d[f] for f in FIELDS})
-    except (ValueError, TypeError) as e:
-        raise InputError(f"{source}: malformed parameter values ({e})") from None
+    except (ValueError, TypeError, RuntimeError) as e:  # torch reshapes raise RuntimeError
+        raise InputError(f"{source}: malformed parameter values ({str(e).splitlines()[0]})") from None
 
 
 def load_params_document(path: str | Path) -> dict[str, Any]:

@@ -327,9 +327,12 @@ class Topology:
                 Spring(str(s["name"]), int(s["nodes"][0]), int(s["nodes"][1])) for s in d["springs"]
             )
             anchors = tuple(tuple(map(float, a)) for a in d.get("anchors", []))
-        except (KeyError, TypeError, IndexError, ValueError) as e:
+            name = str(d.get("name", "assembly"))
+            return cls(rods=rods, springs=springs, anchors=anchors, name=name)  # type: ignore[arg-type]
+        except TopologyError:
+            raise
+        except (KeyError, TypeError, IndexError, ValueError, AttributeError, OverflowError) as e:
             raise TopologyError(f"malformed topology description: {e!r}") from None
-        return cls(rods=rods, springs=springs, anchors=anchors, name=str(d.get("name", "assembly")))  # type: ignore[arg-type]
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict())

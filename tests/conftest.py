@@ -12,6 +12,21 @@ from collections.abc import Callable, Iterator
 
 import pytest
 import torch
+from hypothesis import HealthCheck, settings
+
+# Property-based tests: a few dozen examples locally (random, fast); `HYPOTHESIS_PROFILE=ci`
+# derandomizes them so that CI runs the same examples every time.
+settings.register_profile(
+    "dev", max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.register_profile(
+    "ci", max_examples=25, deadline=None, derandomize=True, database=None,
+    suppress_health_check=[HealthCheck.too_slow],
+)  # fmt: skip
+settings.register_profile(
+    "long", max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)  # a deeper search when changing a reader: HYPOTHESIS_PROFILE=long
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "dev"))
 
 
 @pytest.fixture

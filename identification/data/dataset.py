@@ -171,13 +171,19 @@ def _open(path: str | Path) -> h5py.File:
         f = h5py.File(p, "r")
     except OSError as e:
         raise InputError(f"{p}: not a readable HDF5 file (truncated or corrupt: {e})") from None
-    if f.attrs.get("format") != DATASET_FORMAT:
+    fmt, version = _decode(f.attrs.get("format")), _decode(f.attrs.get("version", -1))
+    if fmt != DATASET_FORMAT:
         f.close()
         raise InputError(f"{p}: not a tensegrity-sr dataset (format attribute missing or wrong)")
-    if int(f.attrs.get("version", -1)) != DATASET_VERSION:
+    if not isinstance(version, (int, np.integer)) or int(version) != DATASET_VERSION:
         f.close()
-        raise InputError(f"{p}: dataset version {f.attrs.get('version')} is not supported")
+        raise InputError(f"{p}: dataset version {version!r} is not supported")
     return f
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
 
 
 def _decode(v: Any) -> Any:
@@ -211,8 +217,8 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
                 out[name] = Split(**arrays)
         except InputError:
             raise
-        except (KeyError, OSError, ValueError, TopologyError) as e:
-            raise InputError(f"{p}: malformed dataset ({e})") from None
+        except (KeyError, OSError, ValueError, TypeError, TopologyError) as e:
+            raise InputError(f"{p}: malformed dataset ({_first_line(e)})") from None
     ds = Dataset(topology=topology, dt=dt, splits=out, attrs=attrs, path=p)
     _check_dataset(ds, str(p))
     return ds
@@ -223,15 +229,18 @@ def read_ground_truth(path: str | Path) -> GroundTruth | None:
     with _open(path) as f:
         if "ground_truth" not in f:
             return None
-        a = f["ground_truth"].attrs
-        return GroundTruth(
-            params=params_from_dict(
-                json.loads(_decode(a["params"])), source=f"{path}:ground_truth"
-            ),
-            sim=json.loads(_decode(a.get("sim", "{}"))),
-            mjcf=_decode(a.get("mjcf", "")),
-            effects=json.loads(_decode(a.get("effects", "[]"))),
-        )
+        try:
+            a = f["ground_truth"].attrs
+            return GroundTruth(
+                params=params_from_dict(
+                    json.loads(_decode(a["params"])), source=f"{path}:ground_truth"
+                ),
+                sim=json.loads(_decode(a.get("sim", "{}"))),
+                mjcf=str(_decode(a.get("mjcf", ""))),
+                effects=json.loads(_decode(a.get("effects", "[]"))),
+            )
+        except (KeyError, OSError, ValueError, TypeError) as e:
+            raise InputError(f"{path}: malformed ground truth ({_first_line(e)})") from None
 
 
 def _check_dataset(ds: Dataset, where: str) -> None:

@@ -122,6 +122,7 @@ class PhysicalEffect(EffectBase):
         shape = ((n,) if n is not None else ()) + spec.shape
         if tuple(t.shape) != shape:
             if t.numel() == 1 or (n is not None and tuple(t.shape) == spec.shape):
+                t = t.reshape(()) if t.numel() == 1 else t
                 t = t.expand(shape) if t.requires_grad else t.expand(shape).clone()
             else:
                 raise InputError(
@@ -188,7 +189,10 @@ class PhysicalEffect(EffectBase):
         params = doc.get("params", {})
         if not isinstance(params, Mapping):
             raise InputError(f"effect '{cls.name}': 'params' must be a mapping")
-        return cls(topology, uncertainty=doc.get("uncertainty") or {}, **dict(params))
+        uncertainty = doc.get("uncertainty") or {}
+        if not isinstance(uncertainty, Mapping):
+            raise InputError(f"effect '{cls.name}': 'uncertainty' must be a mapping")
+        return cls(topology, uncertainty=uncertainty, **dict(params))
 
     def describe(self) -> str:
         """One line: name and parameter values with units."""

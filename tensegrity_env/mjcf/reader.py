@@ -265,6 +265,11 @@ def from_mjcf(
         control_gain=gains[0] if gains else 1.0,
         gravity=m.opt.gravity.copy(),
     )
+    bad = [f for f, v in params.numpy().items() if not np.all(np.isfinite(v))]
+    if not (np.isfinite(m.opt.timestep) and m.opt.timestep > 0):
+        bad.append("timestep")
+    if bad:
+        raise InputError(f"{src}: {', '.join(bad)}: NaN, inf or out of range in the file")
     integrator = {
         int(mujoco.mjtIntegrator.mjINT_EULER): "Euler",
         int(mujoco.mjtIntegrator.mjINT_RK4): "RK4",

@@ -148,7 +148,8 @@ def step_control_gain(demo: Demo) -> None:
 
 def step_experiment(demo: Demo) -> None:
     banner("The paper's experiments: ours vs Interaction, Interaction+Int, Koopman+Int")
-    demo.cli("experiment", "paper", "--scale", "small", "-o", demo.out / "experiment")
+    demo.cli("experiment", "paper", "--scale", demo.size("small", "full"),
+             "-o", demo.out / "experiment")  # fmt: skip
 
 
 def step_diagnose(demo: Demo) -> None:
@@ -159,7 +160,9 @@ def step_diagnose(demo: Demo) -> None:
     truth = read_ground_truth(path)
     assert truth is not None
     mass0 = float(truth.params.mass[0])  # a weighed rod fixes the scale, as in step 2
-    demo.cli("diagnose", path, "--anchor", f"mass[rod0]={mass0!r}", "--max-effects", 2,
+    # small: stop at the first effect found; full: also show that nothing else is missing
+    demo.cli("diagnose", path, "--anchor", f"mass[rod0]={mass0!r}",
+             "--max-effects", demo.size(1, 2),
              "--horizon", 0.5, "-o", demo.out / "diagnose")  # fmt: skip
 
 
@@ -308,6 +311,7 @@ def run(demo: Demo, steps: list[str]) -> dict[str, float]:
         t0 = time.perf_counter()
         STEPS[name](demo)
         seconds[name] = time.perf_counter() - t0
+        print(f"[{i}/{len(steps)}] {name}: {seconds[name]:.0f} s", flush=True)
     return seconds
 
 

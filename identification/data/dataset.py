@@ -1,6 +1,7 @@
 """Trajectory datasets: the public HDF5 format, its reader and its writer.
 
-Schema (``format = "tensegrity-sr/trajectories"``, ``version = 1``); ``R`` rods,
+Schema (``format = "tensegrity-sr/trajectories"``, ``version = 2``; version 1 files, which
+have no ``time`` and no gaps, are still read); ``R`` rods,
 ``N`` trajectories per split, ``T`` transitions per trajectory (``T + 1`` samples):
 
 ====================================  ===================  =====================================
@@ -20,12 +21,18 @@ path                                  shape                meaning
                                                            nodes 2r and 2r+1
 ``/splits/<split>/control``           (N, T, R, 3)         command f_u applied during step t
                                                            [command units], world frame
+``/splits/<split>/time``              (N, T+1)             optional: time of each sample [s]
+                                                           from the trajectory's start; may be
+                                                           non-uniform; NaN after a shorter
+                                                           trajectory's end (its nodes NaN too)
 ``/ground_truth`` attrs                                    ``params`` (JSON), ``sim`` (JSON),
                                                            ``mjcf`` (XML text), ``effects``
 ====================================  ===================  =====================================
 
-Splits are ``train``, ``val`` and ``test``. Measured data (motion capture) may carry
-only ``nodes`` (and ``control``): rod states are then derived from the end caps by
+``dt`` is the nominal sample interval (1 / the nominal rate). Splits are ``train``,
+``val`` and ``test``. Measured data (motion capture) may carry only ``nodes`` (and
+``control``), and its ``nodes`` may hold NaN where a marker was not seen (a gap): the
+per-marker validity is ``Split.valid``. Rod states are then derived from the end caps by
 :func:`identification.data.end_caps.rod_states_from_nodes`. The ground truth lives in its own
 group and is only read by :func:`read_ground_truth`, so an identifier never sees it
 by accident.
@@ -47,7 +54,9 @@ from tensegrity_env.params import Params, params_from_dict, params_to_dict
 from tensegrity_env.topology import Topology, TopologyError
 
 DATASET_FORMAT = "tensegrity-sr/trajectories"
-DATASET_VERSION = 1
+DATASET_VERSION = 2
+#: versions the reader accepts
+READABLE_VERSIONS = (1, 2)
 SPLITS = ("train", "val", "test")
 STATE_KEYS = ("p", "v", "q", "omega")
 STATE_WIDTH = {"p": 3, "v": 3, "q": 4, "omega": 3}
@@ -63,6 +72,7 @@ class Split:
     v: np.ndarray | None = None
     q: np.ndarray | None = None
     omega: np.ndarray | None = None
+    time: np.ndarray | None = None
 
     @property
     def n_trajectories(self) -> int:
@@ -77,10 +87,28 @@ class Split:
     def has_states(self) -> bool:
         return all(getattr(self, k) is not None for k in STATE_KEYS)
 
+    @property
+    def valid(self) -> np.ndarray:
+        """(N, T+1, 2R) bool: the end cap was seen in that sample (False in a gap)."""
+        return np.isfinite(self.nodes).all(axis=-1)
+
+    @property
+    def has_gaps(self) -> bool:
+        """Whether any end cap is missing in any sample."""
+        return not bool(self.valid.all())
+
+    def times(self, dt: float) -> np.ndarray:
+        """(N, T+1) sample times [s]: the stored ``time``, else uniform at ``dt``."""
+        if self.time is not None:
+            return self.time
+        t = np.arange(self.nodes.shape[1]) * dt
+        return np.broadcast_to(t, self.nodes.shape[:2]).copy()
+
     def subset(self, idx: np.ndarray | slice) -> Split:
         """The trajectories ``idx`` of this split."""
         pick = {
-            k: (None if getattr(self, k) is None else getattr(self, k)[idx]) for k in STATE_KEYS
+            k: (None if getattr(self, k) is None else getattr(self, k)[idx])
+            for k in (*STATE_KEYS, "time")
         }
         return Split(nodes=self.nodes[idx], control=self.control[idx], **pick)
 
@@ -149,7 +177,7 @@ def write_dataset(
             f.create_group("topology").attrs["json"] = dataset.topology.to_json()
             for name, split in dataset.splits.items():
                 g = f.create_group(f"splits/{name}")
-                for k in ("nodes", "control", *STATE_KEYS):
+                for k in ("nodes", "control", *STATE_KEYS, "time"):
                     arr = getattr(split, k)
                     if arr is not None:
                         g.create_dataset(k, data=np.asarray(arr, dtype=np.float64), chunks=True)
@@ -207,7 +235,8 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
             for name in names:
                 g = f[f"splits/{name}"]
                 arrays = {
-                    k: (g[k][()] if k in g else None) for k in ("nodes", "control", *STATE_KEYS)
+                    k: (g[k][()] if k in g else None)
+                    for k in ("nodes", "control", *STATE_KEYS, "time")
                 }
                 if arrays["nodes"] is None:
                     raise InputError(f"{p}: split '{name}' has no 'nodes'")
@@ -264,7 +293,7 @@ def _check_dataset(ds: Dataset, where: str) -> None:
                 f"{where}: split '{name}' control has shape {s.control.shape}, "
                 f"expected {(N, T1 - 1, R, 3)}"
             )
-        for k in ("nodes", "control", *STATE_KEYS):
+        for k in ("control", *STATE_KEYS):
             arr = getattr(s, k)
             if arr is None:
                 continue
@@ -275,3 +304,41 @@ def _check_dataset(ds: Dataset, where: str) -> None:
                 )
             if not np.all(np.isfinite(arr)):
                 raise InputError(f"{where}: split '{name}' '{k}' contains NaN or inf")
+        _check_nodes_and_time(s, name, where)
+
+
+def _check_nodes_and_time(s: Split, name: str, where: str) -> None:
+    """End caps: finite or NaN (a gap), never inf, every trajectory seen somewhere; time:
+    finite and increasing where stored, NaN only after a trajectory's last sample."""
+    if np.isinf(s.nodes).any():
+        raise InputError(f"{where}: split '{name}' 'nodes' contains inf")
+    partial = np.isnan(s.nodes).any(axis=-1) & ~np.isnan(s.nodes).all(axis=-1)
+    if partial.any():
+        raise InputError(
+            f"{where}: split '{name}' 'nodes' has an end cap with some coordinates NaN "
+            "and others not (a gap is NaN in x, y and z)"
+        )
+    unseen = ~np.isfinite(s.nodes).all(axis=-1)
+    if unseen.all(axis=(1, 2)).any():
+        raise InputError(f"{where}: split '{name}' 'nodes' has a trajectory that is NaN throughout")
+    if s.time is None:
+        if s.has_states and not np.isfinite(s.nodes).all():
+            raise InputError(f"{where}: split '{name}' has rod states but NaN end caps")
+        return
+    if s.time.shape != s.nodes.shape[:2]:
+        raise InputError(
+            f"{where}: split '{name}' 'time' has shape {s.time.shape}, "
+            f"expected {s.nodes.shape[:2]}"
+        )
+    finite = np.isfinite(s.time)
+    if np.isinf(s.time).any() or (np.diff(finite.astype(int), axis=1) > 0).any():
+        raise InputError(
+            f"{where}: split '{name}' 'time' is inf or NaN before a trajectory's end"
+        )
+    steps = np.diff(s.time, axis=1)
+    if (steps[np.isfinite(steps)] <= 0).any():
+        raise InputError(f"{where}: split '{name}' 'time' does not increase in every trajectory")
+    if not finite[:, :2].all():
+        raise InputError(f"{where}: split '{name}' has a trajectory shorter than 2 samples")
+    if np.isfinite(s.nodes[~finite]).any():
+        raise InputError(f"{where}: split '{name}' has end caps after a trajectory's last time")

@@ -1,0 +1,79 @@
+"""``tensegrity-sr import-mocap``: C3D / CSV motion capture into the public dataset format."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from identification.data.dataset import write_dataset
+from identification.data.mocap.importer import (
+    build_dataset,
+    parse_fractions,
+    read_robot,
+    take_end_caps,
+)
+from identification.data.mocap.marker_map import read_marker_map
+from identification.data.mocap.recording import read_recording
+from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
+
+
+def register(sub: Any) -> None:
+    p = sub.add_parser(
+        "import-mocap",
+        help="import C3D or CSV motion capture (labelled or unlabelled) into an HDF5 dataset",
+        description=(
+            "Read motion-capture takes (C3D, OptiTrack Motive CSV, or a plain CSV 'time, "
+            "<marker>_x, _y, _z, ...'), map markers to the robot's end caps (a marker map, or "
+            "marker names <rod>_<0|1>), label unlabelled point clouds by tracking the end caps "
+            "under the rod-length constraint, and write end caps with their sample times and "
+            "gaps (NaN) as a dataset. One take per file becomes one trajectory."
+        ),
+    )
+    p.add_argument("files", type=Path, nargs="+", help="C3D or CSV files, one take each")
+    p.add_argument("--robot", type=Path, required=True,
+                   help="robot MJCF (.xml; its rest pose starts unlabelled tracking) or params.json")  # fmt: skip
+    p.add_argument("--map", type=Path, help="marker map YAML (marker -> rod end cap, axial offset)")
+    p.add_argument("--units", choices=("m", "mm"),
+                   help="length unit of files that do not state theirs (plain CSV)")  # fmt: skip
+    p.add_argument("--split", default="0.7,0.15,0.15", metavar="TRAIN,VAL,TEST",
+                   help="fractions of the takes (of each take's duration with fewer than 3 takes); "
+                        "default 0.7,0.15,0.15")  # fmt: skip
+    p.add_argument("--val", type=Path, action="append", default=[],
+                   help="a file for the val split (repeatable; the split then goes by file)")  # fmt: skip
+    p.add_argument("--test", type=Path, action="append", default=[],
+                   help="a file for the test split (repeatable; the split then goes by file)")  # fmt: skip
+    p.add_argument("--ignore", action="append", default=[], metavar="FEATURE",
+                   help="accept this unmodelled MJCF feature of the robot file with a warning")  # fmt: skip
+    p.add_argument("-o", "--output", type=Path, required=True, help="dataset file to write (.h5)")
+    add_force_option(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    check_output_file(args.output, args.force)
+    fractions = parse_fractions(args.split)
+    named = {f.name for f in args.files}
+    assign = {f.name: "val" for f in args.val} | {f.name: "test" for f in args.test}
+    for f in [*args.val, *args.test]:
+        if f.name not in named:
+            raise InputError(f"{f}: named by --val/--test but not among the files to import")
+    robot = read_robot(args.robot, tuple(args.ignore))
+    mmap = read_marker_map(args.map, robot.topology) if args.map else None
+    recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
+    takes = [take_end_caps(r, robot, mmap) for r in tqdm(recordings, desc="labelling", unit="take")]
+    dataset = build_dataset(takes, robot, fractions, assign or None)
+    write_dataset(args.output, dataset)
+    frames = sum(len(t.time) for t in takes)
+    seen = np.mean([np.isfinite(t.caps).all(-1).mean() for t in takes])
+    print(
+        f"{args.output}: {len(takes)} takes, {frames} frames at {1 / dataset.dt:g} Hz, "
+        f"{2 * robot.topology.n_rods} end caps, {100 * (1 - seen):.2f} % unseen; "
+        f"relabelled frames {dataset.attrs['relabelled_frames']}, "
+        f"ghost points rejected {dataset.attrs['ghost_points']}; "
+        f"splits {', '.join(f'{k} {v.n_trajectories}' for k, v in dataset.splits.items())}"
+    )
+    return 0

@@ -1,0 +1,156 @@
+"""CSV exports: OptiTrack Motive's layout and a plain ``time, <marker>_x, _y, _z`` table.
+
+Motive (1.x-3.x "CSV export"): a first row of ``key,value`` pairs (``Capture Frame Rate``,
+``Length Units``, ...), a blank row, then header rows naming each column's type
+(``Marker``, ``Rigid Body``, ...), name, ID and quantity (``Position``), then a row
+``Frame,Time (Seconds),X,Y,Z,...`` and one row per frame; empty cells are unseen
+markers. Marker position columns are read; rigid bodies are ignored. Unlabelled
+exports name their tracks ``Unlabeled <id>``.
+
+Plain: a header ``time,<name>_x,<name>_y,<name>_z,...`` (time in seconds), one row per
+frame, empty or ``nan`` cells for unseen markers; the length unit is ``--units``.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from identification.data.mocap.recording import MarkerRecording, unit_scale
+from tensegrity_env.io_utils import InputError, atomic_write_text
+
+AXES = ("x", "y", "z")
+
+
+def _number(cell: str, path: Path, row: int) -> float:
+    cell = cell.strip()
+    if cell == "" or cell.lower() == "nan":
+        return np.nan
+    try:
+        return float(cell)
+    except ValueError:
+        raise InputError(f"{path}: row {row}: {cell!r} is not a number") from None
+
+
+def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
+    """A Motive export (by its ``Format Version`` first cell) or a plain CSV."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read it as text ({e})") from None
+    if not rows:
+        raise InputError(f"{path}: empty file")
+    if rows[0] and rows[0][0].strip().lower() == "format version":
+        return _read_motive(path, rows, units)
+    return _read_plain(path, rows, units)
+
+
+def _frames(path: Path, rows: list[list[str]], first: int, width: int) -> np.ndarray:
+    body = [r for r in rows[first:] if any(c.strip() for c in r)]
+    out = np.full((len(body), width), np.nan)
+    for i, r in enumerate(body):
+        if len(r) > width:
+            r = r[:width]
+        for j, cell in enumerate(r):
+            out[i, j] = _number(cell, path, first + i + 1)
+    return out
+
+
+def _read_plain(path: Path, rows: list[list[str]], units: str | None) -> MarkerRecording:
+    header = [h.strip() for h in rows[0]]
+    if not header or header[0].lower() not in ("time", "t", "time (seconds)"):
+        raise InputError(f"{path}: first column must be 'time' (plain CSV: time, <m>_x, <m>_y, <m>_z, ...)")
+    names: list[str] = []
+    for k in range(1, len(header), 3):
+        trio = header[k : k + 3]
+        stems = {h.rsplit("_", 1)[0] for h in trio}
+        if len(trio) < 3 or [h.rsplit("_", 1)[-1].lower() for h in trio] != list(AXES) or len(stems) != 1:
+            raise InputError(
+                f"{path}: columns {', '.join(trio)} are not one marker's _x, _y, _z "
+                "(a column missing or out of order)"
+            )
+        names.append(stems.pop())
+    if not names:
+        raise InputError(f"{path}: no marker columns after 'time'")
+    data = _frames(path, rows, 1, len(header))
+    if np.isnan(data[:, 0]).any():
+        raise InputError(f"{path}: a row has no time")
+    scale = unit_scale(None, path, units)
+    points = data[:, 1:].reshape(len(data), len(names), 3) * scale
+    time = data[:, 0]
+    dt = np.median(np.diff(time)) if len(time) > 1 else np.nan
+    return MarkerRecording(path, time - time[0], points, names, float(1.0 / dt))
+
+
+def _read_motive(path: Path, rows: list[list[str]], units: str | None) -> MarkerRecording:
+    meta = {rows[0][i].strip(): rows[0][i + 1].strip() for i in range(0, len(rows[0]) - 1, 2)}
+    head = next((i for i, r in enumerate(rows) if r and r[0].strip().lower() == "frame"), None)
+    if head is None or head < 4:
+        raise InputError(f"{path}: Motive export without its 'Frame,Time' header row")
+    types, names, quantity = rows[head - 4], rows[head - 3], rows[head - 1]
+    cols = [
+        j for j in range(2, len(rows[head]))
+        if j < len(types) and types[j].strip().lower() == "marker"
+        and j < len(quantity) and quantity[j].strip().lower() == "position"
+    ]  # fmt: skip
+    if not cols or len(cols) % 3:
+        raise InputError(f"{path}: no complete marker position columns (X, Y, Z) in the header")
+    labels = [names[j].strip() for j in cols[::3]]
+    axes = [rows[head][j].strip().lower() for j in cols]
+    if axes != list(AXES) * len(labels):
+        raise InputError(f"{path}: marker columns are not X, Y, Z triples")
+    data = _frames(path, rows, head + 1, len(rows[head]))
+    if np.isnan(data[:, 1]).any():
+        raise InputError(f"{path}: a frame row has no time")
+    scale = unit_scale(meta.get("Length Units"), path, units)
+    points = data[:, cols].reshape(len(data), len(labels), 3) * scale
+    try:
+        rate = float(meta.get("Export Frame Rate") or meta.get("Capture Frame Rate") or "nan")
+    except ValueError:
+        rate = np.nan
+    if not np.isfinite(rate):
+        rate = float(1.0 / np.median(np.diff(data[:, 1])))
+    return MarkerRecording(path, data[:, 1] - data[0, 1], points, labels, rate)
+
+
+def write_plain_csv(
+    path: str | Path, time: np.ndarray, points: np.ndarray, names: list[str], units: str = "m"
+) -> Path:
+    """Write ``points`` (F, M, 3) [m] at ``time`` (F,) [s] as a plain CSV in ``units``."""
+    scale = {"mm": 1e3, "m": 1.0}[units]
+    head = ["time", *[f"{n}_{a}" for n in names for a in AXES]]
+    lines = [",".join(head)]
+    flat = points.reshape(len(time), -1) * scale
+    for t, row in zip(time, flat, strict=True):
+        lines.append(",".join([repr(float(t))] + ["" if np.isnan(v) else repr(float(v)) for v in row]))
+    return atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def write_motive_csv(
+    path: str | Path, time: np.ndarray, points: np.ndarray, names: list[str], rate: float,
+    units: str = "Millimeters",
+) -> Path:  # fmt: skip
+    """Write ``points`` (F, M, 3) [m] as a Motive CSV export (marker positions only)."""
+    scale = 1e3 if units.lower().startswith("milli") else 1.0
+    meta = ["Format Version", "1.23", "Take Name", Path(path).stem,
+            "Capture Frame Rate", f"{rate:.6f}", "Export Frame Rate", f"{rate:.6f}",
+            "Total Exported Frames", str(len(time)), "Length Units", units,
+            "Coordinate Space", "Global"]  # fmt: skip
+    cols = [n for n in names for _ in AXES]
+    rows = [
+        ",".join(meta),
+        "",
+        ",," + ",".join("Marker" for _ in cols),
+        ",," + ",".join(cols),
+        ",," + ",".join(str(1000 + i // 3) for i in range(len(cols))),
+        ",," + ",".join("Position" for _ in cols),
+        "Frame,Time (Seconds)," + ",".join(a.upper() for _ in names for a in AXES),
+    ]
+    flat = points.reshape(len(time), -1) * scale
+    for i, (t, row) in enumerate(zip(time, flat, strict=True)):
+        cells = ["" if np.isnan(v) else f"{v:.6f}" for v in row]
+        rows.append(f"{i},{t:.6f}," + ",".join(cells))
+    return atomic_write_text(path, "\n".join(rows) + "\n")

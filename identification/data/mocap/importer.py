@@ -1,0 +1,182 @@
+"""Recordings to end caps of a robot, and end caps to the public dataset format."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from identification.data.dataset import Dataset, Split
+from identification.data.mocap.labelling import initial_caps_from_shape, label_clouds
+from identification.data.mocap.marker_map import MarkerMap, default_map
+from identification.data.mocap.recording import MarkerRecording
+from tensegrity_env.assemblies import node_positions
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
+from tensegrity_env.topology import Topology
+
+#: recordings of one dataset may differ in nominal rate by at most this fraction
+RATE_TOL = 0.01
+
+
+@dataclass(frozen=True)
+class Robot:
+    """What the importer needs of a robot file: its graph and (MJCF only) its rest end caps."""
+
+    topology: Topology
+    rest_caps: np.ndarray | None  # (2R, 3) [m]
+    source: Path
+
+
+def read_robot(path: str | Path, ignore: tuple[str, ...] = ()) -> Robot:
+    """A robot from an MJCF file (graph + rest pose) or a params.json (graph only)."""
+    p = Path(path)
+    if p.suffix.lower() == ".json":
+        from tensegrity_env.model import Model
+
+        return Robot(Model.load(p).topology, None, p)
+    if p.suffix.lower() != ".xml":
+        raise InputError(f"{p}: robot file must be an MJCF .xml or a params .json")
+    from tensegrity_env.mjcf import from_mjcf
+
+    asm = from_mjcf(p, ignore=ignore)
+    m = asm.model
+    pos = np.stack([m.qpos0[a : a + 3] for a in asm.rod_qpos])
+    quat = np.stack([m.qpos0[a + 3 : a + 7] for a in asm.rod_qpos])
+    com = pos + np.einsum("rij,rj->ri", np_quat_to_matrix(quat), asm.body_ipos)
+    q = np_quat_mul(quat, asm.body_iquat)
+    caps = node_positions(asm.topology, com, q)[: 2 * asm.topology.n_rods]
+    return Robot(asm.topology, caps, p)
+
+
+@dataclass(frozen=True)
+class ImportedTake:
+    """End caps of one take. ``caps`` (F, 2R, 3) [m], NaN unseen; ``time`` (F,) [s];
+    ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen)."""
+
+    source: Path
+    time: np.ndarray
+    caps: np.ndarray
+    rate: float
+    relabelled_frames: int
+    ghosts: int
+    track_of_cap: np.ndarray
+
+
+def _apply_map(rec: MarkerRecording, mmap: MarkerMap, n_caps: int) -> np.ndarray:
+    caps = np.full((rec.n_frames, n_caps, 3), np.nan)
+    offsets = np.zeros(n_caps)
+    for name, (cap, off) in mmap.caps.items():
+        caps[:, cap] = rec.points[:, rec.names.index(name)]
+        offsets[cap] = off
+    if np.any(offsets != 0):
+        u = caps[:, 1::2] - caps[:, 0::2]
+        u /= np.linalg.norm(u, axis=-1, keepdims=True)
+        caps[:, 0::2] += offsets[0::2, None] * u  # marker beyond end 0 along -u
+        caps[:, 1::2] -= offsets[1::2, None] * u
+    return caps
+
+
+def take_end_caps(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:
+    """The robot's end caps in every frame of ``rec`` (labelled or a point cloud)."""
+    topo = robot.topology
+    n_caps = 2 * topo.n_rods
+    if not rec.unlabelled:
+        mmap = mmap or default_map(rec.names, topo)
+        if mmap is None:
+            raise InputError(
+                f"{rec.source}: {len(rec.names)} markers, robot {robot.source} has {n_caps} end "
+                "caps; pass --map (markers named <rod>_<0|1> map themselves)"
+            )
+        mmap.check_names(rec.names, rec.source)
+        if len({c for c, _ in mmap.caps.values()}) != n_caps:
+            raise InputError(f"{mmap.source}: maps {len(mmap.caps)} markers, robot {robot.source} has {n_caps} end caps")
+        caps = _apply_map(rec, mmap, n_caps)
+        column = np.full(n_caps, -1)
+        for name, (cap, _) in mmap.caps.items():
+            column[cap] = rec.names.index(name)
+        track = np.where(np.isfinite(caps).all(-1), column, -1)
+        return ImportedTake(rec.source, rec.time, caps, rec.rate, 0, 0, track)
+    lengths = np.array([r.length for r in topo.rods])
+    if mmap is not None:
+        mmap.check_names(rec.names, rec.source)
+        first = np.full((n_caps, 3), np.nan)
+        for name, (cap, _) in mmap.caps.items():
+            first[cap] = rec.points[0, rec.names.index(name)]
+    elif robot.rest_caps is not None:
+        seen = np.isfinite(rec.points[0]).all(-1)
+        if seen.sum() < n_caps:
+            raise InputError(
+                f"{rec.source}: first frame shows {int(seen.sum())} points for {n_caps} end caps; "
+                "pass --map naming its tracks"
+            )
+        first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
+    else:
+        raise InputError(
+            f"{rec.source}: unlabelled markers need --map (the first frame's track ids) "
+            "or an MJCF robot file (its rest pose starts the tracking)"
+        )
+    lab = label_clouds(rec.points, rec.time, first, lengths)
+    return ImportedTake(
+        rec.source, rec.time, lab.caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap
+    )
+
+
+def parse_fractions(text: str) -> tuple[float, float, float]:
+    """``"0.7,0.15,0.15"`` -> train, val, test fractions (sum 1)."""
+    try:
+        parts = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(f"--split: {text!r} is not three fractions like 0.7,0.15,0.15") from None
+    if len(parts) != 3 or min(parts) < 0 or abs(sum(parts) - 1) > 1e-6 or parts[0] <= 0:
+        raise InputError(f"--split: {text!r} must be train,val,test fractions summing to 1")
+    return parts  # type: ignore[return-value]
+
+
+def _stack(pieces: list[tuple[np.ndarray, np.ndarray]], n_rods: int) -> Split:
+    T1 = max(len(t) for t, _ in pieces)
+    nodes = np.full((len(pieces), T1, 2 * n_rods, 3), np.nan)
+    time = np.full((len(pieces), T1), np.nan)
+    for i, (t, c) in enumerate(pieces):
+        nodes[i, : len(t)], time[i, : len(t)] = c, t - t[0]
+    return Split(nodes=nodes, control=np.zeros((len(pieces), T1 - 1, n_rods, 3)), time=time)
+
+
+def build_dataset(
+    takes: list[ImportedTake], robot: Robot, fractions: tuple[float, float, float],
+    assign: dict[str, str] | None = None,
+) -> Dataset:  # fmt: skip
+    """Takes to splits: ``assign`` (file name -> split) where given, else ``fractions``
+    of the takes (or, with fewer takes than splits, of each take's duration)."""
+    rates = np.array([t.rate for t in takes])
+    if np.ptp(rates) > RATE_TOL * rates.min():
+        raise InputError(f"takes have different frame rates ({sorted(set(rates.round(3)))} Hz); import them separately")
+    groups: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"train": [], "val": [], "test": []}
+    if assign:
+        for t in takes:
+            groups[assign.get(t.source.name, "train")].append((t.time, t.caps))
+    elif len(takes) >= 3:
+        n = len(takes)
+        n_val = round(fractions[1] * n) if fractions[1] > 0 else 0
+        n_test = round(fractions[2] * n) if fractions[2] > 0 else 0
+        n_val, n_test = max(n_val, fractions[1] > 0), max(n_test, fractions[2] > 0)
+        names = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
+        for t, s in zip(takes, names, strict=True):
+            groups[s].append((t.time, t.caps))
+    else:
+        for t in takes:
+            edges = np.round(np.cumsum((0.0, *fractions)) * len(t.time)).astype(int)
+            for s, a, b in zip(("train", "val", "test"), edges[:-1], edges[1:], strict=True):
+                if b - a >= 2:
+                    groups[s].append((t.time[a:b], t.caps[a:b]))
+    if not groups["train"]:
+        raise InputError("no take left for the training split")
+    splits = {s: _stack(p, robot.topology.n_rods) for s, p in groups.items() if p}
+    attrs = {
+        "source": "import-mocap",
+        "files": [str(t.source) for t in takes],
+        "relabelled_frames": int(sum(t.relabelled_frames for t in takes)),
+        "ghost_points": int(sum(t.ghosts for t in takes)),
+    }
+    return Dataset(topology=robot.topology, dt=float(1.0 / np.median(rates)), splits=splits, attrs=attrs)

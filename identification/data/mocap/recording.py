@@ -1,0 +1,95 @@
+"""One motion-capture take in memory, and the reader that picks a file's format."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from tensegrity_env.io_utils import InputError
+
+#: metres per unit of the length units a file may state
+UNIT_SCALE = {"m": 1.0, "meters": 1.0, "metres": 1.0, "mm": 1e-3, "millimeters": 1e-3,
+              "millimetres": 1e-3, "cm": 1e-2, "centimeters": 1e-2, "centimetres": 1e-2}  # fmt: skip
+#: marker names that mean "not labelled": Motive's ``Unlabeled 1234`` and Vicon's ``*12``
+UNLABELLED = re.compile(r"^(unlabeled|unlabelled)\b|^\*\d+$", re.IGNORECASE)
+
+
+@dataclass
+class MarkerRecording:
+    """Marker trajectories of one take.
+
+    Attributes:
+        source: the file it was read from (for messages).
+        time: (F,) frame times [s], increasing; non-uniform allowed.
+        points: (F, M, 3) marker positions [m], NaN where the marker was not seen.
+        names: M marker names (for an unlabelled export, the exporter's track ids,
+            which change when a marker is lost and found again).
+        rate: the file's nominal frame rate [Hz].
+    """
+
+    source: Path
+    time: np.ndarray
+    points: np.ndarray
+    names: list[str]
+    rate: float
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def unlabelled(self) -> bool:
+        """Whether every track is an unlabelled id (the frames are point clouds)."""
+        return bool(self.names) and all(UNLABELLED.search(n) for n in self.names)
+
+    def check(self) -> MarkerRecording:
+        """One-line :class:`InputError` naming the file on malformed content; returns self."""
+        where = self.source
+        if self.points.ndim != 3 or self.points.shape[2] != 3 or self.points.shape[1] == 0:
+            raise InputError(f"{where}: no marker positions found")
+        if self.points.shape[0] < 2:
+            raise InputError(f"{where}: needs at least 2 frames, has {self.points.shape[0]}")
+        if len(self.names) != self.points.shape[1]:
+            raise InputError(f"{where}: {len(self.names)} marker names for {self.points.shape[1]} markers")
+        if len(set(self.names)) != len(self.names) and not self.unlabelled:
+            raise InputError(f"{where}: marker names repeat")
+        if self.time.shape != (self.points.shape[0],) or not np.isfinite(self.time).all():
+            raise InputError(f"{where}: frame times missing or not finite")
+        if (np.diff(self.time) <= 0).any():
+            raise InputError(f"{where}: frame times do not increase")
+        if not np.isfinite(self.rate) or self.rate <= 0:
+            raise InputError(f"{where}: frame rate {self.rate} is not positive")
+        if np.isinf(self.points).any():
+            raise InputError(f"{where}: marker positions contain inf")
+        return self
+
+
+def unit_scale(name: str | None, where: Path, option: str | None) -> float:
+    """Metres per unit: the file's own unit if it states one, else ``option`` (--units)."""
+    for given in (name, option):
+        if given:
+            key = given.strip().lower()
+            if key not in UNIT_SCALE:
+                raise InputError(f"{where}: unknown length unit {given!r} (use m or mm)")
+            return UNIT_SCALE[key]
+    raise InputError(f"{where}: the file does not state its length unit; pass --units mm or m")
+
+
+def read_recording(path: str | Path, units: str | None = None) -> MarkerRecording:
+    """Read a C3D file, an OptiTrack Motive CSV export or a plain CSV, by content.
+
+    ``units`` (``"m"``/``"mm"``) is used only where the file does not say.
+    """
+    from identification.data.mocap import c3d_files, csv_files
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such motion-capture file")
+    if p.suffix.lower() == ".c3d":
+        return c3d_files.read_c3d(p, units).check()
+    if p.suffix.lower() in (".csv", ".txt"):
+        return csv_files.read_csv(p, units).check()
+    raise InputError(f"{p}: unknown motion-capture format (expected .c3d or .csv)")

@@ -12,6 +12,7 @@ from tqdm import tqdm
 from identification.data.dataset import write_dataset
 from identification.data.mocap.importer import (
     build_dataset,
+    check_take,
     parse_fractions,
     read_robot,
     take_end_caps,
@@ -64,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
     robot = read_robot(args.robot, tuple(args.ignore))
     mmap = read_marker_map(args.map, robot.topology) if args.map else None
     recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
+    for rec in recordings:
+        check_take(rec, robot, mmap)
     takes = [take_end_caps(r, robot, mmap) for r in tqdm(recordings, desc="labelling", unit="take")]
     dataset = build_dataset(takes, robot, fractions, assign or None)
     write_dataset(args.output, dataset)

@@ -8,6 +8,7 @@ Positions are stored as 32-bit floats: the file's precision is ~6e-8 relative.
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,12 @@ def read_c3d(path: Path, units: str | None = None) -> MarkerRecording:
         raise InputError(f"{path}: C3D file without 3-D point data ({e})") from None
     if data.ndim != 3 or data.shape[1] == 0:
         raise InputError(f"{path}: C3D file holds no 3-D points")
+    declared = _declared_frames(path)
+    if declared is not None and declared > data.shape[2]:
+        raise InputError(
+            f"{path}: not a readable C3D file (truncated or corrupt: header declares {declared} "
+            f"frames, data holds {data.shape[2]})"
+        )
     labels = labels[: data.shape[1]]
     if len(labels) < data.shape[1]:
         labels += [f"*{i}" for i in range(len(labels), data.shape[1])]
@@ -44,6 +51,17 @@ def read_c3d(path: Path, units: str | None = None) -> MarkerRecording:
     n = points.shape[0]
     time = (first_frame + np.arange(n)) / rate
     return MarkerRecording(path, time - time[0], points, labels, rate)
+
+
+def _declared_frames(path: Path) -> int | None:
+    """Frame count the file's header declares (first/last frame words, Intel byte order);
+    ezc3d reports only the frames it could read."""
+    with open(path, "rb") as fh:
+        head = fh.read(10)
+    if len(head) < 10 or head[1] != 0x50:
+        return None
+    first, last = struct.unpack_from("<HH", head, 6)
+    return last - first + 1 if last >= first else None
 
 
 def write_c3d(

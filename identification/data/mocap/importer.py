@@ -78,45 +78,61 @@ def _apply_map(rec: MarkerRecording, mmap: MarkerMap, n_caps: int) -> np.ndarray
     return caps
 
 
-def take_end_caps(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:
-    """The robot's end caps in every frame of ``rec`` (labelled or a point cloud)."""
-    topo = robot.topology
-    n_caps = 2 * topo.n_rods
+def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> MarkerMap | None:
+    """What :func:`take_end_caps` needs, checked before any work: the map to use
+    (labelled takes) or the first frame's start (unlabelled). One-line errors."""
+    n_caps = 2 * robot.topology.n_rods
     if not rec.unlabelled:
-        mmap = mmap or default_map(rec.names, topo)
+        mmap = mmap or default_map(rec.names, robot.topology)
         if mmap is None:
             raise InputError(
                 f"{rec.source}: {len(rec.names)} markers, robot {robot.source} has {n_caps} end "
-                "caps; pass --map (markers named <rod>_<0|1> map themselves)"
+                "caps; pass --map (markers named <rod>_<0|1|end0|end1> map themselves)"
             )
         mmap.check_names(rec.names, rec.source)
         if len({c for c, _ in mmap.caps.values()}) != n_caps:
-            raise InputError(f"{mmap.source}: maps {len(mmap.caps)} markers, robot {robot.source} has {n_caps} end caps")
+            raise InputError(
+                f"{mmap.source}: maps {len(mmap.caps)} markers, robot {robot.source} has {n_caps} end caps"
+            )
+        return mmap
+    if mmap is not None:
+        mmap.check_names(rec.names, rec.source)
+        return mmap
+    if robot.rest_caps is None:
+        raise InputError(
+            f"{rec.source}: unlabelled markers need --map (the first frame's track ids) "
+            "or an MJCF robot file (its rest pose starts the tracking)"
+        )
+    seen = int(np.isfinite(rec.points[0]).all(-1).sum())
+    if seen < n_caps:
+        raise InputError(
+            f"{rec.source}: first frame shows {seen} points for {n_caps} end caps; "
+            "pass --map naming its tracks"
+        )
+    return None
+
+
+def take_end_caps(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:
+    """The robot's end caps in every frame of ``rec`` (labelled or a point cloud)."""
+    n_caps = 2 * robot.topology.n_rods
+    mmap = check_take(rec, robot, mmap)
+    if not rec.unlabelled:
+        assert mmap is not None
         caps = _apply_map(rec, mmap, n_caps)
         column = np.full(n_caps, -1)
         for name, (cap, _) in mmap.caps.items():
             column[cap] = rec.names.index(name)
         track = np.where(np.isfinite(caps).all(-1), column, -1)
         return ImportedTake(rec.source, rec.time, caps, rec.rate, 0, 0, track)
-    lengths = np.array([r.length for r in topo.rods])
+    lengths = np.array([r.length for r in robot.topology.rods])
     if mmap is not None:
-        mmap.check_names(rec.names, rec.source)
         first = np.full((n_caps, 3), np.nan)
         for name, (cap, _) in mmap.caps.items():
             first[cap] = rec.points[0, rec.names.index(name)]
-    elif robot.rest_caps is not None:
-        seen = np.isfinite(rec.points[0]).all(-1)
-        if seen.sum() < n_caps:
-            raise InputError(
-                f"{rec.source}: first frame shows {int(seen.sum())} points for {n_caps} end caps; "
-                "pass --map naming its tracks"
-            )
-        first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
     else:
-        raise InputError(
-            f"{rec.source}: unlabelled markers need --map (the first frame's track ids) "
-            "or an MJCF robot file (its rest pose starts the tracking)"
-        )
+        assert robot.rest_caps is not None
+        seen = np.isfinite(rec.points[0]).all(-1)
+        first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
     lab = label_clouds(rec.points, rec.time, first, lengths)
     return ImportedTake(
         rec.source, rec.time, lab.caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap

@@ -82,7 +82,7 @@ def default_map(names: list[str], topology: Topology) -> MarkerMap | None:
     caps: dict[str, tuple[int, float]] = {}
     for n in names:
         stem, _, end = n.rpartition("_")
-        k = {"0": 0, "1": 1, "a": 0, "b": 1}.get(end.lower())
+        k = {"0": 0, "1": 1, "a": 0, "b": 1, "end0": 0, "end1": 1}.get(end.lower())
         if stem in rods and k is not None:
             caps[n] = (2 * rods[stem] + k, 0.0)
     if len({c for c, _ in caps.values()}) != 2 * topology.n_rods:

@@ -1,0 +1,121 @@
+"""Motion-capture import on real files written through ezc3d and as CSV."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identification.data.dataset import read_dataset
+from identification.data.mocap.c3d_files import write_c3d
+from identification.data.mocap.csv_files import write_motive_csv, write_plain_csv
+from identification.data.mocap.importer import read_robot, take_end_caps
+from identification.data.mocap.recording import MarkerRecording
+from identification.simulation.mocap_takes import record_take, simulate_caps
+
+ROBOT = Path(__file__).resolve().parents[1] / "tensegrity_env" / "assets" / "icosahedron_rolling.xml"
+
+
+@pytest.fixture(scope="module")
+def clean() -> tuple[np.ndarray, np.ndarray, list[str]]:
+    return simulate_caps(ROBOT.read_text(), 120.0, 1.0, np.random.default_rng(4))
+
+
+def cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "tensegrity_sr.cli", *map(str, args)],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("fmt", ["c3d", "motive", "plain"])
+def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None:
+    time, caps, names = clean
+    pts = caps.copy()
+    pts[40:55, 3] = np.nan  # marker 3 lost for 15 frames
+    path = tmp_path / ("take.c3d" if fmt == "c3d" else "take.csv")
+    if fmt == "c3d":
+        write_c3d(path, pts, names, 120.0, units="mm")
+    elif fmt == "motive":
+        write_motive_csv(path, time, pts, names, 120.0)
+    else:
+        write_plain_csv(path, time, pts, names, units="m")
+    out = tmp_path / "data.h5"
+    extra = ("--units", "m") if fmt == "plain" else ()
+    r = cli("import-mocap", path, "--robot", ROBOT, "--split", "1,0,0", *extra, "-o", out)
+    assert r.returncode == 0, r.stderr
+    ds = read_dataset(out)
+    nodes = ds.split("train").nodes[0]
+    assert ds.split("train").time is not None and abs(1 / ds.dt - 120.0) < 1e-6
+    gap = ~np.isfinite(nodes).all(-1)
+    assert gap[:, 3].sum() == 15 and gap.sum() == 15  # the gap is NaN, nothing else is
+    precision = {"c3d": 1e-7 * 1e3, "motive": 1e-6, "plain": 1e-12}[fmt]  # file precision [m]
+    np.testing.assert_allclose(nodes[~gap], caps[~gap], atol=precision)
+
+
+def test_millimetres_and_metres_give_the_same_end_caps(tmp_path: Path, clean) -> None:
+    time, caps, names = clean
+    for units in ("mm", "m"):
+        write_plain_csv(tmp_path / f"{units}.csv", time, caps, names, units=units)
+        assert cli("import-mocap", tmp_path / f"{units}.csv", "--robot", ROBOT, "--units", units,
+                   "--split", "1,0,0", "-o", tmp_path / f"{units}.h5").returncode == 0  # fmt: skip
+    a, b = (read_dataset(tmp_path / f"{u}.h5").split("train").nodes for u in ("mm", "m"))
+    np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_unlabelled_export_with_new_ids_and_ghosts_is_labelled_back(clean) -> None:
+    time, caps, names = clean
+    robot = read_robot(ROBOT)
+    take = record_take(time, caps, names, np.random.default_rng(0), noise=1e-3, dropout=0.03,
+                       unlabelled=True, ghosts=0.1)  # fmt: skip
+    assert len(take.names) > len(names) and (take.cap_of_track < 0).any()  # new ids and ghosts
+    rec = MarkerRecording(Path("cloud.c3d"), take.time, take.points, take.names, 120.0).check()
+    imp = take_end_caps(rec, robot, None)
+    ok = imp.track_of_cap >= 0
+    assert (take.cap_of_track[imp.track_of_cap[ok]] == np.nonzero(ok)[1]).all()  # no mislabel
+    visible = np.zeros_like(ok)
+    for j, c in enumerate(take.cap_of_track):
+        if c >= 0:
+            visible[:, c] |= np.isfinite(take.points[:, j]).all(-1)
+    assert (ok == visible).all()  # every seen end cap found, nothing invented
+    assert imp.ghosts == (take.cap_of_track < 0).sum()
+    assert imp.relabelled_frames > 0
+
+
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("truncated", "not a readable C3D file"),
+        ("missing_column", "not one marker's _x, _y, _z"),
+        ("unknown_marker", "which is not in the file"),
+        ("wrong_robot", "end caps"),
+    ],
+)
+def test_bad_files_are_one_line_errors_and_leave_nothing(tmp_path: Path, clean, case: str, message: str) -> None:
+    time, caps, names = clean
+    robot, extra = ROBOT, []
+    path = tmp_path / "take.c3d"
+    write_c3d(path, caps, names, 120.0)
+    if case == "truncated":
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+    elif case == "missing_column":
+        path = tmp_path / "take.csv"
+        write_plain_csv(path, time, caps, names)
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join(",".join(ln.split(",")[:-1]) for ln in lines) + "\n")
+        extra = ["--units", "m"]
+    elif case == "unknown_marker":
+        (tmp_path / "map.yaml").write_text("markers:\n  nosuch: {rod: rod0, end: 0}\n")
+        extra = ["--map", str(tmp_path / "map.yaml")]
+    else:
+        write_c3d(path, caps[:, :6], names[:6], 120.0)  # 6 markers for 12 end caps
+    out = tmp_path / "data.h5"
+    r = cli("import-mocap", path, "--robot", robot, *extra, "-o", out)
+    assert r.returncode == 2
+    assert message in r.stderr and str(path.name) in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert not out.exists() and not list(tmp_path.glob(".data.h5*"))

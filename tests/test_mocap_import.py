@@ -119,3 +119,20 @@ def test_bad_files_are_one_line_errors_and_leave_nothing(tmp_path: Path, clean, 
     assert message in r.stderr and str(path.name) in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not out.exists() and not list(tmp_path.glob(".data.h5*"))
+
+
+def test_inspect_reports_rate_gaps_and_noise_of_an_import(tmp_path: Path) -> None:
+    time, caps, names = simulate_caps(ROBOT.read_text(), 120.0, 2.0, np.random.default_rng(9))
+    take = record_take(time, caps, names, np.random.default_rng(2), noise=1e-3, dropout=0.02)
+    write_c3d(tmp_path / "take.c3d", take.points, names, 120.0)
+    data = tmp_path / "data.h5"
+    assert cli("import-mocap", tmp_path / "take.c3d", "--robot", ROBOT, "-o", data).returncode == 0
+    r = cli("inspect", data, "--plot", tmp_path / "quality.png")
+    assert r.returncode == 0, r.stderr
+    assert "120 Hz nominal" in r.stdout and (tmp_path / "quality.png").stat().st_size > 10_000
+    from identification.data.quality import sample_quality
+
+    q = sample_quality(read_dataset(data))
+    truth = 1 - np.isfinite(take.points).all(-1).mean(0)
+    np.testing.assert_allclose(q.dropout, truth, atol=1e-12)
+    assert np.all(np.abs(q.noise - 1e-3) < 0.25e-3)  # 1 mm planted, per end cap

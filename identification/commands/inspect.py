@@ -15,6 +15,8 @@ from identification.data.dataset import (
     read_dataset,
     read_ground_truth,
 )
+from identification.data.quality import plot_quality, quality_text, sample_quality
+from tensegrity_env.io_utils import add_force_option, check_output_file
 from tensegrity_env.params import UNITS
 
 
@@ -30,6 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset")
     p.add_argument("--ground-truth", action="store_true", help="also print the stored ground truth")
+    p.add_argument("--plot", type=Path, metavar="PNG",
+                   help="draw gaps, dropout and marker noise per end cap into this PNG")  # fmt: skip
+    add_force_option(p)
     p.set_defaults(func=run)
 
 
@@ -86,9 +91,17 @@ def ground_truth_text(truth: GroundTruth) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot is not None:
+        check_output_file(args.plot, args.force, "--plot")
     ds = read_dataset(args.dataset)
     truth = read_ground_truth(args.dataset)
     text = summary(ds, truth)
+    names = [f"{r.name}.{k}" for r in ds.topology.rods for k in (0, 1)]
+    quality = sample_quality(ds)
+    text += "\n" + quality_text(quality, names)
+    if args.plot is not None:
+        plot_quality(ds, quality, names, str(args.plot))
+        text += f"\npicture: {args.plot}"
     if args.ground_truth:
         text = text.replace("present (not shown; pass --ground-truth to print it)", "present")
         if truth is not None:

@@ -1,0 +1,134 @@
+"""What a measured dataset's samples are like: rate, jitter, gaps and marker noise.
+
+The noise of each end cap is estimated from the high-frequency residual of a smooth
+fit: the third difference of three consecutive sample steps,
+``x[t+3] - 3 x[t+2] + 3 x[t+1] - x[t]``, is the residual of a local quadratic; for
+white noise of std ``σ`` it has std ``σ √20``, and smooth motion contributes only its
+jerk times ``dt³``. A median absolute deviation keeps impacts from inflating it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from identification.data.dataset import Dataset
+from tensegrity_env.io_utils import atomic_path
+
+#: consistency constant of the median absolute deviation for a normal distribution
+MAD_TO_STD = 1.4826
+
+
+@dataclass(frozen=True)
+class SampleQuality:
+    """Sampling and marker quality over all splits.
+
+    Attributes:
+        rate: nominal sample rate [Hz] (1 / dt).
+        jitter: std of the sample intervals about dt [s] (0 without stored times).
+        max_jitter: largest deviation of one interval from dt [s].
+        duration: total recorded time [s].
+        dropout: (2R,) fraction of samples each end cap was not seen.
+        longest_gap: (2R,) longest run of unseen samples of each end cap [s].
+        noise: (2R,) marker noise std per end cap [m] (NaN: too few samples).
+    """
+
+    rate: float
+    jitter: float
+    max_jitter: float
+    duration: float
+    dropout: np.ndarray
+    longest_gap: np.ndarray
+    noise: np.ndarray
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    """Longest run of True along the last axis of a 1-D bool array."""
+    best = run = 0
+    for m in mask:
+        run = run + 1 if m else 0
+        best = max(best, run)
+    return best
+
+
+def sample_quality(ds: Dataset) -> SampleQuality:
+    """Measure ``ds`` (every split, every trajectory)."""
+    n_caps = 2 * ds.topology.n_rods
+    steps, seen, missing, d3 = [], np.zeros(n_caps), np.zeros(n_caps), [[] for _ in range(n_caps)]
+    longest = np.zeros(n_caps, dtype=int)
+    duration = 0.0
+    for s in ds.splits.values():
+        t = s.times(ds.dt)
+        for i in range(s.n_trajectories):
+            ok_t = np.isfinite(t[i])
+            ti = t[i, ok_t]
+            duration += float(ti[-1] - ti[0]) + ds.dt
+            steps.append(np.diff(ti))
+            nodes = s.nodes[i, ok_t]
+            valid = np.isfinite(nodes).all(-1)
+            seen += valid.sum(0)
+            missing += (~valid).sum(0)
+            for c in range(n_caps):
+                longest[c] = max(longest[c], _longest_run(~valid[:, c]))
+                x = nodes[:, c]
+                diff3 = x[3:] - 3 * x[2:-1] + 3 * x[1:-2] - x[:-3]
+                d3[c].append(diff3[np.isfinite(diff3).all(-1)].ravel())
+    dt_dev = np.concatenate(steps) - ds.dt
+    noise = np.full(n_caps, np.nan)
+    for c in range(n_caps):
+        v = np.concatenate(d3[c])
+        if v.size >= 10:
+            noise[c] = MAD_TO_STD * np.median(np.abs(v - np.median(v))) / np.sqrt(20.0)
+    return SampleQuality(
+        rate=1.0 / ds.dt,
+        jitter=float(np.sqrt(np.mean(dt_dev**2))),
+        max_jitter=float(np.abs(dt_dev).max()),
+        duration=duration,
+        dropout=missing / np.maximum(seen + missing, 1),
+        longest_gap=longest * ds.dt,
+        noise=noise,
+    )
+
+
+def quality_text(q: SampleQuality, cap_names: list[str]) -> str:
+    """The lines ``inspect`` prints."""
+    lines = [
+        f"sampling: {q.rate:g} Hz nominal, jitter {q.jitter * 1e6:.3g} µs rms "
+        f"(max {q.max_jitter * 1e6:.3g} µs), {q.duration:.3g} s recorded",
+        "end cap        dropout  longest gap   noise",
+    ]
+    for name, d, g, n in zip(cap_names, q.dropout, q.longest_gap, q.noise, strict=True):
+        noise = "   n/a" if np.isnan(n) else f"{n * 1e3:6.3f} mm"
+        lines.append(f"  {name:<12} {100 * d:6.2f} %  {g * 1e3:8.1f} ms  {noise}")
+    return "\n".join(lines)
+
+
+def plot_quality(ds: Dataset, q: SampleQuality, cap_names: list[str], path: str) -> None:
+    """PNG: which end cap was seen when (first trajectory of each split), dropout and noise."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4), gridspec_kw={"width_ratios": [3, 1, 1]})
+    s = ds.splits.get("train") or next(iter(ds.splits.values()))
+    t = s.times(ds.dt)[0]
+    ok = np.isfinite(t)
+    valid = np.isfinite(s.nodes[0, ok]).all(-1)
+    axes[0].imshow(~valid.T, aspect="auto", cmap="Reds", interpolation="nearest",
+                   extent=(t[ok][0], t[ok][-1], len(cap_names) - 0.5, -0.5))  # fmt: skip
+    axes[0].set(xlabel="time [s]", ylabel="end cap", title="gaps (red), first training take",
+                yticks=range(len(cap_names)), yticklabels=cap_names)  # fmt: skip
+    y = np.arange(len(cap_names))
+    axes[1].barh(y, 100 * q.dropout)
+    axes[1].set(xlabel="dropout [%]", yticks=y, yticklabels=[], title="dropout")
+    axes[1].invert_yaxis()
+    axes[2].barh(y, 1e3 * np.nan_to_num(q.noise))
+    axes[2].set(xlabel="noise std [mm]", yticks=y, yticklabels=[], title="marker noise")
+    axes[2].invert_yaxis()
+    fig.suptitle(f"{ds.path}: {q.rate:g} Hz, jitter {q.jitter * 1e6:.3g} µs rms")
+    fig.tight_layout()
+    with atomic_path(path, keep_extension=True) as tmp:
+        fig.savefig(tmp, dpi=100)
+    plt.close(fig)

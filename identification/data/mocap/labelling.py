@@ -6,7 +6,8 @@ from frame to frame: its position is predicted at constant velocity from the las
 frames it was seen, and the frame's points are assigned to end caps by a minimum-cost
 matching (:func:`scipy.optimize.linear_sum_assignment`). The cost of giving point
 ``x`` to end cap ``i`` of rod ``r`` is its distance to ``i``'s prediction plus the
-rod-length misfit ``| |x - x_partner| - L_r |`` to the partner cap's prediction;
+rod-length misfit ``| |x - x_partner| - L_r |`` to the partner cap's prediction (when
+the partner was seen in the previous frame);
 a cap may stay unseen at the cost of its gate. After matching, a rod whose two
 assigned points are not ``L_r`` apart (within ``length_tol``) loses the worse one.
 Points given to no end cap are ghosts.
@@ -124,7 +125,8 @@ def label_clouds(
         if len(cloud) == 0 or not known.any():
             continue
         dist = np.linalg.norm(pred[:, None] - cloud[None], axis=-1)
-        mate = pred[partner]
+        fresh = seen_at[:, 0] == f - 1  # predictions one frame old are trusted for lengths
+        mate = np.where(fresh[partner, None], pred[partner], np.nan)
         misfit = np.abs(np.linalg.norm(cloud[None] - mate[:, None], axis=-1) - lengths[:, None])
         cost = dist + np.where(np.isfinite(misfit), misfit, 0.0)
         cost = np.where(known[:, None] & (dist <= reach[:, None]), cost, 1e6)

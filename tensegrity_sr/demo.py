@@ -288,10 +288,28 @@ def step_transfer(demo: Demo) -> None:
         print(f"no clip: {e}")
 
 
+def step_mocap(demo: Demo) -> None:
+    banner("Motion capture in: an unlabelled C3D export (120 Hz, 1 mm noise, 1 % dropouts)")
+    from identification.data.mocap.c3d_files import write_c3d
+    from identification.simulation.mocap_takes import record_take, simulate_caps
+
+    robot = Path(__file__).resolve().parent.parent / "tensegrity_env" / "assets" / "icosahedron_rolling.xml"
+    rng = np.random.default_rng(120)
+    files = []
+    for k in range(demo.size(3, 8)):
+        t, caps, names = simulate_caps(robot.read_text(), 120.0, demo.size(1.0, 3.0), rng)
+        take = record_take(t, caps, names, rng, noise=1e-3, dropout=0.01, unlabelled=True, ghosts=0.05)
+        files.append(write_c3d(demo.out / f"take{k}.c3d", take.points, take.names, 120.0))
+    data = demo.out / "mocap.h5"
+    demo.cli("import-mocap", *files, "--robot", robot, "-o", data)
+    demo.cli("inspect", data, "--plot", demo.out / "mocap_quality.png")
+
+
 #: the demo's steps, in order: name -> function (steps read what earlier steps wrote)
 STEPS: dict[str, Callable[[Demo], None]] = {
     "generate": step_generate,
     "identify": step_identify,
+    "mocap": step_mocap,
     "element": step_element,
     "control_gain": step_control_gain,
     "experiment": step_experiment,

@@ -91,11 +91,16 @@ def sample_quality(ds: Dataset) -> SampleQuality:
     )
 
 
+def _us(seconds: float) -> str:
+    """Microseconds, with round-off of float sample times (< 1 ns) shown as 0."""
+    return "0" if seconds < 1e-9 else f"{seconds * 1e6:.3g}"
+
+
 def quality_text(q: SampleQuality, cap_names: list[str]) -> str:
     """The lines ``inspect`` prints."""
     lines = [
-        f"sampling: {q.rate:g} Hz nominal, jitter {q.jitter * 1e6:.3g} µs rms "
-        f"(max {q.max_jitter * 1e6:.3g} µs), {q.duration:.3g} s recorded",
+        f"sampling: {q.rate:g} Hz nominal, jitter {_us(q.jitter)} µs rms "
+        f"(max {_us(q.max_jitter)} µs), {q.duration:.3g} s recorded",
         "end cap        dropout  longest gap   noise",
     ]
     for name, d, g, n in zip(cap_names, q.dropout, q.longest_gap, q.noise, strict=True):
@@ -127,7 +132,7 @@ def plot_quality(ds: Dataset, q: SampleQuality, cap_names: list[str], path: str)
     axes[2].barh(y, 1e3 * np.nan_to_num(q.noise))
     axes[2].set(xlabel="noise std [mm]", yticks=y, yticklabels=[], title="marker noise")
     axes[2].invert_yaxis()
-    fig.suptitle(f"{ds.path}: {q.rate:g} Hz, jitter {q.jitter * 1e6:.3g} µs rms")
+    fig.suptitle(f"{ds.path}: {q.rate:g} Hz, jitter {_us(q.jitter)} µs rms")
     fig.tight_layout()
     with atomic_path(path, keep_extension=True) as tmp:
         fig.savefig(tmp, dpi=100)

@@ -1,4 +1,4 @@
-"""Quaternion helpers in PyTorch, batched over leading dimensions.
+"""Quaternions and rod axes, in PyTorch and numpy, batched over leading dimensions.
 
 Quaternions are ``(w, x, y, z)`` (MuJoCo's order), unit norm, mapping the rod's
 principal frame to the world frame: ``x_world = R(q) @ x_rod``.
@@ -26,6 +26,7 @@ def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def quat_conj(q: torch.Tensor) -> torch.Tensor:
+    """Conjugate (the inverse of a unit quaternion), shapes (..., 4)."""
     return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
 
 
@@ -73,10 +74,57 @@ def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Numpy wrapper of :func:`quat_mul`."""
-    return quat_mul(
-        torch.as_tensor(np.array(a, float)), torch.as_tensor(np.array(b, float))
-    ).numpy()
+    """Hamilton product ``a ⊗ b`` in numpy (the same arithmetic as :func:`quat_mul`), (..., 4)."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a, dtype=float), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b, dtype=float), -1, 0)
+    return np.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        axis=-1,
+    )
+
+
+def np_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4), in numpy."""
+    w, u = q[..., :1], q[..., 1:]
+    t = 2.0 * np.cross(u, np.broadcast_to(v, u.shape))
+    return v + w * t + np.cross(u, t)
+
+
+def unit(x: np.ndarray) -> np.ndarray:
+    """``x`` divided by its norm along the last axis."""
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def shortest_arc(a_from: np.ndarray, a_to: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z) rotating unit vectors ``a_from`` onto ``a_to``.
+
+    ``a_from`` broadcasts against ``a_to`` (..., 3); returns (..., 4). Of all rotations
+    taking one onto the other this is the smallest (no turn about ``a_to``). Antiparallel
+    pairs turn by π about an axis perpendicular to ``a_from``.
+    """
+    a_from = np.broadcast_to(a_from, a_to.shape)
+    w = 1.0 + np.sum(a_from * a_to, axis=-1, keepdims=True)
+    xyz = np.cross(a_from, a_to)
+    q = np.concatenate([w, xyz], axis=-1)
+    flip = w[..., 0] < 1e-12
+    if np.any(flip):
+        helper = np.where(np.abs(a_from[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        perp = unit(np.cross(a_from, helper))
+        q[flip] = np.concatenate([np.zeros((*perp.shape[:-1], 1)), perp], axis=-1)[flip]
+    return unit(q)
+
+
+def rod_axes(end_offsets: np.ndarray) -> np.ndarray:
+    """Unit vector from end cap 0 to end cap 1 in each rod's frame, (R, 3).
+
+    ``end_offsets``: (R, 2, 3) [m], ``Topology.end_offsets``.
+    """
+    return unit(end_offsets[:, 1] - end_offsets[:, 0])
 
 
 def random_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:

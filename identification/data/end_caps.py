@@ -27,30 +27,8 @@ import numpy as np
 
 from identification.data.dataset import SPLITS, Dataset, Split, _check_dataset
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.rotations import np_quat_to_matrix
+from tensegrity_env.rotations import np_quat_to_matrix, shortest_arc, unit
 from tensegrity_env.topology import Topology
-
-
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
-
-
-def _shortest_arc(a_from: np.ndarray, a_to: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) rotating unit vectors ``a_from`` onto ``a_to``.
-
-    ``a_from`` (R, 3), ``a_to`` (..., R, 3). Antiparallel pairs turn by π about an
-    axis perpendicular to ``a_from``.
-    """
-    a_from = np.broadcast_to(a_from, a_to.shape)
-    w = 1.0 + np.sum(a_from * a_to, axis=-1, keepdims=True)
-    xyz = np.cross(a_from, a_to)
-    q = np.concatenate([w, xyz], axis=-1)
-    flip = w[..., 0] < 1e-12
-    if np.any(flip):
-        helper = np.where(np.abs(a_from[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-        perp = _unit(np.cross(a_from, helper))
-        q[flip] = np.concatenate([np.zeros((*perp.shape[:-1], 1)), perp], axis=-1)[flip]
-    return _unit(q)
 
 
 def rod_states_from_nodes(
@@ -97,10 +75,10 @@ def rod_states_from_nodes(
     x0, x1 = nodes[..., 0 : 2 * R : 2, :], nodes[..., 1 : 2 * R : 2, :]  # (..., T+1, R, 3)
     ends = topology.end_offsets  # (R, 2, 3), rod frame
     d_rod = ends[:, 1] - ends[:, 0]
-    a_rod = _unit(d_rod)
+    a_rod = unit(d_rod)
     d = x1 - x0
-    a = _unit(d)
-    q = _shortest_arc(a_rod, a)
+    a = unit(d)
+    q = shortest_arc(a_rod, a)
     # COM = e0 + s (e1 - e0) + c_perp in the rod frame (origin = COM)
     s = -np.sum(ends[:, 0] * d_rod, axis=-1) / np.sum(d_rod * d_rod, axis=-1)  # (R,)
     c_perp = -(ends[:, 0] + s[:, None] * d_rod)  # (R, 3), zero for on-axis COM

@@ -48,7 +48,13 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, SimOptions, from_mjcf, to_mjcf
 from tensegrity_env.mjcf_checks import IgnoredFeatureWarning, check_ignore_names
 from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
-from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix, random_quaternions
+from tensegrity_env.rotations import (
+    np_quat_mul,
+    np_quat_to_matrix,
+    random_quaternions,
+    rod_axes,
+    unit,
+)
 from tensegrity_env.topology import Topology
 
 #: Trajectory counts and length (transitions) of each preset.
@@ -311,16 +317,6 @@ def _load_user_mjcf(spec: GenerateSpec) -> Truth:
 
 
 # ---------------------------------------------------------------------- initial states
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
-
-
-def rod_axes(topology: Topology) -> np.ndarray:
-    """Unit vector from end cap 0 to end cap 1 in each rod's frame, (R, 3)."""
-    e = topology.end_offsets
-    return _unit(e[:, 1] - e[:, 0])
-
-
 def sample_initial_conditions(
     truth: Truth, n: int, rng: np.random.Generator, ic: InitialConditions
 ) -> dict[str, np.ndarray]:
@@ -337,15 +333,15 @@ def sample_initial_conditions(
         q = np_quat_mul(np.repeat(rot_q[:, None], R, axis=1), q)
     # per-rod perturbations of position and orientation
     p = p + rng.normal(0.0, ic.position_std, (n, R, 3))
-    axis = _unit(rng.normal(size=(n, R, 3)))
+    axis = unit(rng.normal(size=(n, R, 3)))
     half = 0.5 * rng.normal(0.0, ic.rotation_std, (n, R, 1))
-    q = _unit(np_quat_mul(np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1), q))
+    q = unit(np_quat_mul(np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1), q))
     # linear velocity: random direction and speed
-    v = _unit(rng.normal(size=(n, R, 3))) * rng.uniform(*ic.speed, (n, R, 1))
+    v = unit(rng.normal(size=(n, R, 3))) * rng.uniform(*ic.speed, (n, R, 1))
     # angular velocity: tumbling perpendicular to the rod axis plus spin about it
-    a_world = np.einsum("nrij,rj->nri", np_quat_to_matrix(q), rod_axes(topo))
+    a_world = np.einsum("nrij,rj->nri", np_quat_to_matrix(q), rod_axes(topo.end_offsets))
     w = rng.normal(size=(n, R, 3))
-    w_perp = _unit(w - np.sum(w * a_world, axis=-1, keepdims=True) * a_world)
+    w_perp = unit(w - np.sum(w * a_world, axis=-1, keepdims=True) * a_world)
     omega = w_perp * rng.uniform(*ic.tumble, (n, R, 1))
     omega = omega + a_world * rng.uniform(-ic.spin, ic.spin, (n, R, 1))
     # with a floor, lift each free-floating structure so its lowest point is above it

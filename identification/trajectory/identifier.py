@@ -105,7 +105,7 @@ from tensegrity_env.engine import Engine
 from tensegrity_env.engine.forces import spring_frames
 from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.rotations import quat_to_matrix
+from tensegrity_env.rotations import quat_to_matrix, shortest_arc
 from tensegrity_env.topology import Topology
 
 
@@ -123,23 +123,6 @@ def add_measurement_noise(dataset: Dataset, std: float = 1e-3, seed: int = 0) ->
         splits[name] = Split(nodes=noisy, control=split.control.copy())
     attrs = {**dataset.attrs, "measurement_noise_std": float(std)}
     return Dataset(dataset.topology, dataset.dt, splits, attrs=attrs, path=None)
-
-
-def quat_from_axis(u: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., R, 4) turning principal axis ``axis[r]`` onto unit ``u`` (..., R, 3).
-
-    The rotation about ``u`` is unobservable from end caps; this picks the shortest arc.
-    """
-    a = np.eye(3)[axis]  # (R, 3)
-    a = np.broadcast_to(a, u.shape)
-    w = 1.0 + (a * u).sum(-1, keepdims=True)
-    xyz = np.cross(a, u)
-    flip = w[..., 0] < 1e-9  # u = -a: half turn about any axis perpendicular to a
-    perp = np.eye(3)[(np.asarray(axis) + 1) % 3]
-    perp = np.broadcast_to(perp, u.shape)
-    q = np.concatenate([w, xyz], axis=-1)
-    q = np.where(flip[..., None], np.concatenate([np.zeros_like(w), perp], axis=-1), q)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 @dataclass(frozen=True)
@@ -197,7 +180,8 @@ def smooth_rod_states(
     alpha = np.cross(u, ddd / length)
     return SmoothedStates(
         x=x.reshape(nodes.shape), xd=xd.reshape(nodes.shape), p=p, v=v, a=a,
-        q=quat_from_axis(u, axes.axis), omega=omega, alpha=alpha, window=window,
+        q=shortest_arc(np.eye(3)[axes.axis], u),  # the roll about u is not seen by end caps
+        omega=omega, alpha=alpha, window=window,
     )  # fmt: skip
 
 

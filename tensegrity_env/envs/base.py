@@ -18,8 +18,9 @@ import numpy as np
 from gymnasium import spaces
 
 from tensegrity_env.envs.rendering import SceneRenderer
-from tensegrity_env.envs.task import RollingTask, check_action, rod_axes
+from tensegrity_env.envs.task import RollingTask, check_action
 from tensegrity_env.mjcf import MjcfAssembly
+from tensegrity_env.rotations import rod_axes
 from tensegrity_env.topology import Topology
 
 #: how long the resting pose is settled from the face-down nominal pose [s]

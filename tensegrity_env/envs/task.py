@@ -15,6 +15,8 @@ from typing import Any, TypedDict
 
 import numpy as np
 
+from tensegrity_env.rotations import np_quat_mul, np_rotate
+
 #: entries of ``info`` and of each vector-env info array, per step
 REWARD_TERMS = ("reward_progress", "reward_control", "reward_goal")
 
@@ -140,7 +142,7 @@ class RollingTask:
         B = x.shape[0]
         c = self.centre(x)
         rel = x[..., 0:3] - c[:, None]
-        axis = rotate(x[..., 6:10], axes)
+        axis = np_rotate(x[..., 6:10], axes)
         parts = [
             rel.reshape(B, -1),
             axis.reshape(B, -1),
@@ -199,36 +201,9 @@ class RollingTask:
         x = np.empty_like(rest)
         x[:, 0:3] = (rest[:, 0:3] - centre) @ rz.T + d_p
         x[:, 3:6] = rest[:, 3:6] @ rz.T + d_v
-        q = quat_mul(np.broadcast_to(q_yaw, (R, 4)), rest[:, 6:10]) + d_q
+        q = np_quat_mul(np.broadcast_to(q_yaw, (R, 4)), rest[:, 6:10]) + d_q
         x[:, 6:10] = q / np.linalg.norm(q, axis=-1, keepdims=True)
         x[:, 10:13] = rest[:, 10:13] @ rz.T + d_w
         goal = dist * np.array([np.cos(heading), np.sin(heading)])
         return x, goal
 
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions (..., 4) (w, x, y, z)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ),
-        axis=-1,
-    )
-
-
-def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4)."""
-    w, u = q[..., :1], q[..., 1:]
-    t = 2.0 * np.cross(u, np.broadcast_to(v, u.shape))
-    return v + w * t + np.cross(u, t)
-
-
-def rod_axes(end_offsets: np.ndarray) -> np.ndarray:
-    """Unit vector from end cap 0 to end cap 1 in each rod's frame, (R, 3)."""
-    d = end_offsets[:, 1] - end_offsets[:, 0]
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)

@@ -27,7 +27,7 @@ import numpy as np
 
 from tensegrity_env.assemblies import Assembly, icosahedron, node_positions
 from tensegrity_env.mjcf import SimOptions, to_mjcf
-from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
+from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix, shortest_arc
 from tensegrity_env.topology import Topology
 
 #: ground truth of the environments (see the module docstring)
@@ -47,16 +47,6 @@ def twin_assembly() -> Assembly:
     return Assembly(a.topology, params, a.pose_p, a.pose_q)
 
 
-def _quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Unit quaternion rotating unit vector ``a`` onto unit vector ``b``."""
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(a @ b)
-    if s < 1e-12:
-        return np.array([1.0, 0, 0, 0]) if c > 0 else np.array([0.0, 1.0, 0, 0])
-    half = 0.5 * np.arctan2(s, c)
-    return np.concatenate([[np.cos(half)], np.sin(half) * axis / s])
-
-
 def face_down_pose(
     topology: Topology, pose_p: np.ndarray, pose_q: np.ndarray, clearance: float = DROP_CLEARANCE
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +56,7 @@ def face_down_pose(
     to face straight down, and the pose is lifted so that the lowest end-cap surface is
     ``clearance`` above ``z = 0``. Returns rod centres (R, 3) [m] and orientations (R, 4).
     """
-    down = _quat_between(np.full(3, -1.0) / np.sqrt(3.0), np.array([0.0, 0.0, -1.0]))
+    down = shortest_arc(np.full(3, -1.0) / np.sqrt(3.0), np.array([0.0, 0.0, -1.0]))
     rot = np_quat_to_matrix(down)
     centre = pose_p.mean(axis=0)
     p = (pose_p - centre) @ rot.T

@@ -40,8 +40,9 @@ from tensegrity_env.envs.mj_env import MJBatch, MJSimulator, twin_rest_pose
 from tensegrity_env.envs.physics import Backend
 from tensegrity_env.envs.rendering import SceneRenderer
 from tensegrity_env.envs.sr_env import SRSimulator, rest_pose
-from tensegrity_env.envs.task import RollingTask, TaskOptions, check_action, make_task, rod_axes
+from tensegrity_env.envs.task import RollingTask, TaskOptions, check_action, make_task
 from tensegrity_env.mjcf import MjcfAssembly
+from tensegrity_env.rotations import rod_axes
 from tensegrity_env.topology import Topology
 
 #: episode length of the registered envs: 300 steps of 50 ms = 15 s

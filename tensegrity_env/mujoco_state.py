@@ -10,11 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from tensegrity_env.mjcf import MjcfAssembly
-from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
-
-
-def _conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+from tensegrity_env.rotations import np_quat_conj, np_quat_mul, np_quat_to_matrix
 
 
 def mj_to_rod_state(asm: MjcfAssembly, qpos: np.ndarray, qvel: np.ndarray) -> dict[str, np.ndarray]:
@@ -39,7 +35,7 @@ def rod_state_to_mj(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`mj_to_rod_state`: (qpos (..., nq), qvel (..., nv)); other dofs 0."""
     lead = p.shape[:-2]
-    quat = np_quat_mul(q, _conj(np.broadcast_to(asm.body_iquat, q.shape)))
+    quat = np_quat_mul(q, np_quat_conj(np.broadcast_to(asm.body_iquat, q.shape)))
     rot = np_quat_to_matrix(quat)
     ipos_w = np.einsum("...ij,...j->...i", rot, np.broadcast_to(asm.body_ipos, p.shape))
     qpos = np.zeros((*lead, asm.model.nq))

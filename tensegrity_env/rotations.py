@@ -88,6 +88,11 @@ def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+def np_quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate in numpy (the inverse of a unit quaternion), shapes (..., 4)."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
 def np_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4), in numpy."""
     w, u = q[..., :1], q[..., 1:]

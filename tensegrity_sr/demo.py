@@ -211,8 +211,7 @@ def step_touchdowns(demo: Demo) -> None:
 
 def step_slack(demo: Demo) -> None:
     banner("Which springs are cables? Segmented regression through 1 mm noise")
-    from identification.trajectory.identifier import smooth_rod_states
-    from identification.trajectory.param_vector import RodAxes
+    from identification.data.end_caps import RodAxes, smooth_rod_states
     from identification.trajectory.slack_regression import (
         CABLE_LOSS,
         CABLE_SIGNIFICANCE,

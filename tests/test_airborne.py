@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.discovery.trajectory_loop import TrajectorySettings, _Data, fit_declared
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.simulation.planted import PlantSpec, planted_dataset
@@ -18,7 +19,6 @@ from identification.trajectory.airborne import (
     cap_radii,
     past_touchdown,
 )
-from identification.trajectory.identifier import RodAxes, _odd, smooth_rod_states
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.windowed_fit import STATE_KEYS, local_basis, window_sse
 from tensegrity_env.effects import GroundContact
@@ -37,7 +37,7 @@ def floor():
 @pytest.fixture(scope="module")
 def stretches(floor):
     ds, split = floor.dataset, floor.dataset.split("train")
-    smooth = smooth_rod_states(split.nodes, ds.dt, RodAxes.of(ds.topology), _odd(0.1 / ds.dt))
+    smooth = smooth_rod_states(split.nodes, ds.dt, RodAxes.of(ds.topology), odd_window(0.1 / ds.dt))
     grid = {k: getattr(smooth, k) for k in STATE_KEYS}
     return airborne_stretches(split.nodes, split.control, grid, ds.topology)
 

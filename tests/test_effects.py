@@ -126,7 +126,7 @@ def test_box_drag_depends_on_the_roll_end_caps_cannot_see(ico):
     leaves its end caps where they are but changes |v_x| v_x + |v_y| v_y. Linear drag
     with equal cross-axis coefficients does not see the roll. Why noisy end caps pin
     quadratic drag far less well than linear drag (README, noisy end caps)."""
-    from identification.trajectory.identifier import RodAxes
+    from identification.data.end_caps import RodAxes
     from tensegrity_env.rotations import quat_mul, quat_to_matrix
 
     topo, params = ico.topology, ico.params

@@ -57,7 +57,7 @@ def test_matches_mujoco_one_step_and_1000_steps(build) -> None:
 
 def test_float32_tracks_float64() -> None:
     asm = icosahedron()
-    mj, _m, d = _mujoco_case(asm, seed=5)
+    mj, _, d = _mujoco_case(asm, seed=5)
     s64 = _state(mj, d)
     e64 = Engine(asm.topology, dt=1e-3)
     e32 = Engine(asm.topology, dt=1e-3, dtype=torch.float32)
@@ -93,7 +93,7 @@ def test_energy_is_conserved_without_damping() -> None:
     params = asm.params.replace(
         damping=torch.zeros_like(asm.params.damping), gravity=torch.zeros(3, dtype=torch.float64)
     )
-    mj, _m, d = _mujoco_case(asm, seed=7, with_control=False)
+    mj, _, d = _mujoco_case(asm, seed=7, with_control=False)
     engine = Engine(asm.topology, dt=1e-3)
     state = _state(mj, d)
     e0 = _energy(engine, state, params)
@@ -116,7 +116,7 @@ def test_energy_is_conserved_without_damping() -> None:
 
 def test_gradients_through_rollout_match_finite_differences() -> None:
     asm = icosahedron()
-    mj, _m, d = _mujoco_case(asm, seed=11)
+    mj, _, d = _mujoco_case(asm, seed=11)
     engine = Engine(asm.topology, dt=1e-3)
     state = _state(mj, d)
     control = torch.as_tensor(d.ctrl.reshape(-1, 3))[None, None].expand(1, 50, -1, -1)
@@ -150,7 +150,7 @@ def test_batched_step_equals_individual_steps() -> None:
     engine = Engine(asm.topology, dt=1e-3)
     states = []
     for seed in range(3):
-        mj, _m, d = _mujoco_case(asm, seed=seed, with_control=False)
+        mj, _, d = _mujoco_case(asm, seed=seed, with_control=False)
         states.append(_state(mj, d))
     batch = State(*(torch.cat(xs) for xs in zip(*(s.tensors() for s in states), strict=False)))
     control = torch.randn(3, asm.topology.n_rods, 3, dtype=torch.float64)

@@ -149,7 +149,7 @@ def test_frozen_modules_fit_only_the_control_gain() -> None:
 
 
 def test_estimator_needs_fit_first() -> None:
-    ds, _truth = _data()
+    ds = _data()[0]
     s = ds.split("test")
     state = State.from_numpy(s.p[:, 0], s.v[:, 0], s.q[:, 0], s.omega[:, 0])
     with pytest.raises(NotFittedError):

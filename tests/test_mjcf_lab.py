@@ -212,7 +212,8 @@ def test_frame_origin_survives_json_and_mjcf_round_trips() -> None:
     assert np.allclose(again.topology.frame_origins, topo.frame_origins, atol=1e-12)
     assert np.allclose(again.topology.end_offsets, topo.end_offsets, atol=1e-12)
     # the written model steps the same as the lab's own file
-    state = _rod_state(asm, _random_state(asm, seed=2)[1])
+    data = _random_state(asm, seed=2)[1]
+    state = _rod_state(asm, data)
     engine = Engine(again.topology, dt=1e-3)
     assert (
         float(

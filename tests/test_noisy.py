@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 
 from identification.data.dataset import Dataset, Split
+from identification.data.end_caps import RodAxes
+from identification.linear.smoothed import parse_anchors
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate_dataset
-from identification.trajectory.identifier import (
-    RodAxes,
-    TrajectoryIdentifier,
-    add_measurement_noise,
+from identification.simulation.planted import add_measurement_noise
+from identification.trajectory.identifier import TrajectoryIdentifier
+from identification.trajectory.windowed_fit import (
     cut_windows,
     linearize,
     local_basis,
-    parse_anchors,
     window_schedule,
 )
 from tensegrity_env.assemblies import Assembly, element, icosahedron

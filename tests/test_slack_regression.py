@@ -9,9 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from identification.data.end_caps import RodAxes, smooth_rod_states
 from identification.simulation.planted import PlantSpec, planted_dataset
-from identification.trajectory.identifier import smooth_rod_states
-from identification.trajectory.param_vector import RodAxes
 from identification.trajectory.slack_regression import slack_regression
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -50,7 +49,7 @@ def test_springs_that_push_are_not_called_cables() -> None:
 def test_hinge_columns_vanish_above_the_knot() -> None:
     """With every knot below the shortest spring, the hinges see nothing: ΔK is not
     identifiable (NaN) and the other parameters equal the regression without hinges."""
-    from identification.trajectory.identifier import smoothed_regression
+    from identification.linear.smoothed import smoothed_regression
 
     d = planted_dataset(PlantSpec("none", "moderate", noise=0.0, seed=44, n_train=2, n_val=1,
                                   n_test=1, steps=300))  # fmt: skip

@@ -8,10 +8,10 @@ calibration). Seed 5: the bench was tuned on seed 0.
 import numpy as np
 import pytest
 
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.discovery.candidates import CONTACT_START
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.simulation.planted import PlantSpec, planted_dataset
-from identification.trajectory.identifier import RodAxes, _odd, smooth_rod_states
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import TOUCH, find_touchdowns, search_contact
 from identification.trajectory.windowed_fit import STATE_KEYS
@@ -29,7 +29,7 @@ def touchdowns():
     ds, split = data.dataset, data.dataset.split("train")
     topo = ds.topology
     vec = ParamVector.at(topo, data.ground_truth.params)
-    smooth = smooth_rod_states(split.nodes, ds.dt, RodAxes.of(topo), _odd(0.1 / ds.dt))
+    smooth = smooth_rod_states(split.nodes, ds.dt, RodAxes.of(topo), odd_window(0.1 / ds.dt))
     grid = {k: getattr(smooth, k) for k in STATE_KEYS}
     radius = np.repeat([r.radius for r in topo.rods], 2)
     engine = Engine(topo, ds.dt)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from identification.trajectory.param_vector import ParamVector, RodAxes
+from identification.data.end_caps import RodAxes
+from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import Windows, end_caps, local_basis, sees_roll
 from tensegrity_env.assemblies import icosahedron

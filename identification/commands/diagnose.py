@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
-from identification.data.measured_states import with_measured_states
+from identification.data.end_caps import with_measured_states
 from identification.discovery.candidates import FitSettings
 from identification.discovery.diagnose import diagnose
 from identification.discovery.report import fmt_err, ratio, write_params, write_report

@@ -165,7 +165,7 @@ def write_dataset(
     path: str | Path, dataset: Dataset, ground_truth: GroundTruth | None = None
 ) -> Path:
     """Write ``dataset`` (and optionally its ground truth) atomically to ``path``."""
-    _check_dataset(dataset, str(path))
+    check_dataset(dataset, str(path))
     with atomic_path(path, suffix=".h5") as tmp:
         with h5py.File(tmp, "w") as f:
             f.attrs["format"] = DATASET_FORMAT
@@ -249,7 +249,7 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
         except (KeyError, OSError, ValueError, TypeError, TopologyError) as e:
             raise InputError(f"{p}: malformed dataset ({_first_line(e)})") from None
     ds = Dataset(topology=topology, dt=dt, splits=out, attrs=attrs, path=p)
-    _check_dataset(ds, str(p))
+    check_dataset(ds, str(p))
     return ds
 
 
@@ -272,7 +272,7 @@ def read_ground_truth(path: str | Path) -> GroundTruth | None:
             raise InputError(f"{path}: malformed ground truth ({_first_line(e)})") from None
 
 
-def _check_dataset(ds: Dataset, where: str) -> None:
+def check_dataset(ds: Dataset, where: str) -> None:
     """Shapes, finiteness and dt; one :class:`InputError` naming the problem."""
     R = ds.topology.n_rods
     if not np.isfinite(ds.dt) or ds.dt <= 0:

@@ -1,4 +1,4 @@
-"""Rod states from measured end caps (motion capture), and datasets built from them.
+"""Measured end caps (motion capture) to rod states, and datasets built from them.
 
 Motion capture sees points, not rigid-body states. Two end caps per rod fix the
 rod's centre of mass and the direction of its axis, and nothing else:
@@ -11,26 +11,78 @@ rod's centre of mass and the direction of its axis, and nothing else:
   the axial spin carries no spring force, so the lost component does not matter
   for the springs; the true ``q`` equals the returned one up to a rotation about
   the axis.
-* velocities are **central differences** in time (second-order one-sided at the
-  two ends), so they are smooth only as far as the positions are; with noisy
-  positions, prefer fitting through a multi-step trajectory loss. For data from
-  MuJoCo's semi-implicit Euler (``p_{t+1} = p_t + dt v_{t+1}``) the central
-  difference of positions is ``(v_t + v_{t+1}) / 2``: half a step behind.
+
+Three ways from end caps to rod states (``method`` of :func:`measured_rod_states` and
+:func:`with_measured_states`):
+
+* ``"exact"`` (:func:`rod_states_from_nodes`): the caps as given; velocities are
+  **central differences** in time (second-order one-sided at the two ends). For data
+  from MuJoCo's semi-implicit Euler (``p_{t+1} = p_t + dt v_{t+1}``) the central
+  difference of positions is ``(v_t + v_{t+1}) / 2``: half a step behind. With noisy
+  caps the velocities are as noisy as the differences make them.
+* ``"gaussian"`` (:func:`smooth_nodes`, then the same differences): the caps smoothed
+  by a Gaussian kernel of std ``smoothing`` seconds. Its one-step transitions stand in
+  for measured ones in the one-step regression and residuals; with 1 mm noise they
+  carry the smoothing's bias, so small effects stay hidden.
+* ``"savgol"`` (:func:`smooth_rod_states`): a cubic Savitzky-Golay filter of
+  ``smoothing`` seconds gives positions, velocities *and* accelerations of the caps in
+  continuous time, and the rods' states and rates follow from the geometry
+  (:class:`RodAxes`). The first stage of end-cap identification
+  (:mod:`identification.linear.smoothed`) regresses on these.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
+from scipy.signal import savgol_filter
 
-from identification.data.dataset import SPLITS, Dataset, Split, _check_dataset
+from identification.data.dataset import SPLITS, Dataset, Split, check_dataset
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import np_quat_to_matrix, shortest_arc, unit
 from tensegrity_env.topology import Topology
 
 
+# ---------------------------------------------------------------------- rod geometry
+@dataclass(frozen=True)
+class RodAxes:
+    """End caps on a principal axis through the centre of mass, for every rod.
+
+    Attributes:
+        axis: index (0, 1, 2) of the principal axis holding rod r's end caps, (R,).
+        frac: the COM as ``x_0 + frac * (x_1 - x_0)`` between the end caps, (R,).
+        radius: rod radius for the assumed axial inertia ``M r^2 / 2`` [m], (R,).
+    """
+
+    axis: np.ndarray
+    frac: np.ndarray
+    radius: np.ndarray
+
+    @classmethod
+    def of(cls, topology: Topology) -> RodAxes:
+        """Raise :class:`InputError` if some rod's end caps are not on a principal axis."""
+        ends = topology.end_offsets  # (R, 2, 3)
+        axis, frac = [], []
+        for r, e in enumerate(ends):
+            k = int(np.argmax(np.abs(e[1] - e[0])))
+            off = np.delete(e, k, axis=1)
+            scale = np.abs(e).max()
+            if np.abs(off).max() > 1e-9 * scale or abs(e[1, k] - e[0, k]) < 1e-12:
+                raise InputError(
+                    f"rod '{topology.rods[r].name}': end caps are not on a principal axis through "
+                    "the centre of mass; end-cap-only identification needs them there"
+                )
+            axis.append(k)
+            frac.append(-e[0, k] / (e[1, k] - e[0, k]))
+        radius = np.array([max(rod.radius, 1e-3) for rod in topology.rods])
+        return cls(np.array(axis), np.array(frac), radius)
+
+
+# ---------------------------------------------------------------------- end caps -> rod states
 def rod_states_from_nodes(
     nodes: np.ndarray, topology: Topology, dt: float
 ) -> dict[str, np.ndarray]:
@@ -94,6 +146,148 @@ def rod_states_from_nodes(
     return {"p": p, "v": v, "q": q, "omega": omega}
 
 
+def smooth_nodes(nodes: np.ndarray, dt: float, smoothing: float) -> np.ndarray:
+    """End caps (N, T+1, 2R, 3) smoothed along time: Gaussian of std ``smoothing`` [s].
+
+    A Gaussian kernel (not Savitzky-Golay, whose side lobes pass high-frequency noise
+    that the transitions' double differences then amplify by 1/dt²); the ends are
+    extended by a cubic fit (``mode="nearest"`` would bend them).
+    """
+    sigma = smoothing / dt
+    if sigma < 0.5:
+        return nodes
+    pad = min(int(4 * sigma), nodes.shape[1] - 1)
+    w = min(nodes.shape[1] if nodes.shape[1] % 2 else nodes.shape[1] - 1, 2 * pad + 1)
+    ext = savgol_filter(nodes, window_length=max(w, 5), polyorder=3, axis=1, mode="interp")
+    head = 2 * ext[:, :1] - nodes[:, pad:0:-1]  # point reflection about the smoothed ends
+    tail = 2 * ext[:, -1:] - nodes[:, -2 : -pad - 2 : -1]
+    padded = np.concatenate([head, nodes, tail], axis=1)
+    return gaussian_filter1d(padded, sigma, axis=1, mode="nearest")[:, pad : pad + nodes.shape[1]]
+
+
+@dataclass(frozen=True)
+class SmoothedStates:
+    """Rod kinematics from smoothed end caps, all (N, T+1, R, ·), world frame.
+
+    Attributes:
+        x, xd: end-cap positions [m] and velocities [m/s], (N, T+1, 2R, 3).
+        p, v, a: COM position [m], velocity [m/s], acceleration [m/s^2].
+        q: orientation (w, x, y, z) with the shortest-arc axial phase, (..., 4).
+        omega, alpha: angular velocity [rad/s] and acceleration [rad/s^2] perpendicular
+            to the rod (the axial part is unobservable and set to 0).
+        window: the filter length used [samples].
+    """
+
+    x: np.ndarray
+    xd: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    q: np.ndarray
+    omega: np.ndarray
+    alpha: np.ndarray
+    window: int
+
+    @property
+    def margin(self) -> int:
+        """Samples at each end where the filter extrapolates."""
+        return min(self.window // 2, (self.p.shape[1] - 1) // 2)
+
+
+def smooth_rod_states(
+    nodes: np.ndarray, dt: float, axes: RodAxes, window: int, polyorder: int = 3
+) -> SmoothedStates:
+    """Savitzky-Golay smoothing of end caps ``nodes`` (N, T+1, 2R, 3) and the rod states.
+
+    ``window`` is the filter length in samples (odd; clipped to the trajectory). The
+    perpendicular angular velocity and acceleration are ``u × u̇`` and ``u × ü`` of
+    the rod direction ``u``.
+    """
+    T1 = nodes.shape[1]
+    window = min(window, T1 if T1 % 2 else T1 - 1)
+    window = max(window, polyorder + 2 + (polyorder % 2 == 0))
+    kw = {"window_length": window, "polyorder": polyorder, "axis": 1, "delta": dt}
+    x, xd, xdd = (savgol_filter(nodes, deriv=d, **kw) for d in range(3))
+    N, _, n2, _ = nodes.shape
+    shape = (N, T1, n2 // 2, 2, 3)
+    x, xd, xdd = (y.reshape(shape) for y in (x, xd, xdd))
+    lam = axes.frac[:, None]
+    d, dd, ddd = (y[..., 1, :] - y[..., 0, :] for y in (x, xd, xdd))
+    p, v, a = (y[..., 0, :] + lam * dy for y, dy in ((x, d), (xd, dd), (xdd, ddd)))
+    length = np.linalg.norm(d, axis=-1, keepdims=True)
+    u = d / length
+    omega = np.cross(u, dd / length)
+    alpha = np.cross(u, ddd / length)
+    return SmoothedStates(
+        x=x.reshape(nodes.shape), xd=xd.reshape(nodes.shape), p=p, v=v, a=a,
+        q=shortest_arc(np.eye(3)[axes.axis], u),  # the roll about u is not seen by end caps
+        omega=omega, alpha=alpha, window=window,
+    )  # fmt: skip
+
+
+def odd_window(x: float) -> int:
+    """A Savitzky-Golay window of about ``x`` samples: odd, at least 5."""
+    n = max(round(x), 5)
+    return n if n % 2 else n + 1
+
+
+#: ways from end caps to rod states (see the module docstring)
+Method = Literal["exact", "gaussian", "savgol"]
+METHODS: tuple[str, ...] = ("exact", "gaussian", "savgol")
+
+
+def measured_rod_states(
+    nodes: np.ndarray, topology: Topology, dt: float, method: Method, smoothing: float = 0.0
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Rod states from end caps by ``method`` (see the module docstring).
+
+    Args:
+        nodes: end caps (N, T+1, 2R, 3) [m], world frame.
+        topology: the assembly.
+        dt: time between samples [s].
+        method: ``"exact"``, ``"gaussian"`` or ``"savgol"``.
+        smoothing: the filter's std (``"gaussian"``) or length (``"savgol"``) [s];
+            not used by ``"exact"``.
+
+    Returns:
+        the end caps the states belong to (smoothed, or ``nodes`` itself for
+        ``"exact"``) and ``p``, ``v``, ``q``, ``omega`` as :func:`rod_states_from_nodes`.
+    """
+    if method == "exact":
+        return nodes, rod_states_from_nodes(nodes, topology, dt)
+    if method == "gaussian":
+        smooth = smooth_nodes(nodes, dt, smoothing)
+        return smooth, rod_states_from_nodes(smooth, topology, dt)
+    if method == "savgol":
+        s = smooth_rod_states(nodes, dt, RodAxes.of(topology), odd_window(smoothing / dt))
+        return s.x, {"p": s.p, "v": s.v, "q": s.q, "omega": s.omega}
+    raise InputError(f"unknown smoothing method '{method}' (use {', '.join(METHODS)})")
+
+
+def with_measured_states(
+    dataset: Dataset, smoothing: float = 0.01, method: Method = "gaussian"
+) -> Dataset:
+    """The dataset with rod states in every split (from its end caps where it had none).
+
+    ``method`` and ``smoothing`` [s] as in :func:`measured_rod_states`; the splits
+    derived keep the end caps their states belong to.
+    """
+    if all(s.has_states for s in dataset.splits.values()):
+        return dataset
+    splits = {}
+    for name, s in dataset.splits.items():
+        if s.has_states:
+            splits[name] = s
+            continue
+        nodes, st = measured_rod_states(s.nodes, dataset.topology, dataset.dt, method, smoothing)
+        splits[name] = Split(nodes=nodes, control=s.control, **st)
+    how = {"exact": "unsmoothed", "gaussian": f"Gaussian smoothing {smoothing:g} s",
+           "savgol": f"Savitzky-Golay smoothing {smoothing:g} s"}[method]  # fmt: skip
+    attrs = {**dataset.attrs, "states": f"from end caps, {how}"}
+    return Dataset(dataset.topology, dataset.dt, splits, attrs=attrs, path=dataset.path)
+
+
+# ---------------------------------------------------------------------- datasets
 def dataset_from_end_caps(
     topology: Topology,
     dt: float,
@@ -148,5 +342,5 @@ def dataset_from_end_caps(
         splits=splits,
         attrs={"assembly": topology.name, "source": "end caps", **dict(attrs or {})},
     )
-    _check_dataset(ds, "end-cap data")
+    check_dataset(ds, "end-cap data")
     return ds

@@ -208,9 +208,11 @@ def write_params(
         note = {"note": NOT_PHYSICAL, "params_file": NETWORK_PARAMS,
                 "sidecar": fit.effect.sidecar, **fit.summary()}  # fmt: skip
         network_model = result.model.model.replace(params=fit.params, effects=fit.effects)
-        network_model.save(directory / NETWORK_PARAMS, _jsonable({"residual_network": note}))
+        network_doc = _jsonable({"residual_network": note})
+        network_model.save(directory / NETWORK_PARAMS, network_doc)
         doc["diagnose"]["residual_network"] = note
-    return result.model.model.save(path, _jsonable(doc))
+    doc = _jsonable(doc)
+    return result.model.model.save(path, doc)
 
 
 def _jsonable(x: Any) -> Any:

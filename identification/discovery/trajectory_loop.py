@@ -74,6 +74,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset, Split
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.discovery.candidates import FittedModel, contact_gate
 from identification.discovery.end_cap_residuals import (
     plot_window_residuals,
@@ -81,6 +82,7 @@ from identification.discovery.end_cap_residuals import (
     window_residuals,
 )
 from identification.linear.extended import evaluate_model
+from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.airborne import (
     AIRBORNE,
     airborne_samples,
@@ -89,21 +91,8 @@ from identification.trajectory.airborne import (
     past_touchdown,
 )
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
-from identification.trajectory.identifier import (
-    STATE_KEYS,
-    ParamVector,
-    RodAxes,
-    TrajectoryIdentifier,
-    Windows,
-    _odd,
-    cut_windows,
-    end_caps,
-    fit_windows,
-    parse_anchors,
-    smooth_rod_states,
-    smoothed_regression,
-)
-from identification.trajectory.param_vector import params_values
+from identification.trajectory.identifier import TrajectoryIdentifier
+from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.slack_regression import (
     CABLE_LOSS,
     CABLE_SIGNIFICANCE,
@@ -111,7 +100,14 @@ from identification.trajectory.slack_regression import (
 )
 from identification.trajectory.touchdown import find_touchdowns, search_contact
 from identification.trajectory.window_states import GROW, fit_states, prefix
-from identification.trajectory.windowed_fit import sees_roll
+from identification.trajectory.windowed_fit import (
+    STATE_KEYS,
+    Windows,
+    cut_windows,
+    end_caps,
+    fit_windows,
+    sees_roll,
+)
 from tensegrity_env.effects import (
     CubicStiffness,
     ForceField,
@@ -298,7 +294,7 @@ class _Data:
         self.topology, self.dt = dataset.topology, dataset.dt
         self.axes = RodAxes.of(self.topology)
         self.engine = Engine(self.topology, self.dt)
-        self.sg = _odd(s.smoothing / self.dt)
+        self.sg = odd_window(s.smoothing / self.dt)
         self.dataset, self.seed = dataset, s.seed
         self.smooth: dict[str, Any] = {}
         self.windows: dict[str, Windows] = {}

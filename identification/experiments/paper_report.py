@@ -166,7 +166,8 @@ def requirement_table(result: ExperimentResult) -> str:
     head += [f"{n}: one-step v error [m/s]" for n in names]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     used = ", ".join(f"{res.training[n]['history']['n_train']:,} ({n})" for n in names)
-    cells = ["all", f"{res.counts['train'] * T:,} (Ours), {used}", _e(res.curves["Ours"][T])]
+    ours_error = _e(res.curves["Ours"][T])
+    cells = ["all", f"{res.counts['train'] * T:,} (Ours), {used}", ours_error]
     cells += [_e(res.curves[n][T]) for n in names]
     cells += [_e(res.one_step[n]["velocity"]) for n in names]
     lines.append("| " + " | ".join(cells) + " |")
@@ -192,7 +193,8 @@ def error_table(res: AssemblyResult) -> str:
     for name in (*MODELS, REFERENCE):
         c, o = res.curves[name], res.one_step[name]
         ratio = c[hs[-1]] / ours if ours > 0 and np.isfinite(c[hs[-1]]) else float("inf")
-        cells = [name, *(_e(c[h]) for h in hs), _e(o["velocity"]), _e(o["angular_velocity"])]
+        one_step = [_e(o[k]) for k in ("velocity", "angular_velocity")]
+        cells = [name, *(_e(c[h]) for h in hs), *one_step]
         cells.append("1" if name == "Ours" else f"{ratio:.1e}")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

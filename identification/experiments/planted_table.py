@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from identification.data.measured_states import with_measured_states
+from identification.data.end_caps import with_measured_states
 from identification.discovery.candidates import FitSettings
 from identification.discovery.diagnose import diagnose
 from identification.discovery.report import fmt_err, ratio, write_params

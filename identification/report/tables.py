@@ -69,7 +69,8 @@ def parameter_table(
         value = _fmt(r.value) if r.status != "not identifiable" or np.isfinite(r.value) else "—"
         if r.status == "not identifiable":
             value = f"[{value} assumed]" if np.isfinite(r.value) else "—"
-        cells = [r.name, value, _fmt(r.stderr), r.unit, status]
+        stderr = _fmt(r.stderr)
+        cells = [r.name, value, stderr, r.unit, status]
         if truth is not None:
             cells.append("—" if not np.isfinite(e) else f"{e:.2e}")
         lines.append(cells)

@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from identification.data.dataset import Dataset, GroundTruth, Split
-from identification.data.end_caps import rod_states_from_nodes
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate
 from tensegrity_env import assemblies
 from tensegrity_env.io_utils import InputError, check_number
@@ -186,30 +185,27 @@ def planted_dataset(spec: PlantSpec) -> PlantedData:
     true_params = assemblies.icosahedron().params
     effects = [] if spec.effect == "none" else [record]
     truth = dataclasses.replace(result.ground_truth, params=true_params, effects=effects)
-    dataset = add_noise(clean, spec.noise, spec.seed) if spec.noise > 0 else clean
+    dataset = (
+        add_measurement_noise(clean, spec.noise, spec.seed, stream=1000)
+        if spec.noise > 0
+        else clean
+    )
     return PlantedData(dataset=dataset, ground_truth=truth, clean=clean, spec=spec)
 
 
-def add_noise(dataset: Dataset, std: float, seed: int = 0) -> Dataset:
-    """A copy with Gaussian noise ``std`` [m] on every end cap; rod states dropped."""
+def add_measurement_noise(
+    dataset: Dataset, std: float = 1e-3, seed: int = 0, stream: int = 0
+) -> Dataset:
+    """A copy with i.i.d. Gaussian noise of ``std`` [m] on every end-cap coordinate.
+
+    Only ``nodes`` (noisy) and ``control`` are kept: rod states are dropped, as motion
+    capture would not give them. Split ``k`` (in name order) draws from the seeded
+    stream ``[seed, stream + k]``.
+    """
     splits = {}
     for k, (name, split) in enumerate(sorted(dataset.splits.items())):
-        rng = np.random.default_rng([seed, 1000 + k])
-        nodes = split.nodes + std * rng.standard_normal(split.nodes.shape)
-        splits[name] = Split(nodes=nodes, control=split.control.copy())
+        rng = np.random.default_rng([seed, stream + k])
+        noisy = split.nodes + std * rng.standard_normal(split.nodes.shape)
+        splits[name] = Split(nodes=noisy, control=split.control.copy())
     attrs = {**dataset.attrs, "measurement_noise_std": float(std)}
-    return Dataset(dataset.topology, dataset.dt, splits, attrs=attrs)
-
-
-def with_rod_states(dataset: Dataset) -> Dataset:
-    """Rod states derived from the end caps where a split has none (finite differences)."""
-    splits = {}
-    for name, s in dataset.splits.items():
-        if s.has_states:
-            splits[name] = s
-        else:
-            st = rod_states_from_nodes(s.nodes, dataset.topology, dataset.dt)
-            splits[name] = Split(nodes=s.nodes, control=s.control, **st)
-    return Dataset(
-        dataset.topology, dataset.dt, splits, attrs=dict(dataset.attrs), path=dataset.path
-    )
+    return Dataset(dataset.topology, dataset.dt, splits, attrs=attrs, path=None)

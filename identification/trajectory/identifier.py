@@ -4,7 +4,8 @@ Measured data holds end-cap positions only, ``nodes`` (N, T+1, 2R, 3) [m], with
 Gaussian noise of ~1 mm. Finite differences of such positions destroy accelerations,
 so identification runs in two stages:
 
-1. **Smoothing + linear regression** (:func:`smoothed_regression`): a Savitzky-Golay
+1. **Smoothing + linear regression**
+   (:func:`~identification.linear.smoothed.smoothed_regression`): a Savitzky-Golay
    filter gives end-cap positions, velocities and accelerations in continuous time;
    rod states and their rates follow from the rod geometry, and the paper's linear
    equations of motion (:func:`identification.linear.design.rod_blocks`) are solved exactly.
@@ -43,10 +44,11 @@ every K, c, M, I_perp within 1.4 % from 4800 samples. The reported standard
 errors (:attr:`TrajectoryIdentifier.stderr_`) are honest (z-scores of rms ~1) and
 shrink as one over the square root of the data.
 
-Modules: this one holds the smoothing, stage 1 and :class:`TrajectoryIdentifier`;
-the parameter vector is in :mod:`identification.trajectory.param_vector` and the windows and the
-Levenberg-Marquardt machinery in :mod:`identification.trajectory.windowed_fit` (their names are
-re-exported here).
+Modules: this one holds :class:`TrajectoryIdentifier`; the smoothing is
+:func:`identification.data.end_caps.smooth_rod_states`, stage 1
+:mod:`identification.linear.smoothed`, the parameter vector
+:mod:`identification.trajectory.param_vector`, and the windows and the
+Levenberg-Marquardt machinery :mod:`identification.trajectory.windowed_fit`.
 
 Cost: every Levenberg-Marquardt iteration rolls out ``n_local + n_free + 1`` copies
 (155 for the icosahedron) of all the data: ~1.2 s per 1000 samples on one core.
@@ -55,264 +57,27 @@ Cost: every Levenberg-Marquardt iteration rolls out ``n_local + n_free + 1`` cop
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
-from scipy.signal import savgol_filter
 from tqdm.auto import tqdm
 
-from identification.data.dataset import Dataset, Split
-from identification.linear.design import (
-    ParameterLayout,
-    accumulate_normal,
-    hinge_blocks,
-    rod_blocks,
-    rod_slots,
-    with_hinges,
-)
-from identification.linear.features import TransitionFeatures
-from identification.linear.solve import solve_constrained
-from identification.trajectory.param_vector import (  # noqa: F401  (re-exported)
-    DTYPE,
-    GROUPS,
-    LOG_BOX,
-    ParamVector,
-    RodAxes,
-    parse_anchors,
-)
-from identification.trajectory.windowed_fit import (  # noqa: F401  (re-exported)
+from identification.data.dataset import Dataset
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
+from identification.linear.smoothed import parse_anchors, smoothed_regression
+from identification.trajectory.param_vector import DTYPE, GROUPS, ParamVector
+from identification.trajectory.windowed_fit import (
     STATE_KEYS,
-    NormalEquations,
-    WindowFit,
-    Windows,
-    _damped,
-    _stderr,
     cut_windows,
-    end_caps,
     fill_grid,
     fit_windows,
-    gauss_newton_fd,
-    linearize,
-    local_basis,
-    perturb,
-    schur_step,
-    window_residual,
     window_schedule,
-    window_sse,
 )
 from tensegrity_env.engine import Engine
-from tensegrity_env.engine.forces import spring_frames
-from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.rotations import quat_to_matrix, shortest_arc
 from tensegrity_env.topology import Topology
 
 
-# ---------------------------------------------------------------------- measured data
-def add_measurement_noise(dataset: Dataset, std: float = 1e-3, seed: int = 0) -> Dataset:
-    """A copy with i.i.d. Gaussian noise of ``std`` [m] on every end-cap coordinate.
-
-    Only ``nodes`` (noisy) and ``control`` are kept: rod states are dropped, as motion
-    capture would not give them. Each split draws from its own seeded stream.
-    """
-    splits = {}
-    for k, (name, split) in enumerate(sorted(dataset.splits.items())):
-        rng = np.random.default_rng([seed, k])
-        noisy = split.nodes + std * rng.standard_normal(split.nodes.shape)
-        splits[name] = Split(nodes=noisy, control=split.control.copy())
-    attrs = {**dataset.attrs, "measurement_noise_std": float(std)}
-    return Dataset(dataset.topology, dataset.dt, splits, attrs=attrs, path=None)
-
-
-@dataclass(frozen=True)
-class SmoothedStates:
-    """Rod kinematics from smoothed end caps, all (N, T+1, R, ·), world frame.
-
-    Attributes:
-        x, xd: end-cap positions [m] and velocities [m/s], (N, T+1, 2R, 3).
-        p, v, a: COM position [m], velocity [m/s], acceleration [m/s^2].
-        q: orientation (w, x, y, z) with the shortest-arc axial phase, (..., 4).
-        omega, alpha: angular velocity [rad/s] and acceleration [rad/s^2] perpendicular
-            to the rod (the axial part is unobservable and set to 0).
-        window: the filter length used [samples].
-    """
-
-    x: np.ndarray
-    xd: np.ndarray
-    p: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    q: np.ndarray
-    omega: np.ndarray
-    alpha: np.ndarray
-    window: int
-
-    @property
-    def margin(self) -> int:
-        """Samples at each end where the filter extrapolates."""
-        return min(self.window // 2, (self.p.shape[1] - 1) // 2)
-
-
-def smooth_rod_states(
-    nodes: np.ndarray, dt: float, axes: RodAxes, window: int, polyorder: int = 3
-) -> SmoothedStates:
-    """Savitzky-Golay smoothing of end caps ``nodes`` (N, T+1, 2R, 3) and the rod states.
-
-    ``window`` is the filter length in samples (odd; clipped to the trajectory). The
-    perpendicular angular velocity and acceleration are ``u × u̇`` and ``u × ü`` of
-    the rod direction ``u``.
-    """
-    T1 = nodes.shape[1]
-    window = min(window, T1 if T1 % 2 else T1 - 1)
-    window = max(window, polyorder + 2 + (polyorder % 2 == 0))
-    kw = {"window_length": window, "polyorder": polyorder, "axis": 1, "delta": dt}
-    x, xd, xdd = (savgol_filter(nodes, deriv=d, **kw) for d in range(3))
-    N, _, n2, _ = nodes.shape
-    shape = (N, T1, n2 // 2, 2, 3)
-    x, xd, xdd = (y.reshape(shape) for y in (x, xd, xdd))
-    lam = axes.frac[:, None]
-    d, dd, ddd = (y[..., 1, :] - y[..., 0, :] for y in (x, xd, xdd))
-    p, v, a = (y[..., 0, :] + lam * dy for y, dy in ((x, d), (xd, dd), (xdd, ddd)))
-    length = np.linalg.norm(d, axis=-1, keepdims=True)
-    u = d / length
-    omega = np.cross(u, dd / length)
-    alpha = np.cross(u, ddd / length)
-    return SmoothedStates(
-        x=x.reshape(nodes.shape), xd=xd.reshape(nodes.shape), p=p, v=v, a=a,
-        q=shortest_arc(np.eye(3)[axes.axis], u),  # the roll about u is not seen by end caps
-        omega=omega, alpha=alpha, window=window,
-    )  # fmt: skip
-
-
-# ---------------------------------------------------------------------- stage 1
-def smoothed_features(
-    topology: Topology, s: SmoothedStates, control: np.ndarray, keep: np.ndarray | None = None
-) -> TransitionFeatures:
-    """:class:`TransitionFeatures` at every sample ``t < T`` away from the ends (``s.margin``).
-
-    Continuous-time accelerations from the smoothing replace the transition's finite
-    differences; ``control`` is (N, T, R, 3); ``keep`` (N, T) selects samples (None: all).
-    """
-    T = control.shape[1]
-    t = slice(s.margin, max(s.margin + 1, min(T, s.p.shape[1] - s.margin)))
-
-    def pick(arr: np.ndarray) -> torch.Tensor:
-        part = arr[:, t]
-        flat = part.reshape(-1, *arr.shape[2:]) if keep is None else part[keep[:, t]]
-        return torch.as_tensor(flat, dtype=DTYPE)
-
-    p, q, omega, alpha, accel = map(pick, (s.p, s.q, s.omega, s.alpha, s.a))
-    x_end, xd_end, u = map(pick, (s.x, s.xd, control))
-    n, R = p.shape[:2]
-    rot = quat_to_matrix(q)
-    anchors = torch.as_tensor(topology.anchor_positions, dtype=DTYPE).expand(n, -1, -1)
-    x_all, xd_all = [x_end, anchors], [xd_end, torch.zeros_like(anchors)]
-    points, point_arms = AttachmentPoints.of(topology), None
-    if points is not None:  # on the rod axes (refused otherwise), placed by the smoothing
-        v = pick(s.v)
-        point_arms = torch.einsum("npij,pj->npi", rot[:, points.rod], points.offset)
-        x_all.append(p[:, points.rod] + point_arms)
-        xd_all.append(v[:, points.rod] + torch.cross(omega[:, points.rod], point_arms, dim=-1))
-    kin = Kinematics(
-        rot=rot,
-        arms=x_end.reshape(n, R, 2, 3) - p.unsqueeze(2),
-        x=torch.cat(x_all, dim=1),
-        xd=torch.cat(xd_all, dim=1),
-        points=points,
-        point_arms=point_arms,
-    )
-    nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long)
-    arm_u = torch.einsum("nrij,rj->nri", rot, torch.as_tensor(topology.control_arms, dtype=DTYPE))
-    return TransitionFeatures(
-        accel=accel,
-        alpha_local=torch.einsum("nrji,nrj->nri", rot, alpha),
-        omega_local=torch.einsum("nrji,nrj->nri", rot, omega),
-        rot=rot,
-        arms=kin.node_arms,
-        springs=spring_frames(kin, nodes[:, 0], nodes[:, 1]),
-        control=u,
-        control_arm=arm_u,
-    )
-
-
-def smoothed_regression(
-    topology: Topology,
-    smooth: SmoothedStates,
-    control: np.ndarray,
-    anchors: Mapping[str, float] | None = None,
-    gravity: Sequence[float] = (0.0, 0.0, -9.81),
-    keep: np.ndarray | None = None,
-    knots: np.ndarray | None = None,
-) -> dict[str, np.ndarray]:
-    """Stage 1: linear regression on smoothed end caps (see :func:`smooth_rod_states`).
-
-    ``keep`` (N, T): the samples used (None: all), e.g. those away from a floor.
-    ``knots`` (S,) [m]: also fit each spring's stiffness change ``ΔK`` below its knot
-    (:func:`~identification.linear.design.hinge_blocks`), returned as ``compression_stiffness``
-    with its standard error ``compression_stiffness_se`` (S,) [N/m].
-    Returns natural-unit values: ``stiffness``, ``damping``, ``rest_length`` (S,),
-    ``mass``, ``inertia_perp`` (R,) and ``control_gain`` (1,); NaN where the regression
-    cannot tell. Samples near the ends, where the filter extrapolates, are not used.
-    Anchors (see :func:`parse_anchors`) fix the scale; without one it is ``mass`` of the
-    first rod = 1.
-    """
-    topo = topology
-    axes = RodAxes.of(topo)
-    layout = ParameterLayout.build(topo)
-    slots = rod_slots(layout)
-    feat = smoothed_features(topo, smooth, control, keep)
-    P = layout.n_params
-    S = topo.n_springs if knots is not None else 0
-    blocks = rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE))
-    if knots is not None:
-        blocks = torch.cat([blocks, hinge_blocks(feat, slots, torch.as_tensor(knots))], dim=-1)
-        slots = with_hinges(slots, P, S)
-    normal = torch.zeros(P + S + 1, P + S + 1, dtype=DTYPE)
-    accumulate_normal(blocks, slots, P + S, normal)
-    fixed = {}
-    rods, springs = [r.name for r in topo.rods], [s.name for s in topo.springs]
-    for (group, i), value in parse_anchors(topo, anchors or {}).items():
-        names = {
-            "mass": [f"mass[{rods[i]}]"],
-            "stiffness": [f"stiffness[{springs[i]}]"],
-            "damping": [f"damping[{springs[i]}]"],
-            "control_gain": ["control_gain"],
-            "inertia_perp": [
-                f"inertia[{rods[i]},{'xyz'[k]}]" for k in range(3) if k != axes.axis[i]
-            ],
-        }.get(group, [])  # rest lengths do not set the scale
-        for name in names:
-            fixed[layout.lookup(name)] = float(value)
-    if not any(v != 0 for v in fixed.values()):
-        fixed = {layout.index("mass", 0): 1.0}
-    sol = solve_constrained(normal[:-1, :-1], fixed, feat.n * topo.n_rods * 6)
-    th = {
-        g: [] for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain")
-    }
-    for value, group in zip(sol.theta[:P], layout.groups, strict=True):
-        th[group].append(value)
-    hinge = {"compression_stiffness": sol.theta[P:], "compression_stiffness_se": sol.stderr[P:]}
-    inertia = np.array(th["inertia"]).reshape(-1, 3)
-    perp = np.isfinite(inertia) & (np.eye(3)[axes.axis] == 0)  # the two perpendicular axes
-    count = perp.sum(1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return {
-            "stiffness": np.array(th["stiffness"]),
-            "damping": np.array(th["damping"]),
-            "rest_length": np.array(th["stiffness_rest"]) / np.array(th["stiffness"]),
-            "mass": np.array(th["mass"]),
-            "inertia_perp": np.where(count > 0, np.where(perp, inertia, 0).sum(1) / count, np.nan),
-            "control_gain": np.array(th["control_gain"]),
-        } | (hinge if S else {})
-
-
-def _odd(x: float) -> int:
-    n = max(round(x), 5)
-    return n if n % 2 else n + 1
-
-
-# ---------------------------------------------------------------------- the estimator
 class TrajectoryIdentifier:
     """Identification from (noisy) end caps: smoothing + regression, then trajectory fits.
 
@@ -401,7 +166,7 @@ class TrajectoryIdentifier:
             )
         axes = RodAxes.of(topo)
         anchors = parse_anchors(topo, self.anchors)
-        sg = _odd(self.smoothing / dataset.dt)
+        sg = odd_window(self.smoothing / dataset.dt)
         smooth = smooth_rod_states(data.nodes, dataset.dt, axes, sg)
         start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity)
         has_control = bool(np.any(data.control != 0))

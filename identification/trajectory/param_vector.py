@@ -1,21 +1,22 @@
 """The trajectory fit's parameter vector: log-parameters of the declared model per group,
-the rod geometry seen by end caps, anchors, and (optionally) effect coordinates.
+anchors fixed, and (optionally) effect coordinates.
 
-Split from :mod:`identification.trajectory.identifier`; see there for the method.
+The method is described in :mod:`identification.trajectory.identifier`; the rod geometry
+seen by end caps is :class:`identification.data.end_caps.RodAxes`, the anchors' names
+:func:`identification.linear.smoothed.parse_anchors`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
+from identification.data.end_caps import RodAxes
 from identification.trajectory.effect_coords import EffectCoords
 from tensegrity_env.engine import Engine
-from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
@@ -28,80 +29,7 @@ GROUPS = ("stiffness", "damping", "rest_length", "mass", "inertia_perp", "contro
 LOG_BOX = float(np.log(1e4))
 
 
-# ---------------------------------------------------------------------- rod geometry
-@dataclass(frozen=True)
-class RodAxes:
-    """End caps on a principal axis through the centre of mass, for every rod.
-
-    Attributes:
-        axis: index (0, 1, 2) of the principal axis holding rod r's end caps, (R,).
-        frac: the COM as ``x_0 + frac * (x_1 - x_0)`` between the end caps, (R,).
-        radius: rod radius for the assumed axial inertia ``M r^2 / 2`` [m], (R,).
-    """
-
-    axis: np.ndarray
-    frac: np.ndarray
-    radius: np.ndarray
-
-    @classmethod
-    def of(cls, topology: Topology) -> RodAxes:
-        """Raise :class:`InputError` if some rod's end caps are not on a principal axis."""
-        ends = topology.end_offsets  # (R, 2, 3)
-        axis, frac = [], []
-        for r, e in enumerate(ends):
-            k = int(np.argmax(np.abs(e[1] - e[0])))
-            off = np.delete(e, k, axis=1)
-            scale = np.abs(e).max()
-            if np.abs(off).max() > 1e-9 * scale or abs(e[1, k] - e[0, k]) < 1e-12:
-                raise InputError(
-                    f"rod '{topology.rods[r].name}': end caps are not on a principal axis through "
-                    "the centre of mass; end-cap-only identification needs them there"
-                )
-            axis.append(k)
-            frac.append(-e[0, k] / (e[1, k] - e[0, k]))
-        radius = np.array([max(rod.radius, 1e-3) for rod in topology.rods])
-        return cls(np.array(axis), np.array(frac), radius)
-
-
 # ---------------------------------------------------------------------- parameters
-def parse_anchors(topology: Topology, anchors: Mapping[str, float]) -> dict[tuple[str, int], float]:
-    """``{"mass[rod0]": 1.95}`` -> ``{("mass", 0): 1.95}``.
-
-    Names: ``mass[ROD]``, ``inertia_perp[ROD]`` (or ``inertia[ROD,x]`` for a perpendicular
-    axis), ``stiffness[SPRING]``, ``damping[SPRING]``, ``rest_length[SPRING]``,
-    ``control_gain``. Values must be positive. Raises :class:`InputError`.
-    """
-    rods = {r.name: i for i, r in enumerate(topology.rods)}
-    springs = {s.name: i for i, s in enumerate(topology.springs)}
-    out: dict[tuple[str, int], float] = {}
-    for name, value in anchors.items():
-        group, _, rest = name.partition("[")
-        element = rest.rstrip("]").split(",")[0]
-        key: tuple[str, int] | None = None
-        if name == "control_gain":
-            key = ("control_gain", 0)
-        elif group in ("mass", "inertia_perp", "inertia") and element in rods:
-            key = ("inertia_perp" if group == "inertia" else group, rods[element])
-        elif group in ("stiffness", "damping", "rest_length") and element in springs:
-            key = (group, springs[element])
-        if key is None:
-            raise InputError(
-                f"unknown anchor '{name}'; use mass[{topology.rods[0].name}], "
-                f"stiffness[{topology.springs[0].name}], inertia_perp[ROD], control_gain, ..."
-            )
-        if (
-            group == "inertia"
-            and rest.rstrip("]").split(",")[-1] == "xyz"[RodAxes.of(topology).axis[key[1]]]
-        ):
-            raise InputError(
-                f"anchor '{name}': the axial inertia is not identifiable from end caps"
-            )
-        if not float(value) > 0:
-            raise InputError(f"anchor '{name}' must be positive, got {value}")
-        out[key] = float(value)
-    return out
-
-
 @dataclass(frozen=True)
 class ParamVector:
     """The trajectory fit's log-parameters: ``log [K, c, l0, M, I_perp, h]`` (n_full,).

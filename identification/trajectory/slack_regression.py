@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from identification.trajectory.identifier import SmoothedStates, smoothed_regression
+from identification.data.end_caps import SmoothedStates
+from identification.linear.smoothed import smoothed_regression
 from tensegrity_env.topology import Topology
 
 #: a spring is a cable when compressing it loses a fraction of its stiffness in this

@@ -39,10 +39,10 @@ import torch
 from scipy.optimize import minimize
 
 from identification.data.dataset import Dataset
+from identification.data.end_caps import odd_window, smooth_rod_states
 from identification.trajectory.airborne import cap_radii
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
 from identification.trajectory.effect_fit import from_free, to_free
-from identification.trajectory.identifier import _odd, smooth_rod_states
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import STATE_KEYS, cut_windows, end_caps
@@ -281,7 +281,7 @@ def contact_from_dataset(
     topo, s = dataset.topology, dataset.split(split)
     vec = ParamVector.at(topo, params)
     engine = Engine(topo, dataset.dt, list(effects))
-    smooth = smooth_rod_states(s.nodes, dataset.dt, vec.axes, _odd(smoothing / dataset.dt))
+    smooth = smooth_rod_states(s.nodes, dataset.dt, vec.axes, odd_window(smoothing / dataset.dt))
     grid = {k: getattr(smooth, k) for k in STATE_KEYS}
     radius = cap_radii(topo)
     touch = find_touchdowns(engine, vec, s.nodes, s.control, grid, radius)

@@ -13,7 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 
-from identification.trajectory.param_vector import DTYPE, ParamVector, RodAxes
+from identification.data.end_caps import RodAxes
+from identification.trajectory.param_vector import DTYPE, ParamVector
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import quat_mul, quat_to_matrix
@@ -319,7 +320,8 @@ def schur_step(
     ``δᵀ(lam D δ - g)`` [m^2] and the reduced matrix ``S = A_gg - Σ H_gl A_ll⁻¹ H_lg``.
     """
     n_g = ne.H_gg.shape[0]
-    (A_ll, D_l), (A_gg, D_g) = _damped(ne.H_ll, lam), _damped(ne.H_gg, lam)
+    A_ll, D_l = _damped(ne.H_ll, lam)
+    A_gg, D_g = _damped(ne.H_gg, lam)
     Y = torch.linalg.solve(A_ll, torch.cat([ne.H_lg, ne.g_l.unsqueeze(-1)], dim=-1))
     S = A_gg - torch.einsum("bli,blj->ij", ne.H_lg, Y[..., :n_g])
     b = -ne.g_g + torch.einsum("bli,bl->i", ne.H_lg, Y[..., n_g])

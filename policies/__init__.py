@@ -16,4 +16,20 @@
 
 from pathlib import Path
 
+from tensegrity_env.lazy import lazy_exports
+
 SHIPPED_POLICY = Path(__file__).resolve().parent / "pretrained" / "ppo_IcosahedronSR-v0.zip"
+
+_all, __getattr__ = lazy_exports(
+    __name__,
+    {
+        "TrainResult": "policies.train",
+        "EvalResult": "policies.evaluate",
+        "load_policy": "policies.artifacts",
+        "save_policy": "policies.artifacts",
+        "LoadedPolicy": "policies.artifacts",
+        "TransferResult": "policies.transfer",
+        "make_training_env": "policies.vec",
+    },
+)
+__all__ = ["SHIPPED_POLICY", *_all]

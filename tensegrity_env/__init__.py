@@ -7,17 +7,14 @@ without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
 imported) so that rendering works headless; set it yourself to override.
 
 :class:`~tensegrity_env.model.Model` (topology, params, effects, dt; ``params.json``)
-is imported on first use, so that importing the package stays fast.
+and the names in ``__all__`` are imported on first use, so that importing the package
+stays fast.
 """
 
 import os
 import sys
-from typing import TYPE_CHECKING, Any
 
-if TYPE_CHECKING:
-    from tensegrity_env.model import Model
-
-__all__ = ["Model"]
+from tensegrity_env.lazy import lazy_exports
 
 if sys.platform.startswith("linux") and not (
     os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
@@ -44,9 +41,21 @@ def _register_envs() -> None:
 _register_envs()
 
 
-def __getattr__(name: str) -> Any:
-    if name == "Model":
-        from tensegrity_env.model import Model
-
-        return Model
-    raise AttributeError(f"module 'tensegrity_env' has no attribute {name!r}")
+__all__, __getattr__ = lazy_exports(
+    __name__,
+    {
+        "Model": "tensegrity_env.model",
+        "Topology": "tensegrity_env.topology",
+        "Rod": "tensegrity_env.topology",
+        "Spring": "tensegrity_env.topology",
+        "Params": "tensegrity_env.params",
+        "Engine": "tensegrity_env.engine",
+        "State": "tensegrity_env.engine",
+        "Assembly": "tensegrity_env.assemblies",
+        "icosahedron": "tensegrity_env.assemblies",
+        "element": "tensegrity_env.assemblies",
+        "SimOptions": "tensegrity_env.mjcf",
+        "from_mjcf": "tensegrity_env.mjcf",
+        "to_mjcf": "tensegrity_env.mjcf",
+    },
+)

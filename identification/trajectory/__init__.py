@@ -1,1 +1,21 @@
-"""Multi-step identification through the differentiable engine: windows, Levenberg-Marquardt fits."""
+"""Multi-step identification through the differentiable engine: windows, Levenberg-Marquardt fits.
+"""
+
+from tensegrity_env.lazy import lazy_exports
+
+__all__, __getattr__ = lazy_exports(
+    __name__,
+    {
+        "TrajectoryIdentifier": "identification.trajectory.identifier",
+        "ParamVector": "identification.trajectory.param_vector",
+        "WindowFit": "identification.trajectory.windowed_fit",
+        "cut_windows": "identification.trajectory.windowed_fit",
+        "fit_windows": "identification.trajectory.windowed_fit",
+        "window_schedule": "identification.trajectory.windowed_fit",
+        "SlackRegression": "identification.trajectory.slack_regression",
+        "find_touchdowns": "identification.trajectory.touchdown",
+        "search_contact": "identification.trajectory.touchdown",
+        "airborne_mask": "identification.trajectory.airborne",
+        "fit_effect_params": "identification.trajectory.effect_fit",
+    },
+)

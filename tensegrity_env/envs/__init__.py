@@ -22,7 +22,7 @@ from tensegrity_env.envs.rendering import (
     record_side_by_side,
     write_video,
 )
-from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, IcosahedronSREnv
+from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, IcosahedronSREnv, load_env_model
 from tensegrity_env.envs.task import RollingTask
 from tensegrity_env.envs.vector import IcosahedronMJVectorEnv, IcosahedronSRVectorEnv
 
@@ -44,6 +44,7 @@ __all__ = [
     "RenderingUnavailable",
     "RollingTask",
     "SB3VecEnv",
+    "load_env_model",
     "record_episode",
     "record_side_by_side",
     "write_video",

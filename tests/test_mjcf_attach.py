@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
-from test_mjcf_lab import CAP_RADIUS, _random_state, _rod_state, lab_mjcf
+from test_mjcf_lab import CAP_RADIUS, lab_mjcf, mj_random_state, mj_rod_state
 
 from identification.data.end_caps import rod_states_from_nodes
 from identification.linear.regression import SpringRodIdentifier
@@ -52,21 +52,21 @@ def test_sites_off_the_end_caps_are_attachment_points(attach: str) -> None:
 
 
 def asm_pose(asm, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
-    s = _rod_state(asm, d)
+    s = mj_rod_state(asm, d)
     return s.p[0].numpy(), s.q[0].numpy()
 
 
 @pytest.mark.parametrize("attach", ATTACH)
 def test_engine_equals_mujoco_with_springs_anywhere_on_the_rods(attach: str) -> None:
     asm = from_mjcf("<lab>", xml=lab_mjcf(attach))
-    m, d = _random_state(asm, seed=11)
+    m, d = mj_random_state(asm, seed=11)
     engine = Engine(asm.topology, dt=m.opt.timestep)
-    state = _rod_state(asm, d)
+    state = mj_rod_state(asm, d)
     errors = []
     for _ in range(1000):
         mujoco.mj_step(m, d)
         state = engine.step(state, asm.params)
-        ref = _rod_state(asm, d)
+        ref = mj_rod_state(asm, d)
         errors.append(
             max(float((getattr(state, k) - getattr(ref, k)).abs().max()) for k in ("p", "v", "q"))
             + float((state.omega - ref.omega).abs().max())
@@ -89,7 +89,7 @@ def test_attachment_points_survive_json_and_mjcf_round_trips() -> None:
     assert Topology.from_json(topo.to_json()).same_as(topo)
     again = from_mjcf("<again>", xml=to_mjcf(topo, asm.params))
     assert again.topology.same_as(topo, atol=1e-12)
-    state = _rod_state(asm, _random_state(asm, seed=12)[1])
+    state = mj_rod_state(asm, mj_random_state(asm, seed=12)[1])
     a = Engine(again.topology).step(state, again.params).v
     b = Engine(topo).step(state, asm.params).v
     assert float((a - b).abs().max()) <= 1e-12

@@ -144,14 +144,14 @@ def lab_mjcf(
     return f"{body}\n{tendons(rest_fraction * d.ten_length)}\n{extra}</mujoco>"
 
 
-def _random_state(asm, seed: int) -> tuple[mujoco.MjModel, mujoco.MjData]:
+def mj_random_state(asm, seed: int) -> tuple[mujoco.MjModel, mujoco.MjData]:
     m = asm.model
     d = mujoco.MjData(m)
     d.qvel[:] = np.random.default_rng(seed).normal(size=m.nv)
     return m, d
 
 
-def _rod_state(asm, d: mujoco.MjData) -> State:
+def mj_rod_state(asm, d: mujoco.MjData) -> State:
     s = mj_to_rod_state(asm, d.qpos.copy(), d.qvel.copy())
     return State.from_numpy(*(s[k][None] for k in ("p", "v", "q", "omega")))
 
@@ -181,14 +181,14 @@ def test_end_cap_radius_is_the_capsule_or_cylinder_ending_at_the_site() -> None:
 
 def test_engine_equals_mujoco_with_body_frames_off_the_centre_of_mass() -> None:
     asm = from_mjcf("<lab>", xml=lab_mjcf())
-    m, d = _random_state(asm, seed=1)
+    m, d = mj_random_state(asm, seed=1)
     engine = Engine(asm.topology, dt=m.opt.timestep)
-    state = _rod_state(asm, d)
+    state = mj_rod_state(asm, d)
     errors = []
     for _ in range(1000):
         mujoco.mj_step(m, d)
         state = engine.step(state, asm.params)
-        ref = _rod_state(asm, d)
+        ref = mj_rod_state(asm, d)
         errors.append(
             max(float((getattr(state, k) - getattr(ref, k)).abs().max()) for k in "pvq")
             + float((state.omega - ref.omega).abs().max())
@@ -212,8 +212,8 @@ def test_frame_origin_survives_json_and_mjcf_round_trips() -> None:
     assert np.allclose(again.topology.frame_origins, topo.frame_origins, atol=1e-12)
     assert np.allclose(again.topology.end_offsets, topo.end_offsets, atol=1e-12)
     # the written model steps the same as the lab's own file
-    data = _random_state(asm, seed=2)[1]
-    state = _rod_state(asm, data)
+    data = mj_random_state(asm, seed=2)[1]
+    state = mj_rod_state(asm, data)
     engine = Engine(again.topology, dt=1e-3)
     assert (
         float(
@@ -258,17 +258,17 @@ def test_floor_contact_is_read_from_the_file_and_reproduces_mujoco() -> None:
     assert asm.contact["stiffness"] == pytest.approx(5000 / dmax**2, rel=1e-12)
     assert asm.contact["damping"] == pytest.approx(50 / dmax, rel=1e-12)
     # lower the prism so its three bottom end caps sink 5 mm into the floor
-    m, d = _random_state(asm, seed=5)
+    m, d = mj_random_state(asm, seed=5)
     d.qvel[:] *= 0.1
     for r in range(3):
         d.qpos[asm.rod_qpos[r] + 2] -= 0.3 - CAP_RADIUS + 0.005
-    state = _rod_state(asm, d)
+    state = mj_rod_state(asm, d)
     mujoco.mj_step(m, d)
     contact = GroundContact(asm.topology, height=0.0, **asm.contact)
     with torch.no_grad():
         bare = Engine(asm.topology, 1e-3).step(state, asm.params)
         full = Engine(asm.topology, 1e-3, effects=[contact]).step(state, asm.params)
-    ref = _rod_state(asm, d)
+    ref = mj_rod_state(asm, d)
     assert float((bare.v - ref.v).abs().max()) > 1e-3  # the floor pushes
     assert float((full.v - ref.v).abs().max()) <= 1e-9  # MuJoCo's solver tolerance
 
@@ -325,8 +325,8 @@ def test_dead_band_springs_are_tension_only_cables() -> None:
     assert asm.slack_springs == (0, 1)
     assert torch.equal(asm.params.rest_length, plain.params.rest_length)
     # slack cables (shorter than rest) push nothing, as MuJoCo's dead band
-    m, d = _random_state(asm, seed=6)
-    state = _rod_state(asm, d)
+    m, d = mj_random_state(asm, seed=6)
+    state = mj_rod_state(asm, d)
     lengths = d.ten_length.copy()
     mujoco.mj_forward(m, d)
     assert np.all(d.ten_length[:2] < asm.params.rest_length.numpy()[:2] / 0.9 + 1)  # sanity
@@ -334,7 +334,7 @@ def test_dead_band_springs_are_tension_only_cables() -> None:
     cables = SlackSprings(asm.topology, springs=list(asm.slack_springs))
     with torch.no_grad():
         step = Engine(asm.topology, 1e-3, effects=[cables]).step(state, asm.params)
-    assert float((step.v - _rod_state(asm, d).v).abs().max()) <= 1e-12
+    assert float((step.v - mj_rod_state(asm, d).v).abs().max()) <= 1e-12
     assert lengths.shape == (9,)
 
 

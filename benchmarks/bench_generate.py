@@ -30,10 +30,10 @@ from identification.simulation.generate import (
     GenerateSpec,
     ctrl_vectors,
     generate,
-    load_truth,
     split_inputs,
 )
 from identification.simulation.rollout import default_threads
+from identification.simulation.truth import load_truth
 from tensegrity_env.mujoco_state import rod_state_to_mj
 
 

@@ -23,7 +23,8 @@ from identification.discovery.trajectory_loop import (
 )
 from identification.simulation.planted import PlantSpec, planted_dataset
 from identification.trajectory.effect_coords import EffectCoords
-from identification.trajectory.windowed_fit import linearize, local_basis
+from identification.trajectory.windowed_fit import linearize
+from identification.trajectory.windows import local_basis
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag, QuadraticDrag
 

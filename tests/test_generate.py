@@ -13,8 +13,9 @@ import pytest
 import identification.simulation.generate as gen
 from identification.data.dataset import SPLITS, STATE_KEYS, Dataset, GroundTruth, read_dataset
 from identification.data.end_caps import rod_states_from_nodes
-from identification.simulation.generate import GenerateSpec, generate, generate_dataset, load_truth
+from identification.simulation.generate import GenerateSpec, generate, generate_dataset
 from identification.simulation.rollout import RodFrames
+from identification.simulation.truth import load_truth
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
 from tensegrity_env.rotations import np_quat_to_matrix

@@ -164,13 +164,13 @@ def test_slack_cables_at_attachment_points_match_mujocos_dead_band() -> None:
     xml = lab_mjcf("surface").replace('springlength="', 'springlength="0 ', 3)
     asm = from_mjcf("<lab>", xml=xml)
     assert asm.slack_springs == (0, 1, 2)
-    m, d = _random_state(asm, seed=13)
-    state = _rod_state(asm, d)
+    m, d = mj_random_state(asm, seed=13)
+    state = mj_rod_state(asm, d)
     mujoco.mj_step(m, d)
     cables = SlackSprings(asm.topology, springs=list(asm.slack_springs))
     with torch.no_grad():
         step = Engine(asm.topology, 1e-3, effects=[cables]).step(state, asm.params)
-    assert float((step.v - _rod_state(asm, d).v).abs().max()) <= 1e-12
+    assert float((step.v - mj_rod_state(asm, d).v).abs().max()) <= 1e-12
 
 
 def test_native_kernel_with_floor_contact_and_attachment_points() -> None:

@@ -20,12 +20,8 @@ from identification.linear.smoothed import parse_anchors
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate_dataset
 from identification.simulation.planted import add_measurement_noise
 from identification.trajectory.identifier import TrajectoryIdentifier
-from identification.trajectory.windowed_fit import (
-    cut_windows,
-    linearize,
-    local_basis,
-    window_schedule,
-)
+from identification.trajectory.windowed_fit import linearize
+from identification.trajectory.windows import cut_windows, local_basis, window_schedule
 from tensegrity_env.assemblies import Assembly, element, icosahedron
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError

@@ -14,7 +14,7 @@ from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.simulation.planted import PlantSpec, planted_dataset
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import TOUCH, find_touchdowns, search_contact
-from identification.trajectory.windowed_fit import STATE_KEYS
+from identification.trajectory.windows import STATE_KEYS
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 from tensegrity_env.engine import Engine

@@ -14,7 +14,7 @@ import torch
 from identification.data.end_caps import RodAxes
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
-from identification.trajectory.windowed_fit import Windows, end_caps, local_basis, sees_roll
+from identification.trajectory.windows import Windows, end_caps, local_basis, sees_roll
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import LinearDrag, QuadraticDrag
 from tensegrity_env.engine import Engine

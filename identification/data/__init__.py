@@ -1,5 +1,4 @@
-"""Measured and generated motion as data: the dataset format, end caps to rod states.
-"""
+"""Measured and generated motion as data: the dataset format, end caps to rod states."""
 
 from tensegrity_env.lazy import lazy_exports
 

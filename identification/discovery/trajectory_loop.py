@@ -100,14 +100,8 @@ from identification.trajectory.slack_regression import (
 )
 from identification.trajectory.touchdown import find_touchdowns, search_contact
 from identification.trajectory.window_states import GROW, fit_states, prefix
-from identification.trajectory.windowed_fit import (
-    STATE_KEYS,
-    Windows,
-    cut_windows,
-    end_caps,
-    fit_windows,
-    sees_roll,
-)
+from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windows import STATE_KEYS, Windows, cut_windows, end_caps, sees_roll
 from tensegrity_env.effects import (
     CubicStiffness,
     ForceField,

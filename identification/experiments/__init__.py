@@ -1,5 +1,4 @@
-"""The paper's experiments, baselines and the checks of identified models.
-"""
+"""The paper's experiments, baselines and the checks of identified models."""
 
 from tensegrity_env.lazy import lazy_exports
 

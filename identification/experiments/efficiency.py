@@ -23,6 +23,9 @@ Example::
     result = run_efficiency(dataset, truth.params, anchors={"mass[rod0]": 1.95})
     print(result.markdown())
     write_outputs(result, "out/efficiency")   # efficiency.md, .json, .png
+
+Over 400 lines because it is one experiment: the sweep, its result type and its three
+outputs (markdown, JSON, figure) read the same records.
 """
 
 from __future__ import annotations

@@ -13,6 +13,9 @@ Writes into one folder, each file atomically:
   both Koopman models, on the icosahedron;
 * ``results.json`` — every number; ``results.md`` — the tables, with the command,
   machine and wall time.
+
+Over 400 lines because it is one report: every figure and table of one
+:class:`~identification.experiments.paper.ExperimentResult`.
 """
 
 from __future__ import annotations

@@ -1,5 +1,4 @@
-"""One-step identification by linear regression: design matrix, constrained solve, estimators.
-"""
+"""One-step identification by linear regression: design matrix, constrained solve, estimators."""
 
 from tensegrity_env.lazy import lazy_exports
 

@@ -7,6 +7,9 @@ identifiability report, ``predict``/``simulate`` run the identified engine and
     est = SpringRodIdentifier(anchors={"mass[rod0]": 1.95}).fit(dataset)
     est.params_.stiffness        # (S,) [N/m]
     est.score(dataset, "test")   # {'one_step_position_error': ..., ...}
+
+Over 400 lines because it is one estimator class (fit, identifiability report,
+predict, simulate, score) whose parts share its fitted state.
 """
 
 from __future__ import annotations

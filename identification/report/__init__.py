@@ -1,5 +1,4 @@
-"""Tables and figures shared by identification, discovery and the experiments.
-"""
+"""Tables and figures shared by identification, discovery and the experiments."""
 
 from tensegrity_env.lazy import lazy_exports
 

@@ -1,5 +1,4 @@
-"""MuJoCo ground truth: batched rollouts, randomized datasets, planted (undeclared) effects.
-"""
+"""MuJoCo ground truth: batched rollouts, randomized datasets, planted (undeclared) effects."""
 
 from tensegrity_env.lazy import lazy_exports
 
@@ -8,9 +7,9 @@ __all__, __getattr__ = lazy_exports(
     {
         "GenerateSpec": "identification.simulation.generate",
         "InitialConditions": "identification.simulation.generate",
-        "Truth": "identification.simulation.generate",
+        "Truth": "identification.simulation.truth",
         "generate_dataset": "identification.simulation.generate",
-        "load_truth": "identification.simulation.generate",
+        "load_truth": "identification.simulation.truth",
         "PlantSpec": "identification.simulation.planted",
         "PlantedData": "identification.simulation.planted",
         "add_measurement_noise": "identification.simulation.planted",

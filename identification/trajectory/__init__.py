@@ -1,5 +1,4 @@
-"""Multi-step identification through the differentiable engine: windows, Levenberg-Marquardt fits.
-"""
+"""Multi-step identification through the differentiable engine: windows, Levenberg-Marquardt fits."""
 
 from tensegrity_env.lazy import lazy_exports
 
@@ -9,9 +8,10 @@ __all__, __getattr__ = lazy_exports(
         "TrajectoryIdentifier": "identification.trajectory.identifier",
         "ParamVector": "identification.trajectory.param_vector",
         "WindowFit": "identification.trajectory.windowed_fit",
-        "cut_windows": "identification.trajectory.windowed_fit",
+        "Windows": "identification.trajectory.windows",
+        "cut_windows": "identification.trajectory.windows",
         "fit_windows": "identification.trajectory.windowed_fit",
-        "window_schedule": "identification.trajectory.windowed_fit",
+        "window_schedule": "identification.trajectory.windows",
         "SlackRegression": "identification.trajectory.slack_regression",
         "find_touchdowns": "identification.trajectory.touchdown",
         "search_contact": "identification.trajectory.touchdown",

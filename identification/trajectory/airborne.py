@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from scipy.ndimage import minimum_filter1d
 
-from identification.trajectory.windowed_fit import STATE_KEYS, Windows
+from identification.trajectory.windows import STATE_KEYS, Windows
 from tensegrity_env.engine import State
 from tensegrity_env.topology import Topology
 

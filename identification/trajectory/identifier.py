@@ -66,13 +66,8 @@ from identification.data.dataset import Dataset
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.param_vector import DTYPE, GROUPS, ParamVector
-from identification.trajectory.windowed_fit import (
-    STATE_KEYS,
-    cut_windows,
-    fill_grid,
-    fit_windows,
-    window_schedule,
-)
+from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windows import STATE_KEYS, cut_windows, fill_grid, window_schedule
 from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.topology import Topology

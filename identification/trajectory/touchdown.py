@@ -45,7 +45,7 @@ from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
 from identification.trajectory.effect_fit import from_free, to_free
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
-from identification.trajectory.windowed_fit import STATE_KEYS, cut_windows, end_caps
+from identification.trajectory.windows import STATE_KEYS, cut_windows, end_caps
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State

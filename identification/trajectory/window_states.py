@@ -15,7 +15,8 @@ from dataclasses import replace
 import torch
 
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import WindowFit, Windows, fit_windows
+from identification.trajectory.windowed_fit import WindowFit, fit_windows
+from identification.trajectory.windows import Windows
 from tensegrity_env.engine import Engine
 
 #: window prefixes [steps] the initial states are fitted on before the whole window
@@ -36,7 +37,7 @@ def fit_states(
     """Only the windows' initial states (``vec``: nothing free), on growing prefixes.
 
     ``spin``: the axial spins too (from the prefix of 25 steps on); ``roll``: the rods'
-    roll about their axes (see :func:`~identification.trajectory.windowed_fit.local_basis`).
+    roll about their axes (see :func:`~identification.trajectory.windows.local_basis`).
     Returns the fit on the whole windows (its ``history[-1]``: mean squared end-cap
     error [m^2]).
     """

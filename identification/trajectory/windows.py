@@ -1,0 +1,178 @@
+"""Windows of measured end caps for the trajectory fit: cutting, their initial states'
+local coordinates, the engine rollout of a window and its residual, the window schedule.
+
+The fit over windows is :mod:`identification.trajectory.windowed_fit`; the method is
+described in :mod:`identification.trajectory.identifier`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from identification.data.end_caps import RodAxes
+from identification.trajectory.param_vector import DTYPE, ParamVector
+from tensegrity_env.engine import Engine, State
+from tensegrity_env.params import Params
+from tensegrity_env.rotations import quat_mul, quat_to_matrix
+
+STATE_KEYS = ("p", "v", "q", "omega")
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Trajectory windows of ``W`` steps, batched over ``B``.
+
+    Attributes:
+        obs: measured end caps, (B, W+1, 2R, 3) [m].
+        control: commands during each step, (B, W, R, 3), or None (no control).
+        state: current estimate of each window's initial rod state, (B, R, ·).
+        traj, start: trajectory index and first sample of each window, (B,).
+        valid: which samples count, (B, W+1) bool, or None (all): windows of
+            different lengths share one batch, each ending where its valid samples do.
+    """
+
+    obs: torch.Tensor
+    control: torch.Tensor | None
+    state: State
+    traj: np.ndarray
+    start: np.ndarray
+    valid: torch.Tensor | None = None
+
+    @property
+    def size(self) -> int:
+        return int(self.obs.shape[0])
+
+    @property
+    def steps(self) -> int:
+        return int(self.obs.shape[1]) - 1
+
+    @property
+    def residuals(self) -> int:
+        """Number of end-cap coordinates that count (see ``valid``)."""
+        if self.valid is None:
+            return int(self.obs.numel())
+        return int(self.valid.sum()) * int(self.obs[0, 0].numel())
+
+    def weights(self, t0: int = 0, t1: int | None = None) -> torch.Tensor | None:
+        """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1, 1), or None."""
+        if self.valid is None:
+            return None
+        return self.valid[:, t0:t1, None, None].to(self.obs.dtype)
+
+    def take(self, idx: slice | np.ndarray) -> Windows:
+        i = np.atleast_1d(np.arange(self.size)[idx])
+        t = torch.as_tensor(i)
+        ctrl = None if self.control is None else self.control[t]
+        valid = None if self.valid is None else self.valid[t]
+        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[i], self.start[i], valid)
+
+
+def cut_windows(
+    nodes: np.ndarray, control: np.ndarray, grid: dict[str, np.ndarray], window: int
+) -> Windows:
+    """Non-overlapping windows of about ``window`` steps over every trajectory.
+
+    ``nodes`` (N, T+1, 2R, 3), ``control`` (N, T, R, 3); initial states are read from
+    ``grid``, rod states at every sample (N, T+1, R, ·) (the smoothing, or a previous
+    fit). The length is adjusted so that ``T // window`` windows tile each trajectory
+    (fewer than that many steps are left over at its end).
+    """
+    N, T1 = nodes.shape[:2]
+    W = (T1 - 1) // max(1, (T1 - 1) // window)
+    starts = np.arange(0, T1 - W, W)
+    traj, start = np.repeat(np.arange(N), len(starts)), np.tile(starts, N)
+    span = start[:, None] + np.arange(W + 1)
+    obs = torch.as_tensor(nodes[traj[:, None], span], dtype=DTYPE)
+    ctrl = control[traj[:, None], span[:, :-1]]
+    state = State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS))
+    ctrl_t = torch.as_tensor(ctrl, dtype=DTYPE) if np.any(ctrl != 0) else None
+    return Windows(obs, ctrl_t, state, traj, start)
+
+
+@torch.no_grad()
+def fill_grid(
+    engine: Engine, params: Params, windows: Windows, grid: dict[str, np.ndarray]
+) -> None:
+    """Write the rollout of every fitted window into ``grid`` (N, T+1, R, ·), in place."""
+    roll = engine.rollout(windows.state, params, windows.steps, windows.control)
+    span = windows.start[:, None] + np.arange(windows.steps + 1)
+    for k, arr in roll.numpy().items():
+        grid[k][windows.traj[:, None], span] = arr
+
+
+def local_basis(axes: RodAxes, spin: bool = True, roll: bool = False) -> torch.Tensor:
+    """Tangents of each window's initial state, (n_local, R, 12).
+
+    Per rod: ``δp, δv`` (world), ``δθ`` (rotation vector), ``δω`` (both in the rod frame).
+    The rotation about the axis holding the end caps is left out unless ``roll``: it
+    moves nothing but an effect that sees it (``sees_roll``, e.g. box-form quadratic
+    drag). ``spin=False`` also leaves out the angular velocity about that axis (rod
+    frame): it acts only through the tiny gyroscopic term ``I_axial ω_axial``, so
+    short windows cannot tell it from noise.
+    """
+    R = len(axes.axis)
+    rows = []
+    for r in range(R):
+        for j in range(12):
+            if 6 <= j < 9 and j - 6 == axes.axis[r] and not roll:
+                continue
+            if j - 9 == axes.axis[r] and not spin:
+                continue
+            e = torch.zeros(R, 12, dtype=DTYPE)
+            e[r, j] = 1.0
+            rows.append(e)
+    return torch.stack(rows)
+
+
+def sees_roll(engine: Engine) -> bool:
+    """Whether one of ``engine``'s effects depends on the rods' roll about their axes."""
+    return any(getattr(e, "sees_roll", False) for e in engine.effects)
+
+
+def perturb(state: State, d: torch.Tensor) -> State:
+    """``state ⊕ d`` for per-rod perturbations ``d`` (B, R, 12) (see :func:`local_basis`)."""
+    dq = torch.cat([torch.ones_like(d[..., :1]), 0.5 * d[..., 6:9]], dim=-1)
+    q = quat_mul(state.q, dq)
+    q = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+    d_omega = torch.einsum("brij,brj->bri", quat_to_matrix(state.q), d[..., 9:12])
+    return State(state.p + d[..., 0:3], state.v + d[..., 3:6], q, state.omega + d_omega)
+
+
+def end_caps(engine: Engine, p: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
+    """End-cap positions of rod poses ``p`` (..., R, 3), ``q`` (..., R, 4) -> (..., 2R, 3)."""
+    arms = torch.einsum("...rij,rkj->...rki", quat_to_matrix(q), engine.end_offsets)
+    return (p.unsqueeze(-2) + arms).flatten(-3, -2)
+
+
+def window_residual(
+    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor
+) -> Callable[[torch.Tensor, torch.Tensor], torch.Tensor]:
+    """``f(z, theta)``: engine end caps minus measured, (B, W+1, 2R, 3) [m] (0 where
+    not ``win.valid``).
+
+    ``z`` (B, n_local) perturbs each window's initial state along ``basis``;
+    ``theta`` (n_free,) are the free log-parameters.
+    """
+
+    def f(z: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
+        state = perturb(win.state, torch.einsum("bl,lrj->brj", z, basis))
+        eng = vec.engine(engine, theta)
+        roll = eng.rollout(state, vec.params(vec.full(theta)), win.steps, win.control)
+        r = end_caps(eng, roll.p, roll.q) - win.obs
+        w = win.weights()
+        return r if w is None else r * w
+
+    return f
+
+
+
+def window_schedule(first: int, last: int, factor: float = 4.0) -> list[int]:
+    """Window lengths growing geometrically, by at most ``factor``, from ``first`` to ``last``."""
+    if first >= last:
+        return [last]
+    n = int(np.ceil(np.log(last / first) / np.log(factor) - 1e-9))
+    return [round(first * (last / first) ** (k / n)) for k in range(n + 1)]

@@ -142,7 +142,7 @@ def test_finite_difference_gradient_matches_autograd() -> None:
         "rest_length": P["rest_length"], "mass": P["mass"],
         "inertia_perp": P["inertia"][:, 0], "control_gain": np.ones(1),
     }  # fmt: skip
-    vec = est._vector(asm.topology, axes, start, {("mass", 0): float(P["mass"][0])}, False)
+    vec = est.start_vector(asm.topology, axes, start, {("mass", 0): float(P["mass"][0])}, False)
     engine, basis = Engine(asm.topology, clean.dt), local_basis(axes)
     theta = vec.start[vec.free]
     fd = linearize(engine, vec, windows, basis, theta, chunk=8)

@@ -165,7 +165,7 @@ class TrajectoryIdentifier:
         smooth = smooth_rod_states(data.nodes, dataset.dt, axes, sg)
         start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity)
         has_control = bool(np.any(data.control != 0))
-        vec = self._vector(topo, axes, start, anchors, has_control)
+        vec = self.start_vector(topo, axes, start, anchors, has_control)
         engine = Engine(topo, dataset.dt)
         grid = {k: getattr(smooth, k).copy() for k in STATE_KEYS}
         theta = vec.start[vec.free]
@@ -226,11 +226,13 @@ class TrajectoryIdentifier:
         self.notes_ = self._notes(topo, axes, has_control)
         return self
 
-    def _vector(
+    def start_vector(
         self, topo: Topology, axes: RodAxes, start: dict[str, np.ndarray],
         anchors: dict[tuple[str, int], float], has_control: bool,
     ) -> ParamVector:  # fmt: skip
-        """Log-parameter vector: stage-1 values (repaired where unusable), anchors fixed."""
+        """The log-parameter vector the fit starts from: stage-1 values ``start`` (repaired
+        where unusable, see :func:`~identification.linear.smoothed.smoothed_regression`), anchors
+        fixed; sets ``mode_`` ("ratios" without a scale anchor, else "anchored")."""
         values, free = [], []
         self.mode_ = "anchored"
         if not any(g != "rest_length" for g, _ in anchors):

@@ -149,9 +149,12 @@ def rod_states_from_nodes(
 def smooth_nodes(nodes: np.ndarray, dt: float, smoothing: float) -> np.ndarray:
     """End caps (N, T+1, 2R, 3) smoothed along time: Gaussian of std ``smoothing`` [s].
 
-    A Gaussian kernel (not Savitzky-Golay, whose side lobes pass high-frequency noise
-    that the transitions' double differences then amplify by 1/dt²); the ends are
-    extended by a cubic fit (``mode="nearest"`` would bend them).
+    The ``"gaussian"`` method: the one-step transitions of these caps are double
+    differences, which amplify whatever the filter passes by 1/dt², and a Gaussian
+    kernel has no side lobes to pass high-frequency noise (``"savgol"`` instead
+    differentiates its fitted polynomials, :func:`smooth_rod_states`). The ends are
+    extended by a cubic fit (``mode="nearest"`` would bend them). ``smoothing`` below
+    half a sample returns ``nodes`` unchanged.
     """
     sigma = smoothing / dt
     if sigma < 0.5:
@@ -197,11 +200,14 @@ class SmoothedStates:
 def smooth_rod_states(
     nodes: np.ndarray, dt: float, axes: RodAxes, window: int, polyorder: int = 3
 ) -> SmoothedStates:
-    """Savitzky-Golay smoothing of end caps ``nodes`` (N, T+1, 2R, 3) and the rod states.
+    """The ``"savgol"`` method: rod states and rates from a cubic Savitzky-Golay fit.
 
-    ``window`` is the filter length in samples (odd; clipped to the trajectory). The
-    perpendicular angular velocity and acceleration are ``u × u̇`` and ``u × ü`` of
-    the rod direction ``u``.
+    ``nodes``: end caps (N, T+1, 2R, 3) [m]; ``dt`` [s]; ``window``: the filter length in
+    samples (odd, see :func:`odd_window`; clipped to the trajectory). Positions,
+    velocities and accelerations are the fitted polynomials and their derivatives (no
+    finite differences); the perpendicular angular velocity and acceleration are
+    ``u × u̇`` and ``u × ü`` of the rod direction ``u``, and the orientation the
+    shortest arc onto ``u`` (no twist, as :func:`rod_states_from_nodes`).
     """
     T1 = nodes.shape[1]
     window = min(window, T1 if T1 % 2 else T1 - 1)

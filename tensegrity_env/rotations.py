@@ -64,8 +64,7 @@ def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> tor
 def axis_angle_to_quat(axis: np.ndarray, angle: float) -> np.ndarray:
     """Numpy helper: unit quaternion (w, x, y, z) rotating ``angle`` [rad] about ``axis``."""
     a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
-    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * a])
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * a / np.linalg.norm(a)])
 
 
 def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:

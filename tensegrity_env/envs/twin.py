@@ -27,7 +27,7 @@ import numpy as np
 
 from tensegrity_env.assemblies import Assembly, icosahedron, node_positions
 from tensegrity_env.mjcf import SimOptions, to_mjcf
-from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix, shortest_arc
+from tensegrity_env.rotations import axis_angle_to_quat, np_quat_mul, np_quat_to_matrix
 from tensegrity_env.topology import Topology
 
 #: ground truth of the environments (see the module docstring)
@@ -56,7 +56,9 @@ def face_down_pose(
     to face straight down, and the pose is lifted so that the lowest end-cap surface is
     ``clearance`` above ``z = 0``. Returns rod centres (R, 3) [m] and orientations (R, 4).
     """
-    down = shortest_arc(np.full(3, -1.0) / np.sqrt(3.0), np.array([0.0, 0.0, -1.0]))
+    normal, below = np.full(3, -1.0) / np.sqrt(3.0), np.array([0.0, 0.0, -1.0])
+    axis = np.cross(normal, below)  # turn about it by the angle between the two
+    down = axis_angle_to_quat(axis, np.arctan2(np.linalg.norm(axis), float(normal @ below)))
     rot = np_quat_to_matrix(down)
     centre = pose_p.mean(axis=0)
     p = (pose_p - centre) @ rot.T

@@ -366,7 +366,7 @@ def fit_declared(
         values = params_values(start, data.axes)
     has_control = bool(np.any(data.train.control != 0))
     anchors = parse_anchors(data.topology, s.anchors)
-    vec = TrajectoryIdentifier(anchors=s.anchors)._vector(
+    vec = TrajectoryIdentifier(anchors=s.anchors).start_vector(
         data.topology, data.axes, values, anchors, has_control
     )
     if effects:

@@ -331,7 +331,7 @@ def test_asset_pipeline_regenerates_an_identified_model(tmp_path: Path) -> None:
 
     assert make_assets(["--quick", "--out", str(tmp_path), "--work", str(tmp_path / "work")]) == 0
     params = tmp_path / "icosahedron_rolling_params.json"
-    _, _, effects = load_env_model(params)
+    effects = load_env_model(params).effects
     contact = effects[0].values
     assert abs(float(contact["friction"]) - 1.0) < 0.05
     env = IcosahedronSREnv(params_path=params)

@@ -199,7 +199,8 @@ def _open(path: str | Path) -> h5py.File:
         f = h5py.File(p, "r")
     except OSError as e:
         raise InputError(f"{p}: not a readable HDF5 file (truncated or corrupt: {e})") from None
-    fmt, version = _decode(f.attrs.get("format")), _decode(f.attrs.get("version", -1))
+    fmt = _decode(f.attrs.get("format"))
+    version = _decode(f.attrs.get("version", -1))
     if fmt != DATASET_FORMAT:
         f.close()
         raise InputError(f"{p}: not a tensegrity-sr dataset (format attribute missing or wrong)")

@@ -89,7 +89,7 @@ def test_unlabelled_export_with_new_ids_and_ghosts_is_labelled_back(clean) -> No
     "case, message",
     [
         ("truncated", "not a readable C3D file"),
-        ("missing_column", "not one marker's _x, _y, _z"),
+        ("missing_column", "not one marker's x, y, z columns"),
         ("unknown_marker", "which is not in the file"),
         ("wrong_robot", "end caps"),
     ],

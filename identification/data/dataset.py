@@ -204,7 +204,7 @@ def _open(path: str | Path) -> h5py.File:
     if fmt != DATASET_FORMAT:
         f.close()
         raise InputError(f"{p}: not a tensegrity-sr dataset (format attribute missing or wrong)")
-    if not isinstance(version, (int, np.integer)) or int(version) != DATASET_VERSION:
+    if not isinstance(version, (int, np.integer)) or int(version) not in READABLE_VERSIONS:
         f.close()
         raise InputError(f"{p}: dataset version {version!r} is not supported")
     return f

@@ -43,7 +43,7 @@ class SampleQuality:
     noise: np.ndarray
 
 
-def _longest_run(mask: np.ndarray) -> int:
+def longest_run(mask: np.ndarray) -> int:
     """Longest run of True along the last axis of a 1-D bool array."""
     best = run = 0
     for m in mask:
@@ -70,7 +70,7 @@ def sample_quality(ds: Dataset) -> SampleQuality:
             seen += valid.sum(0)
             missing += (~valid).sum(0)
             for c in range(n_caps):
-                longest[c] = max(longest[c], _longest_run(~valid[:, c]))
+                longest[c] = max(longest[c], longest_run(~valid[:, c]))
                 x = nodes[:, c]
                 diff3 = x[3:] - 3 * x[2:-1] + 3 * x[1:-2] - x[:-3]
                 d3[c].append(diff3[np.isfinite(diff3).all(-1)].ravel())

@@ -1,4 +1,4 @@
-"""CSV exports: OptiTrack Motive's layout and a plain ``time, <marker>_x, _y, _z`` table.
+"""CSV exports: OptiTrack Motive's layout and a plain ``time, <marker>_x, <marker>_y, <marker>_z`` table.
 
 Motive (1.x-3.x "CSV export"): a first row of ``key,value`` pairs (``Capture Frame Rate``,
 ``Length Units``, ...), a blank row, then header rows naming each column's type
@@ -69,7 +69,7 @@ def _read_plain(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
         stems = {h.rsplit("_", 1)[0] for h in trio}
         if len(trio) < 3 or [h.rsplit("_", 1)[-1].lower() for h in trio] != list(AXES) or len(stems) != 1:
             raise InputError(
-                f"{path}: columns {', '.join(trio)} are not one marker's _x, _y, _z "
+                f"{path}: columns {', '.join(trio)} are not one marker's x, y, z columns "
                 "(a column missing or out of order)"
             )
         names.append(stems.pop())

@@ -55,6 +55,6 @@ def test_bad_times_and_gaps_are_refused(tmp_path: Path, bad: str) -> None:
     else:
         nodes[1] = np.nan
     ds.splits["train"] = Split(nodes=nodes, control=s.control, time=time)
-    with pytest.raises(InputError, match="'(time|nodes)'"):
+    with pytest.raises(InputError, match=r"'(time|nodes)'"):
         write_dataset(tmp_path / "d.h5", ds)
     assert not (tmp_path / "d.h5").exists()

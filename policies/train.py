@@ -18,6 +18,7 @@ from __future__ import annotations
 import re
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -207,6 +208,7 @@ def train(
     tensorboard: bool = True,
     verbose: int = 0,
     command: str | None = None,
+    callbacks: Sequence[BaseCallback] = (),
 ) -> TrainResult:
     """Train ``algo`` on ``env_id`` into the run folder ``out``.
 
@@ -227,6 +229,8 @@ def train(
         tensorboard: log to ``out/tb``.
         verbose: SB3 verbosity.
         command: the command line to record (default: ``sys.argv``).
+        callbacks: more SB3 callbacks run during learning (one returning False stops
+            it; the policy reached so far is saved as the final one).
     """
     if algo not in ALGOS:
         raise InputError(f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
@@ -278,16 +282,17 @@ def train(
         "command": command if command is not None else " ".join(sys.argv),
     }
     clock = Clock(before)
-    callbacks: list[BaseCallback] = [
-        Checkpoint(out / "checkpoints", max(1, checkpoint_every), record, clock)
+    steps: list[BaseCallback] = [
+        Checkpoint(out / "checkpoints", max(1, checkpoint_every), record, clock),
+        *callbacks,
     ]
     if progress:
-        callbacks.append(ProgressBar())
+        steps.append(ProgressBar())
     remaining = total - model.num_timesteps
     if remaining > 0:
         model.learn(
             remaining,
-            callback=CallbackList(callbacks),
+            callback=CallbackList(steps),
             reset_num_timesteps=ckpt is None,
             tb_log_name=algo.upper(),
         )

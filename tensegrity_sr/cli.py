@@ -39,6 +39,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
               "MuJoCo data with an undeclared effect (contact, drag, slack cables) to diagnose"),
     "train": ("policies.commands.train",
               "train a PPO or SAC policy on IcosahedronSR-v0 (or any registered env)"),
+    "tune": ("policies.commands.tune",
+             "search PPO/SAC hyperparameters with Optuna (TPE, median pruning), local or distributed"),
     "transfer": ("policies.commands.transfer",
                  "evaluate a policy in the identified env and the MuJoCo twin (sim-to-sim transfer)"),
 }  # fmt: skip

@@ -1,0 +1,1 @@
+"""Hyperparameter search with Optuna: search spaces, the trial objective, the study."""

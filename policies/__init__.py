@@ -7,7 +7,10 @@
 :mod:`.artifacts`           a policy on disk: zip, VecNormalize statistics, run record
 :mod:`.evaluate`            seeded episodes, the same starts in every env
 :mod:`.transfer`            identified env vs MuJoCo twin, the reference, the video
-:mod:`.commands`            ``tensegrity-sr train`` and ``tensegrity-sr transfer``
+:mod:`.seeds`               several seeds of one recipe in parallel processes
+:mod:`.aggregate`           IQM with bootstrap intervals over runs (rliable)
+:mod:`.tuning`              Optuna search: spaces, trial objective, study, report
+:mod:`.commands`            ``tensegrity-sr train``, ``transfer`` and ``tune``
 ==========================  ==========================================================
 
 ``SHIPPED_POLICY`` is the PPO policy trained on ``IcosahedronSR-v0`` that ships in

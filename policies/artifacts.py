@@ -87,6 +87,24 @@ def load_vecnormalize(path: str | Path) -> VecNormalize:
     return obj
 
 
+def pretrained_path(algo: str, env_id: str = "IcosahedronSR-v0") -> Path:
+    """The policy shipped in the installed package (``policies/pretrained``) for ``algo``.
+
+    Found through :mod:`importlib.resources`, so it works from a wheel install as
+    from the source tree. Raises :class:`InputError` if none is shipped.
+    """
+    from importlib import resources
+
+    folder = resources.files("policies") / "pretrained"
+    res = folder / f"{algo}_{env_id}.zip"
+    if not res.is_file():
+        shipped = sorted(p.name for p in folder.iterdir() if p.name.endswith(".zip"))
+        raise InputError(
+            f"no shipped {algo} policy for {env_id} (shipped: {', '.join(shipped) or 'none'})"
+        )
+    return Path(str(res))
+
+
 def resolve_model_path(path: str | Path) -> Path:
     """A model zip from a zip path or a training folder (``<folder>/model.zip``)."""
     p = Path(path)

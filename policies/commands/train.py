@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tensegrity_env.io_utils import InputError
+
 #: the algorithms of :data:`policies.artifacts.ALGOS` (not imported here: SB3 is slow to import)
 ALGO_NAMES = ("ppo", "sac")
 
@@ -33,6 +35,11 @@ def register(sub: Any) -> None:
     p.add_argument("--timesteps", type=int, default=None,
                    help="budget in env steps (default: n_timesteps of the hyperparameters)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of model and envs (default 0)")
+    p.add_argument("--seeds", default=None,
+                   help="several seeds (0-4 or 0,2,7), one run folder each: OUT/s<seed> "
+                        "(default OUT runs/<algo>_<env>)")  # fmt: skip
+    p.add_argument("--workers", type=int, default=1,
+                   help="with --seeds: seeds trained at once, one process each (default 1)")  # fmt: skip
     p.add_argument("--n-envs", type=int, default=None,
                    help="environments stepped together (default: the hyperparameters')")  # fmt: skip
     p.add_argument("--hyperparams", type=Path, default=None,
@@ -52,6 +59,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.seeds is not None:
+        return run_seeds(args)
+    if args.workers != 1:
+        raise InputError("--workers needs --seeds (one process per seed)")
     from policies.train import train
     from tensegrity_env.io_utils import check_number, check_output_dir
 
@@ -84,4 +95,23 @@ def run(args: argparse.Namespace) -> int:
         f"trained {result.timesteps:,} env steps in {result.wall_s:.0f} s: {result.model_path} "
         f"(+ {result.model_path.stem}_vecnormalize.pkl, {result.model_path.stem}.json)"
     )
+    return 0
+
+
+def run_seeds(args: argparse.Namespace) -> int:
+    """Train every seed of ``--seeds`` with ``--workers`` processes."""
+    from policies.seeds import parse_seeds, train_seeds
+
+    seeds = parse_seeds(args.seeds)
+    out = args.output or Path("runs") / f"{args.algo}_{args.env}"
+    print(f"training seeds {seeds} with {args.workers} worker(s) into {out}/s<seed>")
+    done = train_seeds(
+        args.algo, args.env, out, seeds, args.workers, timesteps=args.timesteps,
+        n_envs=args.n_envs, hyperparams=args.hyperparams,
+        checkpoint_every=args.checkpoint_every, resume=args.resume,
+        threads=args.threads or None, tensorboard=not args.no_tensorboard,
+        verbose=args.verbose, command=shlex.join(["tensegrity-sr", *sys.argv[1:]]),
+    )  # fmt: skip
+    for seed, path, steps, wall in done:
+        print(f"seed {seed}: {steps:,} env steps in {wall:.0f} s: {path}")
     return 0

@@ -33,7 +33,11 @@ def register(sub: Any) -> None:
             "--reference MODEL compares against such a policy trained earlier."
         ),
     )
-    p.add_argument("policy", type=Path, help="model zip or training folder")
+    p.add_argument("policy", type=Path, nargs="*",
+                   help="model zip or training folder; several (one per seed): IQM with 95 %% "
+                        "bootstrap intervals over them")  # fmt: skip
+    p.add_argument("--pretrained", choices=("ppo",), default=None,
+                   help="the policy shipped with the package instead of POLICY")  # fmt: skip
     p.add_argument("--episodes", type=int, default=20, help="episodes per env (default 20)")
     p.add_argument("--seed", type=int, default=1000,
                    help="episode k starts from the source's reset(seed=SEED+k) (default 1000)")  # fmt: skip
@@ -76,8 +80,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--episodes must be >= 1")
     check_number("--seed", args.seed, 0)
     check_number("--threads", args.threads, 0)
+    if bool(args.policy) == (args.pretrained is not None):
+        raise InputError("give POLICY (one or more) or --pretrained, not both or neither")
     env_spec(args.source), env_spec(args.target)  # unknown ids fail before any work
-    policy = load_policy(args.policy)
+    if args.pretrained is not None:
+        from policies.artifacts import pretrained_path
+
+        args.policy = [pretrained_path(args.pretrained, args.source)]
+    if len(args.policy) > 1:
+        return run_several(args)
+    policy = load_policy(args.policy[0])
     label = f"{policy.algo} ({policy.path})"
     starts = episode_starts(args.source, args.episodes, args.seed)
     print(
@@ -128,6 +140,39 @@ def run(args: argparse.Namespace) -> int:
             report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
         except RenderingUnavailable as e:
             print(f"no video: {e}")
+    text = "\n".join(report) + "\n"
+    atomic_write_text(args.output / "transfer.md", text)
+    atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")
+    print(text)
+    print(f"wrote {args.output / 'transfer.md'} and transfer.json")
+    return 0
+
+
+def run_several(args: argparse.Namespace) -> int:
+    """Several runs over the same episodes: each run's table, then IQM with intervals."""
+    from policies.aggregate import aggregate, aggregate_table, to_dict
+    from policies.artifacts import load_policy
+    from policies.evaluate import episode_starts, evaluate
+    from policies.transfer import TransferResult, transfer_table
+
+    if args.reference is not None or args.train_reference is not None:
+        raise InputError("--reference/--train-reference take one POLICY, not several")
+    policies = [load_policy(p) for p in args.policy]  # every file checked before any work
+    starts = episode_starts(args.source, args.episodes, args.seed)
+    report = [f"# Transfer of {len(policies)} runs over {args.episodes} episodes\n"]
+    runs, results = [], []
+    for policy in policies:
+        print(f"evaluating {policy.path} in {args.source} and {args.target}")
+        r = TransferResult(
+            evaluate(policy, args.source, starts), evaluate(policy, args.target, starts)
+        )
+        results.append(r)
+        report += [transfer_table(r, f"{policy.algo} ({policy.path})"), ""]
+        runs.append({"policy": str(policy.path), "seed": policy.record.get("seed"), **r.to_dict()})
+    agg = aggregate(results)
+    report.append(aggregate_table(agg, len(results), args.source, args.target))
+    doc = {"seed": args.seed, "episodes": args.episodes, "runs": runs,
+           "aggregate": to_dict(agg, len(results))}  # fmt: skip
     text = "\n".join(report) + "\n"
     atomic_write_text(args.output / "transfer.md", text)
     atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")

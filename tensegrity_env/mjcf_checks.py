@@ -37,7 +37,9 @@ FEATURES: dict[str, str] = {
     "nonlinear-springs": "springs are linear (stiffness/damping polynomials, yield or dead "
     "bands other than tension-only are not modelled)",
     "joint-dynamics": "free-joint damping, armature, friction loss and springs are not modelled",
-    "actuators": "only world-frame site forces are control inputs (cable actuators are not)",
+    "actuators": "control inputs are world-frame site forces and cable (tendon) actuators"
+    " with a fixed gain, no bias, no force or activation limits and at most a first-order"
+    " filter (dyntype none or filter, actearly false)",
     "fluid": "fluid drag (density, viscosity, wind, fluid shapes) is not modelled",
     "gravcomp": "gravity compensation is not modelled",
     "disabled-physics": "disabling springs, dampers, actuation or constraints is not modelled",
@@ -188,6 +190,34 @@ def unsupported_features(
         if m.opt.enableflags & int(mujoco.mjtEnableBit.mjENBL_OVERRIDE):
             add("contact-solver", "the global contact override")
     return found
+
+
+def cable_actuator_problem(m: mujoco.MjModel, a: int) -> str | None:
+    """Why tendon actuator ``a`` is not a supported cable actuator, or None if it is.
+
+    Supported: force ``gain * gear * u`` along the tendon with a fixed gain, no bias, no
+    force or activation limits, and ``u`` the control or its first-order filter
+    (``dyntype="filter"``, ``actearly="false"``).
+    """
+    B, G, D = mujoco.mjtBias, mujoco.mjtGain, mujoco.mjtDyn
+    if int(m.actuator_gaintype[a]) != int(G.mjGAIN_FIXED):
+        return "a gain that is not fixed"
+    if int(m.actuator_biastype[a]) != int(B.mjBIAS_NONE) and np.any(m.actuator_biasprm[a] != 0):
+        return "a bias (a position or velocity servo)"
+    dyn = int(m.actuator_dyntype[a])
+    if dyn not in (int(D.mjDYN_NONE), int(D.mjDYN_FILTER)):
+        return f"activation dynamics {D(dyn).name[6:].lower()}"
+    if dyn == int(D.mjDYN_FILTER) and (m.actuator_actearly[a] or m.actuator_dynprm[a, 0] <= 0):
+        return "a filter with actearly or a non-positive time constant"
+    if m.actuator_forcelimited[a] or m.actuator_actlimited[a]:
+        return "a force or activation limit"
+    if np.any(m.actuator_gear[a, 1:] != 0):
+        return "a gear with more than one entry"
+    for extra in ("damping", "armature", "dampingpoly", "delay"):  # newer MuJoCo versions
+        values = getattr(m, f"actuator_{extra}", None)
+        if values is not None and np.any(np.asarray(values)[a] != 0):
+            return f"actuator {extra}"
+    return None
 
 
 def contact_of(

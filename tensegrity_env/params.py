@@ -4,7 +4,7 @@
 
 :class:`Params` is a frozen dataclass of torch tensors so it can be differentiated
 through the engine (make any field ``requires_grad``) and moved between devices and
-dtypes. Shapes use ``S = n_springs`` and ``R = n_rods``.
+dtypes. Shapes use ``S = n_springs``, ``R = n_rods`` and ``C`` cable actuators.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ UNITS: dict[str, str] = {
     "inertia": "kg*m^2 (principal, rod frame x y z)",
     "control_gain": "N per command unit",
     "gravity": "m/s^2",
+    "cable_gain": "N per command unit",
 }
 
 FIELDS: tuple[str, ...] = tuple(UNITS)
@@ -51,6 +52,9 @@ class Params:
         inertia: rod principal inertia I = (Ixx, Iyy, Izz) in the rod frame, (R, 3) [kg*m^2].
         control_gain: the scalar h mapping a control command f_u to force h*f_u, () [N/unit].
         gravity: gravitational acceleration, (3,) [m/s^2].
+        cable_gain: the gain h_c of each cable actuator, (C,) [N/unit]: a command u
+            changes the driven spring's tension by ``-h_c u`` (empty without cable
+            actuators; see :class:`tensegrity_env.topology.Topology`).
     """
 
     stiffness: torch.Tensor
@@ -60,6 +64,9 @@ class Params:
     inertia: torch.Tensor
     control_gain: torch.Tensor
     gravity: torch.Tensor
+    cable_gain: torch.Tensor = field(
+        default_factory=lambda: torch.zeros(0, dtype=torch.float64)
+    )
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -72,6 +79,7 @@ class Params:
         inertia: Any,
         control_gain: Any = 1.0,
         gravity: Any = (0.0, 0.0, -9.81),
+        cable_gain: Any = (),
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
     ) -> Params:
@@ -88,6 +96,7 @@ class Params:
             inertia=t(inertia).reshape(-1, 3),
             control_gain=t(control_gain).reshape(()),
             gravity=t(gravity).reshape(3),
+            cable_gain=t(cable_gain).reshape(-1),
         )
 
     def replace(self, **changes: Any) -> Params:
@@ -125,6 +134,7 @@ class Params:
             "inertia": (R, 3),
             "control_gain": (),
             "gravity": (3,),
+            "cable_gain": (topology.n_cables,),
         }
         for f, shape in shapes.items():
             v = getattr(self, f)
@@ -156,14 +166,20 @@ class Params:
 
 # ---------------------------------------------------------------------- params.json
 def params_to_dict(params: Params) -> dict[str, Any]:
-    """The ``params`` section: field -> nested lists (units in :data:`UNITS`)."""
-    return {f: v.tolist() for f, v in params.numpy().items()}
+    """The ``params`` section: field -> nested lists (units in :data:`UNITS`);
+    ``cable_gain`` only where there are cable actuators."""
+    return {
+        f: v.tolist() for f, v in params.numpy().items() if f != "cable_gain" or v.size
+    }
 
 
 def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
+    """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``.
+
+    ``cable_gain`` may be absent (no cable actuators)."""
     if not isinstance(d, Mapping):
         raise InputError(f"{source}: 'params' must be a mapping of field to values")
-    """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``."""
+    d = {"cable_gain": [], **d}
     missing = [f for f in FIELDS if f not in d]
     if missing:
         raise InputError(f"{source}: missing parameter(s) {missing}")

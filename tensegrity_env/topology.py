@@ -11,6 +11,10 @@ A :class:`Topology` is the fixed description of an assembly, never differentiate
   sphere's surface or a motor partway along the rod). The two end caps of a rod are
   the points motion capture tracks; springs may use any node.
 * **springs** connect two nodes. Tension acts along the line between them.
+* **cable actuators** (``Topology.cable_actuators``) each drive one spring: a command
+  ``u`` changes that spring's tension by ``-h_c u`` (MuJoCo's tendon actuator, whose
+  force ``h_c u`` acts to lengthen the tendon), with ``h_c`` the actuator's gain
+  (``Params.cable_gain``).
 
 The graph has one vertex per rod and per spring and directed edges
 ``rod -> spring`` (the rod's end-cap motion feeds the spring's compression
@@ -93,18 +97,22 @@ class Topology:
         springs: the springs, in parameter order.
         anchors: fixed world points springs may attach to [m], each (x, y, z).
         name: a label for the assembly (MJCF model name).
+        cable_actuators: the spring each cable actuator drives, by spring index, in
+            actuator order (at most one actuator per spring).
     """
 
     rods: tuple[Rod, ...]
     springs: tuple[Spring, ...]
     anchors: tuple[Vec3, ...] = ()
     name: str = "assembly"
+    cable_actuators: tuple[int, ...] = ()
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rods", tuple(self.rods))
         object.__setattr__(self, "springs", tuple(self.springs))
         object.__setattr__(self, "anchors", tuple(tuple(map(float, a)) for a in self.anchors))
+        object.__setattr__(self, "cable_actuators", tuple(int(c) for c in self.cable_actuators))
         self._validate()
 
     # ------------------------------------------------------------------ validation
@@ -153,6 +161,13 @@ class Topology:
                 raise TopologyError(f"spring '{s.name}': both ends are world anchors")
             if self.node_rod[s.node_a] == self.node_rod[s.node_b] >= 0:
                 raise TopologyError(f"spring '{s.name}': both ends on the same rod")
+        for c in self.cable_actuators:
+            if not 0 <= c < self.n_springs:
+                raise TopologyError(
+                    f"{self.name}: cable actuator drives spring {c}, which does not exist"
+                )
+        if len(set(self.cable_actuators)) != len(self.cable_actuators):
+            raise TopologyError(f"{self.name}: two cable actuators drive the same spring")
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -162,6 +177,11 @@ class Topology:
     @property
     def n_springs(self) -> int:
         return len(self.springs)
+
+    @property
+    def n_cables(self) -> int:
+        """Cable actuators (control inputs that scale a spring's tension)."""
+        return len(self.cable_actuators)
 
     @property
     def n_anchors(self) -> int:
@@ -288,7 +308,7 @@ class Topology:
 
     # ------------------------------------------------------------------ (de)serialise
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "name": self.name,
             "rods": [
                 {
@@ -306,6 +326,9 @@ class Topology:
             "anchors": [list(a) for a in self.anchors],
             "springs": [{"name": s.name, "nodes": [s.node_a, s.node_b]} for s in self.springs],
         }
+        if self.cable_actuators:
+            out["cable_actuators"] = list(self.cable_actuators)
+        return out
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Topology:
@@ -328,7 +351,11 @@ class Topology:
             )
             anchors = tuple(tuple(map(float, a)) for a in d.get("anchors", []))
             name = str(d.get("name", "assembly"))
-            return cls(rods=rods, springs=springs, anchors=anchors, name=name)  # type: ignore[arg-type]
+            cables = tuple(int(c) for c in d.get("cable_actuators", []))
+            return cls(
+                rods=rods, springs=springs, anchors=anchors, name=name,  # type: ignore[arg-type]
+                cable_actuators=cables,
+            )  # fmt: skip
         except TopologyError:
             raise
         except (KeyError, TypeError, IndexError, ValueError, AttributeError, OverflowError) as e:
@@ -350,6 +377,8 @@ class Topology:
         ) or not np.array_equal(self.point_rods, other.point_rods):
             return False
         if not np.array_equal(self.spring_nodes, other.spring_nodes):
+            return False
+        if self.cable_actuators != other.cable_actuators:
             return False
         return all(
             np.allclose(getattr(self, f), getattr(other, f), atol=atol)

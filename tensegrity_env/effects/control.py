@@ -1,8 +1,14 @@
 """Control that is not what was commanded: a first-order lag between command and force.
 
 Gate: correlates with the applied command. The force that acts is ``h u_f`` with
-``τ u̇_f = u - u_f`` (discretised per step as ``u_f += dt / (τ + dt) (u - u_f)``,
-starting from ``u_f = 0``). A wrong gain alone is the identified ``h`` of the params.
+``τ u̇_f = u - u_f``, starting from ``u_f = 0``. A wrong gain alone is the identified
+``h`` of the params. Two discretisations:
+
+* control forces f_u (the planted effect): ``u_f += dt / (τ + dt) (u - u_f)``, and the
+  step's force uses the updated ``u_f``;
+* cable actuators (MuJoCo's ``dyntype="filter"``, ``explicit=True``): the step's force
+  uses the activation before the update ``u_f += dt / τ (u - u_f)`` (MuJoCo's Euler step
+  of the actuator activation, ``actearly="false"``).
 
 The engine hands commands to the control term, not to effects, so this effect acts
 on the command sequence before a rollout: ``engine.rollout(state, params, T,
@@ -27,13 +33,24 @@ class ControlLag(PhysicalEffect):
         "time_constant": ParamSpec("s", 0.0),
     }
 
-    def filter_commands(self, control: torch.Tensor, dt: float) -> torch.Tensor:
-        """Lagged commands, same shape as ``control`` (B, T, R, 3) (time on dim 1)."""
+    def filter_commands(
+        self, control: torch.Tensor, dt: float, explicit: bool = False
+    ) -> torch.Tensor:
+        """Lagged commands, same shape as ``control`` (B, T, ...) (time on dim 1).
+
+        ``explicit``: MuJoCo's filter actuator (see the module docstring), for cable
+        commands (B, T, C); needs ``τ > 0``.
+        """
         tau = self.value("time_constant", control)
-        alpha = dt / (tau + dt)
+        if explicit and not bool(tau > 0):
+            raise ValueError(f"control_lag: MuJoCo's filter needs a time constant > 0, got {tau}")
+        alpha = dt / tau if explicit else dt / (tau + dt)
         out = torch.empty_like(control)
         u_f = torch.zeros_like(control[:, 0])
         for t in range(control.shape[1]):
+            if explicit:
+                out[:, t] = u_f
             u_f = u_f + alpha * (control[:, t] - u_f)
-            out[:, t] = u_f
+            if not explicit:
+                out[:, t] = u_f
         return out

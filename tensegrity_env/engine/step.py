@@ -62,6 +62,9 @@ class Engine:
         incidence[self.node_a, idx] = 1.0
         incidence[self.node_b, idx] = -1.0
         self.incidence = incidence  # (N, S): +1 at node a, -1 at node b
+        self.cable_springs = torch.as_tensor(
+            topology.cable_actuators, dtype=torch.long, device=self.device
+        )  # (C,): the spring each cable actuator drives
 
     def with_effects(self, effects: Sequence[Effect]) -> Engine:
         return Engine(self.topology, self.dt, effects, self.dtype, self.device)
@@ -72,7 +75,11 @@ class Engine:
 
     # ------------------------------------------------------------------ one step
     def accelerations(
-        self, state: State, params: Params, control: torch.Tensor | None = None
+        self,
+        state: State,
+        params: Params,
+        control: torch.Tensor | None = None,
+        cables: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Force generation and acceleration generation.
 
@@ -81,6 +88,10 @@ class Engine:
             params: physical parameters.
             control: control commands f_u per rod, world frame, (B, R, 3) [command units];
                 the applied force is ``h * f_u`` at each rod's control arm.
+            cables: the acting command of each cable actuator, (B, C) [command units]
+                (after any actuator filter); the driven spring's tension changes by
+                ``-h_c u``, after the effects' tension hooks (a slack cable still
+                transmits its actuator's force, as in MuJoCo).
 
         Returns:
             a (B, R, 3) [m/s^2] world frame, α_l (B, R, 3) [rad/s^2] and ω_l (B, R, 3)
@@ -93,6 +104,8 @@ class Engine:
         tension = hooke_tension(frame, params.stiffness, params.damping, params.rest_length)
         for effect in self.effects:
             tension = effect.tension(frame, tension, kin)
+        if cables is not None and self.cable_springs.numel():
+            tension = tension.index_add(1, self.cable_springs, -params.cable_gain * cables)
         force, torque = kinematics_wrench(tension_to_node_forces(tension, frame, self.incidence), kin)
         # control forces h * f_u at the arm r_u
         if control is not None:
@@ -115,9 +128,15 @@ class Engine:
         alpha_l, omega_l = angular_acceleration_local(torque, state.omega, kin.rot, params.inertia)
         return accel, alpha_l, omega_l
 
-    def step(self, state: State, params: Params, control: torch.Tensor | None = None) -> State:
+    def step(
+        self,
+        state: State,
+        params: Params,
+        control: torch.Tensor | None = None,
+        cables: torch.Tensor | None = None,
+    ) -> State:
         """Advance every assembly in the batch by one time step ``dt``."""
-        accel, alpha_l, omega_l = self.accelerations(state, params, control)
+        accel, alpha_l, omega_l = self.accelerations(state, params, control, cables)
         # integration: semi-implicit Euler (MuJoCo's Euler integrator)
         return semi_implicit_euler(state, accel, alpha_l, omega_l, self.dt, self.frame_origins)
 
@@ -127,13 +146,20 @@ class Engine:
         params: Params,
         n_steps: int,
         control: torch.Tensor | None = None,
+        cables: torch.Tensor | None = None,
     ) -> State:
         """States at steps 0..n_steps, stacked on dim 1: (B, n_steps + 1, R, ·).
 
-        ``control`` is (B, n_steps, R, 3) or None.
+        ``control`` is (B, n_steps, R, 3) or None; ``cables`` the acting cable commands
+        (B, n_steps, C) or None.
         """
         states = [state]
         for t in range(n_steps):
-            state = self.step(state, params, None if control is None else control[:, t])
+            state = self.step(
+                state,
+                params,
+                None if control is None else control[:, t],
+                None if cables is None else cables[:, t],
+            )
             states.append(state)
         return State.stack(states, dim=1)

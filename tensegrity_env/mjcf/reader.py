@@ -22,6 +22,7 @@ from tensegrity_env.mjcf.end_caps import (
 from tensegrity_env.mjcf.writer import SimOptions
 from tensegrity_env.mjcf_checks import (
     Unsupported,
+    cable_actuator_problem,
     check_ignore_names,
     contact_of,
     refuse_or_warn,
@@ -52,6 +53,10 @@ class MjcfAssembly:
             ``height``); empty without a floor.
         slack_springs: springs with a dead band ``springlength="0 L"`` (tension-only
             cables of rest length L).
+        cable_actuators: actuator id of each cable actuator, (C,), in the order of
+            ``topology.cable_actuators``.
+        cable_lag: the time constant of the cable actuators' first-order filter [s]
+            (``dyntype="filter"``), 0 without a filter.
     """
 
     topology: Topology
@@ -66,6 +71,8 @@ class MjcfAssembly:
     actuators: np.ndarray
     contact: dict[str, float] = field(default_factory=dict)
     slack_springs: tuple[int, ...] = ()
+    cable_actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    cable_lag: float = 0.0
 
 
 def from_mjcf(
@@ -118,6 +125,7 @@ def from_mjcf(
     arm_sites: dict[int, int] = {}
     actuators = -np.ones((len(rod_bodies), 3), dtype=int)
     gains: list[float] = []
+    cables = cable_actuators_of(m, src)
     for a in range(m.nu):
         if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_SITE:
             continue
@@ -236,6 +244,7 @@ def from_mjcf(
             springs=tuple(springs),
             anchors=tuple(anchors),  # type: ignore[arg-type]
             name=m.names[: m.names.index(b"\0")].decode() or "assembly",
+            cable_actuators=tuple(int(m.actuator_trnid[a, 0]) for a in cables.ids),
         )
     except TopologyError as e:
         raise InputError(f"{src}: {e}") from None
@@ -251,8 +260,12 @@ def from_mjcf(
             raise InputError(f"{src}: rod '{mj_name(m, BODY, b)}' has non-positive mass or inertia")
     # what the file says beyond rods and springs: modelled, or refused unless ignored
     contact, contact_found = contact_of(m, cap_geoms, floor, src)
-    found = unsupported_features(m, rod_bodies, floor, [int(a) for a in actuators[actuators >= 0]])
-    refuse_or_warn(found + contact_found + shape_found, ignore, src)
+    tendon_actuators = [
+        a for a in range(m.nu) if m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_TENDON
+    ]  # supported ones are cable commands, the rest in cables.found
+    controls = [int(a) for a in actuators[actuators >= 0]] + tendon_actuators
+    found = unsupported_features(m, rod_bodies, floor, controls)
+    refuse_or_warn(found + contact_found + shape_found + cables.found, ignore, src)
     # dead band [0, L]: a tension-only (slack) spring of rest length L
     low, high = m.tendon_lengthspring[:, 0], m.tendon_lengthspring[:, 1]
     slack = tuple(int(t) for t in np.nonzero((low == 0) & (high > 0))[0])
@@ -264,6 +277,7 @@ def from_mjcf(
         inertia=m.body_inertia[rod_bodies].copy(),
         control_gain=gains[0] if gains else 1.0,
         gravity=m.opt.gravity.copy(),
+        cable_gain=[m.actuator_gainprm[a, 0] * m.actuator_gear[a, 0] for a in cables.ids],
     )
     bad = [f for f, v in params.numpy().items() if not np.all(np.isfinite(v))]
     if not (np.isfinite(m.opt.timestep) and m.opt.timestep > 0):
@@ -283,6 +297,7 @@ def from_mjcf(
         rod_collisions=any(f.feature == "rod-collisions" for f in found),
         control=bool(gains),
         friction=contact.get("friction", SimOptions.friction),
+        cable_lag=cables.lag,
     )
     return MjcfAssembly(
         topology=topology,
@@ -297,7 +312,57 @@ def from_mjcf(
         actuators=actuators,
         contact=contact,
         slack_springs=slack,
+        cable_actuators=np.array(cables.ids, dtype=int),
+        cable_lag=cables.lag,
     )
+
+
+@dataclass(frozen=True)
+class CableActuators:
+    """The supported tendon actuators of a model (what :func:`cable_actuators_of` finds).
+
+    Attributes:
+        ids: actuator ids, in actuator order.
+        lag: their common filter time constant [s], 0 without a filter.
+        found: the unsupported ones, refused by name unless ``--ignore actuators``.
+    """
+
+    ids: list[int]
+    lag: float
+    found: list[Unsupported]
+
+
+def cable_actuators_of(m: mujoco.MjModel, src: str) -> CableActuators:
+    """Tendon actuators that are cable commands: force ``gain * gear * u`` along a spring
+    (:func:`~tensegrity_env.mjcf_checks.cable_actuator_problem`); all filtered with one
+    time constant or none filtered (one ``control_lag``); one actuator per spring."""
+    ACT = mujoco.mjtObj.mjOBJ_ACTUATOR
+    ids, found, lags = [], [], set()
+    driven: dict[int, int] = {}
+    for a in range(m.nu):
+        if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_TENDON:
+            continue
+        name = mj_name(m, ACT, a)
+        problem = cable_actuator_problem(m, a)
+        if problem is not None:
+            found.append(Unsupported("actuators", f"cable actuator '{name}' has {problem}"))
+            continue
+        t = int(m.actuator_trnid[a, 0])
+        if t in driven:
+            raise InputError(
+                f"{src}: actuators '{mj_name(m, ACT, driven[t])}' and '{name}' drive the same"
+                " tendon (one cable actuator per spring)"
+            )
+        driven[t] = a
+        ids.append(a)
+        filtered = int(m.actuator_dyntype[a]) == int(mujoco.mjtDyn.mjDYN_FILTER)
+        lags.add(float(m.actuator_dynprm[a, 0]) if filtered else 0.0)
+    if len(lags) > 1:
+        raise InputError(
+            f"{src}: cable actuators have different filters (time constants"
+            f" {sorted(lags)} s); the model has one control_lag"
+        )
+    return CableActuators(ids, lags.pop() if lags else 0.0, found)
 
 
 def inertial_quat(assembly: MjcfAssembly, body_quat: np.ndarray) -> np.ndarray:

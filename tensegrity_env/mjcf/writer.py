@@ -27,6 +27,8 @@ class SimOptions:
         rod_collisions: let rods collide with each other (off: an undeclared effect).
         control: add three world-axis force actuators per rod at its control arm.
         friction: sliding friction coefficient of the ground contact.
+        cable_lag: time constant of the cable actuators' first-order filter [s]
+            (``dyntype="filter"``); 0 writes them unfiltered.
     """
 
     timestep: float = 1e-3
@@ -35,6 +37,7 @@ class SimOptions:
     rod_collisions: bool = False
     control: bool = True
     friction: float = 1.0
+    cable_lag: float = 0.0
 
 
 def _f(x: float) -> str:
@@ -146,6 +149,16 @@ def to_mjcf(
                     act, "general", name=f"{rod.name}_f{ax}", site=f"{rod.name}_arm",
                     refsite="world_frame", gear=_v(gear), gainprm=_f(P["control_gain"]),
                 )  # fmt: skip
+    if topology.cable_actuators:
+        act = root.find("actuator")
+        if act is None:
+            act = ET.SubElement(root, "actuator")
+        lag = {"dyntype": "filter", "dynprm": _f(options.cable_lag)} if options.cable_lag else {}
+        for c, s in enumerate(topology.cable_actuators):
+            ET.SubElement(
+                act, "general", name=f"{topology.springs[s].name}_cable",
+                tendon=topology.springs[s].name, gainprm=_f(P["cable_gain"][c]), **lag,
+            )  # fmt: skip
     ET.indent(root)
     return ET.tostring(root, encoding="unicode")
 

@@ -21,6 +21,9 @@ path                                  shape                meaning
                                                            nodes 2r and 2r+1
 ``/splits/<split>/control``           (N, T, R, 3)         command f_u applied during step t
                                                            [command units], world frame
+``/splits/<split>/cable_control``     (N, T, C)            optional: command of each cable
+                                                           actuator during step t (zero if
+                                                           absent)
 ``/splits/<split>/time``              (N, T+1)             optional: time of each sample [s]
                                                            from the trajectory's start; may be
                                                            non-uniform; NaN after a shorter
@@ -73,6 +76,7 @@ class Split:
     q: np.ndarray | None = None
     omega: np.ndarray | None = None
     time: np.ndarray | None = None
+    cable_control: np.ndarray | None = None
 
     @property
     def n_trajectories(self) -> int:
@@ -108,7 +112,7 @@ class Split:
         """The trajectories ``idx`` of this split."""
         pick = {
             k: (None if getattr(self, k) is None else getattr(self, k)[idx])
-            for k in (*STATE_KEYS, "time")
+            for k in (*STATE_KEYS, "time", "cable_control")
         }
         return Split(nodes=self.nodes[idx], control=self.control[idx], **pick)
 
@@ -177,7 +181,7 @@ def write_dataset(
             f.create_group("topology").attrs["json"] = dataset.topology.to_json()
             for name, split in dataset.splits.items():
                 g = f.create_group(f"splits/{name}")
-                for k in ("nodes", "control", *STATE_KEYS, "time"):
+                for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control"):
                     arr = getattr(split, k)
                     if arr is not None:
                         g.create_dataset(k, data=np.asarray(arr, dtype=np.float64), chunks=True)
@@ -237,13 +241,16 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
                 g = f[f"splits/{name}"]
                 arrays = {
                     k: (g[k][()] if k in g else None)
-                    for k in ("nodes", "control", *STATE_KEYS, "time")
+                    for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control")
                 }
                 if arrays["nodes"] is None:
                     raise InputError(f"{p}: split '{name}' has no 'nodes'")
                 if arrays["control"] is None:
                     n, t1 = arrays["nodes"].shape[:2]
                     arrays["control"] = np.zeros((n, t1 - 1, topology.n_rods, 3))
+                if arrays["cable_control"] is None and topology.n_cables:
+                    n, t1 = arrays["nodes"].shape[:2]
+                    arrays["cable_control"] = np.zeros((n, t1 - 1, topology.n_cables))
                 out[name] = Split(**arrays)
         except InputError:
             raise
@@ -294,7 +301,13 @@ def check_dataset(ds: Dataset, where: str) -> None:
                 f"{where}: split '{name}' control has shape {s.control.shape}, "
                 f"expected {(N, T1 - 1, R, 3)}"
             )
-        for k in ("control", *STATE_KEYS):
+        cables = (N, T1 - 1, ds.topology.n_cables)
+        if s.cable_control is not None and s.cable_control.shape != cables:
+            raise InputError(
+                f"{where}: split '{name}' cable_control has shape {s.cable_control.shape}, "
+                f"expected {cables}"
+            )
+        for k in ("control", "cable_control", *STATE_KEYS):
             arr = getattr(s, k)
             if arr is None:
                 continue
@@ -328,14 +341,11 @@ def _check_nodes_and_time(s: Split, name: str, where: str) -> None:
         return
     if s.time.shape != s.nodes.shape[:2]:
         raise InputError(
-            f"{where}: split '{name}' 'time' has shape {s.time.shape}, "
-            f"expected {s.nodes.shape[:2]}"
+            f"{where}: split '{name}' 'time' has shape {s.time.shape}, expected {s.nodes.shape[:2]}"
         )
     finite = np.isfinite(s.time)
     if np.isinf(s.time).any() or (np.diff(finite.astype(int), axis=1) > 0).any():
-        raise InputError(
-            f"{where}: split '{name}' 'time' is inf or NaN before a trajectory's end"
-        )
+        raise InputError(f"{where}: split '{name}' 'time' is inf or NaN before a trajectory's end")
     steps = np.diff(s.time, axis=1)
     if (steps[np.isfinite(steps)] <= 0).any():
         raise InputError(f"{where}: split '{name}' 'time' does not increase in every trajectory")

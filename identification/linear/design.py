@@ -8,8 +8,10 @@ rod rotation, the paper's decomposition gives six homogeneous linear equations::
     M_r (a - g)                         - Σ_s σ (K_s l_s - K_s l0_s + c_s l̇_s) e_s          - h f_u           = 0
     I_r ⊙ α_l + ω_l × (I_r ⊙ ω_l)      - Σ_s σ (K_s l_s - K_s l0_s + c_s l̇_s) Rᵀ(ρ × e_s)  - h Rᵀ(r_u × f_u) = 0
 
-The unknowns are ``θ = [M, I, K, K·l0, c, h]`` (``K·l0`` is a separate linear unknown so
-rest lengths are identified too; ``l0 = (K·l0)/K``). Each rod only touches its own
+The unknowns are ``θ = [M, I, K, K·l0, c, h, h_c]`` (``K·l0`` is a separate linear unknown so
+rest lengths are identified too; ``l0 = (K·l0)/K``; ``h_c`` is one gain per cable actuator,
+whose command ``u`` adds ``-h_c u`` to its spring's tension, so its column is the
+spring's unit-tension wrench times ``u``; present only with cable actuators). Each rod only touches its own
 ``M, I``, the springs attached to it and ``h``, so the design is built per rod on a
 small set of *local* columns and accumulated into the normal matrix ``AᵀA`` in chunks.
 """
@@ -83,6 +85,8 @@ class ParameterLayout:
             ):
                 add(g, [f"[{n}]" for n in springs], list(range(len(springs))))
         add("control_gain", [""], [-1])
+        driven = [topology.springs[c].name for c in topology.cable_actuators]
+        add("cable_gain", [f"[{n}]" for n in driven], list(range(len(driven))))
         return cls(topology, shared, fit_rest_length, names, groups, elements)
 
     @property
@@ -114,12 +118,17 @@ class RodSlots:
         node: the node (end cap or attachment point) where the rod holds the spring, (R, J).
         sign: +1 if the rod holds the spring's node a, -1 for node b, 0 where padded, (R, J).
         columns: global unknown index of each local column, (R, L); ``n_params`` = discard.
+            Columns: M, I (3), then K, K·l0, c per slot, then h, then (with cable
+            actuators) one ``h_c`` per slot.
+        cable: the cable actuator driving each slot's spring, (R, J), -1 where none; None
+            without cable actuators.
     """
 
     spring: torch.Tensor
     node: torch.Tensor
     sign: torch.Tensor
     columns: torch.Tensor
+    cable: torch.Tensor | None = None
 
     @property
     def n_local(self) -> int:
@@ -137,8 +146,10 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
     sign = np.zeros((R, J))
     node_rod = topo.node_rod
     discard = layout.n_params
-    L = 4 + 3 * J + 1
+    driven = {s: c for c, s in enumerate(topo.cable_actuators)}
+    L = 4 + 3 * J + 1 + (J if driven else 0)
     columns = np.full((R, L), discard, dtype=np.int64)
+    cable = -np.ones((R, J), dtype=np.int64)
     for r in range(R):
         columns[r, 0] = layout.index("mass", r)
         for k in range(3):
@@ -151,12 +162,16 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
             if layout.fit_rest_length:
                 columns[r, 5 + 3 * j] = layout.index("stiffness_rest", s)
             columns[r, 6 + 3 * j] = layout.index("damping", s)
-        columns[r, L - 1] = layout.index("control_gain")
+            if s in driven:
+                cable[r, j] = driven[s]
+                columns[r, 5 + 3 * J + j] = layout.index("cable_gain", driven[s])
+        columns[r, 4 + 3 * J] = layout.index("control_gain")
     return RodSlots(
         spring=torch.as_tensor(spring),
         node=torch.as_tensor(node),
         sign=torch.as_tensor(sign),
         columns=torch.as_tensor(columns),
+        cable=torch.as_tensor(cable) if driven else None,
     )
 
 
@@ -208,8 +223,12 @@ def rod_blocks(
         )
     f_u = feat.control
     t_u = torch.einsum("nrji,nrj->nri", feat.rot, torch.cross(feat.control_arm, f_u, dim=-1))
-    A[:, :, :3, -1] = -f_u.transpose(0, 1)
-    A[:, :, 3:, -1] = -t_u.transpose(0, 1)
+    h = 4 + 3 * J
+    A[:, :, :3, h] = -f_u.transpose(0, 1)
+    A[:, :, 3:, h] = -t_u.transpose(0, 1)
+    if slots.cable is not None:  # -σ (-h_c u) e: the unit-tension wrench times u
+        u = feat.cables[:, slots.cable.clamp_min(0)] * (slots.cable >= 0)  # (n, R, J)
+        A[..., h + 1 : h + 1 + J] = unit * u.transpose(0, 1).unsqueeze(2)
     return A.permute(1, 0, 2, 3)
 
 
@@ -242,7 +261,7 @@ def with_hinges(slots: RodSlots, n_params: int, n_springs: int) -> RodSlots:
     padded = slots.sign == 0
     hinge = torch.where(padded, n_params + n_springs, n_params + slots.spring)
     return RodSlots(slots.spring, slots.node, slots.sign,
-                    torch.cat([cols, hinge.reshape(-1, J)], dim=1))  # fmt: skip
+                    torch.cat([cols, hinge.reshape(-1, J)], dim=1), slots.cable)  # fmt: skip
 
 
 def hinge_blocks(feat: TransitionFeatures, slots: RodSlots, knots: torch.Tensor) -> torch.Tensor:

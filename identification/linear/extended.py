@@ -36,7 +36,11 @@ from identification.linear.design import (
     rod_blocks,
     rod_slots,
 )
-from identification.linear.features import transition_features, transitions_of
+from identification.linear.features import (
+    cable_commands_at,
+    transition_features,
+    transitions_of,
+)
 from identification.linear.regression import SpringRodIdentifier
 from tensegrity_env.effects import ControlLag, GroundContact, LinearEffect, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
@@ -124,7 +128,9 @@ class ExtendedIdentifier(SpringRodIdentifier):
         splits = {}
         for name, s in dataset.splits.items():
             ctrl = lag.filter_commands(torch.as_tensor(s.control), dataset.dt).numpy()
-            splits[name] = Split(nodes=s.nodes, control=ctrl, p=s.p, v=s.v, q=s.q, omega=s.omega)
+            cables = cable_commands_for(self.effects, s.cable_control, dataset.dt)
+            splits[name] = Split(nodes=s.nodes, control=ctrl, p=s.p, v=s.v, q=s.q, omega=s.omega,
+                                 cable_control=cables)  # fmt: skip
         return Dataset(dataset.topology, dataset.dt, splits, dataset.attrs, dataset.path)
 
     def _extra(self) -> list[tuple[int, LinearEffect]]:
@@ -143,7 +149,7 @@ class ExtendedIdentifier(SpringRodIdentifier):
         cols = slots.columns.clone()
         cols[cols == P] = P + E
         cols = torch.cat([cols, (P + torch.arange(E)).expand(R, E)], dim=1)
-        slots_ext = RodSlots(slots.spring, slots.node, slots.sign, cols)
+        slots_ext = RodSlots(slots.spring, slots.node, slots.sign, cols, slots.cable)
         g = torch.tensor(self.gravity, dtype=DTYPE)
         rest = None
         if not layout.fit_rest_length:
@@ -158,8 +164,9 @@ class ExtendedIdentifier(SpringRodIdentifier):
         anchors = torch.as_tensor(topo.anchor_positions, dtype=DTYPE)
         points = AttachmentPoints.of(topo)
         for start in range(0, len(index), self.chunk_size):
-            s0, s1, u = transitions_of(data, index[start : start + self.chunk_size])
-            feat = transition_features(topo, s0, s1, u, dataset.dt)
+            chunk = index[start : start + self.chunk_size]
+            s0, s1, u = transitions_of(data, chunk)
+            feat = transition_features(topo, s0, s1, u, dataset.dt, cable_commands_at(data, chunk))
             A = rod_blocks(feat, slots, g, rest)  # (n, R, 6, L)
             kin = node_kinematics(s0, ends, anchors, points)
             l0 = ref.rest_length.double() if ref is not None else None
@@ -230,6 +237,17 @@ def commands_for(
     return control
 
 
+def cable_commands_for(
+    effects: Sequence[PhysicalEffect], cables: np.ndarray | None, dt: float
+) -> np.ndarray | None:
+    """The cable commands that act, (N, T, C): through MuJoCo's actuator filter where
+    the model has a control lag (None stays None)."""
+    lag = next((e for e in effects if isinstance(e, ControlLag)), None)
+    if cables is None or lag is None:
+        return cables
+    return lag.filter_commands(torch.as_tensor(cables), dt, explicit=True).numpy()
+
+
 def evaluate_model(
     topology: Any,
     params: Params,
@@ -254,20 +272,25 @@ def evaluate_model(
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(N * T, size=min(N * T, max_one_step), replace=False))
     ctrl_all = commands_for(effects, torch.as_tensor(data.control), dataset.dt)
+    cables_all = cable_commands_for(effects, data.cable_control, dataset.dt)
     lagged = Split(nodes=data.nodes, control=ctrl_all.numpy(), p=data.p, v=data.v, q=data.q,
-                   omega=data.omega)  # fmt: skip
+                   omega=data.omega, cable_control=cables_all)  # fmt: skip
     s0, s1, u = transitions_of(lagged, idx)
+    cables = cable_commands_at(lagged, idx)
     H = min(T, max(1, round(horizon_s / dataset.dt)))
     starts = np.arange(0, T - H + 1, H)
     assert data.p is not None
     with torch.no_grad():
-        pred = engine.step(s0, params, u)
+        pred = engine.step(s0, params, u, cables)
         one = float(torch.linalg.vector_norm(pred.p - s1.p, dim=-1).mean())
         init = State(*(torch.as_tensor(getattr(data, k)[:, starts].reshape(-1, *getattr(data, k).shape[2:]))
                        for k in ("p", "v", "q", "omega")))  # fmt: skip
         t = starts[:, None] + np.arange(H)
         ctrl = ctrl_all[:, t].reshape(-1, H, *ctrl_all.shape[2:])
-        roll = engine.rollout(init, params, H, ctrl)
+        cable_ctrl = None
+        if cables_all is not None:
+            cable_ctrl = torch.as_tensor(cables_all[:, t].reshape(-1, H, cables_all.shape[-1]))
+        roll = engine.rollout(init, params, H, ctrl, cable_ctrl)
         tt = starts[:, None] + np.arange(H + 1)
         truth = torch.as_tensor(data.p[:, tt].reshape(-1, H + 1, *data.p.shape[2:]))
         curve = torch.linalg.vector_norm(roll.p - truth, dim=-1).mean(dim=(0, 2)).numpy()

@@ -38,6 +38,7 @@ class TransitionFeatures:
         springs: each spring's length, axis and elongation rate at t.
         control: commands f_u at t, (n, R, 3), world.
         control_arm: control arm r_u at t, (n, R, 3) [m], world.
+        cables: acting cable commands at t, (n, C); None without cable actuators.
     """
 
     accel: torch.Tensor
@@ -48,6 +49,7 @@ class TransitionFeatures:
     springs: SpringFrame
     control: torch.Tensor
     control_arm: torch.Tensor
+    cables: torch.Tensor | None = None
 
     @property
     def n(self) -> int:
@@ -75,10 +77,28 @@ def transitions_of(
     return s0, s1, torch.as_tensor(split.control[traj, t])
 
 
+def cable_commands_at(split: Split, index: np.ndarray | None = None) -> torch.Tensor | None:
+    """Cable commands (n, C) of the flat transitions ``index`` (all when None); None
+    without cable actuators."""
+    if split.cable_control is None:
+        return None
+    T = split.n_transitions
+    flat = np.arange(split.n_trajectories * T) if index is None else np.asarray(index)
+    return torch.as_tensor(split.cable_control[flat // T, flat % T])
+
+
 def transition_features(
-    topology: Topology, s0: State, s1: State, control: torch.Tensor, dt: float
+    topology: Topology,
+    s0: State,
+    s1: State,
+    control: torch.Tensor,
+    dt: float,
+    cables: torch.Tensor | None = None,
 ) -> TransitionFeatures:
-    """Compute :class:`TransitionFeatures` for a batch of transitions."""
+    """Compute :class:`TransitionFeatures` for a batch of transitions (``cables``: the
+    acting cable commands (n, C), needed when the topology has cable actuators)."""
+    if topology.n_cables and cables is None:
+        cables = torch.zeros(s0.p.shape[0], topology.n_cables, dtype=s0.p.dtype)
     dtype = s0.p.dtype
     ends = torch.as_tensor(topology.end_offsets, dtype=dtype)
     anchors = torch.as_tensor(topology.anchor_positions, dtype=dtype)
@@ -101,4 +121,5 @@ def transition_features(
         springs=frame,
         control=control.to(dtype),
         control_arm=arm_u,
+        cables=None if cables is None else cables.to(dtype),
     )

@@ -33,7 +33,11 @@ from identification.linear.design import (
     rod_slots,
     scatter_local_gram,
 )
-from identification.linear.features import transition_features, transitions_of
+from identification.linear.features import (
+    cable_commands_at,
+    transition_features,
+    transitions_of,
+)
 from identification.linear.native_normal import NativeUnavailable, local_gram_native
 from identification.linear.solve import Solution, fit_linear_network, solve_constrained
 from tensegrity_env.assemblies import cylinder_inertia
@@ -42,7 +46,9 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import FIELDS, UNITS, Params
 
 GROUP_UNITS = {**UNITS, "stiffness_rest": "N", "inertia": "kg*m^2"}
-FREEZABLE = ("stiffness", "damping", "rest_length", "mass", "inertia", "control_gain")
+FREEZABLE = (
+    "stiffness", "damping", "rest_length", "mass", "inertia", "control_gain", "cable_gain"
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -186,7 +192,9 @@ class SpringRodIdentifier:
         P = layout.n_params
         normal = torch.zeros(P + 1, P + 1, dtype=torch.float64)
         n_rows = len(index) * dataset.topology.n_rods * 6
-        if self.backend != "torch":
+        if self.backend == "native" and dataset.topology.n_cables:
+            raise NativeUnavailable("the C normal equations have no cable actuator columns")
+        if self.backend != "torch" and not dataset.topology.n_cables:
             try:
                 gram = local_gram_native(dataset.topology, data, index, slots, g, dataset.dt, rest)
             except NativeUnavailable as e:
@@ -200,8 +208,10 @@ class SpringRodIdentifier:
         self.backend_ = "torch"
         chunks = range(0, len(index), self.chunk_size)
         for start in tqdm(chunks, desc="design", disable=not self.progress, unit="chunk"):
-            s0, s1, u = transitions_of(data, index[start : start + self.chunk_size])
-            feat = transition_features(dataset.topology, s0, s1, u, dataset.dt)
+            chunk = index[start : start + self.chunk_size]
+            s0, s1, u = transitions_of(data, chunk)
+            cables = cable_commands_at(data, chunk)
+            feat = transition_features(dataset.topology, s0, s1, u, dataset.dt, cables)
             accumulate_normal(rod_blocks(feat, slots, g, rest), slots, P, normal)
         return normal, n_rows
 
@@ -244,6 +254,7 @@ class SpringRodIdentifier:
             "mass": np.full(R, np.nan),
             "inertia": np.full(3 * R, np.nan),
             "control_gain": np.full(1, np.nan),
+            "cable_gain": np.full(topo.n_cables, np.nan),
         }
         sizes = {k: len(v) for k, v in values.items()}
         for i, (grp, el) in enumerate(zip(layout.groups, layout.elements, strict=True)):
@@ -268,6 +279,7 @@ class SpringRodIdentifier:
             "mass": mass,
             "inertia": inertia,
             "control_gain": values["control_gain"],
+            "cable_gain": values["cable_gain"],
         }
         for f, arr in fill.items():
             nan = np.isnan(arr)
@@ -281,6 +293,7 @@ class SpringRodIdentifier:
             inertia=fill["inertia"],
             control_gain=fill["control_gain"][0],
             gravity=self.gravity,
+            cable_gain=fill["cable_gain"],
         )
         rows = []
         for i, (name, grp, el) in enumerate(
@@ -338,11 +351,17 @@ class SpringRodIdentifier:
             [cylinder_inertia(m[r : r + 1], lengths[r], radii[r])[0] for r in range(len(m))]
         )
         return (
-            {"inertia": inertia, "damping": np.zeros(1), "control_gain": np.ones(1)},
+            {
+                "inertia": inertia,
+                "damping": np.zeros(1),
+                "control_gain": np.ones(1),
+                "cable_gain": np.zeros(1),
+            },
             {
                 "inertia": "not excited in this data; assumed solid cylinder of the identified mass",
                 "damping": "not excited in this data; assumed 0",
                 "control_gain": "no control force in this data; assumed 1",
+                "cable_gain": "no cable command in this data; assumed 0",
             },
         )
 
@@ -409,13 +428,17 @@ def evaluate_params(
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(total, size=min(total, max_one_step), replace=False))
     s0, s1, u = transitions_of(data, idx)
+    cables = cable_commands_at(data, idx)
     with torch.no_grad():
-        pred = engine.step(s0, params, u)
+        pred = engine.step(s0, params, u, cables)
         one_step = float(torch.linalg.vector_norm(pred.p - s1.p, dim=-1).mean())
         T = data.n_transitions if horizon is None else min(horizon, data.n_transitions)
         init = State.from_numpy(*(getattr(data, k)[:, 0] for k in ("p", "v", "q", "omega")))
         ctrl = torch.as_tensor(data.control[:, :T])
-        roll = engine.rollout(init, params, T, ctrl)
+        cable_ctrl = (
+            None if data.cable_control is None else torch.as_tensor(data.cable_control[:, :T])
+        )
+        roll = engine.rollout(init, params, T, ctrl, cable_ctrl)
         err = torch.linalg.vector_norm(roll.p - torch.as_tensor(data.p[:, : T + 1]), dim=-1)
         curve = err.mean(dim=(0, 2)).numpy()
     return {
@@ -439,7 +462,10 @@ ANCHOR_DOMAIN: dict[str, tuple[bool, str]] = {
     "damping": (False, "N*s/m"),
     "rest_length": (False, "m"),
     "control_gain": (True, "N per command unit"),
+    "cable_gain": (False, "N per command unit"),
 }
+#: groups whose values may take either sign (a cable actuator's gain: pull or push)
+SIGNED_GROUPS = frozenset({"cable_gain"})
 
 
 def check_anchor(name: str, value: float) -> None:
@@ -450,7 +476,7 @@ def check_anchor(name: str, value: float) -> None:
     positive, unit = ANCHOR_DOMAIN.get(group, (False, ""))
     if not math.isfinite(value):
         raise InputError(f"--anchor {name}={value!r}: the value must be a finite number")
-    if value < 0 or (positive and value == 0):
+    if group not in SIGNED_GROUPS and (value < 0 or (positive and value == 0)):
         sign = "> 0" if positive else ">= 0"
         raise InputError(f"--anchor {name}={value!r}: a {group} must be {sign} [{unit}]")
 

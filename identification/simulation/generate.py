@@ -45,6 +45,7 @@ from identification.simulation.rollout import RodFrames, Roller, roll_and_conver
 from identification.simulation.truth import (
     Truth,
     load_truth,
+    sample_cable_commands,
     sample_controls,
     sample_initial_conditions,
 )
@@ -62,6 +63,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     # perturbation forces h * f_u at each rod's arm r_u
     "perturbed": {"n_train": 4, "n_val": 0, "n_test": 4, "steps": 20000, "control_std": 1.0},
 }
+
 
 @dataclass(frozen=True)
 class InitialConditions:
@@ -177,12 +179,17 @@ class GenerateSpec:
 
 
 # ---------------------------------------------------------------------- rollout
-def ctrl_vectors(truth: Truth, commands: np.ndarray) -> np.ndarray:
-    """MuJoCo ``ctrl`` arrays (n, T, nu) from per-rod commands (n, T, R, 3)."""
+def ctrl_vectors(
+    truth: Truth, commands: np.ndarray, cables: np.ndarray | None = None
+) -> np.ndarray:
+    """MuJoCo ``ctrl`` arrays (n, T, nu) from per-rod commands (n, T, R, 3) and cable
+    commands (n, T, C)."""
     act = truth.asm.actuators
     ctrl = np.zeros((*commands.shape[:2], truth.model.nu))
     has = act >= 0
     ctrl[:, :, act[has]] = commands[:, :, has]
+    if cables is not None:
+        ctrl[:, :, truth.asm.cable_actuators] = cables
     return ctrl
 
 
@@ -201,6 +208,7 @@ def rollout_split(
     chunk: int | None = None,
     bar: Any = None,
     where: str = "",
+    cables: np.ndarray | None = None,
 ) -> Split:
     """Roll out one split and convert it to rod states and end caps.
 
@@ -212,6 +220,7 @@ def rollout_split(
         chunk: trajectories per rollout call (None: automatic).
         bar: a tqdm bar updated with the steps done.
         where: label for error messages.
+        cables: cable commands (n, T, C), or None without cable actuators.
     """
     n, steps = commands.shape[:2]
     R = truth.topology.n_rods
@@ -226,10 +235,10 @@ def rollout_split(
             bar.update(k * steps)
 
     def controls(lo: int, hi: int) -> np.ndarray:
-        return ctrl_vectors(truth, commands[lo:hi])
+        return ctrl_vectors(truth, commands[lo:hi], None if cables is None else cables[lo:hi])
 
     roll_and_convert(roller, frames, init, controls, arrays, chunk, done, where)
-    return Split(control=commands, **arrays)
+    return Split(control=commands, cable_control=cables, **arrays)
 
 
 # ---------------------------------------------------------------------- checks
@@ -313,12 +322,14 @@ def split_rng(seed: int, split: str) -> np.random.Generator:
 
 def split_inputs(
     truth: Truth, spec: GenerateSpec, split: str, n: int
-) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Initial rod states and control commands of one split, seeded by (seed, split)."""
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray | None]:
+    """Initial rod states, control commands and cable commands (None without cable
+    actuators) of one split, seeded by (seed, split)."""
     rng = split_rng(spec.seed, split)
     states = sample_initial_conditions(truth, n, rng, spec.initial)
     commands = sample_controls(truth, n, spec.steps, spec.control_std, spec.control_hold, rng)
-    return states, commands
+    cables = sample_cable_commands(truth, n, spec.steps, spec.control_std, spec.control_hold, rng)
+    return states, commands, cables
 
 
 def generate(spec: GenerateSpec, progress: bool = False) -> GenerateResult:
@@ -334,10 +345,11 @@ def generate(spec: GenerateSpec, progress: bool = False) -> GenerateResult:
     ):
         for name, n in counts.items():
             bar.set_description(name)
-            states, commands = split_inputs(truth, spec, name, n)
+            states, commands, cables = split_inputs(truth, spec, name, n)
             splits[name] = rollout_split(
-                truth, roller, states, commands, spec.chunk, bar, f"{spec.source_name} {name}"
-            )
+                truth, roller, states, commands, spec.chunk, bar, f"{spec.source_name} {name}",
+                cables,
+            )  # fmt: skip
         threads, rollout_s = roller.threads, roller.seconds
     spring_std, spring_ratio = spring_excitation(truth, splits)
     if spring_ratio[0] < SPRING_RATIO_BOUNDS[0] or spring_ratio[1] > SPRING_RATIO_BOUNDS[1]:

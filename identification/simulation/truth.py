@@ -20,6 +20,7 @@ import numpy as np
 
 from identification.data.dataset import GroundTruth
 from tensegrity_env import assemblies
+from tensegrity_env.effects.control import ControlLag
 from tensegrity_env.effects.ground_contact import GroundContact
 from tensegrity_env.effects.springs import SlackSprings
 from tensegrity_env.io_utils import InputError
@@ -91,7 +92,8 @@ class Truth:
     def ground_truth(self) -> GroundTruth:
         """The true model: params, simulation options, MJCF and the effects the file has
         beyond linear springs (floor contact with the file's friction, solref and
-        solimp; tension-only springs), in their ``to_dict`` form."""
+        solimp; tension-only springs; the cable actuators' filter as ``control_lag``), in
+        their ``to_dict`` form."""
         effects = []
         if self.ground:
             contact = self.asm.contact or {"friction": self.asm.options.friction}
@@ -99,6 +101,8 @@ class Truth:
         if self.asm.slack_springs:
             cables = list(self.asm.slack_springs)
             effects.append(SlackSprings(self.topology, springs=cables).to_dict())
+        if self.asm.cable_lag:
+            effects.append(ControlLag(self.topology, time_constant=self.asm.cable_lag).to_dict())
         return GroundTruth(
             params=self.asm.params,
             sim=dataclasses.asdict(dataclasses.replace(self.asm.options, ground=self.ground)),
@@ -219,25 +223,57 @@ def sample_controls(
 
     Each command is Gaussian (a random direction and size per rod). Axes without an
     actuator get 0, and commands are clipped to actuator control ranges, so the
-    array is exactly what was applied.
+    array is exactly what was applied. A model whose only actuators are cable
+    actuators gets zero f_u (its commands come from :func:`sample_cable_commands`).
     """
     R = truth.topology.n_rods
-    if std == 0:
-        return np.zeros((n, steps, R, 3))
     act = truth.asm.actuators
+    if std == 0 or (np.all(act < 0) and truth.topology.n_cables):
+        return np.zeros((n, steps, R, 3))
     if np.all(act < 0):
         raise InputError(
             f"{truth.name}: --control-std needs control actuators and the model has none"
         )
-    hold_steps = max(1, round(hold / truth.dt))
-    n_holds = -(-steps // hold_steps)
-    cmd = rng.normal(0.0, std, (n, n_holds, R, 3))
-    cmd = np.repeat(cmd, hold_steps, axis=1)[:, :steps]
-    m = truth.model
-    for r, k in zip(*np.nonzero(act >= 0), strict=True):
-        a = act[r, k]
-        if m.actuator_ctrllimited[a]:
-            lo, hi = m.actuator_ctrlrange[a]
-            cmd[:, :, r, k] = np.clip(cmd[:, :, r, k], lo, hi)
+    cmd = held_normal(truth, (n, steps, R, 3), std, hold, rng)
+    clip_to_ctrlrange(truth.model, cmd, act)
     cmd[:, :, act < 0] = 0.0
     return cmd
+
+
+def sample_cable_commands(
+    truth: Truth, n: int, steps: int, std: float, hold: float, rng: np.random.Generator
+) -> np.ndarray | None:
+    """Piecewise-constant random cable commands, (n, steps, C), like :func:`sample_controls`
+    (Gaussian, held ``hold`` seconds, clipped to the actuators' control ranges); None
+    without cable actuators."""
+    C = truth.topology.n_cables
+    if C == 0:
+        return None
+    if std == 0:
+        return np.zeros((n, steps, C))
+    cmd = held_normal(truth, (n, steps, C), std, hold, rng)
+    clip_to_ctrlrange(truth.model, cmd, truth.asm.cable_actuators)
+    return cmd
+
+
+def held_normal(
+    truth: Truth, shape: tuple[int, ...], std: float, hold: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Gaussian values of ``shape`` (n, steps, ...), each held ``hold`` seconds."""
+    n, steps = shape[:2]
+    hold_steps = max(1, round(hold / truth.dt))
+    n_holds = -(-steps // hold_steps)
+    cmd = rng.normal(0.0, std, (n, n_holds, *shape[2:]))
+    return np.repeat(cmd, hold_steps, axis=1)[:, :steps]
+
+
+def clip_to_ctrlrange(m: mujoco.MjModel, cmd: np.ndarray, act: np.ndarray) -> None:
+    """Clip commands (n, steps, *act.shape) in place to each actuator's control range
+    (``act`` holds actuator ids, -1 where none)."""
+    for idx in zip(*np.nonzero(act >= 0), strict=True):
+        a = act[idx]
+        if m.actuator_ctrllimited[a]:
+            lo, hi = m.actuator_ctrlrange[a]
+            cmd[(slice(None), slice(None), *idx)] = np.clip(
+                cmd[(slice(None), slice(None), *idx)], lo, hi
+            )

@@ -35,6 +35,7 @@ import torch
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.effects import Effect
 from tensegrity_env.envs.native import NativeUnavailable, load_kernel
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_env.topology import Topology
@@ -268,7 +269,16 @@ def make_stepper(
     device: str | torch.device = "cpu",
     threads: int | None = None,
 ) -> NativeStepper | TorchStepper:
-    """The native kernel where it applies (``"auto"`` on CPU), else the PyTorch engine."""
+    """The native kernel where it applies (``"auto"`` on CPU), else the PyTorch engine.
+
+    A model with cable actuators is refused (:class:`InputError`): env actions are the
+    world-frame control forces f_u, and neither stepper takes cable commands.
+    """
+    if topology.n_cables:
+        raise InputError(
+            f"{topology.name}: has {topology.n_cables} cable actuator(s); the envs' actions are"
+            " control forces f_u per rod and cannot command cables"
+        )
     if backend not in ("auto", "native", "torch"):
         raise ValueError(f"backend must be 'auto', 'native' or 'torch', got {backend!r}")
     on_cpu = torch.device(device).type == "cpu"

@@ -13,6 +13,7 @@ import pytest
 import torch
 from test_mjcf_lab import CAP_RADIUS, lab_mjcf, mj_random_state, mj_rod_state
 
+from identification.data.dataset import read_dataset
 from identification.data.end_caps import rod_states_from_nodes
 from identification.linear.regression import SpringRodIdentifier
 from identification.report.tables import group_errors
@@ -25,6 +26,7 @@ from tensegrity_env.envs.physics import NativeStepper
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import from_mjcf, to_mjcf
 from tensegrity_env.topology import Topology
+from tensegrity_sr.cli import main
 
 ATTACH = ("surface", "mid")
 
@@ -190,3 +192,17 @@ def test_end_caps_alone_cannot_place_points_off_the_rod_axis() -> None:
     # the motor sites lie on the rod axis: end caps place them; the surface sites do not
     mid = from_mjcf("<lab>", xml=lab_mjcf("mid")).topology
     assert [n.split("/")[1] for n in mid.off_axis_points()] == ["point0", "point1"] * 3
+
+
+def test_generate_takes_the_end_caps_option(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "lab.xml"
+    path.write_text(lab_mjcf("mid"))
+    out = tmp_path / "d.h5"
+    names = ",".join(f"r{i}_s{k}" for i in range(3) for k in range(2))
+    args = ["generate", "--mjcf", str(path), "--steps", "5", "--no-progress", "-o", str(out)]
+    assert main([*args, "--end-caps", names]) == 0
+    # the surface sites are the tracked points: three motor sites remain attachment points
+    assert read_dataset(out).topology.n_points == 3
+    assert main([*args, "--force", "--end-caps", "r0_s0,nope"]) == 2
+    err = capsys.readouterr().err
+    assert "end-cap site 'nope' does not exist" in err and "Traceback" not in err

@@ -12,6 +12,7 @@ from identification.data.dataset import write_dataset
 from identification.simulation.generate import PRESETS, GenerateSpec, generate
 from tensegrity_env.assemblies import ASSEMBLIES
 from tensegrity_env.io_utils import add_force_option, check_output_file
+from tensegrity_env.mjcf.end_caps import add_end_caps_option
 from tensegrity_env.mjcf_checks import FEATURES
 
 EPILOG = """\
@@ -65,12 +66,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="accept an MJCF feature the model does not have (simulated by MuJoCo, left out of"
         " the model, with a warning); repeatable; see docs/mjcf.md",
     )
+    add_end_caps_option(p)
     p.add_argument(
         "--control-std",
         type=float,
         default=None,
         metavar="STD",
-        help="std of random control commands f_u per rod and axis, held ~50 ms (default: 0)",
+        help="std of random control commands f_u per rod and axis, and of cable actuators'"
+        " commands, held ~50 ms (default: 0)",
     )
     p.add_argument("--threads", type=int, help="MuJoCo rollout threads (default: all cores)")
     p.add_argument(
@@ -99,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         control_std=args.control_std,
         threads=args.threads,
         ignore=tuple(args.ignore),
+        end_caps=args.end_caps,
     )
     name = Path(spec.mjcf).stem if spec.mjcf is not None else spec.assembly
     output = check_output_file(args.output or Path(f"{name}_{spec.preset}.h5"), args.force)

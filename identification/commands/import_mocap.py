@@ -20,6 +20,7 @@ from identification.data.mocap.importer import (
 from identification.data.mocap.marker_map import read_marker_map
 from identification.data.mocap.recording import read_recording
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
+from tensegrity_env.mjcf.end_caps import add_end_caps_option
 
 
 def register(sub: Any) -> None:
@@ -49,6 +50,7 @@ def register(sub: Any) -> None:
                    help="a file for the test split (repeatable; the split then goes by file)")  # fmt: skip
     p.add_argument("--ignore", action="append", default=[], metavar="FEATURE",
                    help="accept this unmodelled MJCF feature of the robot file with a warning")  # fmt: skip
+    add_end_caps_option(p)
     p.add_argument("-o", "--output", type=Path, required=True, help="dataset file to write (.h5)")
     add_force_option(p)
     p.set_defaults(func=run)
@@ -62,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     for f in [*args.val, *args.test]:
         if f.name not in named:
             raise InputError(f"{f}: named by --val/--test but not among the files to import")
-    robot = read_robot(args.robot, tuple(args.ignore))
+    robot = read_robot(args.robot, tuple(args.ignore), args.end_caps)
     mmap = read_marker_map(args.map, robot.topology) if args.map else None
     recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
     for rec in recordings:

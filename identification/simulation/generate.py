@@ -110,6 +110,7 @@ class GenerateSpec:
         chunk: trajectories per rollout call (None: automatic).
         ignore: MJCF features the model leaves out that the user accepts anyway
             (names of :data:`tensegrity_env.mjcf_checks.FEATURES`; warned about).
+        end_caps: the end-cap sites of ``mjcf``, two per rod (empty: by convention).
     """
 
     assembly: str = "icosahedron"
@@ -127,9 +128,13 @@ class GenerateSpec:
     threads: int | None = None
     chunk: int | None = None
     ignore: tuple[str, ...] = ()
+    end_caps: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ignore", tuple(self.ignore))
+        object.__setattr__(self, "end_caps", tuple(self.end_caps))
+        if self.end_caps and self.mjcf is None:
+            raise InputError("--end-caps: names sites of an MJCF file; pass --mjcf")
         check_ignore_names(self.ignore)
         if self.mjcf is None and self.assembly not in assemblies.ASSEMBLIES:
             raise InputError(

@@ -147,7 +147,7 @@ def load_truth(spec: GenerateSpec) -> Truth:
 
 def _load_user_mjcf(spec: GenerateSpec) -> Truth:
     path = Path(str(spec.mjcf))
-    asm = from_mjcf(path, ignore=spec.ignore)
+    asm = from_mjcf(path, ignore=spec.ignore, end_caps=spec.end_caps)
     xml = path.read_text()
     ground = asm.options.ground
     if spec.ground and not ground:
@@ -170,7 +170,7 @@ def _load_user_mjcf(spec: GenerateSpec) -> Truth:
         xml = mspec.to_xml()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", IgnoredFeatureWarning)  # said once, above
-            asm = from_mjcf(path, xml=xml, ignore=spec.ignore)
+            asm = from_mjcf(path, xml=xml, ignore=spec.ignore, end_caps=spec.end_caps)
         ground = True
     nominal = mj_to_rod_state(asm, asm.model.qpos0.copy(), np.zeros(asm.model.nv))
     truth = Truth(asm, xml, nominal["p"], nominal["q"], ground, path.stem)

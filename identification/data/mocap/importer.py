@@ -29,8 +29,11 @@ class Robot:
     source: Path
 
 
-def read_robot(path: str | Path, ignore: tuple[str, ...] = ()) -> Robot:
-    """A robot from an MJCF file (graph + rest pose) or a params.json (graph only)."""
+def read_robot(
+    path: str | Path, ignore: tuple[str, ...] = (), end_caps: tuple[str, ...] = ()
+) -> Robot:
+    """A robot from an MJCF file (graph + rest pose; ``end_caps``: its end-cap sites,
+    two per rod, where the convention does not find them) or a params.json (graph only)."""
     p = Path(path)
     if p.suffix.lower() == ".json":
         from tensegrity_env.model import Model
@@ -40,7 +43,7 @@ def read_robot(path: str | Path, ignore: tuple[str, ...] = ()) -> Robot:
         raise InputError(f"{p}: robot file must be an MJCF .xml or a params .json")
     from tensegrity_env.mjcf import from_mjcf
 
-    asm = from_mjcf(p, ignore=ignore)
+    asm = from_mjcf(p, ignore=ignore, end_caps=end_caps)
     m = asm.model
     pos = np.stack([m.qpos0[a : a + 3] for a in asm.rod_qpos])
     quat = np.stack([m.qpos0[a + 3 : a + 7] for a in asm.rod_qpos])

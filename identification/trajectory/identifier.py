@@ -153,6 +153,11 @@ class TrajectoryIdentifier:
 
     def _fit(self, dataset: Dataset, split: str) -> TrajectoryIdentifier:
         topo, data = dataset.topology, dataset.split(split)
+        if data.cable_control is not None and np.any(data.cable_control != 0):
+            raise InputError(
+                f"{dataset.path or 'dataset'}: split '{split}' has cable actuator commands,"
+                " which the trajectory fit does not apply; identify from rod states instead"
+            )
         off_axis = topo.off_axis_points()
         if off_axis:
             raise InputError(

@@ -159,6 +159,15 @@ def smooth_nodes(nodes: np.ndarray, dt: float, smoothing: float) -> np.ndarray:
     sigma = smoothing / dt
     if sigma < 0.5:
         return nodes
+    if not np.isfinite(nodes).all():  # gaps: normalized convolution over the seen samples
+        seen = np.isfinite(nodes).all(-1, keepdims=True).astype(float)
+        num = gaussian_filter1d(np.where(seen > 0, nodes, 0.0), sigma, axis=1, mode="constant")
+        den = gaussian_filter1d(seen, sigma, axis=1, mode="constant")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = num / den
+        out[np.broadcast_to(den < 0.05, out.shape)] = np.nan  # too far from any sample
+        check_bridged(out, "end caps", dt)
+        return out
     pad = min(int(4 * sigma), nodes.shape[1] - 1)
     w = min(nodes.shape[1] if nodes.shape[1] % 2 else nodes.shape[1] - 1, 2 * pad + 1)
     ext = savgol_filter(nodes, window_length=max(w, 5), polyorder=3, axis=1, mode="interp")
@@ -212,8 +221,12 @@ def smooth_rod_states(
     T1 = nodes.shape[1]
     window = min(window, T1 if T1 % 2 else T1 - 1)
     window = max(window, polyorder + 2 + (polyorder % 2 == 0))
-    kw = {"window_length": window, "polyorder": polyorder, "axis": 1, "delta": dt}
-    x, xd, xdd = (savgol_filter(nodes, deriv=d, **kw) for d in range(3))
+    if np.isfinite(nodes).all():
+        kw = {"window_length": window, "polyorder": polyorder, "axis": 1, "delta": dt}
+        x, xd, xdd = (savgol_filter(nodes, deriv=d, **kw) for d in range(3))
+    else:
+        x, xd, xdd = masked_savgol(nodes, dt, window, polyorder)
+        check_bridged(x, "end caps", dt)
     N, _, n2, _ = nodes.shape
     shape = (N, T1, n2 // 2, 2, 3)
     x, xd, xdd = (y.reshape(shape) for y in (x, xd, xdd))
@@ -229,6 +242,60 @@ def smooth_rod_states(
         q=shortest_arc(np.eye(3)[axes.axis], u),  # the roll about u is not seen by end caps
         omega=omega, alpha=alpha, window=window,
     )  # fmt: skip
+
+
+def masked_savgol(
+    nodes: np.ndarray, dt: float, window: int, polyorder: int = 3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Savitzky-Golay through gaps: at every sample a polynomial of ``polyorder`` is
+    fitted by least squares to the end cap's *seen* samples within ``window`` (NaN in
+    ``nodes`` (N, T+1, 2R, 3) is a gap; near the ends the window is one-sided, as
+    ``savgol_filter``'s ``mode="interp"``). Returns positions [m], velocities [m/s] and
+    accelerations [m/s²] of the fit, each like ``nodes``. Where a window holds fewer
+    than ``polyorder + 2`` seen samples (a gap too long to bridge) the result is NaN:
+    :func:`check_bridged` says so.
+    """
+    N, T1, C, _ = nodes.shape
+    h = window // 2
+    n_c = T1 - 2 * h  # window centres h .. T1-1-h; the ends use the nearest whole window
+    seen = np.isfinite(nodes).all(-1)
+    y = np.where(seen[..., None], nodes, 0.0)
+    w = seen.astype(float)
+    k = np.arange(-h, h + 1, dtype=float)
+    P = polyorder + 1
+    basis = k[:, None] ** np.arange(P)  # (window, P)
+    gram = np.zeros((N, n_c, C, P, P))
+    rhs = np.zeros((N, n_c, C, P, 3))
+    count = np.zeros((N, n_c, C))
+    for j in range(2 * h + 1):
+        wj, yj = w[:, j : j + n_c], y[:, j : j + n_c]
+        gram += wj[..., None, None] * np.outer(basis[j], basis[j])
+        rhs += wj[..., None, None] * basis[j][:, None] * yj[..., None, :]
+        count += wj
+    ok = count >= polyorder + 2
+    gram[~ok] = np.eye(P)
+    coef = np.linalg.solve(gram, rhs)  # (N, n_c, C, P, 3) in powers of the sample offset
+    coef[~ok] = np.nan
+    t = np.arange(T1)
+    centre = np.clip(t, h, T1 - 1 - h)
+    u = (t - centre).astype(float)  # offset of each sample from its window's centre
+    c = coef[:, centre - h]  # (N, T1, C, P, 3)
+    powers = np.arange(P)
+    dpow = [u[:, None] ** powers, powers * u[:, None] ** np.clip(powers - 1, 0, None),
+            powers * (powers - 1) * u[:, None] ** np.clip(powers - 2, 0, None)]  # fmt: skip
+    x, xd, xdd = (np.einsum("tp,ntcpk->ntck", d, c) / dt**i for i, d in enumerate(dpow))
+    return x, xd, xdd
+
+
+def check_bridged(states: np.ndarray, where: str, dt: float) -> None:
+    """One :class:`InputError` if smoothing left NaN: a gap longer than the filter bridges."""
+    bad = ~np.isfinite(states).all(axis=tuple(range(2, states.ndim)))
+    if bad.any():
+        n, t = np.argwhere(bad)[0]
+        raise InputError(
+            f"{where}: trajectory {n} has a gap at {t * dt:.3g} s longer than the smoothing "
+            "window can bridge; cut the take there or smooth over a longer span"
+        )
 
 
 def odd_window(x: float) -> int:

@@ -141,7 +141,7 @@ def gauss_newton_fd(
             J = (x[1:] - x[:1]).flatten(2) / step  # (n_l + n_g, b, m)
             w = win.weights(t0, t0 + len(caps))
             if w is not None:
-                w = w.expand(-1, -1, x.shape[-1], 1).flatten(1)  # (b, m)
+                w = w.expand(-1, -1, win.obs.shape[2], win.obs.shape[3]).flatten(1)  # (b, m)
                 r, J = r * w, J * w
             Jl, Jg = J[:n_l], J[n_l:]
             H_ll += torch.einsum("ibm,jbm->bij", Jl, Jl)

@@ -55,13 +55,20 @@ class Windows:
         """Number of end-cap coordinates that count (see ``valid``)."""
         if self.valid is None:
             return int(self.obs.numel())
+        if self.valid.ndim == 3:  # per end cap
+            return int(self.valid.sum()) * int(self.obs.shape[-1])
         return int(self.valid.sum()) * int(self.obs[0, 0].numel())
 
     def weights(self, t0: int = 0, t1: int | None = None) -> torch.Tensor | None:
-        """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1, 1), or None."""
+        """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1 or 2R, 1), or None.
+
+        ``valid`` is per sample (B, W+1) (e.g. airborne selection) or per end cap
+        (B, W+1, 2R) (markers not seen: their observation is stored as 0 and weighs 0).
+        """
         if self.valid is None:
             return None
-        return self.valid[:, t0:t1, None, None].to(self.obs.dtype)
+        v = self.valid[:, t0:t1]
+        return (v[..., None] if v.ndim == 3 else v[..., None, None]).to(self.obs.dtype)
 
     def take(self, idx: slice | np.ndarray) -> Windows:
         i = np.atleast_1d(np.arange(self.size)[idx])
@@ -79,18 +86,22 @@ def cut_windows(
     ``nodes`` (N, T+1, 2R, 3), ``control`` (N, T, R, 3); initial states are read from
     ``grid``, rod states at every sample (N, T+1, R, ·) (the smoothing, or a previous
     fit). The length is adjusted so that ``T // window`` windows tile each trajectory
-    (fewer than that many steps are left over at its end).
+    (fewer than that many steps are left over at its end). End caps that were not seen
+    (NaN in ``nodes``) get ``valid`` False and count in no residual.
     """
     N, T1 = nodes.shape[:2]
     W = (T1 - 1) // max(1, (T1 - 1) // window)
     starts = np.arange(0, T1 - W, W)
     traj, start = np.repeat(np.arange(N), len(starts)), np.tile(starts, N)
     span = start[:, None] + np.arange(W + 1)
-    obs = torch.as_tensor(nodes[traj[:, None], span], dtype=DTYPE)
+    obs_np = nodes[traj[:, None], span]
+    seen = np.isfinite(obs_np).all(-1)  # (B, W+1, 2R): a gap is compared with nothing
+    obs = torch.as_tensor(np.where(seen[..., None], obs_np, 0.0), dtype=DTYPE)
     ctrl = control[traj[:, None], span[:, :-1]]
     state = State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS))
     ctrl_t = torch.as_tensor(ctrl, dtype=DTYPE) if np.any(ctrl != 0) else None
-    return Windows(obs, ctrl_t, state, traj, start)
+    valid = None if seen.all() else torch.as_tensor(seen)
+    return Windows(obs, ctrl_t, state, traj, start, valid)
 
 
 @torch.no_grad()

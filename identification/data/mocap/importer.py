@@ -154,12 +154,14 @@ def parse_fractions(text: str) -> tuple[float, float, float]:
 
 
 def _stack(pieces: list[tuple[np.ndarray, np.ndarray]], n_rods: int) -> Split:
-    T1 = max(len(t) for t, _ in pieces)
-    nodes = np.full((len(pieces), T1, 2 * n_rods, 3), np.nan)
-    time = np.full((len(pieces), T1), np.nan)
-    for i, (t, c) in enumerate(pieces):
-        nodes[i, : len(t)], time[i, : len(t)] = c, t - t[0]
-    return Split(nodes=nodes, control=np.zeros((len(pieces), T1 - 1, n_rods, 3)), time=time)
+    """Takes of one split as trajectories of equal length: the shortest take's; longer
+    takes are cut into as many whole pieces of that length as they hold (the rest of a
+    take, shorter than one piece, is left out)."""
+    T1 = min(len(t) for t, _ in pieces)
+    chunks = [(t[a : a + T1], c[a : a + T1]) for t, c in pieces for a in range(0, len(t) - T1 + 1, T1)]
+    nodes = np.stack([c for _, c in chunks])
+    time = np.stack([t - t[0] for t, _ in chunks])
+    return Split(nodes=nodes, control=np.zeros((len(chunks), T1 - 1, n_rods, 3)), time=time)
 
 
 def build_dataset(

@@ -185,3 +185,15 @@ def test_bad_arguments_exit_2_with_one_line(
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: ") and message in err and "\n" not in err
     assert not (tmp_path / "t").exists()
+
+
+def test_trial_folders_of_another_study_are_not_overwritten(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from tensegrity_sr.cli import main
+
+    (tmp_path / "trials" / "trial_0000").mkdir(parents=True)
+    (tmp_path / "trials" / "trial_0000" / "model.zip").write_bytes(b"x")
+    assert main(["tune", "ppo", "--out", str(tmp_path), "--study", "fresh"]) == 2
+    assert "holds trials of another study" in capsys.readouterr().err
+    assert (tmp_path / "trials" / "trial_0000" / "model.zip").read_bytes() == b"x"

@@ -101,6 +101,11 @@ def run(args: argparse.Namespace) -> int:
     study = make_study(cfg)  # created once here (fails early on a bad storage)
     label = storage_label(cfg)
     held = len(study.trials)
+    if held == 0 and any((out / "trials").glob("trial_*/model.zip")):
+        raise InputError(
+            f"{out / 'trials'}: holds trials of another study (choose another --out, or the "
+            "--storage and --study they belong to)"
+        )
     print(
         f"study {cfg.study_name!r} in {label}: {held} trial(s) held, running up to "
         f"{args.trials} with {args.workers} worker(s), {args.timesteps:,} env steps each"

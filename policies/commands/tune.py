@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -119,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
         "n_evaluations": args.evaluations, "eval_episodes": args.eval_episodes,
         "eval_seed": settings.eval_seed, "startup_trials": args.startup_trials,
         "base_hyperparams": base, "sampler": "TPESampler(multivariate=True)",
-        "pruner": "MedianPruner",
+        "pruner": "MedianPruner", "workers": args.workers,
+        "command": shlex.join(["tensegrity-sr", *sys.argv[1:]]),
     }  # fmt: skip
     written = write_report(study, out, args.algo, args.env, label, record)
     print("wrote " + ", ".join(str(p) for p in written))

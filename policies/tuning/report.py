@@ -7,7 +7,8 @@
     study.json                      every trial: number, state, value, success rate,
                                     parameters, wall time, run folder, host
     optimization_history.png        value per trial and best so far
-    param_importances.png           fANOVA importance of each parameter
+    param_importances.png           importance of each parameter (fANOVA with
+                                    scikit-learn installed, else PED-ANOVA)
 
 Plots are drawn by :mod:`optuna.visualization.matplotlib` and need at least two
 complete trials (importances: parameters that vary among them).
@@ -74,6 +75,15 @@ def save_figure(ax: Any, path: Path) -> Path:
     return path
 
 
+def importance_evaluator() -> Any:
+    """fANOVA (Optuna's default) where scikit-learn is installed, else PED-ANOVA."""
+    import importlib.util
+
+    if importlib.util.find_spec("sklearn") is not None:
+        return optuna.importance.FanovaImportanceEvaluator(seed=0)
+    return optuna.importance.PedAnovaImportanceEvaluator()
+
+
 def plot_study(study: optuna.Study, out: Path) -> list[Path]:
     """Optimization history and parameter importances as PNG (those that can be drawn)."""
     import matplotlib
@@ -89,7 +99,7 @@ def plot_study(study: optuna.Study, out: Path) -> list[Path]:
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
         written.append(save_figure(ovm.plot_optimization_history(study), out / "optimization_history.png"))
         try:
-            ax = ovm.plot_param_importances(study)
+            ax = ovm.plot_param_importances(study, evaluator=importance_evaluator())
             written.append(save_figure(ax, out / "param_importances.png"))
         except (ValueError, RuntimeError) as e:  # e.g. no parameter varies among the trials
             print(f"no parameter importances: {e}")

@@ -158,3 +158,23 @@ def test_batched_step_equals_individual_steps() -> None:
     for i, s in enumerate(states):
         one = engine.rollout(s, asm.params, 20, control[i : i + 1, None].expand(1, 20, -1, -1))
         assert torch.equal(out.p[i], one.p[0])
+
+
+def test_substeps_are_physics_steps_between_samples() -> None:
+    from tensegrity_env.engine import substeps_for
+
+    assert [substeps_for(1 / r) for r in (60, 120, 240, 1000)] == [17, 9, 5, 1]
+    assert substeps_for(1 / 120, 1 / 1200) == 10
+    asm = icosahedron()
+    mj, _m, d = _mujoco_case(asm, seed=3)
+    state = _state(mj, d)
+    u = torch.full((1, asm.topology.n_rods, 3), 0.2, dtype=torch.float64)
+    fine, coarse = Engine(asm.topology, dt=1e-3), Engine(asm.topology, dt=5e-3, substeps=5)
+    assert coarse.physics_dt == pytest.approx(1e-3)
+    ref = state
+    for _ in range(5):  # the command is held over the substeps
+        ref = fine.step(ref, asm.params, u)
+    out = coarse.step(state, asm.params, u)
+    for a, b in zip(out.tensors(), ref.tensors(), strict=True):
+        assert torch.equal(a, b)
+    assert coarse.with_effects([]).substeps == 5

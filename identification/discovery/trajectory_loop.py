@@ -111,7 +111,7 @@ from tensegrity_env.effects import (
     SlackSprings,
 )
 from tensegrity_env.effects.base import PhysicalEffect
-from tensegrity_env.engine import Engine
+from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
@@ -151,6 +151,9 @@ class TrajectorySettings:
         fit_window: steps per window of that fit (0: ``window``; default
             :data:`FIT_WINDOW`); longer windows carry more information per sample once
             the model holds the effect.
+        physics_dt: the longest physics step [s]; the engine substeps between samples
+            (:func:`tensegrity_env.engine.substeps_for`) and is compared with the data at
+            the sample times.
     """
 
     anchors: dict[str, float] = field(default_factory=dict)
@@ -165,6 +168,7 @@ class TrajectorySettings:
     seed: int = 0
     fit_windows: int = 32
     fit_window: int = FIT_WINDOW
+    physics_dt: float = PHYSICS_DT
 
 
 @dataclass
@@ -287,7 +291,7 @@ class _Data:
     def __init__(self, dataset: Dataset, s: TrajectorySettings) -> None:
         self.topology, self.dt = dataset.topology, dataset.dt
         self.axes = RodAxes.of(self.topology)
-        self.engine = Engine(self.topology, self.dt)
+        self.engine = Engine(self.topology, self.dt, substeps=substeps_for(self.dt, s.physics_dt))
         self.sg = odd_window(s.smoothing / self.dt)
         self.dataset, self.seed = dataset, s.seed
         self.smooth: dict[str, Any] = {}

@@ -1,7 +1,14 @@
-"""The engine: one step is force generation -> acceleration -> integration."""
+"""The engine: one step is force generation -> acceleration -> integration.
+
+The physics step need not be the data's sample interval: an engine built with
+``substeps = n`` advances ``dt`` per :meth:`Engine.step` in ``n`` physics steps of
+``dt / n`` (commands held), so a model fitted to samples ``dt`` apart integrates at
+the step its physics needs (:func:`substeps_for`).
+"""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -21,6 +28,20 @@ from tensegrity_env.engine.state import State
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
+#: default physics step [s]: MuJoCo's usual timestep; the longest step the engine takes
+PHYSICS_DT = 1e-3
+
+
+def substeps_for(interval: float, physics_dt: float = PHYSICS_DT) -> int:
+    """Physics steps per sample interval so that each is at most ``physics_dt`` [s].
+
+    ``ceil(interval / physics_dt)`` (a relative 1e-9 of slack, so 1 ms samples take one
+    1 ms step): 120 Hz samples and a 1 ms physics step give 9 steps of 0.926 ms.
+    """
+    if not (interval > 0 and physics_dt > 0):
+        raise ValueError(f"interval and physics step must be > 0, got {interval}, {physics_dt}")
+    return max(1, math.ceil(interval / physics_dt * (1 - 1e-9)))
+
 
 class Engine:
     """Differentiable spring-rod engine for one topology.
@@ -30,9 +51,11 @@ class Engine:
 
     Args:
         topology: the assembly graph.
-        dt: physics time step [s].
+        dt: time advanced by one :meth:`step` [s] (the sample interval of the data).
         effects: extra force modules (see :mod:`tensegrity_env.engine.effects`).
         dtype, device: where the topology tensors live; states and params must match.
+        substeps: physics steps per :meth:`step`, each ``dt / substeps`` [s] long
+            (see :func:`substeps_for`); commands are held over them.
     """
 
     def __init__(
@@ -42,9 +65,14 @@ class Engine:
         effects: Sequence[Effect] = (),
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
+        substeps: int = 1,
     ) -> None:
+        if int(substeps) < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
         self.topology = topology
         self.dt = float(dt)
+        self.substeps = int(substeps)
+        self.physics_dt = self.dt / self.substeps
         self.effects = tuple(effects)
         self.dtype, self.device = dtype, torch.device(device)
         kw = {"dtype": dtype, "device": self.device}
@@ -67,7 +95,7 @@ class Engine:
         )  # (C,): the spring each cable actuator drives
 
     def with_effects(self, effects: Sequence[Effect]) -> Engine:
-        return Engine(self.topology, self.dt, effects, self.dtype, self.device)
+        return Engine(self.topology, self.dt, effects, self.dtype, self.device, self.substeps)
 
     def kinematics(self, state: State) -> Kinematics:
         """Every node's position and velocity (end caps, anchors, attachment points)."""
@@ -135,10 +163,14 @@ class Engine:
         control: torch.Tensor | None = None,
         cables: torch.Tensor | None = None,
     ) -> State:
-        """Advance every assembly in the batch by one time step ``dt``."""
-        accel, alpha_l, omega_l = self.accelerations(state, params, control, cables)
-        # integration: semi-implicit Euler (MuJoCo's Euler integrator)
-        return semi_implicit_euler(state, accel, alpha_l, omega_l, self.dt, self.frame_origins)
+        """Advance every assembly in the batch by ``dt``, in ``substeps`` physics steps."""
+        for _ in range(self.substeps):
+            accel, alpha_l, omega_l = self.accelerations(state, params, control, cables)
+            # integration: semi-implicit Euler (MuJoCo's Euler integrator)
+            state = semi_implicit_euler(
+                state, accel, alpha_l, omega_l, self.physics_dt, self.frame_origins
+            )
+        return state
 
     def rollout(
         self,

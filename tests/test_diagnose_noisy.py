@@ -153,5 +153,10 @@ def test_cli_trajectory_method_rejects_bad_windows(tmp_path, capsys) -> None:
     path = tmp_path / "noisy.h5"
     cli(["plant", "none", "--noise", "0.001", "--n-train", "1", "--n-val", "1", "--n-test", "1",
          "--steps", "50", "-o", str(path)])  # fmt: skip
-    assert cli(["diagnose", str(path), "--window", "1", "-o", str(tmp_path / "out")]) == 2
+    # --window is a time: 1 ms is one sample at 1 kHz, too short for a window
+    assert cli(["diagnose", str(path), "--window", "1ms", "-o", str(tmp_path / "out")]) == 2
     assert "--window" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        cli(["diagnose", str(path), "--window", "10 steps", "-o", str(tmp_path / "o")])
+    assert stop.value.code == 2
+    assert "not a duration" in capsys.readouterr().err

@@ -119,7 +119,7 @@ def test_command_prints_the_table(tmp_path: Path, capsys: pytest.CaptureFixture[
     path = write_dataset(tmp_path / "small.h5", ds, truth)
     out = tmp_path / "eff"
     argv = ["efficiency", str(path), "-o", str(out), "--fractions", str(TINY)]
-    argv += ["--seeds", "1", "--horizon", "10"]
+    argv += ["--seeds", "1", "--horizon", "10ms"]
     assert main(argv) == 0
     captured = capsys.readouterr()
     assert "ratios" in captured.err.lower()  # no anchor: says so, never reads truth for one

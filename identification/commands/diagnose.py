@@ -14,16 +14,18 @@ from typing import Any
 import numpy as np
 import torch
 
+from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.data.end_caps import with_measured_states
 from identification.discovery.candidates import FitSettings
 from identification.discovery.diagnose import diagnose
 from identification.discovery.report import fmt_err, ratio, write_params, write_report
-from identification.discovery.trajectory_loop import FIT_WINDOW, TrajectorySettings, diagnose_noisy
+from identification.discovery.trajectory_loop import TrajectorySettings, diagnose_noisy
 from identification.discovery.trajectory_report import write_noisy_report
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from tensegrity_env.effects import EFFECTS
+from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
@@ -32,6 +34,10 @@ from tensegrity_env.io_utils import (
     check_output_file,
 )
 from tensegrity_env.model import Model
+
+#: default window lengths of the trajectory method [s] (100 and 300 samples at 1 kHz)
+WINDOW_S = 0.1
+FIT_WINDOW_S = 0.3
 
 
 def register(sub: Any) -> None:
@@ -43,7 +49,9 @@ def register(sub: Any) -> None:
             "end caps), try every candidate effect whose physical gate the data passes, keep the "
             "one that lowers the held-out error and the BIC against 'nothing is missing', refit "
             "jointly, repeat. Writes DIR/report.md (with residual PNGs) and DIR/params.json with "
-            "an 'effects' section that the engine and the environments load."
+            "an 'effects' section that the engine and the environments load. Every span "
+            "(window, horizon, smoothing, physics step) is a time: 0.1s, 100ms or a bare "
+            "number of seconds."
         ),
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset (rod states, or end caps only)")
@@ -53,27 +61,30 @@ def register(sub: Any) -> None:
                    help="a known value fixing the scale, e.g. mass[rod0]=1.95 (repeatable)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, default=Path("diagnose_out"), help="report folder")
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
-    p.add_argument("--horizon", type=float, default=1.0, help="rollout horizon [s] (default 1)")
+    p.add_argument("--horizon", type=seconds, default=1.0, help="rollout horizon (default 1s)")
     p.add_argument("--candidates", default="", metavar="NAMES",
                    help=f"comma-separated subset of {','.join(EFFECTS)}")  # fmt: skip
-    p.add_argument("--smoothing", type=float, default=0.01,
-                   help="Gaussian smoothing std [s] for --method regression on end-cap-only "
-                   "data (default 0.01)")  # fmt: skip
+    p.add_argument("--smoothing", type=seconds, default=0.01,
+                   help="Gaussian smoothing std for --method regression on end-cap-only "
+                   "data (default 0.01s)")  # fmt: skip
     p.add_argument("--method", choices=("auto", "regression", "trajectory"), default="auto",
                    help="regression: one-step regressions on rod states (exact on clean data); "
                    "trajectory: multi-step fits through the engine on end-cap windows (noisy "
                    "motion capture); auto: trajectory when the dataset holds end caps only")  # fmt: skip
-    p.add_argument("--window", type=int, default=100,
-                   help="trajectory method: steps per window (default 100)")  # fmt: skip
+    p.add_argument("--window", type=seconds, default=WINDOW_S,
+                   help=f"trajectory method: length of each window (default {WINDOW_S:g}s)")  # fmt: skip
     p.add_argument("--windows", type=int, default=8,
                    help="trajectory method: random windows per split (default 8)")  # fmt: skip
     p.add_argument("--fit-windows", type=int, default=32,
                    help="trajectory method: training windows of the declared and every accepted "
                    "model's final fit (default 32)")  # fmt: skip
-    p.add_argument("--fit-window", type=int, default=FIT_WINDOW,
-                   help=f"trajectory method: steps per window of that final fit (default "
-                   f"{FIT_WINDOW}; 0: --window); longer windows carry more information per "
+    p.add_argument("--fit-window", type=seconds, default=FIT_WINDOW_S,
+                   help=f"trajectory method: length of each window of that final fit (default "
+                   f"{FIT_WINDOW_S:g}s; 0: --window); longer windows carry more information per "
                    "sample")  # fmt: skip
+    p.add_argument("--physics-dt", type=seconds, default=PHYSICS_DT,
+                   help=f"trajectory method: longest physics step; the engine substeps between "
+                   f"samples (default {PHYSICS_DT:g}s)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
     add_force_option(p)
     p.set_defaults(func=run)
@@ -176,13 +187,20 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:
         raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
-    if args.window < 2 or args.windows < 1 or args.fit_windows < 1 or args.fit_window < 0:
-        raise InputError("--window must be >= 2, --windows and --fit-windows >= 1, "
-                         "--fit-window >= 0")  # fmt: skip
-    settings = TrajectorySettings(anchors=anchors, window=args.window, train_windows=args.windows,
+    dt = dataset.dt
+    if args.window < 2 * dt or args.windows < 1 or args.fit_windows < 1:
+        raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
+                         "--windows and --fit-windows >= 1")  # fmt: skip
+    if not 0 < args.physics_dt:
+        raise InputError("--physics-dt must be > 0")
+    window = samples_of(args.window, dt, 2)
+    fit_window = samples_of(args.fit_window, dt, 2) if args.fit_window > 0 else 0
+    print(f"windows of {describe(args.window, dt)}; final fit on windows of "
+          f"{describe(args.fit_window or args.window, dt)}; physics step <= {args.physics_dt:g} s")  # fmt: skip
+    settings = TrajectorySettings(anchors=anchors, window=window, train_windows=args.windows,
                                   val_windows=args.windows, test_windows=args.windows,
-                                  fit_windows=args.fit_windows, fit_window=args.fit_window,
-                                  seed=args.seed)  # fmt: skip
+                                  fit_windows=args.fit_windows, fit_window=fit_window,
+                                  seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

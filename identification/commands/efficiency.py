@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from identification.commands.durations import samples_of, seconds
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.experiments.efficiency import DEFAULT_FRACTIONS, run_efficiency, write_outputs
 from identification.linear.regression import parse_anchor
@@ -43,8 +44,8 @@ def register(sub: Any) -> None:
     p.add_argument("--split", default="train", help="split to fit on (default train)")
     p.add_argument("--test-split", default="test", help="split for rollout errors (default test)")
     p.add_argument(
-        "--horizon", type=int, default=None, metavar="STEPS",
-        help="rollout horizon on the test split [steps] (default: whole trajectories)",
+        "--horizon", type=seconds, default=None, metavar="SECONDS",
+        help="rollout horizon on the test split, e.g. 2s (default: whole trajectories)",
     )  # fmt: skip
     p.add_argument("--solver", choices=("lstsq", "network"), default="lstsq",
                    help="exact least squares (default) or the paper's linear layer trained on MSE")  # fmt: skip
@@ -54,8 +55,8 @@ def register(sub: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_output_dir(args.output, args.force)
-    if args.horizon is not None and args.horizon < 1:
-        raise InputError(f"--horizon must be >= 1, got {args.horizon}")
+    if args.horizon is not None and not args.horizon > 0:
+        raise InputError(f"--horizon must be > 0 s, got {args.horizon}")
     bad = [f for f in args.fractions if not 0 < f <= 1]
     if bad:
         raise InputError(f"--fractions must be in (0, 1], got {bad}")
@@ -80,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         split=args.split,
         test_split=args.test_split,
-        horizon=args.horizon,
+        horizon=None if args.horizon is None else samples_of(args.horizon, dataset.dt),
         progress=True,
         solver=args.solver,
     )

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from identification.commands.durations import samples_of, seconds
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import (
@@ -62,8 +63,8 @@ def register(sub: Any) -> None:
     p.add_argument("--fraction", type=float, help="fit on this random fraction of training steps")
     p.add_argument("--seed", type=int, default=0, help="seed of the random subset")
     p.add_argument("--split", default="train", help="split to fit on (default train)")
-    p.add_argument("--horizon", type=int, default=2000,
-                   help="rollout steps for the test-split error (default 2000)")  # fmt: skip
+    p.add_argument("--horizon", type=seconds, default=2.0,
+                   help="rollout horizon of the test-split error, e.g. 2s (default 2s)")  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     scores: dict[str, Any] = {}
     if "test" in dataset.splits and dataset.split("test").has_states and not ratios:
         try:
-            scores = est.score(dataset, "test", horizon=args.horizon)
+            scores = est.score(dataset, "test", horizon=samples_of(args.horizon, dataset.dt))
         except InputError as e:
             print(f"\n(no test errors: {e})")
         else:

@@ -23,6 +23,7 @@ from identification.trajectory.windows import (
     window_residual,
 )
 from tensegrity_env.engine import Engine, State
+from tensegrity_env.io_utils import InputError
 
 
 # ---------------------------------------------------------------------- stage 2
@@ -263,13 +264,17 @@ def fit_windows(
     lam, nu, converged = 1e-7, 2.0, done
     for _ in range(max_iter if not done else 0):
         while True:
-            d_z, d_theta, pred, _ = schur_step(ne, lam)
-            d_theta = (theta + d_theta).clamp(lo, hi) - theta
-            d_state = torch.einsum("bl,lrj->brj", d_z, basis)
-            trial = replace(windows, state=perturb(windows.state, d_state))
             try:
+                d_z, d_theta, pred, _ = schur_step(ne, lam)
+                d_theta = (theta + d_theta).clamp(lo, hi) - theta
+                if not (bool(torch.isfinite(d_theta).all()) and bool(torch.isfinite(d_z).all())):
+                    raise FloatingPointError("non-finite step")
+                d_state = torch.einsum("bl,lrj->brj", d_z, basis)
+                trial = replace(windows, state=perturb(windows.state, d_state))
                 sse = window_sse(engine, vec, trial, basis, theta + d_theta, chunk)
-            except torch.linalg.LinAlgError:  # e.g. a contact solve at extreme trial values
+            except (torch.linalg.LinAlgError, FloatingPointError, InputError):
+                # a trial the engine cannot take (a contact solve or an effect at extreme or
+                # non-finite values, a singular system) is a rejected step: more damping
                 sse = float("inf")
             rho = (ne.sse - sse) / pred if pred > 0 and np.isfinite(sse) else -1.0
             if rho > 0:

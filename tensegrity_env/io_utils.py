@@ -37,6 +37,18 @@ class InputError(Exception):
     """Bad user input: the CLI prints ``error: <message>`` on one line and exits 2."""
 
 
+class StageError(Exception):
+    """A stage of a pipeline ended without a usable result (diverged, implausible).
+
+    The message names the stage, the cause and what to try; the CLI prints
+    ``error: <message>`` on one line and exits 1.
+    """
+
+    def __init__(self, stage: str, cause: str, advice: str) -> None:
+        super().__init__(f"{stage} failed: {cause}; try {advice}")
+        self.stage, self.cause, self.advice = stage, cause, advice
+
+
 class Terminated(BaseException):
     """SIGTERM, raised in the main thread so that ``finally`` blocks and context managers run."""
 

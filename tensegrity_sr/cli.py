@@ -11,7 +11,13 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from tensegrity_env.io_utils import TERMINATED_EXIT, InputError, Terminated, sigterm_raises
+from tensegrity_env.io_utils import (
+    TERMINATED_EXIT,
+    InputError,
+    StageError,
+    Terminated,
+    sigterm_raises,
+)
 
 #: subcommand -> (the module defining it with ``register(subparsers)``, its one-line help),
 #: in the order ``--help`` lists them. Only the module of the command being run is
@@ -88,6 +94,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except StageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -98,6 +98,7 @@ from identification.trajectory.slack_regression import (
     CABLE_SIGNIFICANCE,
     slack_regression,
 )
+from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.touchdown import find_touchdowns, search_contact
 from identification.trajectory.window_states import GROW, fit_states, prefix
 from identification.trajectory.windowed_fit import fit_windows
@@ -760,9 +761,14 @@ def diagnose_noisy(
     data = _Data(dataset, settings)
     data.log = log
     t0 = time.perf_counter()
+    noise = noise_level(dataset.split("train").nodes)
+    log(f"noise level estimated from the training end caps: {noise * 1e3:.3g} mm")
     final, base = fit_declared(data, settings, start)
     log(f"declared model: end-cap RMS {final.rms * 1e3:.3f} mm on {final.windows.size} "
         f"training windows ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    for fit in (final, base):
+        check_stage("the declared model's fit", fit.rms, noise, "shorter windows (--window), a "
+                    "smaller --physics-dt, or a starting params file (--params)")  # fmt: skip
     current = _score(data, Candidate("nothing", base), settings)
     test_now = _test(data, final, settings, clean, horizon_s)
     baseline = test_now
@@ -784,6 +790,9 @@ def diagnose_noisy(
                 fit = fit_with(
                     data, current.fit, [*current.fit.start_effects, effect], settings.candidate_iter
                 )
+            if fit_diverged(fit.rms, noise):
+                skipped.append((name, f"its fit diverged (end-cap RMS {fit.rms * 1e3:.3g} mm)"))
+                continue
             c = _score(data, Candidate(name, fit, gate), settings)
             c.physical = all(e.physical() for e in fit.effects)
             c.seconds = time.perf_counter() - t1
@@ -817,6 +826,8 @@ def diagnose_noisy(
         final = fit_many(data, fit.vec, fit.theta, settings, settings.base_iter)
         log(f"  refitted on {final.windows.size} training windows: end-cap RMS "
             f"{final.rms * 1e3:.3f} mm ({time.perf_counter() - t1:.0f} s)")  # fmt: skip
+        check_stage(f"the final fit with {chosen.name}", final.rms, noise,
+                    "--max-effects to stop before it, or --fit-window shorter")  # fmt: skip
         if not data.roll and sees_roll(_fixed_engine(data, final)[0]):
             # from now on every fit and score fits the windows' rolls too, so the next
             # candidates are not judged on making up for them (without: a 1.2 N "force

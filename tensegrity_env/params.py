@@ -146,6 +146,12 @@ class Params:
             raise InputError(f"{source}: masses must be positive, got {self.mass.tolist()}")
         if (self.inertia <= 0).any():
             raise InputError(f"{source}: inertias must be positive")
+        total = self.inertia.sum(-1, keepdim=True)
+        if (2 * self.inertia > total * (1 + 1e-9)).any():
+            bad = [i for i, row in enumerate((2 * self.inertia > total * (1 + 1e-9)).tolist())
+                   if any(row)]  # fmt: skip
+            raise InputError(f"{source}: principal inertias of rod(s) {bad} violate the triangle "
+                             "inequality (each must be <= the sum of the other two)")  # fmt: skip
         if (self.stiffness <= 0).any():
             raise InputError(f"{source}: spring stiffness must be positive")
         if (self.damping < 0).any():

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from identification.commands.durations import samples_of, seconds
+from identification.commands.identify_end_caps import run_end_caps
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import (
@@ -18,6 +19,7 @@ from identification.report.tables import (
     parameter_table,
     relative_errors,
 )
+from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
@@ -38,7 +40,9 @@ def register(sub: Any) -> None:
             "--anchor (e.g. a weighed rod mass) or the result is reported as ratios to the "
             "first rod's mass. Prints the parameter table (with the relative error of each "
             "where the dataset carries ground truth) and one-step and rollout errors on the "
-            "test split; writes a versioned params.json."
+            "test split; writes a versioned params.json. A dataset of end caps only "
+            "(motion capture) is identified by trajectory fits through the engine. Spans "
+            "are times: 0.1s, 100ms or a bare number of seconds."
         ),
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset written by 'generate' or by the API")
@@ -65,15 +69,27 @@ def register(sub: Any) -> None:
     p.add_argument("--split", default="train", help="split to fit on (default train)")
     p.add_argument("--horizon", type=seconds, default=2.0,
                    help="rollout horizon of the test-split error, e.g. 2s (default 2s)")  # fmt: skip
+    q = p.add_argument_group("end-cap-only data (trajectory identification through the engine)")
+    q.add_argument("--window", type=seconds, default=1.0,
+                   help="longest window of the trajectory fit (default 1s)")  # fmt: skip
+    q.add_argument("--first-window", type=seconds, default=0.1,
+                   help="window of its first stage (default 0.1s)")  # fmt: skip
+    q.add_argument("--smoothing", type=seconds, default=0.1,
+                   help="Savitzky-Golay span of the starting regression (default 0.1s)")  # fmt: skip
+    q.add_argument("--physics-dt", type=seconds, default=PHYSICS_DT,
+                   help=f"longest physics step; the engine substeps between samples (default "
+                   f"{PHYSICS_DT:g}s)")  # fmt: skip
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force)
-    check_number("--horizon", args.horizon, 1)
+    check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
     dataset = read_dataset(args.dataset)
     anchors = dict(parse_anchor(a) for a in args.anchor)
+    if not dataset.split(args.split).has_states:
+        return run_end_caps(args, dataset, anchors)
     init = None
     if args.init is not None:
         init_model = Model.load(args.init)

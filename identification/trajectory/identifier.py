@@ -68,7 +68,7 @@ from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.param_vector import DTYPE, GROUPS, ParamVector
 from identification.trajectory.windowed_fit import fit_windows
 from identification.trajectory.windows import STATE_KEYS, cut_windows, fill_grid, window_schedule
-from tensegrity_env.engine import Engine
+from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.topology import Topology
 
@@ -99,6 +99,7 @@ class TrajectoryIdentifier:
         exact_gradient: use the reverse-mode gradient (see :func:`linearize`).
         threads: torch intra-op threads during ``fit`` (restored after); the tensors are
             small, so extra threads mostly add overhead (and stall on a busy machine).
+        physics_dt: the longest physics step [s]; the engine substeps between samples.
 
     After ``fit``: ``params_`` (:class:`Params`), ``initial_params_`` (stage 1),
     ``history_`` (mean squared end-cap error [m^2] before the first and after each
@@ -125,6 +126,7 @@ class TrajectoryIdentifier:
         tol: float = 0.1,
         exact_gradient: bool = False,
         threads: int | None = 1,
+        physics_dt: float = PHYSICS_DT,
     ) -> None:
         if min(window, first_window) < 1 or max_iter < 0 or not smoothing > 0:
             raise InputError("windows >= 1 step, max_iter >= 0 and smoothing > 0 are required")
@@ -140,6 +142,7 @@ class TrajectoryIdentifier:
         self.tol = tol
         self.exact_gradient = exact_gradient
         self.threads = threads
+        self.physics_dt = float(physics_dt)
 
     def fit(self, dataset: Dataset, split: str = "train") -> TrajectoryIdentifier:
         """Identify the parameters from the end caps (and control) of ``split``."""
@@ -171,7 +174,7 @@ class TrajectoryIdentifier:
         start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity)
         has_control = bool(np.any(data.control != 0))
         vec = self.start_vector(topo, axes, start, anchors, has_control)
-        engine = Engine(topo, dataset.dt)
+        engine = Engine(topo, dataset.dt, substeps=substeps_for(dataset.dt, self.physics_dt))
         grid = {k: getattr(smooth, k).copy() for k in STATE_KEYS}
         theta = vec.start[vec.free]
         schedule = window_schedule(self.first_window, min(self.window, data.n_transitions))

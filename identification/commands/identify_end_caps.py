@@ -1,0 +1,141 @@
+"""``tensegrity-sr identify`` on end-cap-only data: the trajectory identification.
+
+Stage 1 smooths the end caps and solves the one-step regression for a start; stage 2
+fits the parameters and every window's initial state through the engine
+(:class:`~identification.trajectory.identifier.TrajectoryIdentifier`), the engine
+substepping at ``--physics-dt`` between the measured samples. Parameters are fitted as
+logarithms, so masses, inertias, stiffnesses, damping and rest lengths stay positive;
+the result is checked against the noise level of the data and against the physical
+domain (:meth:`tensegrity_env.params.Params.validate`) before anything is printed as
+identified or written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import numpy as np
+
+from identification.commands.durations import describe, samples_of
+from identification.data.dataset import Dataset, read_ground_truth
+from identification.linear.regression import ParameterRow
+from identification.report.tables import group_errors, parameter_table, relative_errors
+from identification.trajectory.identifier import TrajectoryIdentifier
+from identification.trajectory.stage_check import check_stage, noise_level
+from tensegrity_env.io_utils import InputError, StageError
+from tensegrity_env.params import save_params
+
+UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
+         "rest_length": "m", "control_gain": "1"}  # fmt: skip
+
+
+def parameter_rows(est: TrajectoryIdentifier, anchors: dict[str, float]) -> list[ParameterRow]:
+    """The identify table's rows from a fitted trajectory identifier.
+
+    ``stderr_`` of the fit is relative (the parameters are fitted as logarithms):
+    absolute standard errors are ``value * relative``. Both perpendicular inertias of a
+    rod are one fitted value; the axial one is assumed (``notes_``).
+    """
+    p = est.params_.numpy()
+    topo = est.topology_
+    rel = est.stderr_
+    ratio = est.mode_ == "ratios"
+    rows: list[ParameterRow] = []
+
+    def row(name: str, group: str, el: int, value: float, key: str) -> None:
+        if name in est.notes_:
+            rows.append(ParameterRow(name, group, el, value, float("nan"), UNITS[group],
+                                     "not identifiable", est.notes_[name]))  # fmt: skip
+            return
+        status = "anchored" if name in anchors else ("ratio" if ratio else "identified")
+        se = value * rel[key] if key in rel else float("nan")
+        rows.append(ParameterRow(name, group, el, value, se, UNITS[group], status))
+
+    for r, rod in enumerate(topo.rods):
+        row(f"mass[{rod.name}]", "mass", r, float(p["mass"][r]), f"mass[{rod.name}]")
+    for r, rod in enumerate(topo.rods):
+        for k, ax in enumerate("xyz"):
+            row(f"inertia[{rod.name},{ax}]", "inertia", 3 * r + k, float(p["inertia"][r, k]),
+                f"inertia_perp[{rod.name}]")  # fmt: skip
+    for group in ("stiffness", "damping", "rest_length"):
+        for s, spring in enumerate(topo.springs):
+            name = f"{group}[{spring.name}]"
+            row(name, group, s, float(p[group][s]), name)
+    row("control_gain", "control_gain", -1, float(p["control_gain"]), "control_gain")
+    return rows
+
+
+def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, float]) -> int:
+    """Identify from end caps only, print the table, write params.json."""
+    used = [o for o, v in (("--solver network", args.solver == "network"),
+                           ("--shared", args.shared), ("--init", args.init is not None),
+                           ("--freeze", bool(args.freeze)),
+                           ("--fraction", args.fraction is not None)) if v]  # fmt: skip
+    if used:
+        raise InputError(f"{args.dataset}: end caps only; {', '.join(used)} need rod states "
+                         "(the trajectory identification fits end caps directly)")  # fmt: skip
+    dt = dataset.dt
+    split = dataset.split(args.split)
+    span = split.n_transitions * dt
+    if not (0 < args.physics_dt and args.first_window >= 2 * dt and args.smoothing > 0):
+        raise InputError(f"--first-window must span >= 2 samples ({2 * dt:.4g} s), "
+                         "--smoothing and --physics-dt must be > 0")  # fmt: skip
+    window = min(args.window, span)
+    print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: trajectory identification on windows "
+          f"growing from {describe(args.first_window, dt)} to {describe(window, dt)}, physics step "
+          f"<= {args.physics_dt:g} s")  # fmt: skip
+    noise = noise_level(split.nodes)
+    print(f"noise level estimated from the end caps: {noise * 1e3:.3g} mm")
+    t0 = time.perf_counter()
+    est = TrajectoryIdentifier(
+        anchors=anchors, window=samples_of(window, dt, 2),
+        first_window=samples_of(args.first_window, dt, 2), smoothing=args.smoothing,
+        seed=args.seed, progress=True, physics_dt=args.physics_dt,
+    ).fit(dataset, args.split)  # fmt: skip
+    fit_time = time.perf_counter() - t0
+    check_stage("the trajectory fit", est.rms_, noise,
+                "shorter windows (--window), a smaller --physics-dt, or 'diagnose' if the data "
+                "holds an effect the declared model lacks (contact, drag)")  # fmt: skip
+    try:
+        est.params_.validate(dataset.topology, source="identified parameters")
+    except InputError as e:
+        raise StageError("the trajectory fit", f"{e} (not written)",
+                         "an --anchor on the parameter, or longer trajectories") from None  # fmt: skip
+    ratios = est.mode_ == "ratios"
+    rows = parameter_rows(est, anchors)
+    truth = read_ground_truth(args.dataset)
+    truth_params = truth.params if truth is not None else None
+    print(f"\nIdentified from the end caps of '{args.split}' in {fit_time:.1f} s: end-cap RMS "
+          f"{est.rms_ * 1e3:.3f} mm (noise level {noise * 1e3:.3g} mm)"
+          + ("" if est.converged_ else "; the last stage stopped at its iteration limit"))  # fmt: skip
+    if ratios:
+        print("No anchor given: M, I, K, c, h share one unknown scale; values are RATIOS to "
+              f"mass[{dataset.topology.rods[0].name}].")  # fmt: skip
+    print(parameter_table(rows, truth_params, ratios))
+    if truth_params is not None:
+        worst = group_errors(rows, truth_params, ratios)
+        print("\nLargest relative error per group: "
+              + ", ".join(f"{k} {v:.2e}" for k, v in worst.items()))  # fmt: skip
+    extra: dict[str, Any] = {
+        "identifiability": {
+            "mode": est.mode_, "anchors": anchors, "not_identifiable": est.notes_,
+        },
+        "uncertainty": {r.name: r.stderr for r in rows if np.isfinite(r.stderr)},
+        "provenance": {
+            "dataset": str(args.dataset), "split": args.split, "method": "trajectory",
+            "window_s": window, "first_window_s": args.first_window,
+            "smoothing_s": args.smoothing, "physics_dt_s": args.physics_dt,
+            "end_cap_rms_m": est.rms_, "noise_level_m": noise, "converged": est.converged_,
+            "stages": est.stages_, "fit_seconds": fit_time,
+        },
+    }  # fmt: skip
+    if truth_params is not None:
+        errs = relative_errors(rows, truth_params, ratios)
+        extra["relative_error_vs_ground_truth"] = {
+            r.name: e for r, e in zip(rows, errs, strict=True) if np.isfinite(e)
+        }
+    save_params(args.output, dataset.topology, est.params_, extra)
+    print(f"\nwrote {args.output}")
+    return 0

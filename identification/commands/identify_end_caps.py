@@ -24,8 +24,9 @@ from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.stage_check import check_stage, noise_level
+from tensegrity_env.engine import substeps_for
 from tensegrity_env.io_utils import InputError, StageError
-from tensegrity_env.params import save_params
+from tensegrity_env.model import Model
 
 UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
          "rest_length": "m", "control_gain": "1"}  # fmt: skip
@@ -136,6 +137,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         extra["relative_error_vs_ground_truth"] = {
             r.name: e for r, e in zip(rows, errs, strict=True) if np.isfinite(e)
         }
-    save_params(args.output, dataset.topology, est.params_, extra)
+    physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
+    Model(dataset.topology, est.params_, dt=physics).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

@@ -53,7 +53,8 @@ class Engine:
         topology: the assembly graph.
         dt: time advanced by one :meth:`step` [s] (the sample interval of the data).
         effects: extra force modules (see :mod:`tensegrity_env.engine.effects`).
-        dtype, device: where the topology tensors live; states and params must match.
+        dtype: dtype of the topology tensors; states and params must match.
+        device: device of the topology tensors; states and params must match.
         substeps: physics steps per :meth:`step`, each ``dt / substeps`` [s] long
             (see :func:`substeps_for`); commands are held over them.
     """

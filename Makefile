@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_DIR ?= demo_out
 
-.PHONY: demo demo-full test lint bench clean
+.PHONY: demo demo-full test test-fast docs lint bench clean
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
@@ -25,6 +25,13 @@ demo-full: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+# the fast tests only (the slow end-to-end accuracy runs are marked and left out)
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow" -x --ignore=tests/test_experiment.py
+
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -d site
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
@@ -34,4 +41,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_identify.py
 
 clean:
-	rm -rf $(VENV) $(DEMO_DIR) $(DEMO_DIR)_full build *.egg-info
+	rm -rf $(VENV) $(DEMO_DIR) $(DEMO_DIR)_full build site *.egg-info

@@ -11,9 +11,15 @@ import pytest
 import torch
 from scipy.signal import savgol_filter
 
-from identification.data.end_caps import masked_savgol, smooth_nodes
+from identification.data.end_caps import (
+    RodAxes,
+    masked_savgol,
+    measured_rod_states,
+    smooth_nodes,
+    smooth_rod_states,
+)
 from identification.trajectory.windows import cut_windows
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.assemblies import icosahedron
 
 
 def cubic_caps(t1: int = 120, dt: float = 0.01) -> np.ndarray:
@@ -38,11 +44,27 @@ def test_masked_savgol_is_savgol_without_gaps_and_exact_on_a_cubic_through_a_gap
     np.testing.assert_allclose(xd[0, :, 2, 0], 1 - 3 * t**2, atol=1e-8)
 
 
-def test_a_gap_longer_than_the_filter_is_named_not_filled() -> None:
+def test_a_gap_longer_than_the_filter_stays_a_gap_and_its_samples_are_left_out() -> None:
     gapped = cubic_caps()
     gapped[1, 30:60, 0] = np.nan
-    with pytest.raises(InputError, match=r"trajectory 1 has a gap at 0\.3"):
-        smooth_nodes(gapped, 0.01, 0.02)
+    smooth = smooth_nodes(gapped, 0.01, 0.02)
+    inside = ~np.isfinite(smooth[1, :, 0]).all(-1)
+    assert inside[40:50].all() and not inside[:25].any() and not inside[65:].any()
+    assert np.isfinite(smooth[0]).all() and np.isfinite(smooth[1, :, 1:]).all()
+    topo = icosahedron().topology
+    nodes = np.repeat(gapped[:, :, :1], 12, axis=2) + topo.end_offsets.reshape(1, 1, 12, 3)
+    for method, smoothing in (("exact", 0.0), ("gaussian", 0.02), ("savgol", 0.07)):
+        _, st = measured_rod_states(nodes, topo, 0.01, method, smoothing)
+        undefined = ~np.isfinite(st["p"]).all(axis=(2, 3))
+        assert not undefined[0].any(), method
+        # every sample whose differences or filter window reach the gap is left out
+        reach = 1 if method != "savgol" else 3
+        assert (
+            undefined[1, 30 - reach : 60 + reach].all() and not undefined[1, : 30 - reach].any()
+        ), method
+    s = smooth_rod_states(nodes, 0.01, RodAxes.of(topo), 7)
+    assert s.whole[0].all() and not s.whole[1, 27:63].any() and s.whole[1, :27].all()
+    assert not s.finite[1, 40:50].any() and s.finite[1, :25].all()
 
 
 def test_windows_weigh_unseen_end_caps_zero() -> None:
@@ -55,6 +77,20 @@ def test_windows_weigh_unseen_end_caps_zero() -> None:
     assert int((~win.valid).sum()) == 3 and win.residuals == (win.obs[..., 0].numel() - 3) * 3
     w = win.weights()
     assert w is not None and float(w[0, 10:13, 1].sum()) == 0.0 and float(w.sum()) == w.numel() - 3
+
+
+def test_windows_start_where_the_smoothing_is_defined() -> None:
+    nodes = cubic_caps()
+    grid = {k: np.zeros((2, 120, 2, w)) for k, w in (("p", 3), ("v", 3), ("q", 4), ("omega", 3))}
+    grid["q"][..., 0] = 1.0
+    grid["p"][0, 25:33] = np.nan  # an unbridged gap at the start of trajectory 0's second window
+    grid["v"][1, 0:30] = np.nan  # and over trajectory 1's whole first window
+    win = cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 25)
+    pairs = list(zip(win.traj.tolist(), win.start.tolist(), strict=True))
+    assert (0, 0) in pairs and (0, 33) in pairs and (0, 29) not in pairs
+    assert not any(t == 1 and s < 30 for t, s in pairs) and (1, 30) in pairs  # 0 dropped, 29 moved
+    assert all(torch.isfinite(x).all() for x in win.state.tensors())
+    assert all(s + win.steps <= 119 for s in win.start)
 
 
 @pytest.mark.slow

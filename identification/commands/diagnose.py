@@ -17,6 +17,7 @@ import torch
 from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.data.end_caps import with_measured_states
+from identification.data.sample_grid import on_nominal_grid
 from identification.discovery.candidates import FitSettings
 from identification.discovery.diagnose import diagnose
 from identification.discovery.report import fmt_err, ratio, write_params, write_report
@@ -129,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
     check_number("--smoothing", args.smoothing, 0, strict=True)
     check_number("--seed", args.seed, 0)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
-    raw = read_dataset(args.dataset)
+    raw, grid = on_nominal_grid(read_dataset(args.dataset))
+    if grid.changed:
+        print(grid.text(raw.dt))
     end_caps_only = not all(s.has_states for s in raw.splits.values())
     if args.method == "trajectory" or (args.method == "auto" and end_caps_only):
         return run_trajectory(args, raw)

@@ -12,6 +12,7 @@ import numpy as np
 from identification.commands.durations import samples_of, seconds
 from identification.commands.identify_end_caps import run_end_caps
 from identification.data.dataset import read_dataset, read_ground_truth
+from identification.data.sample_grid import on_nominal_grid
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import (
     error_text,
@@ -41,7 +42,8 @@ def register(sub: Any) -> None:
             "first rod's mass. Prints the parameter table (with the relative error of each "
             "where the dataset carries ground truth) and one-step and rollout errors on the "
             "test split; writes a versioned params.json. A dataset of end caps only "
-            "(motion capture) is identified by trajectory fits through the engine. Spans "
+            "(motion capture) is identified by trajectory fits through the engine; its sample "
+            "times are put on the nominal grid first (dropped frames become gaps). Spans "
             "are times: 0.1s, 100ms or a bare number of seconds."
         ),
     )
@@ -86,7 +88,9 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force)
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
-    dataset = read_dataset(args.dataset)
+    dataset, grid = on_nominal_grid(read_dataset(args.dataset))
+    if grid.changed:
+        print(grid.text(dataset.dt))
     anchors = dict(parse_anchor(a) for a in args.anchor)
     if not dataset.split(args.split).has_states:
         return run_end_caps(args, dataset, anchors)

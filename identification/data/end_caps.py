@@ -154,7 +154,10 @@ def smooth_nodes(nodes: np.ndarray, dt: float, smoothing: float) -> np.ndarray:
     kernel has no side lobes to pass high-frequency noise (``"savgol"`` instead
     differentiates its fitted polynomials, :func:`smooth_rod_states`). The ends are
     extended by a cubic fit (``mode="nearest"`` would bend them). ``smoothing`` below
-    half a sample returns ``nodes`` unchanged.
+    half a sample returns ``nodes`` unchanged. Gaps (NaN) are bridged by a normalized
+    convolution over the seen samples; where a gap is too long for the kernel (less
+    than 5 % of its weight on seen samples) the result stays NaN, and callers leave
+    those samples out.
     """
     sigma = smoothing / dt
     if sigma < 0.5:
@@ -166,7 +169,6 @@ def smooth_nodes(nodes: np.ndarray, dt: float, smoothing: float) -> np.ndarray:
         with np.errstate(invalid="ignore", divide="ignore"):
             out = num / den
         out[np.broadcast_to(den < 0.05, out.shape)] = np.nan  # too far from any sample
-        check_bridged(out, "end caps", dt)
         return out
     pad = min(int(4 * sigma), nodes.shape[1] - 1)
     w = min(nodes.shape[1] if nodes.shape[1] % 2 else nodes.shape[1] - 1, 2 * pad + 1)
@@ -188,6 +190,10 @@ class SmoothedStates:
         omega, alpha: angular velocity [rad/s] and acceleration [rad/s^2] perpendicular
             to the rod (the axial part is unobservable and set to 0).
         window: the filter length used [samples].
+        whole: (N, T+1) bool, every end cap seen at every sample of the filter's window
+            around that sample (all True without gaps). Accelerations where a gap falls
+            inside the window come from a polynomial fitted across it: the regression
+            uses only ``whole`` samples.
     """
 
     x: np.ndarray
@@ -199,6 +205,14 @@ class SmoothedStates:
     omega: np.ndarray
     alpha: np.ndarray
     window: int
+    whole: np.ndarray
+
+    @property
+    def finite(self) -> np.ndarray:
+        """(N, T+1) bool: every rod's state and rates are defined at that sample (False
+        where a gap was too long for the filter to bridge)."""
+        fields = (self.x, self.xd, self.p, self.v, self.a, self.q, self.omega, self.alpha)
+        return np.logical_and.reduce([np.isfinite(f).all(axis=(2, 3)) for f in fields])
 
     @property
     def margin(self) -> int:
@@ -216,7 +230,9 @@ def smooth_rod_states(
     velocities and accelerations are the fitted polynomials and their derivatives (no
     finite differences); the perpendicular angular velocity and acceleration are
     ``u × u̇`` and ``u × ü`` of the rod direction ``u``, and the orientation the
-    shortest arc onto ``u`` (no twist, as :func:`rod_states_from_nodes`).
+    shortest arc onto ``u`` (no twist, as :func:`rod_states_from_nodes`). Gaps (NaN)
+    are fitted through by :func:`masked_savgol`; a rod's states are NaN where a gap of
+    either end cap is too long to bridge (:attr:`SmoothedStates.finite` is False there).
     """
     T1 = nodes.shape[1]
     window = min(window, T1 if T1 % 2 else T1 - 1)
@@ -226,7 +242,6 @@ def smooth_rod_states(
         x, xd, xdd = (savgol_filter(nodes, deriv=d, **kw) for d in range(3))
     else:
         x, xd, xdd = masked_savgol(nodes, dt, window, polyorder)
-        check_bridged(x, "end caps", dt)
     N, _, n2, _ = nodes.shape
     shape = (N, T1, n2 // 2, 2, 3)
     x, xd, xdd = (y.reshape(shape) for y in (x, xd, xdd))
@@ -240,8 +255,21 @@ def smooth_rod_states(
     return SmoothedStates(
         x=x.reshape(nodes.shape), xd=xd.reshape(nodes.shape), p=p, v=v, a=a,
         q=shortest_arc(np.eye(3)[axes.axis], u),  # the roll about u is not seen by end caps
-        omega=omega, alpha=alpha, window=window,
+        omega=omega, alpha=alpha, window=window, whole=whole_windows(nodes, window),
     )  # fmt: skip
+
+
+def whole_windows(nodes: np.ndarray, window: int) -> np.ndarray:
+    """(N, T+1) bool: every end cap of ``nodes`` (N, T+1, 2R, 3) is seen throughout the
+    ``window``-sample filter window used at each sample (one-sided at the ends, as
+    :func:`masked_savgol`)."""
+    T1 = nodes.shape[1]
+    h = window // 2
+    missing = (~np.isfinite(nodes).all(axis=(-1, -2))).astype(int)  # (N, T+1)
+    count = np.concatenate([np.zeros((len(nodes), 1), int), np.cumsum(missing, axis=1)], axis=1)
+    centre = np.clip(np.arange(T1), h, max(h, T1 - 1 - h))
+    lo, hi = np.clip(centre - h, 0, T1), np.clip(centre + h + 1, 0, T1)
+    return (count[:, hi] - count[:, lo]) == 0
 
 
 def masked_savgol(
@@ -252,8 +280,8 @@ def masked_savgol(
     ``nodes`` (N, T+1, 2R, 3) is a gap; near the ends the window is one-sided, as
     ``savgol_filter``'s ``mode="interp"``). Returns positions [m], velocities [m/s] and
     accelerations [m/s²] of the fit, each like ``nodes``. Where a window holds fewer
-    than ``polyorder + 2`` seen samples (a gap too long to bridge) the result is NaN:
-    :func:`check_bridged` says so.
+    than ``polyorder + 2`` seen samples (a gap too long to bridge) the result is NaN,
+    never a filled-in value.
     """
     N, T1, C, _ = nodes.shape
     h = window // 2
@@ -287,17 +315,6 @@ def masked_savgol(
     return x, xd, xdd
 
 
-def check_bridged(states: np.ndarray, where: str, dt: float) -> None:
-    """One :class:`InputError` if smoothing left NaN: a gap longer than the filter bridges."""
-    bad = ~np.isfinite(states).all(axis=tuple(range(2, states.ndim)))
-    if bad.any():
-        n, t = np.argwhere(bad)[0]
-        raise InputError(
-            f"{where}: trajectory {n} has a gap at {t * dt:.3g} s longer than the smoothing "
-            "window can bridge; cut the take there or smooth over a longer span"
-        )
-
-
 def odd_window(x: float) -> int:
     """A Savitzky-Golay window of about ``x`` samples: odd, at least 5."""
     n = max(round(x), 5)
@@ -325,16 +342,31 @@ def measured_rod_states(
     Returns:
         the end caps the states belong to (smoothed, or ``nodes`` itself for
         ``"exact"``) and ``p``, ``v``, ``q``, ``omega`` as :func:`rod_states_from_nodes`.
+        With gaps (NaN end caps) the states are NaN at every sample whose differences
+        (or filter window, ``"savgol"``) reach a sample where some end cap was not
+        seen, so that a fit on them leaves those samples out rather than using values
+        made up across the gap.
     """
     if method == "exact":
-        return nodes, rod_states_from_nodes(nodes, topology, dt)
-    if method == "gaussian":
-        smooth = smooth_nodes(nodes, dt, smoothing)
-        return smooth, rod_states_from_nodes(smooth, topology, dt)
-    if method == "savgol":
+        out, st = nodes, rod_states_from_nodes(nodes, topology, dt)
+        whole = seen_around(nodes)
+    elif method == "gaussian":
+        out = smooth_nodes(nodes, dt, smoothing)
+        st, whole = rod_states_from_nodes(out, topology, dt), seen_around(nodes)
+    elif method == "savgol":
         s = smooth_rod_states(nodes, dt, RodAxes.of(topology), odd_window(smoothing / dt))
-        return s.x, {"p": s.p, "v": s.v, "q": s.q, "omega": s.omega}
-    raise InputError(f"unknown smoothing method '{method}' (use {', '.join(METHODS)})")
+        out, st, whole = s.x, {"p": s.p, "v": s.v, "q": s.q, "omega": s.omega}, s.whole
+    else:
+        raise InputError(f"unknown smoothing method '{method}' (use {', '.join(METHODS)})")
+    if not whole.all():
+        st = {k: np.where(whole[..., None, None], v, np.nan) for k, v in st.items()}
+    return out, st
+
+
+def seen_around(nodes: np.ndarray) -> np.ndarray:
+    """(N, T+1) bool: every end cap of ``nodes`` (N, T+1, 2R, 3) seen at the sample and
+    its two neighbours (what a central difference there uses)."""
+    return whole_windows(nodes, 3)
 
 
 def with_measured_states(

@@ -170,15 +170,24 @@ class SpringRodIdentifier:
         return self
 
     def _subset(self, data: Split) -> np.ndarray:
-        total = data.n_trajectories * data.n_transitions
+        """Flat indices ``n T + t`` of the transitions to fit: those whose two states are
+        defined (rod states derived from end caps are NaN in a gap too long to bridge),
+        a random ``fraction`` of them, at most ``max_transitions``."""
+        defined = np.logical_and.reduce(
+            [np.isfinite(getattr(data, k)).all(axis=(2, 3)) for k in ("p", "v", "q", "omega")]
+        )  # (N, T+1)
+        usable = np.flatnonzero((defined[:, :-1] & defined[:, 1:]).ravel())
+        if len(usable) == 0:
+            raise InputError("no transition with both rod states defined (gaps everywhere)")
+        total = len(usable)
         n = total
         if self.fraction is not None:
             n = max(1, round(self.fraction * total))
         if self.max_transitions is not None:
             n = min(n, self.max_transitions)
         if n >= total:
-            return np.arange(total)
-        return np.sort(np.random.default_rng(self.seed).choice(total, size=n, replace=False))
+            return usable
+        return np.sort(np.random.default_rng(self.seed).choice(usable, size=n, replace=False))
 
     def _normal_equations(
         self, dataset: Dataset, data: Split, layout: ParameterLayout, index: np.ndarray

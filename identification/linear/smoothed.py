@@ -83,9 +83,14 @@ def smoothed_features(
 
     Continuous-time accelerations from the smoothing replace the transition's finite
     differences; ``control`` is (N, T, R, 3); ``keep`` (N, T) selects samples (None: all).
+    Samples whose filter window holds a gap (``s.whole`` False) are never used: their
+    accelerations would come from a polynomial fitted across the gap.
     """
     T = control.shape[1]
     t = slice(s.margin, max(s.margin + 1, min(T, s.p.shape[1] - s.margin)))
+    defined = s.whole[:, :T]
+    if not defined.all():
+        keep = defined if keep is None else keep & defined
 
     def pick(arr: np.ndarray) -> torch.Tensor:
         part = arr[:, t]

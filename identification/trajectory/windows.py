@@ -16,6 +16,7 @@ import torch
 from identification.data.end_caps import RodAxes
 from identification.trajectory.param_vector import DTYPE, ParamVector
 from tensegrity_env.engine import Engine, State
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import quat_mul, quat_to_matrix
 
@@ -87,12 +88,24 @@ def cut_windows(
     ``grid``, rod states at every sample (N, T+1, R, ·) (the smoothing, or a previous
     fit). The length is adjusted so that ``T // window`` windows tile each trajectory
     (fewer than that many steps are left over at its end). End caps that were not seen
-    (NaN in ``nodes``) get ``valid`` False and count in no residual.
+    (NaN in ``nodes``) get ``valid`` False and count in no residual. A window whose
+    initial state is undefined in ``grid`` (a gap too long for the smoothing to bridge)
+    starts at the first later sample where it is defined, within its tile, or is left out.
     """
     N, T1 = nodes.shape[:2]
     W = (T1 - 1) // max(1, (T1 - 1) // window)
     starts = np.arange(0, T1 - W, W)
     traj, start = np.repeat(np.arange(N), len(starts)), np.tile(starts, N)
+    defined = np.logical_and.reduce(
+        [np.isfinite(grid[k]).all(axis=(2, 3)) for k in STATE_KEYS]
+    )  # (N, T+1)
+    if not defined[traj, start].all():
+        traj, start = defined_starts(defined, traj, start, W)
+        if len(start) == 0:
+            raise InputError(
+                f"no window of {W} steps starts where the end caps' smoothing is defined: "
+                "the gaps are too long or too frequent for windows this long"
+            )
     span = start[:, None] + np.arange(W + 1)
     obs_np = nodes[traj[:, None], span]
     seen = np.isfinite(obs_np).all(-1)  # (B, W+1, 2R): a gap is compared with nothing
@@ -102,6 +115,22 @@ def cut_windows(
     ctrl_t = torch.as_tensor(ctrl, dtype=DTYPE) if np.any(ctrl != 0) else None
     valid = None if seen.all() else torch.as_tensor(seen)
     return Windows(obs, ctrl_t, state, traj, start, valid)
+
+
+def defined_starts(
+    defined: np.ndarray, traj: np.ndarray, start: np.ndarray, steps: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Window starts moved to the first sample in ``[start, start + steps)`` where
+    ``defined`` (N, T+1) holds and a window of ``steps`` still fits; windows with no such
+    sample are dropped. Returns the kept ``traj`` and ``start``."""
+    T1 = defined.shape[1]
+    keep_t, keep_s = [], []
+    for n, s0 in zip(traj, start, strict=True):
+        ok = np.flatnonzero(defined[n, s0 : min(s0 + steps, T1 - steps)])
+        if len(ok):
+            keep_t.append(n)
+            keep_s.append(s0 + ok[0])
+    return np.array(keep_t, dtype=int), np.array(keep_s, dtype=int)
 
 
 @torch.no_grad()

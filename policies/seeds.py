@@ -29,7 +29,9 @@ def parse_seeds(spec: str) -> list[int]:
                 raise ValueError
             seeds += range(first, last + 1)
     except ValueError:
-        raise InputError(f"--seeds {spec!r}: expected seeds like 0-4 or 0,2,7 (non-negative)") from None
+        raise InputError(
+            f"--seeds {spec!r}: expected seeds like 0-4 or 0,2,7 (non-negative)"
+        ) from None
     return list(dict.fromkeys(seeds))
 
 
@@ -53,21 +55,29 @@ def train_seeds(
     """Train ``seeds`` with ``workers`` processes into ``out/s<seed>``.
 
     ``train_kwargs`` go to :func:`policies.train.train` for every seed (not ``seed``,
-    ``out``, ``progress``). Every folder is checked before any training starts.
+    ``out``, ``progress``). Every folder is checked before any training starts; with
+    ``resume=True`` the seeds that have a run continue it and the others start afresh.
     Returns one (seed, model path, timesteps, wall time) per seed, in seed order.
     """
     if workers < 1:
         raise InputError("--workers must be >= 1")
     from policies.train import latest_checkpoint
 
-    if not train_kwargs.get("resume", False):
+    resume = bool(train_kwargs.pop("resume", False))
+    started = {
+        s: seed_folder(out, s).exists() and latest_checkpoint(seed_folder(out, s)) is not None
+        for s in seeds
+    }
+    if not resume:
         for s in seeds:
-            f = seed_folder(out, s)
-            if f.exists() and latest_checkpoint(f) is not None:
-                raise InputError(f"{f}: already holds a run (pass --resume to continue it, or another -o)")
+            if started[s]:
+                raise InputError(
+                    f"{seed_folder(out, s)}: already holds a run (pass --resume to continue it, or another -o)"
+                )
+    # with --resume, seeds that have a run continue it and the others start
     tasks = [
         {**train_kwargs, "algo": algo, "env_id": env_id, "out": seed_folder(out, s), "seed": s,
-         "progress": False, "torch_threads": 1}
+         "progress": False, "torch_threads": 1, "resume": started[s]}
         for s in seeds
     ]  # fmt: skip
     if workers == 1:

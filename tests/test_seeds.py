@@ -39,13 +39,13 @@ def test_iqm_trims_the_outer_quarters_and_brackets_it() -> None:
     # eight runs: the IQM is the mean of the middle four whatever the outliers are
     src = [10.0, 20, 30, 40, 50, 60, 70, 1000]
     runs = [one_run([s], [0.9 * s], [s > 25]) for s in src]
-    agg = aggregate(runs, reps=2000)
+    agg = aggregate(runs, reps=500)
     assert agg["source_return"]["iqm"] == pytest.approx(45.0)
     assert agg["target_return"]["iqm"] == pytest.approx(0.9 * 45.0)
     assert agg["ratio"]["iqm"] == pytest.approx(0.9)
     # rliable resamples the two score sets independently: an interval around 0.9
     assert agg["ratio"]["low"] < 0.9 < agg["ratio"]["high"]
-    assert aggregate(runs, reps=2000) == agg  # seeded: the same intervals again
+    assert aggregate(runs, reps=500) == agg  # seeded: the same intervals again
     assert agg["target_success"]["iqm"] == pytest.approx(1.0)  # middle four all succeed
     for k, a in agg.items():
         assert a["low"] <= a["iqm"] + 1e-12 and a["iqm"] <= a["high"] + 1e-12, k
@@ -66,6 +66,12 @@ def test_seeds_train_in_parallel_and_transfer_reports_their_iqm(tmp_path: Path) 
     # a second start refuses to overwrite
     again = ["train", "ppo", "--seeds", "1", "--hyperparams", str(hp), "-o", str(out)]
     assert cli(again) == 2
+    # --resume continues seed 1 to a larger budget and starts seed 2 afresh
+    more = ["train", "ppo", "--seeds", "1-2", "--timesteps", "384", "--n-envs", "4", "--hyperparams",
+            str(hp), "-o", str(out), "--no-tensorboard", "--resume"]  # fmt: skip
+    assert cli(more) == 0
+    assert read_record(out / "s1" / "model.zip")["timesteps"] == 384
+    assert read_record(out / "s2" / "model.zip")["seed"] == 2
     code = cli(["transfer", str(out / "s0"), str(out / "s1"), "--episodes", "1",
                 "-o", str(tmp_path / "tr"), "--no-video"])  # fmt: skip
     assert code == 0

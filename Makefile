@@ -22,12 +22,13 @@ demo: $(STAMP)
 demo-full: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_sr.demo --full --out $(DEMO_DIR)_full --force
 
+# tests/unit: fast checks (seconds each); tests/accuracy: seeded end-to-end identification and
+# discovery. Tests marked slow stay out of both (run them with `pytest -m slow`).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q tests/unit tests/accuracy
 
-# the fast tests only (the slow end-to-end accuracy runs are marked and left out)
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow" -x --ignore=tests/test_experiment.py
+	$(BIN)/python -m pytest -q tests/unit
 
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict -d site

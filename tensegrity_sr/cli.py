@@ -22,7 +22,7 @@ from tensegrity_env.io_utils import (
 #: subcommand -> (the module defining it with ``register(subparsers)``, its one-line help),
 #: in the order ``--help`` lists them. Only the module of the command being run is
 #: imported (torch, MuJoCo and SciPy take seconds), so ``--help`` lists these lines;
-#: ``tests/test_cli.py`` checks they match what each module registers.
+#: ``tests/unit/test_cli.py`` checks they match what each module registers.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("identification.commands.generate",
                  "roll out randomized MuJoCo trajectories into an HDF5 dataset"),

@@ -8,7 +8,7 @@ exploiting that every spring column is a 6-vector times a scalar (see the C file
 built once per machine (:mod:`tensegrity_env.native_build`) and runs on ``threads``
 OpenMP threads; :class:`~tensegrity_env.native_build.NativeUnavailable` is raised where
 no C compiler works, and the identifier then uses the PyTorch path. Both paths agree to
-round-off (``tests/test_identification.py``).
+round-off (``tests/unit/test_identification.py``).
 """
 
 from __future__ import annotations

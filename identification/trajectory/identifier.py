@@ -38,7 +38,7 @@ than the number of samples: at the truth, one 4 s trajectory gives a largest rel
 standard error of c of 2.1 % with 0.5 s windows but 1.1 % with 2 s windows, and 1.2 s
 of data cut into 0.1 s windows gives 23 %. Two 0.6 s trajectories give K, M, I_perp
 within 1 % and c within ~4 %; four 2 s trajectories (8000 samples) give every K, c, M,
-I_perp within 0.6 % (``tests/test_noisy.py``, the slow test). The dataset generator's
+I_perp within 0.6 % (``tests/accuracy/test_noisy.py``, the slow test). The dataset generator's
 livelier small preset (16 trajectories of 0.3 s, speeds up to 1 m/s and 3 rad/s) gives
 every K, c, M, I_perp within 1.4 % from 4800 samples. The reported standard
 errors (:attr:`TrajectoryIdentifier.stderr_`) are honest (z-scores of rms ~1) and

@@ -27,7 +27,7 @@ SMALL_PPO = {"n_steps": 64, "batch_size": 256, "n_epochs": 2}
 
 def _small_hyperparams(tmp: Path, algo: str, **entry: object) -> Path:
     doc = yaml.safe_load(
-        (Path(__file__).parent.parent / f"policies/hyperparams/{algo}.yml").read_text()
+        (Path(__file__).parents[2] / f"policies/hyperparams/{algo}.yml").read_text()
     )
     for env_id in doc:
         doc[env_id] = {**doc[env_id], **entry}

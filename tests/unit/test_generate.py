@@ -21,7 +21,7 @@ from tensegrity_env.mujoco_state import mj_to_rod_state, rod_state_to_mj
 from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_sr.cli import main
 
-EXAMPLE_MJCF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "x_tensegrity.xml"
+EXAMPLE_MJCF = Path(__file__).resolve().parents[2] / "docs" / "examples" / "x_tensegrity.xml"
 ARRAYS = ("nodes", "control", *STATE_KEYS)
 
 

@@ -12,7 +12,7 @@ import torch
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.discovery.trajectory_loop import TrajectorySettings, _Data, fit_declared
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
-from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.simulation.planted import PlantSpec
 from identification.trajectory.airborne import (
     AIRBORNE,
     airborne_stretches,
@@ -30,8 +30,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def floor():
-    return planted_dataset(PlantSpec("ground_contact", "moderate", noise=1e-3, seed=5, n_train=6,
+def floor(mujoco_data):
+    return mujoco_data.planted(PlantSpec("ground_contact", "moderate", noise=1e-3, seed=5, n_train=6,
                                      n_val=1, n_test=1, steps=500))  # fmt: skip
 
 

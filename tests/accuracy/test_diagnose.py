@@ -11,7 +11,7 @@ from identification.discovery.candidates import FitSettings
 from identification.discovery.diagnose import diagnose
 from identification.discovery.residuals import compute_residuals, summarize
 from identification.linear.extended import ExtendedIdentifier
-from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.simulation.planted import PlantSpec
 from tensegrity_env.effects import SlackSprings
 from tensegrity_env.model import Model
 from tensegrity_sr.cli import main as cli
@@ -22,8 +22,8 @@ SMALL = {"n_train": 4, "n_val": 2, "n_test": 2, "steps": 500}
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
-def run(spec: PlantSpec, horizon: float = 0.5, candidates=None, max_effects: int = 2):
-    data = planted_dataset(spec)
+def run(mujoco_data, spec: PlantSpec, horizon: float = 0.5, candidates=None, max_effects: int = 2):
+    data = mujoco_data.planted(spec)
     settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])},
                            contact_windows=((1, 600),))  # fmt: skip
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -38,16 +38,16 @@ def improvement(result) -> tuple[float, float]:
     return b["one_step"] / f["one_step"], roll_before / f["rollout"]
 
 
-def test_clean_data_adds_nothing():
-    _, result = run(PlantSpec("none", seed=3, **SMALL))
+def test_clean_data_adds_nothing(mujoco_data):
+    _, result = run(mujoco_data, PlantSpec("none", seed=3, **SMALL))
     assert result.model.effects == []
     assert all(it.chosen is None for it in result.iterations)
     assert result.unexplained == ""
 
 
 @pytest.mark.parametrize(("strength", "seed"), [("weak", 1), ("strong", 2)])
-def test_quadratic_drag_is_named(strength, seed):
-    _, result = run(PlantSpec("quadratic_drag", strength, seed=seed, **SMALL),
+def test_quadratic_drag_is_named(mujoco_data, strength, seed):
+    _, result = run(mujoco_data, PlantSpec("quadratic_drag", strength, seed=seed, **SMALL),
                     candidates=["linear_drag", "quadratic_drag", "force_field"])  # fmt: skip
     assert result.model.names == ["quadratic_drag"]
     one, roll = improvement(result)
@@ -56,8 +56,8 @@ def test_quadratic_drag_is_named(strength, seed):
     assert drag[0] > 10 * drag[2]  # a rod drags far less along its axis
 
 
-def test_slack_cables_are_found():
-    data, result = run(PlantSpec("slack_springs", 6, seed=4, **SMALL),
+def test_slack_cables_are_found(mujoco_data):
+    data, result = run(mujoco_data, PlantSpec("slack_springs", 6, seed=4, **SMALL),
                        candidates=["slack_springs", "linear_drag", "force_field"])  # fmt: skip
     assert result.model.names == ["slack_springs"]
     found = sorted(result.model.effects[0].values["springs"].tolist())
@@ -66,8 +66,8 @@ def test_slack_cables_are_found():
     assert one >= 100 and roll >= 10
 
 
-def test_ground_contact_is_named_and_identified():
-    _, result = run(PlantSpec("ground_contact", 2.0, seed=5, **SMALL),
+def test_ground_contact_is_named_and_identified(mujoco_data):
+    _, result = run(mujoco_data, PlantSpec("ground_contact", 2.0, seed=5, **SMALL),
                     candidates=["ground_contact", "quadratic_drag", "force_field"], max_effects=1)  # fmt: skip
     assert result.model.names == ["ground_contact"]
     contact = result.model.effects[0]
@@ -76,8 +76,8 @@ def test_ground_contact_is_named_and_identified():
     assert one >= 100 and roll >= 10
 
 
-def test_residuals_point_at_the_springs_that_go_slack():
-    data = planted_dataset(PlantSpec("slack_springs", "strong", seed=6, **SMALL))
+def test_residuals_point_at_the_springs_that_go_slack(mujoco_data):
+    data = mujoco_data.planted(PlantSpec("slack_springs", "strong", seed=6, **SMALL))
     est = ExtendedIdentifier(anchors={"mass[rod0]": 2.0}).fit(data.dataset)
     res = compute_residuals(
         data.dataset.topology, est.params_, [], data.dataset, max_transitions=3000
@@ -122,9 +122,9 @@ CASES = [("ground_contact", s, seed) for s in ("weak", "moderate", "strong") for
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("effect", "strength", "seed"), CASES)
-def test_planted_effects_full(effect, strength, seed):
+def test_planted_effects_full(mujoco_data, effect, strength, seed):
     spec = PlantSpec(effect, strength, seed=seed, n_train=8, n_val=4, n_test=4, steps=1000)
-    _, result = run(spec, horizon=1.0, max_effects=2)
+    _, result = run(mujoco_data, spec, horizon=1.0, max_effects=2)
     assert result.model.names == [effect]
     one, roll = improvement(result)
     assert one >= 100 and roll >= 10
@@ -132,12 +132,14 @@ def test_planted_effects_full(effect, strength, seed):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_clean_control_full(seed):
-    _, result = run(PlantSpec("none", seed=seed, n_train=8, n_val=4, n_test=4, steps=1000), 1.0)
+def test_clean_control_full(mujoco_data, seed):
+    _, result = run(
+        mujoco_data, PlantSpec("none", seed=seed, n_train=8, n_val=4, n_test=4, steps=1000), 1.0
+    )
     assert result.model.effects == []
 
 
-def test_indistinguishable_candidates_are_flagged(monkeypatch):
+def test_indistinguishable_candidates_are_flagged(mujoco_data, monkeypatch):
     """Two candidates that predict the same change: the attribution is flagged, with the correlation."""
     import identification.discovery.diagnose as dg
     from identification.discovery.candidates import Proposal
@@ -151,7 +153,9 @@ def test_indistinguishable_candidates_are_flagged(monkeypatch):
                 Proposal("quadratic_drag_again", [QuadraticDrag(topo)], "twin b")]  # fmt: skip
 
     monkeypatch.setattr(dg, "propose", twins)
-    _, result = run(PlantSpec("quadratic_drag", "moderate", seed=9, **SMALL), max_effects=1)
+    _, result = run(
+        mujoco_data, PlantSpec("quadratic_drag", "moderate", seed=9, **SMALL), max_effects=1
+    )
     it = result.iterations[0]
     assert it.chosen is not None and it.ambiguous is not None
     assert it.ambiguous[1] > 0.99

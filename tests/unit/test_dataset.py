@@ -24,7 +24,7 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import FIELDS
 from tensegrity_sr.cli import main
 
-EXAMPLE_MJCF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "x_tensegrity.xml"
+EXAMPLE_MJCF = Path(__file__).resolve().parents[2] / "docs" / "examples" / "x_tensegrity.xml"
 
 
 @cache

@@ -15,7 +15,7 @@ from tensegrity_env.mujoco_state import mj_to_rod_state
 from tensegrity_env.params import FIELDS
 from tensegrity_env.topology import Rod, Spring, Topology, TopologyError
 
-EXAMPLE_MJCF = Path(__file__).resolve().parents[1] / "docs" / "examples" / "x_tensegrity.xml"
+EXAMPLE_MJCF = Path(__file__).resolve().parents[2] / "docs" / "examples" / "x_tensegrity.xml"
 
 
 def _lengths(topology: Topology, nodes: np.ndarray) -> np.ndarray:

@@ -4,8 +4,8 @@ Most MuJoCo trajectories are generated here directly (free-floating icosahedron 
 hanging element, random initial velocities and position perturbations, no control);
 one test uses the dataset generator's small preset.
 
-Reproduce the numbers: ``pytest tests/test_noisy.py`` (about 1 min) and
-``pytest tests/test_noisy.py -m slow`` (about 4 min).
+Reproduce the numbers: ``pytest tests/accuracy/test_noisy.py`` (about 1 min) and
+``pytest tests/accuracy/test_noisy.py -m slow`` (about 4 min).
 """
 
 from __future__ import annotations

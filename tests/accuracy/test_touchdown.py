@@ -11,7 +11,7 @@ import pytest
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.discovery.candidates import CONTACT_START
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
-from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.simulation.planted import PlantSpec
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import TOUCH, find_touchdowns, search_contact
 from identification.trajectory.windows import STATE_KEYS
@@ -23,8 +23,8 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def touchdowns():
-    data = planted_dataset(PlantSpec("ground_contact", "moderate", noise=1e-3, seed=5, n_train=6,
+def touchdowns(mujoco_data):
+    data = mujoco_data.planted(PlantSpec("ground_contact", "moderate", noise=1e-3, seed=5, n_train=6,
                                      n_val=0, n_test=0, steps=500))  # fmt: skip
     ds, split = data.dataset, data.dataset.split("train")
     topo = ds.topology

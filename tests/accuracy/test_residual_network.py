@@ -12,7 +12,7 @@ import torch
 from identification.discovery.candidates import FitSettings
 from identification.discovery.diagnose import DiagnoseResult, diagnose
 from identification.discovery.report import NETWORK_PARAMS, write_params, write_report
-from identification.simulation.planted import PlantedData, PlantSpec, planted_dataset
+from identification.simulation.planted import PlantedData, PlantSpec
 from tensegrity_env.effects import ResidualNetwork, effects_from_document
 from tensegrity_env.effects.residual_network import ResidualMLP
 from tensegrity_env.engine import Engine, State
@@ -24,11 +24,11 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def drag_run() -> Iterator[tuple[PlantedData, DiagnoseResult]]:
+def drag_run(mujoco_data) -> Iterator[tuple[PlantedData, DiagnoseResult]]:
     """Planted linear drag; the loop may only try cubic stiffness, which cannot explain it."""
     n = torch.get_num_threads()
     torch.set_num_threads(1)
-    data = planted_dataset(
+    data = mujoco_data.planted(
         PlantSpec("linear_drag", "moderate", seed=2, n_train=4, n_val=2, n_test=2, steps=500)
     )
     settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])})

@@ -5,7 +5,8 @@ Trains one algorithm (PPO by default, the shipped hyperparameters) on
 env-step budget, one after the other in this process, and evaluates both policies over
 the same seeded episodes in the MuJoCo twin. Prints the transfer table of the
 SR-trained policy and the ratios against the MuJoCo-trained reference measured here:
-return (target >= 0.9) and training wall time (target < 1).
+return (at least 0.9 when the identified env stands in for MuJoCo) and training wall
+time (below 1 when it is also cheaper).
 
     python benchmarks/bench_transfer.py --timesteps 1000000 -o runs/bench_transfer
 

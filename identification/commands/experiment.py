@@ -9,7 +9,7 @@ from typing import Any
 import torch
 
 from identification.experiments.paper import SCALES, run_paper
-from identification.experiments.paper_report import target_checks, write_results
+from identification.experiments.paper_report import claim_checks, write_results
 from tensegrity_env.io_utils import InputError, add_force_option, check_number, check_output_dir
 
 
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         torch.set_num_threads(threads)
     paths = write_results(result, args.output, command)
-    print("\n".join(target_checks(result)))
+    print("\n".join(claim_checks(result)))
     print(f"\nwall time {result.seconds:.0f} s; wrote {len(paths)} files into {args.output}:")
     for path in paths:
         print(f"  {path.name}")

@@ -1,11 +1,11 @@
 """Is an identified contact good enough for the environment? A 2-s drop against MuJoCo.
 
-The issue's check of ground contact: the icosahedron is released at rest 0.1-0.5 m
+A check of an identified ground contact: the icosahedron is released at rest 0.1-0.5 m
 above the floor (MuJoCo ground truth with its default soft contact, friction 1),
 falls, bounces and settles; the identified model (declared parameters and effects,
 contact included) is rolled out open-loop from the same initial states. The error is
-the mean end-cap distance [m] at each sample, worst over samples and drops; the
-target is 2 cm (:data:`DROP_TOLERANCE`).
+the mean end-cap distance [m] at each sample, worst over samples and drops; it passes
+below 2 cm (:data:`DROP_TOLERANCE`).
 
 ``python -m identification.experiments.drop_check PARAMS.json`` runs it on a params file the
 residual loop wrote (``tensegrity-sr diagnose ... -o DIR`` -> ``DIR/params.json``).
@@ -32,7 +32,7 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 
-#: the issue's target: a 2-s drop-and-bounce within this of MuJoCo [m]
+#: a contact passes when its 2-s drop-and-bounce stays within this of MuJoCo [m]
 DROP_TOLERANCE = 0.02
 
 

@@ -86,8 +86,8 @@ def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = 
 
 
 def test_noisy_linear_drag_is_named_and_errors_drop() -> None:
-    """Strong linear drag, seed 13, two candidates: the issue's targets (>= 100x one-step,
-    >= 10x rollout) against the clean trajectories. The final fit runs on the default
+    """Strong linear drag, seed 13, two candidates: at least 100x one-step and
+    10x rollout gain against the clean trajectories. The final fit runs on the default
     300-step windows (here each 500-step trajectory whole): 382x and 3034x measured
     (28.6x one-step on 100-step windows)."""
     _, r = _small("linear_drag", "strong", 13, ["linear_drag", "force_field"])

@@ -30,7 +30,7 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import from_mjcf
 from tensegrity_env.model import Model
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ROOT / "tensegrity_env" / "assets" / "icosahedron_rolling_params.json"
 MJCF = ROOT / "docs" / "examples" / "x_tensegrity.xml"
 

@@ -100,7 +100,7 @@ def test_diagnose_runs_through_an_import_with_gaps(tmp_path: Path) -> None:
     from identification.data.mocap.c3d_files import write_c3d
     from identification.simulation.mocap_takes import record_take, simulate_caps
 
-    asset = Path(__file__).resolve().parents[1] / "tensegrity_env/assets/icosahedron_rolling.xml"
+    asset = Path(__file__).resolve().parents[2] / "tensegrity_env/assets/icosahedron_rolling.xml"
     xml = re.sub(r'<geom name="floor"[^>]*/>', "", asset.read_text())
     (tmp_path / "free.xml").write_text(xml)
     rng = np.random.default_rng(5)

@@ -23,7 +23,7 @@ from tensegrity_env.io_utils import (
 )
 from tensegrity_sr.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GENERATE = ["generate", "--n-train", "2", "--n-val", "0", "--n-test", "1", "--steps", "20",
             "--no-progress"]  # fmt: skip
 

@@ -16,7 +16,7 @@ from identification.data.mocap.importer import read_robot, take_end_caps
 from identification.data.mocap.recording import MarkerRecording
 from identification.simulation.mocap_takes import record_take, simulate_caps
 
-ROBOT = Path(__file__).resolve().parents[1] / "tensegrity_env" / "assets" / "icosahedron_rolling.xml"
+ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "icosahedron_rolling.xml"
 
 
 @pytest.fixture(scope="module")

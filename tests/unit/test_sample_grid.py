@@ -15,7 +15,7 @@ from identification.linear.regression import SpringRodIdentifier
 from identification.simulation.mocap_takes import simulate_caps
 from tensegrity_env.assemblies import icosahedron
 
-ROBOT = Path(__file__).resolve().parents[1] / "tensegrity_env/assets/icosahedron_rolling.xml"
+ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env/assets/icosahedron_rolling.xml"
 
 
 def one_split(time: np.ndarray, control: np.ndarray | None = None) -> Dataset:

@@ -18,14 +18,16 @@ from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.data.end_caps import with_measured_states
 from identification.data.sample_grid import on_nominal_grid
-from identification.discovery.candidates import FitSettings
-from identification.discovery.diagnose import diagnose
-from identification.discovery.report import fmt_err, ratio, write_params, write_report
-from identification.discovery.trajectory_loop import TrajectorySettings, diagnose_noisy
-from identification.discovery.trajectory_report import write_noisy_report
+from identification.discovery.end_cap_data import TrajectorySettings
+from identification.discovery.library import FitSettings
+from identification.discovery.loop import EffectDiscovery, Scorer
+from identification.discovery.multi_step import MultiStepScorer
+from identification.discovery.one_step import OneStepScorer
+from identification.discovery.report import fmt_unit, ratio, write_params, write_report
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from tensegrity_env.effects import EFFECTS
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
@@ -134,47 +136,58 @@ def run(args: argparse.Namespace) -> int:
     if grid.changed:
         print(grid.text(raw.dt))
     end_caps_only = not all(s.has_states for s in raw.splits.values())
-    if args.method == "trajectory" or (args.method == "auto" and end_caps_only):
-        return run_trajectory(args, raw)
-    dataset = with_measured_states(raw, args.smoothing)
-    anchors = dict(parse_anchor(a) for a in args.anchor)
-    start: list[Any] = []
-    if args.params is not None:
-        model = Model.load(args.params, dt=dataset.dt)
-        if not model.topology.same_as(dataset.topology):
-            raise InputError(f"{args.params}: topology differs from {args.dataset}")
-        anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
-        start = list(model.effects)
+    multi_step = args.method == "trajectory" or (args.method == "auto" and end_caps_only)
     names = [n for n in args.candidates.split(",") if n] or None
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:
         raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
+    scorer: Scorer[Any]
+    if multi_step:
+        dataset, scorer = raw, multi_step_scorer(args, raw)
+    else:
+        dataset = with_measured_states(raw, args.smoothing)
+        scorer = one_step_scorer(args, dataset)
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    with np.errstate(invalid="ignore", divide="ignore"):  # candidates may fit badly: judged below
-        result = diagnose(dataset, FitSettings(anchors=anchors), start, args.max_effects,
-                          args.horizon, names, plots=out)  # fmt: skip
+    loop = EffectDiscovery(scorer, args.max_effects, names, plots=out)
+    with np.errstate(invalid="ignore", divide="ignore"):  # candidates may fit badly: judged
+        result = loop.fit(dataset).result_
     truth = read_ground_truth(args.dataset)
-    report = write_report(result, out, str(args.dataset), args.horizon,
-                          None if truth is None else truth.effects)  # fmt: skip
-    params = write_params(result, out / "params.json",
-                          {"dataset": str(args.dataset), "seconds": time.perf_counter() - t0})  # fmt: skip
-    b, f = result.baseline_test, result.final_test
+    report = write_report(result, out, str(args.dataset), None if truth is None else truth.effects)
+    extra: dict[str, Any] = {"dataset": str(args.dataset)}
+    if multi_step:
+        extra["method"] = "trajectory"
+    extra["seconds"] = time.perf_counter() - t0
+    params = write_params(result, out / "params.json", extra)
     print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
     for e in result.model.effects:
         print(f"  {e.describe()}")
-    print(f"held-out one-step error {fmt_err(b['one_step'])} -> {fmt_err(f['one_step'])} "
-          f"({ratio(b['one_step'], f['one_step'])}); {args.horizon:g}-s rollout "
-          f"{fmt_err(b['rollout'])} -> {fmt_err(f['rollout'])} ({ratio(b['rollout'], f['rollout'])})")  # fmt: skip
+    b, f = result.baseline_test, result.final_test
+    print("test errors: " + "; ".join(
+        f"{label} {fmt_unit(b[k], unit)} -> {fmt_unit(f[k], unit)} ({ratio(b[k], f[k])})"
+        for k, (label, unit) in result.test_labels.items() if k in b and k in f))  # fmt: skip
     if result.unexplained:
         print(f"unexplained: {result.unexplained}")
     print(f"wrote {report} and {params}")
     return 0
 
 
-def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
-    """The loop through windowed trajectory fits (:mod:`identification.discovery.trajectory_loop`)."""
+def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer:
+    """Regressions on rod states, from ``--params``' effects if given."""
+    anchors = dict(parse_anchor(a) for a in args.anchor)
+    start: list[PhysicalEffect] = []
+    if args.params is not None:
+        model = Model.load(args.params, dt=dataset.dt)
+        if not model.topology.same_as(dataset.topology):
+            raise InputError(f"{args.params}: topology differs from {args.dataset}")
+        anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
+        start = list(model.effects)
+    return OneStepScorer(FitSettings(anchors=anchors), args.horizon, start)
+
+
+def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepScorer:
+    """Windowed trajectory fits on end caps, from ``--params``' declared model if given."""
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start = None
     if args.params is not None:
@@ -186,10 +199,6 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
         if model.effects:
             raise InputError(f"{args.params}: --method trajectory starts from the declared "
                              "model only (remove its 'effects')")  # fmt: skip
-    names = [n for n in args.candidates.split(",") if n] or None
-    bad = [n for n in names or [] if n not in EFFECTS]
-    if bad:
-        raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
     dt = dataset.dt
     if args.window < 2 * dt or args.windows < 1 or args.fit_windows < 1:
         raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
@@ -204,22 +213,4 @@ def run_trajectory(args: argparse.Namespace, dataset: Dataset) -> int:
                                   val_windows=args.windows, test_windows=args.windows,
                                   fit_windows=args.fit_windows, fit_window=fit_window,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
-    out: Path = args.output
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        result = diagnose_noisy(dataset, settings, args.max_effects, names,
-                                horizon_s=args.horizon, start=start, plots=out)  # fmt: skip
-    truth = read_ground_truth(args.dataset)
-    report = write_noisy_report(result, out, str(args.dataset), args.horizon,
-                                None if truth is None else truth.effects)  # fmt: skip
-    params = write_params(result, out / "params.json",
-                          {"dataset": str(args.dataset), "method": "trajectory",
-                           "seconds": time.perf_counter() - t0})  # fmt: skip
-    b, f = result.baseline_test, result.final_test
-    print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
-    for e in result.model.effects:
-        print(f"  {e.describe()}")
-    print(f"held-out end-cap RMS {b['caps_rms'] * 1e3:.4f} mm -> {f['caps_rms'] * 1e3:.4f} mm")
-    print(f"wrote {report} and {params}")
-    return 0
+    return MultiStepScorer(settings, args.horizon, start)

@@ -1,21 +1,21 @@
-"""The residual loop's report: markdown (with the residual PNGs) and the extended params file."""
+"""The residual loop's report: markdown (with the residual PNGs) and the extended params file.
+
+One writer for both scorers (:class:`~identification.discovery.loop.DiscoveryResult`).
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from identification.discovery.diagnose import DiagnoseResult, Scored
-from identification.discovery.residuals import summary_table
+from identification.discovery.judge import Candidate, Criteria
+from identification.discovery.loop import DiscoveryResult
 from identification.report.tables import error_text
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import NOT_PHYSICAL
 from tensegrity_env.io_utils import atomic_write_text
-
-if TYPE_CHECKING:
-    from identification.discovery.trajectory_loop import NoisyDiagnoseResult
 
 
 def fmt_err(x: float) -> str:
@@ -49,45 +49,67 @@ def _num(v: Any) -> str:
     return "[" + ", ".join(f"{x:.3g}" for x in a.ravel()) + "]"
 
 
-def candidate_table(current: Scored, candidates: list[Scored]) -> str:
+def fmt_unit(x: float, unit: str) -> str:
+    """An error in metres shown in ``unit`` (``"m"`` or ``"mm"``); diverged says so."""
+    if unit == "mm":
+        return error_text(x, ".4f", "mm", 1e3)
+    return fmt_err(x)
+
+
+def candidate_table(
+    current: Candidate[Any],
+    candidates: list[Candidate[Any]],
+    criteria: Criteria,
+    labels: dict[str, tuple[str, str]],
+) -> str:
+    """One row per candidate: gate, held-out errors, held-out gain, ΔBIC, verdict.
+
+    ``labels``: error name -> (label, unit); the held-out errors the candidates carry.
+    """
+    keys = [k for k in labels if k in current.heldout]
+    head = " | ".join(f"held-out {labels[k][0]}" for k in keys)
     lines = [
-        "| candidate | gate (why it may act) | held-out one-step | held-out rollout | ΔBIC | verdict |",
-        "|---|---|---|---|---|---|",
-        f"| *nothing is missing* | - | {fmt_err(current.val['one_step'])} | "
-        f"{fmt_err(current.val['rollout'])} | 0 | reference |",
+        f"| candidate | gate (why it may act) | {head} | {criteria.measure} gain | ΔBIC | verdict |",
+        "|---|---|" + "---|" * len(keys) + "---|---|---|",
+        "| *nothing is missing* | - | "
+        + " | ".join(fmt_unit(current.heldout[k], labels[k][1]) for k in keys)
+        + " | 0 | 0 | reference |",
     ]
-    for s in candidates:
-        d = s.bic - current.bic
+    for c in candidates:
+        errors = " | ".join(fmt_unit(c.heldout[k], labels[k][1]) for k in keys)
         lines.append(
-            f"| {s.name} | {s.gate} | {fmt_err(s.val['one_step'])} | {fmt_err(s.val['rollout'])} | "
-            f"{d:+.3g} | {s.verdict} |"
+            f"| {c.name} | {c.gate} | {errors} | {criteria.format_gain(c.gain)} | "
+            f"{-c.bic_drop:+.4g} | {c.verdict} |"
         )
     return "\n".join(lines)
 
 
+def test_table(
+    before: dict[str, Any], after: dict[str, Any], labels: dict[str, tuple[str, str]]
+) -> str:
+    """Test-split errors before and after (the rows both hold)."""
+    lines = ["| test split | before | after | improvement |", "|---|---|---|---|"]
+    for key, (label, unit) in labels.items():
+        if key in before and key in after:
+            b, a = float(before[key]), float(after[key])
+            lines.append(f"| {label} | {fmt_unit(b, unit)} | {fmt_unit(a, unit)} | {ratio(b, a)} |")
+    return "\n".join(lines)
+
+
 def write_report(
-    result: DiagnoseResult,
+    result: DiscoveryResult,
     out: Path,
-    dataset_name: str,
-    horizon_s: float,
+    source: str,
     planted: list[dict[str, Any]] | None = None,
 ) -> Path:
-    """``out/report.md``: every iteration, what justified it, errors before and after."""
-    L = [f"# Residual loop: {dataset_name}", ""]
-    b, f = result.baseline_test, result.final_test
-    L += [
-        "Held-out (test split, never used for selection) errors of the declared model and of "
-        "the final model; one-step: mean rod position error after one step; rollout: mean rod "
-        f"position error after {horizon_s:g} s open-loop.",
-        "",
-        "| model | one-step | rollout |",
-        "|---|---|---|",
-        f"| declared | {fmt_err(b['one_step'])} | {fmt_err(b['rollout'])} |",
-        f"| final: declared{''.join(' + ' + n for n in result.model.names)} | "
-        f"{fmt_err(f['one_step'])} | {fmt_err(f['rollout'])} |",
-        f"| improvement | {ratio(b['one_step'], f['one_step'])} | {ratio(b['rollout'], f['rollout'])} |",
-        "",
-    ]
+    """``out/report.md``: every iteration's candidates, the choice, errors before and after."""
+    labels = result.test_labels
+    data = "rod states" if result.method == "one_step" else "end caps"
+    L = [f"# Residual loop: {source} ({data})", "", result.description, ""]
+    L += ["## Result", "", test_table(result.baseline_test, result.final_test, labels), ""]
+    L += [f"Added: **{', '.join(result.model.names) or 'nothing'}**", ""]
+    for e in result.model.effects:
+        L += [f"### {e.name}", "", effect_table(e), ""]
     if planted is not None:
         names = [p.get("name") for p in planted] or ["nothing"]
         L += [
@@ -96,25 +118,25 @@ def write_report(
         ]
     for k, it in enumerate(result.iterations):
         L += [f"## Iteration {k + 1}", ""]
-        if it.plot is not None:
-            L += [f"![residuals]({it.plot.name})", ""]
-        L += ["Residual signatures of the current model (training split):", "",
-              summary_table(it.residual), ""]  # fmt: skip
-        L += [candidate_table(it.before, it.candidates), ""]
+        if it.residual.plot is not None:
+            L += [f"![residuals, iteration {k + 1}]({it.residual.plot.name})", ""]
+        L += [it.residual.markdown, ""]
+        L += [candidate_table(it.before, it.candidates, result.criteria, labels), ""]
         if it.skipped:
-            L += [
-                "Not tried (gate not passed): "
-                + "; ".join(f"{p.name}: {p.gate}" for p in it.skipped),
-                "",
-            ]
+            L += ["Not tried: " + "; ".join(f"{p.name}: {p.gate}" for p in it.skipped), ""]
         if it.chosen is None:
             L += ["**No candidate passes: stop.**", ""]
             continue
-        c = it.chosen
-        L += [
-            f"**Added: {c.name}** ({type(c.model.effects[-1]).summary if c.model.effects else ''})",
-            "",
-        ]
+        c = it.added or it.chosen
+        added = next(e for e in c.model.effects if e.name == c.name)
+        L += [f"**Added: {c.name}** ({type(added).summary})", ""]
+        if it.runner_up is not None:
+            r = it.runner_up
+            L += [
+                f"Runner-up **{r.name}** also passes: predicted changes correlate "
+                f"{r.correlation:.3f} with the chosen one's; its {r.note}.",
+                "",
+            ]
         if it.ambiguous is not None:
             L += [
                 f"**Flag:** {c.name} cannot be told apart from {it.ambiguous[0]} on this data "
@@ -122,24 +144,14 @@ def write_report(
                 "uncertain.",
                 "",
             ]
-        added = next(e for e in c.model.effects if e.name == c.name)
         L += [effect_table(added), ""]
         if c.model.notes.get(c.name):
             L += [c.model.notes[c.name], ""]
-        ta = it.test_after or {}
-        L += [
-            "| held-out (test) | before | after | improvement |",
-            "|---|---|---|---|",
-            f"| one-step | {fmt_err(it.test_before['one_step'])} | {fmt_err(ta.get('one_step', np.nan))} | "
-            f"{ratio(it.test_before['one_step'], ta.get('one_step', np.nan))} |",
-            f"| {horizon_s:g}-s rollout | {fmt_err(it.test_before['rollout'])} | {fmt_err(ta.get('rollout', np.nan))} | "
-            f"{ratio(it.test_before['rollout'], ta.get('rollout', np.nan))} |",
-            "",
-        ]
+        L += [test_table(it.test_before, it.test_after or {}, labels), ""]
     L += ["## Final residual", ""]
-    if result.final_plot is not None:
-        L += [f"![final residuals]({result.final_plot.name})", ""]
-    L += [summary_table(result.final_residual), ""]
+    if result.final_residual.plot is not None:
+        L += [f"![final residuals]({result.final_residual.plot.name})", ""]
+    L += [result.final_residual.markdown, ""]
     L += [f"**Unexplained:** {result.unexplained}" if result.unexplained
           else "The residual left is noise (round-off or measurement noise).", ""]  # fmt: skip
     L += _network_section(result)
@@ -150,9 +162,9 @@ def write_report(
 NETWORK_PARAMS = "params_residual_network.json"
 
 
-def _network_section(result: DiagnoseResult) -> list[str]:
+def _network_section(result: DiscoveryResult) -> list[str]:
     """Markdown lines about the residual network (none if there is none)."""
-    fit = getattr(result, "residual_network", None)
+    fit = result.residual_network
     if fit is None:
         return []
     L = ["## Residual network (unexplained: NOT a physical effect)", "",
@@ -177,9 +189,7 @@ def _network_section(result: DiagnoseResult) -> list[str]:
     return L
 
 
-def write_params(
-    result: DiagnoseResult | NoisyDiagnoseResult, path: Path, extra: dict[str, Any]
-) -> Path:
+def write_params(result: DiscoveryResult, path: Path, extra: dict[str, Any]) -> Path:
     """The extended params file: the model found (:meth:`Model.save`) and a ``diagnose`` section.
 
     With a residual network (``result.residual_network``), also writes its weights
@@ -190,18 +200,18 @@ def write_params(
     doc = {
         "diagnose": {
             **extra,
-            "added": [it.chosen.name for it in result.iterations if it.chosen is not None],
+            "added": result.added,
             "ambiguous": {
-                it.chosen.name: {"with": it.ambiguous[0], "correlation": it.ambiguous[1]}
+                it.chosen.name: {"with": amb[0], "correlation": amb[1]}
                 for it in result.iterations
-                if it.chosen is not None and it.ambiguous is not None
+                if it.chosen is not None and (amb := it.ambiguous) is not None
             },
             "test_errors_before": {k: v for k, v in result.baseline_test.items() if k != "curve"},
             "test_errors_after": {k: v for k, v in result.final_test.items() if k != "curve"},
             "unexplained": result.unexplained,
         },
     }
-    fit = getattr(result, "residual_network", None)
+    fit = result.residual_network
     if fit is not None:
         directory = Path(path).parent
         fit.effect.save(directory)

@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
-from identification.discovery.candidates import FitSettings, FittedModel
+from identification.discovery.library import FitSettings, FittedModel
 from identification.linear.extended import ExtendedIdentifier, commands_for, evaluate_model
 from identification.linear.features import transition_features, transitions_of
 from tensegrity_env.effects import GroundContact

@@ -1,12 +1,14 @@
 """The residual loop on every planted effect, strength and noise level: one markdown table.
 
-``python -m identification.experiments.planted_table -o OUT`` runs :func:`identification.discovery.diagnose.diagnose`
-on :func:`identification.simulation.planted.planted_dataset` for each case and writes
+``python -m identification.experiments.planted_table -o OUT`` runs the residual loop
+(:class:`~identification.discovery.loop.EffectDiscovery`) on
+:func:`identification.simulation.planted.planted_dataset` for each case and writes
 ``OUT/planted_table.md`` (and a JSON copy): planted effect, strength, noise, the
 effect(s) named, and held-out (test) one-step and 1-s rollout errors before and
-after. Clean data runs the regression loop (:func:`~identification.discovery.diagnose.diagnose`).
-Noisy data (end caps only) runs the trajectory loop
-(:func:`~identification.discovery.trajectory_loop.diagnose_noisy`), started from the data alone
+after. Clean data is scored by one-step regressions on rod states
+(:class:`~identification.discovery.one_step.OneStepScorer`). Noisy data (end caps
+only) is scored by multi-step prediction of the end caps
+(:class:`~identification.discovery.multi_step.MultiStepScorer`), started from the data alone
 (``--start data``: smoothing + regression, then the fit on many windows) or from the
 declared model's true parameters (``--start truth``: standing in for a params file from
 an earlier calibration; every parameter is refitted jointly); its one-step and rollout
@@ -23,15 +25,18 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
 
 from identification.data.end_caps import with_measured_states
-from identification.discovery.candidates import FitSettings
-from identification.discovery.diagnose import diagnose
+from identification.discovery.end_cap_data import FIT_WINDOW, TrajectorySettings
+from identification.discovery.library import FitSettings
+from identification.discovery.loop import EffectDiscovery, Scorer
+from identification.discovery.multi_step import MultiStepScorer
+from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_err, ratio, write_params
-from identification.discovery.trajectory_loop import FIT_WINDOW, TrajectorySettings, diagnose_noisy
 from identification.experiments.drop_check import drop_check
 from identification.simulation.planted import PLANTS, PlantSpec, planted_dataset
 from tensegrity_env.effects import GroundContact
@@ -48,6 +53,24 @@ def cases(noises: tuple[float, ...], seed: int) -> list[PlantSpec]:
     return out
 
 
+class Row(TypedDict):
+    """One row of the table (see the module docstring)."""
+
+    planted: str
+    strength: str
+    noise_mm: float
+    named: list[str]
+    flagged: list[str]
+    one_step_before: float
+    one_step_after: float
+    rollout_before: float
+    rollout_after: float
+    drop_2s: float | None
+    seconds: float
+    start: str
+    params: list[str]
+
+
 def run_case(
     spec: PlantSpec,
     smoothing: float = 0.01,
@@ -56,7 +79,7 @@ def run_case(
     start: str = "data",
     params_out: Path | None = None,
     max_effects: int = 2,
-) -> dict[str, object]:
+) -> Row:
     """Diagnose one planted dataset; the row of the table (see the module docstring).
 
     ``params_out``: write the extended params file the loop identified there.
@@ -64,23 +87,26 @@ def run_case(
     data = planted_dataset(spec)
     anchors = {"mass[rod0]": float(data.ground_truth.params.mass[0])}
     t0 = time.perf_counter()
+    scorer: Scorer[Any]
+    if spec.noise > 0:
+        ts = replace(settings or TrajectorySettings(), anchors=anchors, seed=spec.seed)
+        truth = data.ground_truth.params if start == "truth" else None
+        scorer = MultiStepScorer(ts, horizon_s=1.0, start=truth, clean=data.clean)
+        dataset, loop = data.dataset, EffectDiscovery(scorer, max_effects, log=log)
+    else:
+        scorer = OneStepScorer(FitSettings(anchors=anchors), horizon_s=1.0)
+        dataset = with_measured_states(data.dataset, smoothing)
+        loop = EffectDiscovery(scorer, max_effects=3, log=lambda s: None)
     with np.errstate(invalid="ignore", divide="ignore"):
-        if spec.noise > 0:
-            ts = replace(settings or TrajectorySettings(), anchors=anchors, seed=spec.seed)
-            r = diagnose_noisy(data.dataset, ts, max_effects=max_effects, clean=data.clean, log=log,
-                               start=data.ground_truth.params if start == "truth" else None)  # fmt: skip
-        else:
-            ds = with_measured_states(data.dataset, smoothing)
-            r = diagnose(ds, FitSettings(anchors=anchors), max_effects=3, horizon_s=1.0,
-                         log=lambda s: None)  # fmt: skip
+        r = loop.fit(dataset).result_
     if params_out is not None:
         write_params(r, params_out, {"planted": spec.label})
     b, f = r.baseline_test, r.final_test
     drop: float | None = None  # the 2-s drop against MuJoCo, for an identified contact
     if any(isinstance(e, GroundContact) for e in r.model.effects):
         drop = drop_check(r.model.params, r.model.effects).worst
-    flagged = [f"{it.chosen.name}~{it.ambiguous[0]}" for it in r.iterations
-               if it.chosen is not None and it.ambiguous is not None]  # fmt: skip
+    flagged = [f"{it.chosen.name}~{amb[0]}" for it in r.iterations
+               if it.chosen is not None and (amb := it.ambiguous) is not None]  # fmt: skip
     return {
         "planted": spec.effect, "strength": f"{spec.strength} ({spec.value:g})",
         "noise_mm": spec.noise * 1e3, "named": r.model.names, "flagged": flagged,
@@ -91,22 +117,23 @@ def run_case(
     }  # fmt: skip
 
 
-def table(rows: list[dict[str, object]]) -> str:
+def table(rows: list[Row]) -> str:
     lines = [
         "| planted | strength | noise | named | one-step before | after | gain "
         "| 1-s rollout before | after | gain | 2-s drop vs MuJoCo |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        named = ", ".join(r["named"]) or "nothing"  # type: ignore[arg-type]
+        named = ", ".join(r["named"]) or "nothing"
         if r["flagged"]:
-            named += f" (flag: {', '.join(r['flagged'])})"  # type: ignore[arg-type]
-        ob, oa, rb, ra = (float(r[k]) for k in  # type: ignore[arg-type]
-                          ("one_step_before", "one_step_after", "rollout_before", "rollout_after"))  # fmt: skip
+            named += f" (flag: {', '.join(r['flagged'])})"
+        ob, oa = float(r["one_step_before"]), float(r["one_step_after"])
+        rb, ra = float(r["rollout_before"]), float(r["rollout_after"])
+        drop = r["drop_2s"]
         lines.append(
             f"| {r['planted']} | {r['strength']} | {r['noise_mm']:g} mm | {named} | {fmt_err(ob)} | "
             f"{fmt_err(oa)} | {ratio(ob, oa)} | {fmt_err(rb)} | {fmt_err(ra)} | {ratio(rb, ra)} "
-            f"| {'-' if r.get('drop_2s') is None else fmt_err(float(r['drop_2s']))} |"  # type: ignore[arg-type]
+            f"| {'-' if drop is None else fmt_err(drop)} |"
         )
     return "\n".join(lines)
 
@@ -145,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     args.output.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows: list[Row] = []
     only = [e for e in args.effects.split(",") if e]
     strengths = [e for e in args.strengths.split(",") if e]
     for spec in cases(tuple(float(x) for x in args.noise.split(",")), args.seed):

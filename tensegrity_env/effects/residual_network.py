@@ -1,6 +1,6 @@
 """A small residual network: absorbs structure no physical effect explains. NOT PHYSICAL.
 
-When the residual loop (:mod:`identification.discovery.diagnose`) stops with structure left on
+When the residual loop (:mod:`identification.discovery.loop`) stops with structure left on
 noise-free data, no candidate of the library explains it. :class:`ResidualNetwork` is
 the paper's "future work" escape hatch: a small MLP, shared by all rods, mapping each
 rod's state features to an extra force and torque about its centre of mass (world

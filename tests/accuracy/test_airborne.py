@@ -10,7 +10,8 @@ import pytest
 import torch
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.trajectory_loop import TrajectorySettings, _Data, fit_declared
+from identification.discovery.end_cap_data import EndCapData, TrajectorySettings
+from identification.discovery.end_cap_fits import fit_declared
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.simulation.planted import PlantSpec
 from identification.trajectory.airborne import (
@@ -92,7 +93,7 @@ def test_samples_outside_a_window_do_not_count(floor, stretches):
 def test_declared_model_from_airborne_stretches_is_good_enough_for_a_2s_drop(floor):
     true = floor.ground_truth.params
     s = TrajectorySettings(anchors={"mass[rod0]": float(true.mass[0])}, fit_windows=16, seed=5)
-    many, _ = fit_declared(_Data(floor.dataset, s), s)
+    many, _ = fit_declared(EndCapData(floor.dataset, s), s)
     p = many.params
     err = {k: float(np.median(np.abs(getattr(p, k).numpy() / getattr(true, k).numpy() - 1)))
            for k in ("mass", "stiffness", "damping")}  # fmt: skip

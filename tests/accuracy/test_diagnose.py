@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from identification.discovery.candidates import FitSettings
-from identification.discovery.diagnose import diagnose
+from identification.discovery.library import FitSettings, Proposal
+from identification.discovery.loop import EffectDiscovery
+from identification.discovery.one_step import OneStepScorer
 from identification.discovery.residuals import compute_residuals, summarize
 from identification.linear.extended import ExtendedIdentifier
 from identification.simulation.planted import PlantSpec
@@ -27,8 +28,9 @@ def run(mujoco_data, spec: PlantSpec, horizon: float = 0.5, candidates=None, max
     settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])},
                            contact_windows=((1, 600),))  # fmt: skip
     with np.errstate(invalid="ignore", divide="ignore"):
-        result = diagnose(data.dataset, settings, max_effects=max_effects, horizon_s=horizon,
-                          candidates=candidates, log=lambda s: None)  # fmt: skip
+        loop = EffectDiscovery(OneStepScorer(settings, horizon_s=horizon), max_effects,
+                               candidates, log=lambda s: None)  # fmt: skip
+        result = loop.fit(data.dataset).result_
     return data, result
 
 
@@ -141,18 +143,16 @@ def test_clean_control_full(mujoco_data, seed):
 
 def test_indistinguishable_candidates_are_flagged(mujoco_data, monkeypatch):
     """Two candidates that predict the same change: the attribution is flagged, with the correlation."""
-    import identification.discovery.diagnose as dg
-    from identification.discovery.candidates import Proposal
     from tensegrity_env.effects import QuadraticDrag
 
-    def twins(dataset, current, settings, names=None):
-        if current.effects:
+    def twins(self, current, names=None):
+        if current.model.effects:
             return []
-        topo = dataset.topology
-        return [Proposal("quadratic_drag", [QuadraticDrag(topo)], "twin a"),
-                Proposal("quadratic_drag_again", [QuadraticDrag(topo)], "twin b")]  # fmt: skip
+        topo = self.dataset.topology
+        return [Proposal("quadratic_drag", QuadraticDrag(topo), "twin a"),
+                Proposal("quadratic_drag_again", QuadraticDrag(topo), "twin b")]  # fmt: skip
 
-    monkeypatch.setattr(dg, "propose", twins)
+    monkeypatch.setattr(OneStepScorer, "propose", twins)
     _, result = run(
         mujoco_data, PlantSpec("quadratic_drag", "moderate", seed=9, **SMALL), max_effects=1
     )

@@ -14,15 +14,12 @@ import numpy as np
 import pytest
 import torch
 
-from identification.discovery.candidates import CONTACT_START
-from identification.discovery.trajectory_loop import (
-    TrajectorySettings,
-    _Data,
-    diagnose_noisy,
-    fit_declared,
-)
+from identification.discovery.end_cap_data import EndCapData, TrajectorySettings
+from identification.discovery.end_cap_fits import fit_declared
+from identification.discovery.loop import DiscoveryResult, EffectDiscovery
+from identification.discovery.multi_step import MultiStepScorer
 from identification.simulation.planted import PlantSpec, planted_dataset
-from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.effect_coords import CONTACT_START, EffectCoords
 from identification.trajectory.windowed_fit import linearize
 from identification.trajectory.windows import local_basis
 from tensegrity_env import assemblies
@@ -54,7 +51,7 @@ def test_effect_columns_of_the_jacobian_match_autograd() -> None:
     """Forward differences through extra rollouts = reverse-mode gradient (effect coords)."""
     d = planted_dataset(PlantSpec("linear_drag", "weak", noise=0.001, seed=21, n_train=1,
                                   n_val=1, n_test=1, steps=120))  # fmt: skip
-    data = _Data(d.dataset, TrajectorySettings(anchors={"mass[rod0]": 1.0}, train_windows=2,
+    data = EndCapData(d.dataset, TrajectorySettings(anchors={"mass[rod0]": 1.0}, train_windows=2,
                                                  window=30))  # fmt: skip
     _, base = fit_declared(data, TrajectorySettings(anchors={"mass[rod0]": 1.0}, base_iter=0))
     topo = data.topology
@@ -72,6 +69,11 @@ def test_effect_columns_of_the_jacobian_match_autograd() -> None:
     )
 
 
+def discover(dataset, scorer, max_effects: int, candidates=None) -> DiscoveryResult:
+    loop = EffectDiscovery(scorer, max_effects, candidates, log=lambda m: None)
+    return loop.fit(dataset).result_
+
+
 def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = False, **kw):
     d = planted_dataset(PlantSpec(effect, strength, noise=0.001, seed=seed, n_train=3, n_val=2,
                                   n_test=2, steps=500))  # fmt: skip
@@ -79,9 +81,9 @@ def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = 
                            train_windows=6, val_windows=6, test_windows=6, base_iter=8,
                            candidate_iter=8, state_iter=10, seed=seed, **kw)  # fmt: skip
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = diagnose_noisy(d.dataset, s, max_effects=1, candidates=candidates, clean=d.clean,
-                           horizon_s=0.5, log=lambda m: None,
-                           start=None if from_data else d.ground_truth.params)  # fmt: skip
+        scorer = MultiStepScorer(s, horizon_s=0.5, clean=d.clean,
+                                 start=None if from_data else d.ground_truth.params)  # fmt: skip
+        r = discover(d.dataset, scorer, 1, candidates)
     return d, r
 
 
@@ -116,8 +118,7 @@ def test_noisy_planted_effects_full(effect: str, strength: str, seed: int) -> No
     s = TrajectorySettings(anchors={"mass[rod0]": float(d.ground_truth.params.mass[0])},
                            train_windows=8, val_windows=8, test_windows=8, seed=seed)  # fmt: skip
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = diagnose_noisy(d.dataset, s, max_effects=2, clean=d.clean,
-                           start=d.ground_truth.params, log=lambda m: None)  # fmt: skip
+        r = discover(d.dataset, MultiStepScorer(s, clean=d.clean, start=d.ground_truth.params), 2)
     assert r.model.names[0] == effect
     b, f = r.baseline_test, r.final_test
     assert b["rollout"] / f["rollout"] >= 10  # README, seed 0: 26-5810x
@@ -140,7 +141,7 @@ def test_noisy_linear_drag_from_the_data_alone() -> None:
     s = TrajectorySettings(anchors={"mass[rod0]": float(d.ground_truth.params.mass[0])},
                            seed=35)  # fmt: skip
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = diagnose_noisy(d.dataset, s, max_effects=1, clean=d.clean, log=lambda m: None)
+        r = discover(d.dataset, MultiStepScorer(s, clean=d.clean), 1)
     assert r.model.names == ["linear_drag"]
     b, f = r.baseline_test, r.final_test
     assert b["one_step"] / f["one_step"] > 10

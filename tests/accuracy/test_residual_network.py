@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from identification.discovery.candidates import FitSettings
-from identification.discovery.diagnose import DiagnoseResult, diagnose
+from identification.discovery.library import FitSettings
+from identification.discovery.loop import DiscoveryResult, EffectDiscovery
+from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import NETWORK_PARAMS, write_params, write_report
 from identification.simulation.planted import PlantedData, PlantSpec
 from tensegrity_env.effects import ResidualNetwork, effects_from_document
@@ -24,7 +25,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 @pytest.fixture(scope="module")
-def drag_run(mujoco_data) -> Iterator[tuple[PlantedData, DiagnoseResult]]:
+def drag_run(mujoco_data) -> Iterator[tuple[PlantedData, DiscoveryResult]]:
     """Planted linear drag; the loop may only try cubic stiffness, which cannot explain it."""
     n = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -33,8 +34,9 @@ def drag_run(mujoco_data) -> Iterator[tuple[PlantedData, DiagnoseResult]]:
     )
     settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])})
     with np.errstate(invalid="ignore", divide="ignore"):
-        result = diagnose(data.dataset, settings, max_effects=1, horizon_s=0.5,
-                          candidates=["cubic_stiffness"], log=lambda s: None)  # fmt: skip
+        loop = EffectDiscovery(OneStepScorer(settings, horizon_s=0.5), max_effects=1,
+                               candidates=["cubic_stiffness"], log=lambda s: None)  # fmt: skip
+        result = loop.fit(data.dataset).result_
     yield data, result
     torch.set_num_threads(n)
 
@@ -62,8 +64,9 @@ def test_opt_out_only_says_structure_is_left(drag_run):
     data, _ = drag_run
     settings = FitSettings(anchors={"mass[rod0]": float(data.ground_truth.params.mass[0])})
     with np.errstate(invalid="ignore", divide="ignore"):
-        result = diagnose(data.dataset, settings, max_effects=0, horizon_s=0.5,
-                          log=lambda s: None, residual_network=False)  # fmt: skip
+        scorer = OneStepScorer(settings, horizon_s=0.5, residual_network=False)
+        loop = EffectDiscovery(scorer, max_effects=0, log=lambda s: None)
+        result = loop.fit(data.dataset).result_
     assert result.residual_network is None
     assert "structure remains" in result.unexplained and "network" not in result.unexplained
 
@@ -71,7 +74,7 @@ def test_opt_out_only_says_structure_is_left(drag_run):
 def test_sidecar_and_params_load_back_into_the_engine(drag_run, tmp_path):
     data, result = drag_run
     fit = result.residual_network
-    write_report(result, tmp_path, "drag", 0.5)
+    write_report(result, tmp_path, "drag")
     write_params(result, tmp_path / "params.json", {})
     report = (tmp_path / "report.md").read_text()
     assert "Residual network (unexplained: NOT a physical effect)" in report

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.candidates import CONTACT_START
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.simulation.planted import PlantSpec
+from identification.trajectory.effect_coords import CONTACT_START
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import TOUCH, find_touchdowns, search_contact
 from identification.trajectory.windows import STATE_KEYS

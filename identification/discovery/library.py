@@ -5,13 +5,14 @@ linear effects and slack cables inside the regression
 (:class:`~identification.linear.extended.ExtendedIdentifier`), then ground contact (not
 linear in its parameters) through the engine on short trajectory windows
 (:func:`~identification.trajectory.effect_fit.fit_effect_params`) with the regression's
-parameters held. :func:`propose` lists the candidates whose physical gate the data
-passes, each as the current effects plus one new effect.
+parameters held. :func:`propose` lists the candidates of the effect library
+(:data:`LIBRARY`) with their physical gates; :func:`slack_probe` names slack cables
+from the regression on rod states.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -158,52 +159,92 @@ def _fit_contact(
 
 
 # ---------------------------------------------------------------------- proposals
+#: the effect library, in the order its candidates are proposed
+LIBRARY = (
+    "ground_contact",
+    "slack_springs",
+    "linear_drag",
+    "quadratic_drag",
+    "force_field",
+    "cubic_stiffness",
+    "rest_length_offset",
+    "control_lag",
+)
+
+
 @dataclass
 class Proposal:
-    """One candidate: the effect added, the full effect list, or why it was not tried."""
+    """One candidate: the effect to add (None: its gate is not passed) and why.
+
+    Attributes:
+        name: the effect's name (a key of :data:`LIBRARY`).
+        effect: the effect at its starting values, or None when not tried.
+        gate: why it may act here, or why not.
+        start: parameter values its fit starts from (natural units), if not the
+            current model's (slack cables on end caps start from their own regression).
+    """
 
     name: str
-    effects: list[PhysicalEffect] | None
+    effect: PhysicalEffect | None
     gate: str
+    start: dict[str, np.ndarray] | None = None
 
 
 def propose(
-    dataset: Dataset,
-    current: FittedModel,
-    settings: FitSettings,
-    names: Sequence[str] | None = None,
+    split: Split,
+    topology: Topology,
+    have: Collection[str],
+    names: Sequence[str] | None,
+    gates: Mapping[str, Callable[[], Proposal]],
+    again: Collection[str] = (),
 ) -> list[Proposal]:
-    """Every candidate not yet in the model, gated by what the data shows."""
-    topo = dataset.topology
-    have = set(current.names)
-    split = dataset.split("train")
+    """Every library effect not yet in the model (``have``), gated by what ``split`` shows.
+
+    ``names``: only these (None: all). ``gates``: the scorer's own gate for an effect
+    (called only when it is proposed), replacing the standard one; ``slack_springs``
+    has none here (each scorer names cables its own way). ``again``: proposed even
+    when in the model (more cables may show once the first are slack).
+    """
+    standard: dict[str, Callable[[], Proposal]] = {
+        "ground_contact": lambda: contact_proposal(split, topology),
+        "linear_drag": lambda: Proposal(
+            "linear_drag", LinearDrag(topology), "acts everywhere, opposing v and ω"
+        ),
+        "quadratic_drag": lambda: Proposal(
+            "quadratic_drag", QuadraticDrag(topology), "acts everywhere, opposing v|v| and ω|ω|"
+        ),
+        "force_field": lambda: Proposal(
+            "force_field", ForceField(topology), "acts on every rod, always"
+        ),
+        "cubic_stiffness": lambda: Proposal(
+            "cubic_stiffness",
+            CubicStiffness(topology),
+            "acts along every spring, grows with (l - l0)^3",
+        ),
+        "rest_length_offset": lambda: Proposal(
+            "rest_length_offset", RestLengthOffset(topology), "rest lengths are given, not fitted"
+        ),
+        "control_lag": lambda: (
+            Proposal("control_lag", ControlLag(topology), "control commands are applied")
+            if np.any(split.control != 0)
+            else Proposal("control_lag", None, "no control in this data")
+        ),
+    }
+    every = {**standard, **gates}
     out: list[Proposal] = []
-
-    def add(effect: PhysicalEffect | None, name: str, gate: str) -> None:
-        if name in have or (names is not None and name not in names):
-            return
-        out.append(Proposal(name, None if effect is None else [*current.effects, effect], gate))
-
-    # contact: caps reach the floor, and the floor stops them
-    ok, why = contact_gate(split, topo)
-    add(GroundContact(topo, **CONTACT_START) if ok else None, "ground_contact", why)
-    # slack: springs that lose their stiffness when compressed
-    cables, gate = slack_probe(dataset, current, settings)
-    add(SlackSprings(topo, springs=cables) if cables else None, "slack_springs", gate)
-    # everywhere-acting effects
-    add(LinearDrag(topo), "linear_drag", "acts everywhere, opposing v and ω")
-    add(QuadraticDrag(topo), "quadratic_drag", "acts everywhere, opposing v|v| and ω|ω|")
-    add(ForceField(topo), "force_field", "acts on every rod, always")
-    add(CubicStiffness(topo), "cubic_stiffness", "acts along every spring, grows with (l - l0)^3")
-    if not settings.fit_rest_length:
-        add(RestLengthOffset(topo), "rest_length_offset", "rest lengths are given, not fitted")
-    else:
-        add(None, "rest_length_offset", "rest lengths are fitted already (K*l0 in the regression)")
-    if np.any(split.control != 0):
-        add(ControlLag(topo), "control_lag", "control commands are applied")
-    else:
-        add(None, "control_lag", "no control in this data")
+    for name in LIBRARY:
+        if (name in have and name not in again) or (names is not None and name not in names):
+            continue
+        if name not in every:
+            raise ValueError(f"no gate for library effect {name!r}")
+        out.append(every[name]())
     return out
+
+
+def contact_proposal(split: Split, topology: Topology) -> Proposal:
+    """Ground contact where end caps reach the floor and the floor stops them."""
+    ok, why = contact_gate(split, topology)
+    return Proposal("ground_contact", GroundContact(topology, **CONTACT_START) if ok else None, why)
 
 
 def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
@@ -266,9 +307,12 @@ def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSetti
     return best[1]
 
 
-def fit_proposal(dataset: Dataset, proposal: Proposal, settings: FitSettings) -> FittedModel:
-    """Fit a candidate's whole model (jointly)."""
-    assert proposal.effects is not None
+def fit_proposal(
+    dataset: Dataset, current: FittedModel, proposal: Proposal, settings: FitSettings
+) -> FittedModel:
+    """A candidate's whole model, fitted jointly: ``current``'s effects plus the proposed one."""
+    if proposal.effect is None:
+        raise ValueError(f"{proposal.name}: not proposed ({proposal.gate})")
     if proposal.name == "control_lag":
-        return fit_lag(dataset, proposal.effects[:-1], settings)
-    return fit_model(dataset, proposal.effects, settings)
+        return fit_lag(dataset, current.effects, settings)
+    return fit_model(dataset, [*current.effects, proposal.effect], settings)

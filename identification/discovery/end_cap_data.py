@@ -1,0 +1,277 @@
+"""End-cap windows and the fits the multi-step scorer compares: the data, the settings,
+a fitted model (:class:`TrajFit`), and held-out scores.
+
+Models are fitted through the engine on windows of the measured end caps (the
+windowed trajectory fit of :mod:`identification.trajectory.identifier`: maximum
+likelihood under Gaussian position noise), each candidate's effect parameters
+appended to the fitted vector (:class:`~identification.trajectory.effect_coords.EffectCoords`).
+A held-out score fits only the windows' initial states, the model held
+(:func:`heldout`). The rods' **axial spins** are never fitted: under 1 mm noise the
+spin is barely seen, and the fit stepped to spins of 100+ rad/s whose explicit
+gyroscopic integration (as in MuJoCo's Euler integrator) blew up on longer windows.
+A rod's **roll** about its own axis is fitted once an effect that depends on it is in
+the model (:attr:`EndCapData.roll`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from identification.data.dataset import Dataset, Split
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
+from identification.discovery.library import contact_gate
+from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii
+from identification.trajectory.effect_coords import CONTACT_FREE
+from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.window_states import fit_states
+from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windows import STATE_KEYS, Windows, cut_windows, end_caps
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
+from tensegrity_env.params import Params
+
+#: steps per window of the final fits (declared model's many-window fit excepted): on
+#: noisy linear drag (seed 0) 300-step windows gave one-step 563x and rollout 5810x
+#: where 100-step windows gave 42x and 258x; selection still compares on ``window``
+FIT_WINDOW = 300
+
+
+@dataclass(frozen=True)
+class TrajectorySettings:
+    """How the loop fits end-cap data.
+
+    Attributes:
+        anchors: known values fixing the scale, e.g. ``{"mass[rod0]": 1.95}``.
+        window: steps per window (short windows forgive a missing effect at the start).
+        train_windows, val_windows, test_windows: random windows used per split.
+        base_iter, candidate_iter, state_iter: Levenberg-Marquardt iterations of the
+            declared fit, of each candidate fit, of the held-out state fits.
+        smoothing: Savitzky-Golay window [s] of the starting states and regression.
+        seed: seed of the window draws.
+        fit_windows: windows of the training split for the declared model's and every
+            accepted model's final fit (parameters reported, test errors, next start).
+        fit_window: steps per window of that fit (0: ``window``; default
+            :data:`FIT_WINDOW`); longer windows carry more information per sample once
+            the model holds the effect.
+        physics_dt: the longest physics step [s]; the engine substeps between samples
+            (:func:`tensegrity_env.engine.substeps_for`) and is compared with the data at
+            the sample times.
+    """
+
+    anchors: dict[str, float] = field(default_factory=dict)
+    window: int = 100
+    train_windows: int = 8
+    val_windows: int = 8
+    test_windows: int = 8
+    base_iter: int = 10
+    candidate_iter: int = 10
+    state_iter: int = 15
+    smoothing: float = 0.1
+    seed: int = 0
+    fit_windows: int = 32
+    fit_window: int = FIT_WINDOW
+    physics_dt: float = PHYSICS_DT
+
+
+@dataclass
+class TrajFit:
+    """A model fitted through the windows of the training split.
+
+    Attributes:
+        vec: the fitted vector's layout (log-parameters and effect coordinates).
+        theta: fitted values, (n_free + n_effect,).
+        windows: training windows with fitted initial states.
+        sse, m: sum of squared end-cap errors [m^2] and number of residuals.
+        stderr: standard error of every fitted coordinate, (n_free + n_effect,).
+        origin: where the next fits start (declared parameters and effect coordinates,
+            same layout as ``theta``): the fit on the many windows, once there is one.
+    """
+
+    vec: ParamVector
+    theta: torch.Tensor
+    windows: Windows
+    sse: float
+    m: int
+    stderr: np.ndarray
+    origin: torch.Tensor | None = None
+
+    @property
+    def params(self) -> Params:
+        return self.vec.params(self.vec.full(self.theta.detach()))
+
+    @property
+    def effects(self) -> list[PhysicalEffect]:
+        """The fitted effects, with standard errors as their ``uncertainty``."""
+        if self.vec.coords is None:
+            return []
+        n = self.vec.n_free
+        return self.vec.coords.effects_at(self.theta.detach()[n:], self.stderr[n:])
+
+    @property
+    def start_effects(self) -> list[PhysicalEffect]:
+        """The effects at ``origin`` (where the next fits start)."""
+        if self.vec.coords is None or self.origin is None:
+            return self.effects
+        return self.vec.coords.effects_at(self.origin.detach()[self.vec.n_free :])
+
+    #: global parameters fitted elsewhere and held here (the searched contact's, and the
+    #: declared ones fitted on airborne windows)
+    extra_k: int = 0
+
+    @property
+    def k(self) -> int:
+        """Global parameters: the fitted vector's and :attr:`extra_k`."""
+        return len(self.theta) + self.extra_k
+
+    @property
+    def bic(self) -> float:
+        return self.m * float(np.log(self.sse / self.m)) + self.k * float(np.log(self.m))
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(self.sse / self.m))
+
+
+class EndCapData:
+    """Windows of every split, their smoothed starting states, and the fixed context."""
+
+    def __init__(self, dataset: Dataset, s: TrajectorySettings) -> None:
+        self.topology, self.dt = dataset.topology, dataset.dt
+        self.axes = RodAxes.of(self.topology)
+        self.engine = Engine(self.topology, self.dt, substeps=substeps_for(self.dt, s.physics_dt))
+        self.sg = odd_window(s.smoothing / self.dt)
+        self.dataset, self.seed = dataset, s.seed
+        self.smooth: dict[str, Any] = {}
+        self.windows: dict[str, Windows] = {}
+        counts = {"train": s.train_windows, "val": s.val_windows, "test": s.test_windows,
+                  "fit": s.fit_windows}  # fmt: skip
+        for k, name in enumerate(("train", "val", "test", "fit")):
+            steps = s.fit_window if name == "fit" and s.fit_window > 0 else s.window
+            self.windows[name] = self.cut("train" if name == "fit" else name, steps,
+                                          counts[name], k)  # fmt: skip
+        self.smooth["fit"] = self.smooth["train"]
+        self.train: Split = dataset.split("train")
+        #: contact parameters fitted by Levenberg-Marquardt; () once they come from the
+        #: touchdown search (identification.trajectory.touchdown)
+        self.contact_free: tuple[str, ...] = CONTACT_FREE
+        #: free declared parameters of the declared model's fit
+        self.declared_k = 0
+        self.log: Callable[[str], None] = lambda line: None
+        #: the declared fit's airborne stretches, states fitted (None: no floor)
+        self.stretches: Windows | None = None
+        #: every fit also fits the windows' rolls (set once an accepted effect sees them)
+        self.roll = False
+
+    def cut(
+        self, name: str, steps: int, count: int, stream: int, airborne: bool = False
+    ) -> Windows:
+        """``count`` random windows of ``steps`` of split ``name``, states from smoothing.
+
+        ``airborne``: only windows whose measured end caps all stay :data:`~identification.trajectory.airborne.AIRBORNE`
+        above touching the floor (none if there are none).
+        """
+        split = self.dataset.split(name if name in self.dataset.splits else "test")
+        if name not in self.smooth:
+            self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
+        grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
+        win = cut_windows(split.nodes, split.control, grid, steps)
+        if airborne:
+            gap = win.obs[..., 2] - torch.as_tensor(cap_radii(self.topology))
+            win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))
+        rng = np.random.default_rng([self.seed, stream])
+        if win.size > count:
+            win = win.take(np.sort(rng.choice(win.size, count, replace=False)))
+        return win
+
+
+def airborne_keep(data: EndCapData) -> np.ndarray | None:
+    """The training samples away from a floor (None: no floor in the data, all of them)."""
+    if not contact_gate(data.train, data.topology)[0]:
+        return None
+    return airborne_samples(data.train.nodes, data.topology, data.sg)
+
+
+def common_axis(axes: RodAxes) -> int | None:
+    """The end-cap axis (rod frame) if every rod has the same one."""
+    return int(axes.axis[0]) if np.all(axes.axis == axes.axis[0]) else None
+
+
+def held(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
+    """``vec`` at ``theta`` with nothing free and no effect coordinates (states-only fits)."""
+    return replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
+                   coords=None)  # fmt: skip
+
+
+@torch.no_grad()
+def fixed_engine(data: EndCapData, fit: TrajFit) -> tuple[Engine, ParamVector]:
+    """The engine with ``fit``'s effects and a vector with nothing free (its params)."""
+    return data.engine.with_effects(fit.effects), held(fit.vec, fit.theta)
+
+
+def fit_trajectory(
+    data: EndCapData, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int,
+    roll: bool | None = None,
+) -> TrajFit:  # fmt: skip
+    """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
+    (None: ``data.roll``). The BIC counts the rolls.
+    """
+    roll = data.roll if roll is None else roll
+    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False, roll=roll)
+    m = fit.windows.residuals
+    rolls = windows.size * data.topology.n_rods if roll else 0  # state unknowns, not common
+    return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
+                   extra_k=extra_k(data, vec) + rolls)  # fmt: skip
+
+
+def extra_k(data: EndCapData, vec: ParamVector) -> int:
+    """Parameters of ``vec``'s model fitted outside its vector (see ``TrajFit.extra_k``)."""
+    if not contact_searched(vec):
+        return 0
+    return len(CONTACT_FREE) + (data.declared_k if not bool(vec.free.any()) else 0)
+
+
+def contact_searched(vec: ParamVector) -> bool:
+    """Whether ``vec`` holds a contact whose parameters came from the touchdown search."""
+    coords = vec.coords
+    return coords is not None and any(
+        isinstance(e, GroundContact) and not slot
+        for e, slot in zip(coords.effects, coords.slots, strict=True)
+    )
+
+
+def has_contact(vec: ParamVector) -> bool:
+    return vec.coords is not None and any(
+        isinstance(e, GroundContact) for e in vec.coords.effects_at(vec.coords.start())
+    )
+
+
+def hold_declared(vec: ParamVector) -> ParamVector:
+    """``vec`` with the declared parameters held where they are (contact searched).
+
+    With a floor in the data they were fitted on airborne windows; fitted again through
+    the impacts (the states' fits there are poorer: no axial spins, the contact's
+    small jumps) they drift, by 3.7 mm RMS on the airborne prefixes in a trial.
+    """
+    return replace(vec, free=torch.zeros_like(vec.free))
+
+
+def heldout(data: EndCapData, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:
+    """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
+    engine, vec = fixed_engine(data, fit)
+    w = fit_states(engine, vec, data.windows[split], iters, roll=data.roll)
+    m = w.windows.residuals
+    return w.history[-1] * m, m, w.windows
+
+
+@torch.no_grad()
+def predicted_caps(data: EndCapData, fit: TrajFit, windows: Windows) -> torch.Tensor:
+    """End caps (B, W+1, 2R, 3) [m] of ``fit`` rolled out from ``windows``' states."""
+    engine, vec = fixed_engine(data, fit)
+    roll = engine.rollout(windows.state, vec.params(vec.start), windows.steps, windows.control)
+    return end_caps(engine, roll.p, roll.q)

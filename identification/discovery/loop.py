@@ -1,0 +1,329 @@
+"""The closed loop: find the residual, trace it to the missing effect, add it, repeat.
+
+:class:`EffectDiscovery` is an effect library times a scorer (as in PySINDy, a
+library times an optimizer). Each iteration
+
+1. looks at the current model's **residuals** (:meth:`Scorer.residual`);
+2. fits every **candidate** of the effect library whose physical gate the data passes
+   (:func:`~identification.discovery.library.propose`), each jointly with everything
+   already in the model, and scores it against "nothing is missing" (the current
+   model) on held-out data;
+3. accepts the best candidate only if :func:`~identification.discovery.judge.judge`
+   passes it (BIC, held-out gain, physical values), and flags the attribution when
+   the runner-up also passes and the two explain the same thing;
+4. stops when no candidate is accepted: the residual is noise, or nothing in the
+   library explains it (:meth:`Scorer.leftover` says which).
+
+Two scorers: :class:`~identification.discovery.one_step.OneStepScorer` (one-step
+regressions on rod states) and :class:`~identification.discovery.multi_step.MultiStepScorer`
+(multi-step prediction of measured end caps through the engine).
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from identification.data.dataset import Dataset
+from identification.discovery.judge import (
+    Candidate,
+    Criteria,
+    RunnerUp,
+    correlation,
+    judge,
+    runner_up,
+)
+from identification.discovery.library import FittedModel, Proposal
+from identification.discovery.residual_network import ResidualFit
+from identification.linear.regression import NotFittedError
+from tensegrity_env.io_utils import InputError
+
+F = TypeVar("F")
+
+
+class CandidateSkipped(Exception):
+    """A scorer's refusal to judge a candidate; the message says why (one line)."""
+
+
+@dataclass
+class Residual:
+    """What the current model leaves: numbers, the same as markdown, and a figure.
+
+    Attributes:
+        numbers: residual signatures by name (the scorer's).
+        markdown: the same for the report.
+        plot: PNG of the residuals, if written.
+    """
+
+    numbers: dict[str, float]
+    markdown: str
+    plot: Path | None = None
+
+
+class Scorer(ABC, Generic[F]):
+    """How the loop fits and scores models on one kind of data.
+
+    ``F`` is what the scorer fits (kept in :attr:`Candidate.fit`). :meth:`begin` binds
+    a dataset; every other method works on the dataset last begun.
+    """
+
+    #: how the held-out gain is judged
+    criteria: Criteria
+    #: the scorer's name in reports and params files
+    method: str
+
+    @abstractmethod
+    def begin(self, dataset: Dataset, log: Callable[[str], None]) -> Candidate[F]:
+        """The declared model fitted on ``dataset`` and scored (named ``"nothing"``)."""
+
+    @abstractmethod
+    def test_errors(self, current: Candidate[F]) -> dict[str, Any]:
+        """Errors [m] of ``current``'s model on the test split (never used for selection)."""
+
+    @abstractmethod
+    def propose(self, current: Candidate[F], names: Sequence[str] | None) -> list[Proposal]:
+        """The library's candidates not in ``current`` (``names``: only these), gated."""
+
+    @abstractmethod
+    def fit_candidate(self, current: Candidate[F], proposal: Proposal) -> Candidate[F]:
+        """``current`` plus the proposed effect, fitted jointly and scored.
+
+        Raises :class:`CandidateSkipped` when the fit cannot be judged (it diverged).
+        """
+
+    @abstractmethod
+    def gain(self, candidate: Candidate[F], current: Candidate[F]) -> float:
+        """How much ``candidate`` lowers the held-out error (:attr:`criteria` unit)."""
+
+    @abstractmethod
+    def rank(self, candidate: Candidate[F]) -> float:
+        """Its place among the passing (and among the failing) candidates, lower is better."""
+
+    @abstractmethod
+    def summary(self, candidate: Candidate[F]) -> str:
+        """Its held-out errors, for the log."""
+
+    @abstractmethod
+    def separation(self, chosen: Candidate[F], runner: Candidate[F]) -> tuple[float, str]:
+        """How far apart two passing candidates' held-out errors are, and in words."""
+
+    @abstractmethod
+    def predicted_change(self, current: Candidate[F], candidate: Candidate[F]) -> np.ndarray:
+        """What ``candidate`` changes in the predictions of ``current`` (held-out data)."""
+
+    @abstractmethod
+    def accept(self, chosen: Candidate[F]) -> Candidate[F]:
+        """The chosen candidate as the next current model (refitted where the scorer does)."""
+
+    @abstractmethod
+    def residual(self, current: Candidate[F], k: int, plots: Path | None) -> Residual:
+        """The residual of ``current`` (iteration ``k``; its PNG under ``plots``)."""
+
+    @abstractmethod
+    def leftover(self, current: Candidate[F]) -> tuple[str, ResidualFit | None]:
+        """Why structure is left (empty: the residual is noise), and a residual network
+        that absorbs it (NOT a physical effect) or None."""
+
+    @abstractmethod
+    def describe(self) -> str:
+        """How models are compared, one paragraph for the report."""
+
+    @abstractmethod
+    def test_labels(self) -> dict[str, tuple[str, str]]:
+        """Test error name -> (label, unit ``"m"`` or ``"mm"``), in report order."""
+
+    @abstractmethod
+    def settings_summary(self) -> dict[str, Any]:
+        """The settings worth recording beside the result."""
+
+
+@dataclass
+class Iteration:
+    """One pass of the loop.
+
+    Attributes:
+        before: the current model, scored.
+        candidates: every candidate tried, scored (best first).
+        skipped: candidates whose gate the data did not pass (or whose fit failed).
+        chosen: the accepted candidate, or None (the loop stops).
+        runner_up: the second candidate that also passed, compared with ``chosen``.
+        residual: what the current model leaves.
+        test_before, test_after: test-split errors of the model before and after.
+        added: ``chosen`` as the next current model (refitted where the scorer does).
+    """
+
+    before: Candidate[Any]
+    candidates: list[Candidate[Any]]
+    skipped: list[Proposal]
+    chosen: Candidate[Any] | None
+    runner_up: RunnerUp | None
+    residual: Residual
+    test_before: dict[str, Any]
+    test_after: dict[str, Any] | None = None
+    added: Candidate[Any] | None = None
+
+    @property
+    def ambiguous(self) -> tuple[str, float] | None:
+        """The runner-up that cannot be told apart from ``chosen``, and the correlation."""
+        r = self.runner_up
+        return (r.name, r.correlation) if r is not None and r.ambiguous else None
+
+
+@dataclass
+class DiscoveryResult:
+    """Everything the loop found.
+
+    Attributes:
+        method: the scorer (``"one_step"`` or ``"multi_step"``).
+        description: how models were compared (one paragraph).
+        iterations: the loop's passes, in order.
+        model: the final model.
+        baseline_test, final_test: test-split errors of the declared and the final model.
+        test_labels: test error name -> (label, unit), in report order.
+        criteria: how held-out gains were judged.
+        final_residual: what the final model leaves.
+        unexplained: why structure is left (empty if the residual is noise).
+        settings: settings recorded beside the result.
+        residual_network: a residual network fitted to what is left, when it lowers the
+            held-out (test) one-step error (NOT a physical effect, not part of ``model``).
+    """
+
+    method: str
+    description: str
+    iterations: list[Iteration]
+    model: FittedModel
+    baseline_test: dict[str, Any]
+    final_test: dict[str, Any]
+    test_labels: dict[str, tuple[str, str]]
+    criteria: Criteria
+    final_residual: Residual
+    unexplained: str = ""
+    settings: dict[str, Any] = field(default_factory=dict)
+    residual_network: ResidualFit | None = None
+
+    @property
+    def added(self) -> list[str]:
+        return [it.chosen.name for it in self.iterations if it.chosen is not None]
+
+
+class EffectDiscovery:
+    """The residual loop: an effect library times a scorer (see the module docstring).
+
+    Args:
+        scorer: how models are fitted and compared
+            (:class:`~identification.discovery.one_step.OneStepScorer` or
+            :class:`~identification.discovery.multi_step.MultiStepScorer`).
+        max_effects: most effects to add.
+        candidates: only these effects of the library (None: all).
+        plots: folder for each iteration's residual PNG (None: none written).
+        log: where progress lines go.
+
+    Attributes (after :meth:`fit`):
+        result_: the :class:`DiscoveryResult`.
+        model_: the final model (declared parameters and the effects added).
+        iterations_: the loop's passes.
+    """
+
+    def __init__(
+        self,
+        scorer: Scorer[Any],
+        max_effects: int = 3,
+        candidates: Sequence[str] | None = None,
+        plots: Path | None = None,
+        log: Callable[[str], None] = print,
+    ) -> None:
+        self.scorer = scorer
+        self.max_effects = max_effects
+        self.candidates = candidates
+        self.plots = plots
+        self.log = log
+
+    @property
+    def model_(self) -> FittedModel:
+        return self._fitted().model
+
+    @property
+    def iterations_(self) -> list[Iteration]:
+        return self._fitted().iterations
+
+    def _fitted(self) -> DiscoveryResult:
+        if not hasattr(self, "result_"):
+            raise NotFittedError("call EffectDiscovery.fit(dataset) before reading its results")
+        return self.result_
+
+    def fit(self, dataset: Dataset) -> EffectDiscovery:
+        """Run the loop on ``dataset``; the result is in :attr:`result_`."""
+        scorer, log = self.scorer, self.log
+        current = scorer.begin(dataset, log)
+        baseline = test_now = scorer.test_errors(current)
+        iterations: list[Iteration] = []
+        for k in range(self.max_effects + 1):
+            residual = scorer.residual(current, k, self.plots)
+            if k == self.max_effects:
+                break
+            it = self.iterate(current, residual, test_now)
+            iterations.append(it)
+            if it.chosen is None:
+                break
+            current = it.added = scorer.accept(it.chosen)
+            test_now = it.test_after = scorer.test_errors(current)
+            note = ""
+            if it.runner_up is not None:
+                r = it.runner_up
+                note = (f" (runner-up {r.name}: predicted changes correlate {r.correlation:.3f}, "
+                        f"{r.note}" + ("; CANNOT be told apart)" if r.ambiguous else ")"))  # fmt: skip
+            log(f"added {it.chosen.name}{note}")
+        unexplained, network = scorer.leftover(current)
+        self.result_ = DiscoveryResult(
+            method=scorer.method, description=scorer.describe(), iterations=iterations,
+            model=current.model, baseline_test=baseline, final_test=test_now,
+            test_labels=scorer.test_labels(), criteria=scorer.criteria, final_residual=residual, unexplained=unexplained,
+            settings=scorer.settings_summary(), residual_network=network,
+        )  # fmt: skip
+        return self
+
+    def iterate(
+        self, current: Candidate[Any], residual: Residual, test_now: dict[str, Any]
+    ) -> Iteration:
+        """One pass: every candidate fitted, scored and judged; the best passing one chosen."""
+        scorer, log = self.scorer, self.log
+        tried: list[Candidate[Any]] = []
+        skipped: list[Proposal] = []
+        for p in scorer.propose(current, self.candidates):
+            if p.effect is None:
+                skipped.append(p)
+                continue
+            t0 = time.perf_counter()
+            try:
+                c = scorer.fit_candidate(current, p)
+            except CandidateSkipped as e:  # e.g. its fit diverged: never judged
+                skipped.append(Proposal(p.name, None, str(e)))
+                continue
+            except (RuntimeError, ValueError, InputError) as e:  # a singular or failed fit
+                skipped.append(Proposal(p.name, None, f"fit failed: {e}"))
+                continue
+            c.gate, c.seconds = p.gate, time.perf_counter() - t0
+            judge(c, current, scorer.gain(c, current), scorer.criteria)
+            c.rank = scorer.rank(c)
+            log("    " + "; ".join(e.describe() for e in c.model.effects))
+            log(f"  candidate {p.name:20s} {scorer.summary(c)}, gain "
+                f"{scorer.criteria.format_gain(c.gain)}, ΔBIC {-c.bic_drop:+.4g}: {c.verdict} "
+                f"({c.seconds:.1f} s)")  # fmt: skip
+            tried.append(c)
+        tried.sort(key=lambda c: (not c.accepted, c.rank))
+        chosen = tried[0] if tried and tried[0].accepted else None
+        second = None
+        if chosen is not None and len(tried) > 1 and tried[1].accepted:
+            runner = tried[1]
+            corr = correlation(
+                scorer.predicted_change(current, chosen), scorer.predicted_change(current, runner)
+            )
+            separation, note = scorer.separation(chosen, runner)
+            second = runner_up(runner.name, corr, separation, note, scorer.criteria)
+        return Iteration(current, tried, skipped, chosen, second, residual, test_now)

@@ -218,18 +218,18 @@ def write_params(result: DiscoveryResult, path: Path, extra: dict[str, Any]) -> 
         note = {"note": NOT_PHYSICAL, "params_file": NETWORK_PARAMS,
                 "sidecar": fit.effect.sidecar, **fit.summary()}  # fmt: skip
         network_model = result.model.model.replace(params=fit.params, effects=fit.effects)
-        network_doc = _jsonable({"residual_network": note})
+        network_doc = jsonable({"residual_network": note})
         network_model.save(directory / NETWORK_PARAMS, network_doc)
         doc["diagnose"]["residual_network"] = note
-    doc = _jsonable(doc)
+    doc = jsonable(doc)
     return result.model.model.save(path, doc)
 
 
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
     if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
+        return {k: jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
         return x.tolist()
     if isinstance(x, (np.floating, float)):

@@ -152,8 +152,10 @@ def write_report(
     if result.final_residual.plot is not None:
         L += [f"![final residuals]({result.final_residual.plot.name})", ""]
     L += [result.final_residual.markdown, ""]
-    L += [f"**Unexplained:** {result.unexplained}" if result.unexplained
-          else "The residual left is noise (round-off or measurement noise).", ""]  # fmt: skip
+    if result.unexplained:
+        L += [f"**Unexplained:** {result.unexplained}", ""]
+    elif result.method == "one_step":  # held-out error at round-off, or noisy data
+        L += ["The residual left is noise (round-off or measurement noise).", ""]
     L += _network_section(result)
     return atomic_write_text(out / "report.md", "\n".join(L))
 

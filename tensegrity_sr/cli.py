@@ -10,6 +10,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from tensegrity_env.io_utils import (
     TERMINATED_EXIT,
@@ -54,10 +55,18 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 COMMANDS: tuple[str, ...] = tuple(dict.fromkeys(m for m, _ in SUBCOMMANDS.values()))
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are :class:`InputError`: one line naming the
+    option and the problem, exit 2 (argparse would print the whole usage)."""
+
+    def error(self, message: str) -> NoReturn:
+        raise InputError(f"{self.prog}: {message}")
+
+
 def build_parser(command: str | None = "*") -> argparse.ArgumentParser:
     """The parser. ``"*"``: every module imported; a subcommand: only its module
     (the others are listed); None: none imported (all listed, for ``--help``)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="tensegrity-sr",
         description=(
             "System identification of spring-rod (tensegrity) assemblies: MuJoCo ground "
@@ -87,8 +96,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand; returns its exit status (2: bad input, 130: Ctrl-C, 143: SIGTERM)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command = _command(argv)
-    args = build_parser(command).parse_args(argv)  # None: --help or an error, nothing imported
     try:
+        args = build_parser(command).parse_args(argv)  # --help exits here, nothing imported
         with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: temporary files are removed
             return int(args.func(args) or 0)
     except InputError as e:

@@ -1,5 +1,8 @@
 """Measured end caps (motion capture) to rod states, and datasets built from them.
 
+Over 400 lines because the three ways from end caps to rod states share the rod
+geometry (:class:`RodAxes`) and the handling of gaps; apart they would repeat both.
+
 Motion capture sees points, not rigid-body states. Two end caps per rod fix the
 rod's centre of mass and the direction of its axis, and nothing else:
 

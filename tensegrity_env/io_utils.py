@@ -22,9 +22,10 @@ import argparse
 import math
 import os
 import signal
+import sys
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
@@ -68,6 +69,27 @@ def sigterm_raises() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def run_reporting(work: Callable[[], int]) -> int:
+    """Run ``work`` with SIGTERM raising (:func:`sigterm_raises`) and turn the ways a run
+    ends into one line on stderr and an exit status: bad input 2, a failed stage 1,
+    Ctrl-C 130, SIGTERM 143; otherwise ``work``'s own status."""
+    try:
+        with sigterm_raises():
+            return work()
+    except InputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except StageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return TERMINATED_EXIT
 
 
 def add_force_option(parser: argparse.ArgumentParser) -> None:

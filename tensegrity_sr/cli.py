@@ -12,13 +12,7 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from tensegrity_env.io_utils import (
-    TERMINATED_EXIT,
-    InputError,
-    StageError,
-    Terminated,
-    sigterm_raises,
-)
+from tensegrity_env.io_utils import InputError, run_reporting
 
 #: subcommand -> (the module defining it with ``register(subparsers)``, its one-line help),
 #: in the order ``--help`` lists them. Only the module of the command being run is
@@ -96,22 +90,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one subcommand; returns its exit status (2: bad input, 130: Ctrl-C, 143: SIGTERM)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     command = _command(argv)
-    try:
+
+    def work() -> int:
         args = build_parser(command).parse_args(argv)  # --help exits here, nothing imported
-        with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: temporary files are removed
-            return int(args.func(args) or 0)
-    except InputError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except StageError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except Terminated:
-        print("terminated", file=sys.stderr)
-        return TERMINATED_EXIT
+        return int(args.func(args) or 0)
+
+    return run_reporting(work)  # SIGTERM unwinds like Ctrl-C: temporary files are removed
 
 
 if __name__ == "__main__":

@@ -32,12 +32,10 @@ from identification.simulation.generate import GenerateSpec, generate_dataset
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.engine import State
 from tensegrity_env.io_utils import (
-    TERMINATED_EXIT,
     InputError,
-    Terminated,
     atomic_write_text,
     check_output_dir,
-    sigterm_raises,
+    run_reporting,
 )
 from tensegrity_sr.cli import main as cli
 
@@ -349,7 +347,8 @@ def main(argv: list[str] | None = None) -> int:
                         f"{','.join(STEPS)}; later steps read what earlier ones wrote)")  # fmt: skip
     args = parser.parse_args(argv)
     steps = [s for s in args.steps.split(",") if s]
-    try:
+
+    def work() -> int:
         bad = [s for s in steps if s not in STEPS]
         if bad:
             raise InputError(f"--steps: unknown step(s) {', '.join(bad)} (known: {', '.join(STEPS)})")
@@ -359,25 +358,17 @@ def main(argv: list[str] | None = None) -> int:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)  # small tensors: more threads only contend, above all on 2 cores
         try:
-            with sigterm_raises():
-                seconds = run(demo, steps)
+            seconds = run(demo, steps)
         finally:
             torch.set_num_threads(threads)
-    except InputError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except Terminated:
-        print("terminated", file=sys.stderr)
-        return TERMINATED_EXIT
-    banner(f"Done in {time.perf_counter() - t0:.0f} s "
-           f"({', '.join(f'{k} {v:.0f} s' for k, v in seconds.items())}). "
-           f"Every output is in: {demo.out.resolve()}")  # fmt: skip
-    for f in sorted(demo.out.iterdir()):
-        print(f"  {f.name}")
-    return 0
+        banner(f"Done in {time.perf_counter() - t0:.0f} s "
+               f"({', '.join(f'{k} {v:.0f} s' for k, v in seconds.items())}). "
+               f"Every output is in: {demo.out.resolve()}")  # fmt: skip
+        for f in sorted(demo.out.iterdir()):
+            print(f"  {f.name}")
+        return 0
+
+    return run_reporting(work)
 
 
 if __name__ == "__main__":

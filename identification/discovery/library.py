@@ -16,6 +16,7 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from identification.data.dataset import Dataset, Split
 from identification.linear.extended import ExtendedIdentifier
@@ -43,8 +44,10 @@ SLACK_SIGNIFICANCE = 5.0
 #: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
 #: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
 FLOOR_DEPTH = 0.3
-#: control lag time constants tried [s]
+#: control lag time constants tried first [s]
 LAG_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
+#: the lag search ends when log τ is known to this (a relative tolerance on τ)
+LAG_TOLERANCE = 0.01
 
 
 @dataclass
@@ -226,7 +229,7 @@ def propose(
         ),
         "control_lag": lambda: (
             Proposal("control_lag", ControlLag(topology), "control commands are applied")
-            if np.any(split.control != 0)
+            if has_commands(split)
             else Proposal("control_lag", None, "no control in this data")
         ),
     }
@@ -289,22 +292,42 @@ def slack_probe(
     )
 
 
+def has_commands(split: Split) -> bool:
+    """Whether ``split`` applies any command: control forces f_u or cable commands."""
+    cables = split.cable_control
+    return bool(np.any(split.control != 0) or (cables is not None and np.any(cables != 0)))
+
+
 def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSettings) -> FittedModel:
-    """Control lag by a search over :data:`LAG_GRID` (the regression refits h for each)."""
-    best: tuple[float, FittedModel] | None = None
-    for tau in LAG_GRID:
-        effects = [*base, ControlLag(dataset.topology, time_constant=tau)]
-        est = ExtendedIdentifier(
-            effects=effects, anchors=settings.anchors, init_params=settings.init_params,
-            fit_rest_length=settings.fit_rest_length,
-        ).fit(dataset)  # fmt: skip
-        rss = est.solution_.rss
-        if best is None or rss < best[0]:
+    """Control lag: the time constant τ [s] that minimises the regression's residual.
+
+    Given τ the model is linear in its parameters (the regression refits the gains h
+    and the cable gains for each τ), so the search is one-dimensional: the residual on
+    :data:`LAG_GRID`, then a bounded search in log τ between the best grid point's
+    neighbours (to :data:`LAG_TOLERANCE` relative). A lag of zero (no filter) is not in
+    the search: that model is ``base`` itself.
+    """
+    fits: dict[float, tuple[float, FittedModel]] = {}
+
+    def rss_at(tau: float) -> float:
+        if tau not in fits:
+            effects = [*base, ControlLag(dataset.topology, time_constant=tau)]
+            est = ExtendedIdentifier(
+                effects=effects, anchors=settings.anchors, init_params=settings.init_params,
+                fit_rest_length=settings.fit_rest_length,
+            ).fit(dataset)  # fmt: skip
             n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable)) + 1
             model = Model(dataset.topology, est.params_, est.effects_, dataset.dt)
-            best = (rss, FittedModel(model, n))
-    assert best is not None
-    return best[1]
+            fits[tau] = (float(est.solution_.rss), FittedModel(model, n))
+        return fits[tau][0]
+
+    grid = [rss_at(tau) for tau in LAG_GRID]
+    k = int(np.argmin(grid))
+    lo = np.log(LAG_GRID[max(k - 1, 0)])
+    hi = np.log(LAG_GRID[min(k + 1, len(LAG_GRID) - 1)])
+    minimize_scalar(lambda x: rss_at(float(np.exp(x))), bounds=(lo, hi), method="bounded",
+                    options={"xatol": LAG_TOLERANCE})  # fmt: skip
+    return min(fits.values(), key=lambda f: f[0])[1]
 
 
 def fit_proposal(

@@ -43,8 +43,8 @@ from identification.discovery.residuals import (
     summarize,
     summary_table,
 )
-from identification.linear.extended import commands_for, evaluate_model
-from identification.linear.features import transitions_of
+from identification.linear.extended import acting_split, evaluate_model
+from identification.linear.features import cable_commands_at, transitions_of
 from identification.report.tables import error_text
 from tensegrity_env.effects import ResidualNetwork, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
@@ -58,10 +58,12 @@ def one_step_bic(dataset: Dataset, model: FittedModel, max_transitions: int = 20
     N, T = data.n_trajectories, data.n_transitions
     rng = np.random.default_rng(1)
     idx = np.sort(rng.choice(N * T, size=min(N * T, max_transitions), replace=False))
-    s0, s1, _ = transitions_of(data, idx)
-    u = commands_for(model.effects, torch.as_tensor(data.control), dataset.dt)[idx // T, idx % T]
+    acting = acting_split(model.effects, data, dataset.dt)
+    s0, s1, u = transitions_of(acting, idx)
+    cables = cable_commands_at(acting, idx)
     with torch.no_grad():
-        pred = Engine(dataset.topology, dataset.dt, effects=model.effects).step(s0, model.params, u)
+        engine = Engine(dataset.topology, dataset.dt, effects=model.effects)
+        pred = engine.step(s0, model.params, u, cables)
     err = (pred.p - s1.p).reshape(-1).numpy()
     n = err.size
     sse = float(np.sum(err**2))
@@ -75,14 +77,14 @@ def predicted_change(dataset: Dataset, a: FittedModel, b: FittedModel, split: st
     data = dataset.split(split)
     N, T = data.n_trajectories, data.n_transitions
     idx = np.sort(np.random.default_rng(2).choice(N * T, size=min(N * T, 5000), replace=False))
-    s0, _, _ = transitions_of(data, idx)
     out = []
     for m in (a, b):
-        u = commands_for(m.effects, torch.as_tensor(data.control), dataset.dt)[idx // T, idx % T]
+        acting = acting_split(m.effects, data, dataset.dt)
+        s0, _, u = transitions_of(acting, idx)
+        cables = cable_commands_at(acting, idx)
         with torch.no_grad():
-            out.append(
-                Engine(dataset.topology, dataset.dt, effects=m.effects).step(s0, m.params, u).v
-            )
+            engine = Engine(dataset.topology, dataset.dt, effects=m.effects)
+            out.append(engine.step(s0, m.params, u, cables).v)
     return (out[1] - out[0]).reshape(-1).numpy()
 
 

@@ -46,8 +46,8 @@ import torch
 
 from identification.data.dataset import Dataset
 from identification.discovery.library import FitSettings, FittedModel
-from identification.linear.extended import ExtendedIdentifier, commands_for, evaluate_model
-from identification.linear.features import transition_features, transitions_of
+from identification.linear.extended import ExtendedIdentifier, acting_split, evaluate_model
+from identification.linear.features import cable_commands_at, transition_features, transitions_of
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import ResidualMLP, ResidualNetwork, rod_features
@@ -133,12 +133,13 @@ def missing_wrench(
     N, T = data.n_trajectories, data.n_transitions
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(N * T, size=min(N * T, max_transitions), replace=False))
-    s0, s1, _ = transitions_of(data, idx)
-    u = commands_for(model.effects, torch.as_tensor(data.control), dataset.dt)[idx // T, idx % T]
-    feat = transition_features(topo, s0, s1, u, dataset.dt)
+    acting = acting_split(model.effects, data, dataset.dt)
+    s0, s1, u = transitions_of(acting, idx)
+    cables = cable_commands_at(acting, idx)
+    feat = transition_features(topo, s0, s1, u, dataset.dt, cables)
     engine = Engine(topo, dataset.dt, effects=model.effects)
     with torch.no_grad():
-        acc, alpha_l, _ = engine.accelerations(s0, model.params, u)
+        acc, alpha_l, _ = engine.accelerations(s0, model.params, u, cables)
     params = model.params
     force = params.mass.detach()[None, :, None] * (feat.accel - acc)
     torque_l = params.inertia.detach() * (feat.alpha_local - alpha_l)

@@ -39,8 +39,8 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
-from identification.linear.extended import commands_for
-from identification.linear.features import transition_features, transitions_of
+from identification.linear.extended import acting_split
+from identification.linear.features import cable_commands_at, transition_features, transitions_of
 from identification.report.plots import save_figure
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine
@@ -108,12 +108,13 @@ def compute_residuals(
     N, T = data.n_trajectories, data.n_transitions
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(N * T, size=min(N * T, max_transitions), replace=False))
-    s0, s1, u = transitions_of(data, idx)
-    u = commands_for(effects, torch.as_tensor(data.control), dataset.dt)[idx // T, idx % T]
+    acting = acting_split(effects, data, dataset.dt)
+    s0, s1, u = transitions_of(acting, idx)
+    cables = cable_commands_at(acting, idx)
     engine = Engine(topology, dataset.dt, effects=effects)
-    feat = transition_features(topology, s0, s1, u, dataset.dt)
+    feat = transition_features(topology, s0, s1, u, dataset.dt, cables)
     with torch.no_grad():
-        acc, alpha_l, _ = engine.accelerations(s0, params, u)
+        acc, alpha_l, _ = engine.accelerations(s0, params, u, cables)
     rot = feat.rot
     force = params.mass[None, :, None] * (feat.accel - acc)
     torque = torch.einsum("nrij,nrj->nri", rot, params.inertia * (feat.alpha_local - alpha_l))

@@ -22,6 +22,7 @@ stiffness' ``l0``) are read from ``reference`` params, the previous fit.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
@@ -248,6 +249,16 @@ def cable_commands_for(
     return lag.filter_commands(torch.as_tensor(cables), dt, explicit=True).numpy()
 
 
+def acting_split(effects: Sequence[PhysicalEffect], data: Split, dt: float) -> Split:
+    """``data`` with the commands that act: control forces (B, T, R, 3) and cable
+    commands (B, T, C) through the model's control lag, if it has one (else ``data``)."""
+    if not any(isinstance(e, ControlLag) for e in effects):
+        return data
+    control = commands_for(effects, torch.as_tensor(data.control), dt).numpy()
+    cables = cable_commands_for(effects, data.cable_control, dt)
+    return dataclasses.replace(data, control=control, cable_control=cables)
+
+
 def evaluate_model(
     topology: Any,
     params: Params,
@@ -271,10 +282,9 @@ def evaluate_model(
     N, T = data.n_trajectories, data.n_transitions
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(N * T, size=min(N * T, max_one_step), replace=False))
-    ctrl_all = commands_for(effects, torch.as_tensor(data.control), dataset.dt)
-    cables_all = cable_commands_for(effects, data.cable_control, dataset.dt)
-    lagged = Split(nodes=data.nodes, control=ctrl_all.numpy(), p=data.p, v=data.v, q=data.q,
-                   omega=data.omega, cable_control=cables_all)  # fmt: skip
+    lagged = acting_split(effects, data, dataset.dt)
+    ctrl_all = torch.as_tensor(lagged.control)
+    cables_all = lagged.cable_control
     s0, s1, u = transitions_of(lagged, idx)
     cables = cable_commands_at(lagged, idx)
     H = min(T, max(1, round(horizon_s / dataset.dt)))

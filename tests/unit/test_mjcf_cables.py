@@ -12,6 +12,9 @@ import pytest
 import torch
 from test_mjcf_lab import lab_mjcf, mj_random_state, mj_rod_state
 
+from identification.discovery.library import FitSettings
+from identification.discovery.loop import EffectDiscovery
+from identification.discovery.one_step import OneStepScorer
 from identification.linear.extended import ExtendedIdentifier, evaluate_model
 from identification.linear.regression import SpringRodIdentifier
 from identification.report.tables import group_errors
@@ -166,3 +169,29 @@ def test_identify_recovers_filtered_cable_gains_given_the_lag(
     # without the lag, the gains come out wrong
     plain = SpringRodIdentifier(anchors=anchor).fit(ds)
     assert group_errors(plain.table_, truth.params)["cable_gain"] > 1e-2
+
+
+@pytest.mark.parametrize("lag", [0.0, 0.03])
+def test_diagnose_names_the_cable_filter_as_control_lag(
+    tmp_path_factory: pytest.TempPathFactory, lag: float
+) -> None:
+    """The residual loop finds the actuators' filter (and only when there is one)."""
+    path = tmp_path_factory.mktemp("lag") / "lab.xml"
+    path.write_text(lab_mjcf("mid", extra=actuators(lag)))
+    spec = GenerateSpec(mjcf=str(path), n_train=4, n_val=2, n_test=2, steps=400, seed=5,
+                        control_std=1.0, control_hold=0.02)  # fmt: skip
+    ds, truth = generate_dataset(spec)
+    settings = FitSettings(anchors={"mass[r0]": float(truth.params.mass[0])})
+    with np.errstate(invalid="ignore", divide="ignore"):
+        loop = EffectDiscovery(OneStepScorer(settings, horizon_s=0.1), 1,
+                               ["control_lag", "linear_drag", "force_field"], log=lambda s: None)  # fmt: skip
+        result = loop.fit(ds).result_
+    if not lag:
+        assert result.model.names == []
+        return
+    assert result.model.names == ["control_lag"]
+    tau = float(result.model.effects[0].values["time_constant"])
+    assert abs(tau - lag) <= 0.02 * lag, tau
+    gains = result.model.params.cable_gain.numpy()
+    assert np.allclose(gains, GAINS, rtol=1e-3), gains
+    assert result.final_test["one_step"] <= 1e-3 * result.baseline_test["one_step"]

@@ -18,6 +18,12 @@ models are compared by **multi-step prediction of the measured end caps**
    :data:`~identification.discovery.judge.MULTI_STEP`); two passing candidates are
    told apart by the difference of their chi-square gains.
 
+Linear drag is proposed in its implicit form
+(:class:`~tensegrity_env.effects.ImplicitLinearDrag`): at the engine's physics step it
+equals the explicit form to a relative ``h b / M`` per step where both are stable,
+stays stable for stiff damping about a thin rod's own axis, and equals MuJoCo's
+free-joint damping.
+
 Slack cables are named by a segmented regression on the smoothed end caps
 (:mod:`identification.trajectory.slack_regression`: a stiffness change below each
 spring's rest length); the candidate, those springs as cables, is then fitted like
@@ -74,7 +80,7 @@ from identification.trajectory.slack_regression import (
 )
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.windows import Windows, sees_roll
-from tensegrity_env.effects import SlackSprings
+from tensegrity_env.effects import ImplicitLinearDrag, SlackSprings
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 
@@ -179,6 +185,11 @@ class MultiStepScorer(Scorer[EndCapFits]):
                 "rest_length_offset", None, "rest lengths are fitted already"
             ),
             "control_lag": lambda: Proposal("control_lag", None, lag),
+            "linear_drag": lambda: Proposal(
+                "linear_drag",
+                ImplicitLinearDrag(data.topology),
+                "acts everywhere, opposing v and ω; integrated implicitly",
+            ),
         }
         have = [e.name for e in fit.effects]
         return propose(data.train, data.topology, have, names, gates, again=("slack_springs",))

@@ -180,7 +180,9 @@ class ExtendedIdentifier(SpringRodIdentifier):
                     A[..., idx] = A[..., idx] * t.unsqueeze(2)
             blocks = [A]
             for _, effect in extra:
-                f, tq = effect.basis(s0, kin, ref if ref is not None else _dummy(topo))
+                f, tq = effect.transition_basis(
+                    s0, s1, kin, ref if ref is not None else _dummy(topo)
+                )
                 tq_l = torch.einsum("nrji,nrjp->nrip", kin.rot, tq)
                 blocks.append(-torch.cat([f, tq_l], dim=2))
             if n_comp:

@@ -25,7 +25,7 @@ from typing import Any
 
 from tensegrity_env.effects.base import LinearEffect, ParamSpec, PhysicalEffect
 from tensegrity_env.effects.control import ControlLag
-from tensegrity_env.effects.drag import LinearDrag, QuadraticDrag
+from tensegrity_env.effects.drag import ImplicitLinearDrag, LinearDrag, QuadraticDrag
 from tensegrity_env.effects.force_field import ForceField
 from tensegrity_env.effects.ground_contact import GroundContact
 from tensegrity_env.effects.residual_network import ResidualNetwork
@@ -91,6 +91,7 @@ __all__ = [
     "CubicStiffness",
     "ForceField",
     "GroundContact",
+    "ImplicitLinearDrag",
     "LinearDrag",
     "LinearEffect",
     "ParamSpec",

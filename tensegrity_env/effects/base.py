@@ -221,6 +221,16 @@ class LinearEffect(PhysicalEffect):
         """Force (B, R, 3, P) [N/unit] and torque (B, R, 3, P) [N*m/unit], world frame."""
         raise NotImplementedError
 
+    def transition_basis(
+        self, s0: State, s1: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The basis in a one-step regression from ``s0`` to ``s1`` (``kin`` of ``s0``).
+
+        :meth:`basis` at ``s0``, unless the effect is integrated implicitly (its wrench
+        then acts at ``s1``'s velocities).
+        """
+        return self.basis(s0, kin, params)
+
     def theta(self) -> torch.Tensor:
         """All fitted parameter entries, flattened in :attr:`PARAMS` order, (P,)."""
         return torch.cat([self.values[k].reshape(-1) for k in self.fitted_params()])

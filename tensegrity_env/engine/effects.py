@@ -8,6 +8,10 @@ every effect at two fixed points, with no special cases for any of them:
 * ``wrench(state, kin, params)`` may add a force and torque (B, R, 3) on each rod
   about its centre of mass, world frame (drag, force fields).
 
+An effect whose wrench is linear damping ``-b v_l``, ``-β ω_l`` per rod axis may also
+return ``(b, β)`` from ``implicit_damping(like)`` (each (3,) or (R, 3)): the engine then
+integrates that damping implicitly (see :meth:`~tensegrity_env.engine.step.Engine.accelerations`).
+
 An effect with ``constraint = True`` (ground contact) reacts to everything else, as
 MuJoCo's constraint solver does: the engine calls its ``wrench`` last, with
 ``applied=(force, torque)``, the total wrench of springs, control and every other
@@ -54,4 +58,12 @@ class EffectBase:
     def wrench(
         self, state: State, kin: Kinematics, params: Params
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        return None
+
+    def implicit_damping(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Damping of the wrench integrated implicitly: b [N*s/m], β [N*m*s] per rod axis.
+
+        None (the default): the wrench is integrated explicitly. ``like``: a tensor
+        giving the dtype and device.
+        """
         return None

@@ -155,7 +155,34 @@ class Engine:
         # acceleration generation: Newton-Euler through M, I and R
         accel = linear_acceleration(force, params.mass, params.gravity)
         alpha_l, omega_l = angular_acceleration_local(torque, state.omega, kin.rot, params.inertia)
+        damped = [d for d in (e.implicit_damping(accel) for e in self.effects) if d is not None]
+        if damped:
+            accel, alpha_l = self._implicit(accel, alpha_l, kin.rot, params, damped)
         return accel, alpha_l, omega_l
+
+    def _implicit(
+        self,
+        accel: torch.Tensor,
+        alpha_l: torch.Tensor,
+        rot: torch.Tensor,
+        params: Params,
+        damped: list[tuple[torch.Tensor, torch.Tensor]],
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Implicit integration of linear damping over one physics step ``h``.
+
+        With the damping's wrench already among the forces, ``M a = f - b v`` (explicit)
+        becomes ``(M + h b) a = f - b v`` per rod axis, i.e. ``(M + h b) v' = M v + h f``;
+        likewise ``(I + h β) α_l = I α_l(explicit)``: MuJoCo's Euler integrator with joint
+        damping. ``b``, ``β``: sums over ``damped``, each (3,) or (R, 3) in the rod frame.
+        """
+        h = self.physics_dt
+        b = sum(d[0] for d in damped)
+        beta = sum(d[1] for d in damped)
+        mass = params.mass.unsqueeze(-1)  # (R, 1)
+        a_l = torch.einsum("brji,brj->bri", rot, accel) * (mass / (mass + h * b))
+        accel = torch.einsum("brij,brj->bri", rot, a_l)
+        inertia = params.inertia
+        return accel, alpha_l * (inertia / (inertia + h * beta))
 
     def step(
         self,

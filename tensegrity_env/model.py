@@ -92,7 +92,21 @@ class Model:
 
         return Engine(self.topology, self.dt, self.effects, dtype=dtype, device=device)
 
-    # ------------------------------------------------------------------ params.json
+    # ------------------------------------------------------------------ files
+    @classmethod
+    def read(cls, path: str | Path, dt: float = DEFAULT_DT) -> Model:
+        """A declared model from a ``params.json`` (:meth:`load`) or a robot MJCF
+        (``.xml``: its parameters, and as effects what it declares beyond linear springs,
+        see :meth:`~tensegrity_env.mjcf.MjcfAssembly.declared_effects`); raises
+        :class:`InputError` naming the file."""
+        path = Path(path)
+        if path.suffix.lower() != ".xml":
+            return cls.load(path, dt)
+        from tensegrity_env.mjcf import from_mjcf
+
+        asm = from_mjcf(path)
+        return cls(asm.topology, asm.params, asm.declared_effects(), dt)
+
     @classmethod
     def load(cls, path: str | Path, dt: float = DEFAULT_DT) -> Model:
         """Read a ``params.json`` file; raises :class:`InputError` naming the file.

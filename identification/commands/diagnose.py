@@ -58,8 +58,9 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset (rod states, or end caps only)")
-    p.add_argument("--params", type=Path, help="starting params file (its rod0 mass fixes the "
-                   "scale; its effects start the model)")  # fmt: skip
+    p.add_argument("--params", type=Path, help="the declared model: a params.json or the robot's "
+                   "MJCF (.xml; its floor contact, tension-only cables and actuator filter are "
+                   "declared effects); its rod0 mass fixes the scale, its effects start the model")  # fmt: skip
     p.add_argument("--anchor", action="append", default=[], metavar="NAME=VALUE",
                    help="a known value fixing the scale, e.g. mass[rod0]=1.95 (repeatable)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, default=Path("diagnose_out"), help="report folder")
@@ -178,7 +179,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start: list[PhysicalEffect] = []
     if args.params is not None:
-        model = Model.load(args.params, dt=dataset.dt)
+        model = Model.read(args.params, dt=dataset.dt)
         if not model.topology.same_as(dataset.topology):
             raise InputError(f"{args.params}: topology differs from {args.dataset}")
         anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
@@ -191,7 +192,7 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start = None
     if args.params is not None:
-        model = Model.load(args.params, dt=dataset.dt)
+        model = Model.read(args.params, dt=dataset.dt)
         if not model.topology.same_as(dataset.topology):
             raise InputError(f"{args.params}: topology differs from {args.dataset}")
         start = model.params

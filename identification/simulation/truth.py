@@ -20,9 +20,6 @@ import numpy as np
 
 from identification.data.dataset import GroundTruth
 from tensegrity_env import assemblies
-from tensegrity_env.effects.control import ControlLag
-from tensegrity_env.effects.ground_contact import GroundContact
-from tensegrity_env.effects.springs import SlackSprings
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, SimOptions, from_mjcf, to_mjcf
 from tensegrity_env.mjcf_checks import IgnoredFeatureWarning
@@ -94,15 +91,7 @@ class Truth:
         beyond linear springs (floor contact with the file's friction, solref and
         solimp; tension-only springs; the cable actuators' filter as ``control_lag``), in
         their ``to_dict`` form."""
-        effects = []
-        if self.ground:
-            contact = self.asm.contact or {"friction": self.asm.options.friction}
-            effects.append(GroundContact(self.topology, height=0.0, **contact).to_dict())
-        if self.asm.slack_springs:
-            cables = list(self.asm.slack_springs)
-            effects.append(SlackSprings(self.topology, springs=cables).to_dict())
-        if self.asm.cable_lag:
-            effects.append(ControlLag(self.topology, time_constant=self.asm.cable_lag).to_dict())
+        effects = [e.to_dict() for e in self.asm.declared_effects(self.ground)]
         return GroundTruth(
             params=self.asm.params,
             sim=dataclasses.asdict(dataclasses.replace(self.asm.options, ground=self.ground)),

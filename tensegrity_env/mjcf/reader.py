@@ -10,6 +10,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from tensegrity_env.effects import ControlLag, GroundContact, SlackSprings
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf.end_caps import (
     CAP_TYPES,
@@ -73,6 +75,21 @@ class MjcfAssembly:
     slack_springs: tuple[int, ...] = ()
     cable_actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     cable_lag: float = 0.0
+
+    def declared_effects(self, ground: bool | None = None) -> list[PhysicalEffect]:
+        """What the file declares beyond linear springs, as effects: floor contact with
+        the file's friction, solref and solimp (``ground``: whether there is a floor,
+        default: the file's); tension-only springs; the cable actuators' filter as
+        ``control_lag``."""
+        effects: list[PhysicalEffect] = []
+        if self.options.ground if ground is None else ground:
+            contact = self.contact or {"friction": self.options.friction}
+            effects.append(GroundContact(self.topology, height=0.0, **contact))
+        if self.slack_springs:
+            effects.append(SlackSprings(self.topology, springs=list(self.slack_springs)))
+        if self.cable_lag:
+            effects.append(ControlLag(self.topology, time_constant=self.cable_lag))
+        return effects
 
 
 def from_mjcf(

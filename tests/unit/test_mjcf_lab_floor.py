@@ -46,3 +46,19 @@ def group_errors_of(fitted, true) -> dict[str, float]:
         a, b = getattr(fitted, key).numpy(), getattr(true, key).numpy()
         out[key] = float(np.max(np.abs(a - b) / np.abs(b)))
     return out
+
+
+def test_a_robot_mjcf_declares_its_floor_contact(tmp_path: Path) -> None:
+    """``Model.read`` (diagnose's ``--params``) takes the file's contact as declared."""
+    from tensegrity_env.model import Model
+
+    path = tmp_path / "lab.xml"
+    path.write_text(lab_mjcf("surface", floor=True, friction=0.7, floor_attrs='solref="-5000 -50"'))
+    model = Model.read(path)
+    assert [e.name for e in model.effects] == ["ground_contact"]
+    contact = model.effects[0]
+    assert float(contact.values["friction"]) == 0.7
+    assert float(contact.values["stiffness"]) == pytest.approx(5000 / 0.95**2, rel=1e-12)
+    bare = tmp_path / "bare.xml"
+    bare.write_text(lab_mjcf("surface"))
+    assert not Model.read(bare).effects

@@ -88,19 +88,50 @@ def seeds_table(doc: dict[str, Any]) -> list[str]:
     return lines
 
 
+def trial_origin(t: dict[str, Any]) -> str:
+    """Where a trial's settings came from: the enqueued file, or the sampler."""
+    return f"enqueued `{t['enqueued']}`" if t.get("enqueued") else "sampled"
+
+
+def trial_rank(t: dict[str, Any]) -> tuple[bool, float]:
+    """Sort key: complete trials first, then by value, best first."""
+    value = t["value"] if t["value"] is not None else -math.inf
+    return t["state"] != "COMPLETE", -value
+
+
 def study_table(doc: dict[str, Any]) -> list[str]:
     best = doc.get("best")
     counts = ", ".join(f"{v} {k.lower()}" for k, v in doc["counts"].items() if v)
     s = doc.get("settings", {})
     lines = [
-        f"## Search\n\nstudy `{doc['study_name']}` on {s.get('env_id')}: {counts}; "
-        f"{s.get('timesteps', 0):,} env steps per trial.\n"
+        f"## Search\n\nstudy `{doc['study_name']}` on {s.get('env_id')} ({s.get('sampler')}, "
+        f"{s.get('pruner')}): {counts}; {s.get('timesteps', 0):,} env steps per trial, "
+        f"value = mean return of the last of {s.get('n_evaluations')} deterministic evaluations "
+        f"over {s.get('eval_episodes')} episodes (seeds {s.get('eval_seed')}..). "
+        f"`{s.get('command')}`\n"
     ]
+    for q in s.get("enqueued") or []:
+        notes = "; ".join(q.get("notes", []))
+        lines.append(f"enqueued: `{q['file']}`" + (f" ({notes})" if notes else "") + "\n")
     if best is not None:
         lines.append(
-            f"best: trial {best['number']}, mean return {fmt(best['value'])}, success "
-            f"{fmt(best.get('success_rate'))}; parameters `{json.dumps(best['params'])}`"
+            f"best: trial {best['number']} ({trial_origin(best)}), mean return "
+            f"{fmt(best['value'])}, success {fmt(best.get('success_rate'))}; parameters "
+            f"`{json.dumps(best['params'])}`\n"
         )
+    done = [t for t in doc.get("trials", []) if t["state"] in ("COMPLETE", "PRUNED")]
+    if done:
+        lines += [
+            "| trial | settings | state | mean return | success | env steps | wall time [s] |",
+            "| --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for t in sorted(done, key=trial_rank):
+            succ = t.get("success_rate")
+            lines.append(
+                f"| {t['number']} | {trial_origin(t)} | {t['state'].lower()} | {fmt(t['value'])} | "
+                f"{'-' if succ is None else f'{100 * succ:.0f}%'} | {t.get('timesteps') or 0:,} | "
+                f"{fmt(t.get('wall_s'), '.0f')} |"
+            )
     return lines
 
 

@@ -52,6 +52,9 @@ def register(sub: Any) -> None:
                    help="random trials before TPE and before pruning (default %(default)s)")  # fmt: skip
     p.add_argument("--hyperparams", type=Path, default=None,
                    help="base YAML the search draws over (default: the shipped one)")  # fmt: skip
+    p.add_argument("--enqueue", type=Path, action="append", default=[], metavar="YAML",
+                   help="run the settings of this hyperparameter file (its ENV entry) as one "
+                        "trial of the study, beside the sampled ones; repeatable")  # fmt: skip
     p.add_argument("--n-envs", type=int, default=None,
                    help="environments stepped together (default: the base hyperparameters')")  # fmt: skip
     p.add_argument("--seed", type=int, default=0,
@@ -100,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         settings, args.study or f"{args.algo}_{args.env}", args.storage, args.trials,
         args.startup_trials, args.seed, args.heartbeat,
     )  # fmt: skip
+    queued = [enqueued_params(args.algo, args.env, path, base) for path in args.enqueue]
     study = make_study(cfg)  # created once here (fails early on a bad storage)
     label = storage_label(cfg)
     held = len(study.trials)
@@ -108,6 +112,11 @@ def run(args: argparse.Namespace) -> int:
             f"{out / 'trials'}: holds trials of another study (choose another --out, or the "
             "--storage and --study they belong to)"
         )
+    for q in queued:
+        for note in q["notes"]:
+            print(f"--enqueue {q['file']}: {note}")
+        # skip_if_exists: running the command again does not queue the same trial twice
+        study.enqueue_trial(q["params"], user_attrs={"enqueued": q["file"]}, skip_if_exists=True)
     print(
         f"study {cfg.study_name!r} in {label}: {held} trial(s) held, running up to "
         f"{args.trials} with {args.workers} worker(s), {args.timesteps:,} env steps each"
@@ -121,9 +130,29 @@ def run(args: argparse.Namespace) -> int:
         "n_evaluations": args.evaluations, "eval_episodes": args.eval_episodes,
         "eval_seed": settings.eval_seed, "startup_trials": args.startup_trials,
         "base_hyperparams": base, "sampler": "TPESampler(multivariate=True)",
-        "pruner": "MedianPruner", "workers": args.workers,
+        "pruner": "MedianPruner", "workers": args.workers, "enqueued": queued,
         "command": shlex.join(["tensegrity-sr", *sys.argv[1:]]),
     }  # fmt: skip
     written = write_report(study, out, args.algo, args.env, label, record)
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
+
+
+def enqueued_params(algo: str, env_id: str, path: Path, base: dict[str, Any]) -> dict[str, Any]:
+    """The trial parameters of ``--enqueue path``: ``{"file", "params", "notes"}``.
+
+    Raises :class:`InputError` naming the file where its ``env_id`` entry cannot be
+    drawn by the search over ``base``.
+    """
+    from policies.tuning.objective import base_entry
+    from policies.tuning.search_space import params_of
+
+    if not path.is_file():
+        raise InputError(f"--enqueue {path}: no such file")
+    entry = base_entry(algo, env_id, path)
+    try:
+        params, notes = params_of(algo, entry, base)
+    except (ValueError, KeyError, TypeError) as e:
+        msg = f"missing {e}" if isinstance(e, KeyError) else str(e)
+        raise InputError(f"--enqueue {path}: {msg}") from None
+    return {"file": str(path), "params": params, "notes": notes}

@@ -5,7 +5,8 @@
     best_<algo>.yml                 the best complete trial's settings, a hyperparameter
                                     file (``tensegrity-sr train --hyperparams``)
     study.json                      every trial: number, state, value, success rate,
-                                    parameters, wall time, run folder, host
+                                    parameters, wall time, run folder, host, and the
+                                    hyperparameter file of an enqueued trial
     optimization_history.png        value per trial and best so far
     param_importances.png           importance of each parameter (fANOVA with
                                     scikit-learn installed, else PED-ANOVA)
@@ -43,6 +44,7 @@ def trial_row(t: FrozenTrial) -> dict[str, Any]:
         "run_folder": t.user_attrs.get("run_folder"),
         "host": t.user_attrs.get("host"),
         "error": t.user_attrs.get("error"),
+        "enqueued": t.user_attrs.get("enqueued"),
     }
 
 

@@ -197,3 +197,50 @@ def test_trial_folders_of_another_study_are_not_overwritten(
     assert main(["tune", "ppo", "--out", str(tmp_path), "--study", "fresh"]) == 2
     assert "holds trials of another study" in capsys.readouterr().err
     assert (tmp_path / "trials" / "trial_0000" / "model.zip").read_bytes() == b"x"
+
+
+def test_enqueued_recipe_runs_as_one_trial(tmp_path: Path) -> None:
+    from policies.tuning.objective import write_hyperparams
+    from tensegrity_sr.cli import main
+
+    recipe = base_entry("ppo", ENV, None)
+    recipe.update(n_envs=4, n_steps=16, batch_size=64, n_epochs=1, learning_rate=1e-3)
+    write_hyperparams(tmp_path / "recipe.yml", ENV, recipe)
+    argv = ["tune", "ppo", "--out", str(tmp_path / "t"), "--trials", "2", "--timesteps", "256",
+            "--evaluations", "2", "--eval-episodes", "1", "--startup-trials", "1",
+            "--n-envs", "4", "--no-tensorboard", "--no-progress",
+            "--enqueue", str(tmp_path / "recipe.yml")]  # fmt: skip
+    assert main(argv) == 0
+    study = optuna.load_study(study_name=f"ppo_{ENV}", storage=open_storage(
+        config(tmp_path / "t", 2)))  # fmt: skip
+    first, second = study.trials
+    assert first.user_attrs["enqueued"] == str(tmp_path / "recipe.yml")
+    assert "enqueued" not in second.user_attrs
+    # the enqueued trial trained with the recipe (ent_coef 0 moved to the range's 1e-8)
+    trained = yaml.safe_load((trial_folder(tmp_path / "t", 0) / "hyperparams.yml").read_text())[ENV]
+    assert trained == {**recipe, "ent_coef": 1e-8}
+    summary = yaml.safe_load((tmp_path / "t" / "study.json").read_text())
+    assert summary["trials"][0]["enqueued"] == str(tmp_path / "recipe.yml")
+    assert "ent_coef 0 is outside" in summary["settings"]["enqueued"][0]["notes"][0]
+    # running again resumes the study without queueing the recipe a second time
+    assert main([*argv[:5], "3", *argv[6:]]) == 0
+    study = optuna.load_study(study_name=f"ppo_{ENV}", storage=open_storage(
+        config(tmp_path / "t", 3)))  # fmt: skip
+    assert [("enqueued" in t.user_attrs) for t in study.trials] == [True, False, False]
+
+
+def test_enqueued_file_the_search_cannot_draw_is_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from policies.tuning.objective import write_hyperparams
+    from tensegrity_sr.cli import main
+
+    recipe = base_entry("ppo", ENV, None)
+    recipe["n_steps"] = 100
+    write_hyperparams(tmp_path / "recipe.yml", ENV, recipe)
+    for path, message in ((tmp_path / "recipe.yml", "n_steps 100 is not a power of two"),
+                          (tmp_path / "none.yml", "no such file")):  # fmt: skip
+        assert main(["tune", "ppo", "--out", str(tmp_path / "t"), "--enqueue", str(path)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == f"error: --enqueue {path}: {message}"
+    assert not (tmp_path / "t").exists()

@@ -1,0 +1,33 @@
+"""The generated policy results page: which trial won a search, and where it came from."""
+
+from __future__ import annotations
+
+from policies.results import markdown
+
+
+def trial(
+    number: int, value: float | None, state: str = "COMPLETE", enqueued: str | None = None
+) -> dict:
+    return {"number": number, "state": state, "value": value, "success_rate": 0.5,
+            "params": {"n_steps_pow": 7}, "wall_s": 10.0, "timesteps": 1000,
+            "run_folder": f"t/{number}", "host": "h", "error": None, "enqueued": enqueued}  # fmt: skip
+
+
+def test_search_section_names_the_winner_and_ranks_trials() -> None:
+    trials = [trial(0, 40.0, enqueued="ppo.yml"), trial(1, 45.5), trial(2, 3.0, "PRUNED"),
+              trial(3, None, "FAIL")]  # fmt: skip
+    doc = {"study": {
+        "study_name": "s", "counts": {"COMPLETE": 2, "PRUNED": 1, "FAIL": 1},
+        "settings": {"env_id": "E", "timesteps": 1_000_000, "n_evaluations": 4,
+                     "eval_episodes": 20, "eval_seed": 10000, "sampler": "TPE",
+                     "pruner": "MedianPruner", "command": "tune ...",
+                     "enqueued": [{"file": "ppo.yml", "params": {}, "notes": ["ent_coef moved"]}]},
+        "best": trials[1], "trials": trials}}  # fmt: skip
+    text = markdown(doc)
+    assert "1,000,000 env steps per trial" in text
+    assert "enqueued: `ppo.yml` (ent_coef moved)" in text
+    assert "best: trial 1 (sampled), mean return 45.50" in text
+    rows = [line for line in text.splitlines() if line[:3] in ("| 0", "| 1", "| 2", "| 3")]
+    # complete trials best first, then pruned; failed trials are not ranked
+    assert [r.split(" | ")[0] for r in rows] == ["| 1", "| 0", "| 2"]
+    assert "enqueued `ppo.yml`" in rows[1] and "50%" in rows[1]

@@ -16,6 +16,9 @@ command line, and records:
   the diagnosed model (``diagnose``: "after"), stepped at <= 1 ms between samples;
 * the 2-sigma coverage of the stated standard errors.
 
+``--identify-only`` runs ``identify`` alone (``diagnose`` is recorded as skipped): the
+cheap way to measure that coverage over many seeds.
+
 Results accumulate in ``docs/results/measured.json`` (one record per cell label; a
 rerun replaces that cell's record) and ``docs/results/measured.md`` is generated from
 it. Default: the 120 Hz / 1 mm / no-dropout cells of both settings, seed 0.
@@ -23,6 +26,7 @@ it. Default: the 120 Hz / 1 mm / no-dropout cells of both settings, seed 0.
     OMP_NUM_THREADS=1 nice -n 10 python benchmarks/bench_measured.py            # default cells
     python benchmarks/bench_measured.py --settings flight --effects none,linear_drag
     python benchmarks/bench_measured.py --all                                   # whole matrix
+    python benchmarks/bench_measured.py --settings flight --effects none --seeds 10 --identify-only
     python benchmarks/bench_measured.py --report-only                           # rewrite the .md
 """
 
@@ -79,8 +83,10 @@ def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str
             "message": message, "command": shlex.join(args)}  # fmt: skip
 
 
-def run_cell(cell: Cell, work: Path, timeout: float, diagnose_args: list[str]) -> dict[str, Any]:
-    """Write the cell's data, run identify and diagnose on it, evaluate both results."""
+def run_cell(
+    cell: Cell, work: Path, timeout: float, diagnose_args: list[str] | None
+) -> dict[str, Any]:
+    """Write the cell's data, run identify and diagnose (None: skipped) on it, evaluate both."""
     folder = work / cell.label.replace("/", "_")
     t0 = time.perf_counter()
     data = write_cell(cell, folder)
@@ -96,11 +102,15 @@ def run_cell(cell: Cell, work: Path, timeout: float, diagnose_args: list[str]) -
         ["identify", "measured.h5", "--anchor", anchor, "-o", ident.name],
         folder, "identify.log", timeout,
     )  # fmt: skip
-    record["diagnose"] = run_cli(
-        ["diagnose", "measured.h5", "--anchor", anchor, "-o", diag.name, "--force",
-         *diagnose_args],
-        folder, "diagnose.log", timeout,
-    )  # fmt: skip
+    if diagnose_args is None:
+        record["diagnose"] = {"status": "skipped", "code": None, "seconds": 0.0,
+                              "message": "--identify-only", "command": ""}  # fmt: skip
+    else:
+        record["diagnose"] = run_cli(
+            ["diagnose", "measured.h5", "--anchor", anchor, "-o", diag.name, "--force",
+             *diagnose_args],
+            folder, "diagnose.log", timeout,
+        )  # fmt: skip
     record.update(evaluate_cell(data, ident, diag / "params.json"))
     return record
 
@@ -136,6 +146,8 @@ def main() -> int:
     ap.add_argument("--all", action="store_true", help="every value of unspecified axes")
     ap.add_argument("--timeout", type=float, default=3600, help="seconds per command")
     ap.add_argument("--diagnose-args", default="", help="extra diagnose options, one string")
+    ap.add_argument("--identify-only", action="store_true",
+                    help="run identify alone (standard-error coverage over many seeds)")  # fmt: skip
     ap.add_argument("--workdir", type=Path, help="where cell data and logs go (default: temp)")
     ap.add_argument("--json", type=Path, default=ROOT / "docs/results/measured.json")
     ap.add_argument("--md", type=Path, default=ROOT / "docs/results/measured.md")
@@ -150,7 +162,7 @@ def main() -> int:
         results = json.loads(args.json.read_text())
     if not args.report_only:
         work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_measured_"))
-        extra = shlex.split(args.diagnose_args)
+        extra = None if args.identify_only else shlex.split(args.diagnose_args)
         for cell in matrix(args):
             print(f"{cell.label} ...", flush=True)
             rec = run_cell(cell, work, args.timeout, extra)

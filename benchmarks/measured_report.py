@@ -134,6 +134,34 @@ def evaluate_cell(data: CellData, identify: Path, diagnose: Path) -> dict[str, A
 
 
 # ------------------------------------------------------------------ markdown
+def coverage_section(cells: dict[str, Any]) -> list[str]:
+    """Per seed, the fraction of true parameters within 2 stated standard errors (identify)."""
+    rows = []
+    for label, r in sorted(cells.items(), key=lambda kv: (kv[1]["cell"]["setting"],
+                                                          kv[1]["cell"]["effect"],
+                                                          kv[1]["cell"]["seed"])):  # fmt: skip
+        hits = r["before"].get("coverage", [])
+        if hits:
+            rows.append((label, r, hits))
+    if not rows:
+        return []
+    every = [h for _, _, hs in rows for h in hs]
+    lines = ["", "## Standard errors: 2-sigma coverage (`identify`)", "",
+             "The fraction of true parameters (masses, inertias, stiffness, damping, rest",
+             "lengths) within two standard errors stated in `identify`'s params file "
+             "(the window-clustered sandwich or Gauss-Newton, whichever is larger).", "",
+             f"Overall: **{100 * np.mean(every):.1f} %** of {len(every)} parameters over "
+             f"{len(rows)} cells.", "",
+             "| cell | parameters | coverage | largest relative error |",
+             "| --- | --- | --- | --- |"]  # fmt: skip
+    for label, r, hits in rows:
+        errs = r["before"].get("errors", {})
+        worst = max(errs, key=lambda g: errs[g]["max"]) if errs else None
+        text = "-" if worst is None else f"{worst} {100 * errs[worst]['max']:.2g} %"
+        lines.append(f"| {label} | {len(hits)} | {100 * np.mean(hits):.1f} % | {text} |")
+    return lines
+
+
 def _mm(x: Any) -> str:
     if not isinstance(x, (int, float)):
         return "-"
@@ -178,6 +206,8 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         c = r["cell"]
         if not (c["rate"] == 120 and abs(c["noise"] - 1e-3) < 1e-12 and c["dropout"] == 0):
             continue
+        if r["diagnose"]["status"] == "skipped":
+            continue
         a, b = r["after"], r["before"]
         unphys = sorted(set(a.get("unphysical", [])) | set(b.get("unphysical", [])))
         lines.append(
@@ -188,6 +218,7 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
             f"| {_pct(a, 'damping')} | {_mm(b.get('rollout', {}).get('mean'))} "
             f"| {_mm(a.get('rollout', {}).get('mean'))} | {'; '.join(unphys) or 'none'} |"
         )
+    lines += coverage_section(cells)
     lines += ["", "## Every cell run", ""]
     runs = list(cells.values())
     if runs:

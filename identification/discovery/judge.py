@@ -2,7 +2,9 @@
 
 A candidate (the current model plus one effect, fitted) is accepted only when
 
-1. its identified values are physical;
+1. its identified values are physical, and it is not negligible: the force it adds on
+   the rods is at least :data:`~identification.discovery.negligible.NEGLIGIBLE` of their
+   weight (:func:`~identification.discovery.negligible.force_ratio`);
 2. it lowers the **Bayesian information criterion** of the training errors by at least
    :data:`MIN_BIC_DROP` (``n ln(SSE / n) + k ln n``: each added parameter must pay);
 3. it lowers the **held-out** (validation) error by at least the scorer's minimum
@@ -24,6 +26,7 @@ from typing import Generic, TypeVar
 import numpy as np
 
 from identification.discovery.library import FittedModel
+from identification.discovery.negligible import NEGLIGIBLE
 
 #: a candidate must lower the training BIC by this much ...
 MIN_BIC_DROP = 10.0
@@ -91,6 +94,7 @@ class Candidate(Generic[F]):
         bic_drop: how much it lowers the BIC.
         accepted: it passes every test of :func:`judge`.
         verdict: one line saying why it passes or not.
+        size: the RMS force it adds on the rods, in rod weights (NaN: not measured).
     """
 
     name: str
@@ -106,14 +110,28 @@ class Candidate(Generic[F]):
     bic_drop: float = 0.0
     accepted: bool = False
     verdict: str = ""
+    size: float = float("nan")
 
 
-def judge(candidate: Candidate[F], current: Candidate[F], gain: float, criteria: Criteria) -> None:
-    """Accept or reject ``candidate`` against ``current`` (sets its verdict fields)."""
+def judge(
+    candidate: Candidate[F],
+    current: Candidate[F],
+    gain: float,
+    criteria: Criteria,
+    size: float = float("nan"),
+) -> None:
+    """Accept or reject ``candidate`` against ``current`` (sets its verdict fields).
+
+    ``size``: the force the candidate adds, in rod weights (NaN: not checked).
+    """
     c = candidate
-    c.gain, c.bic_drop = gain, current.bic - c.bic
+    c.gain, c.bic_drop, c.size = gain, current.bic - c.bic, size
     if not c.physical:
         c.verdict = "rejected: identified values are unphysical"
+    elif size < NEGLIGIBLE:
+        c.verdict = (
+            f"negligible: its force on the rods is {size:.2%} of their weight (< {NEGLIGIBLE:.1%})"
+        )
     elif not c.bic_drop >= MIN_BIC_DROP:
         c.verdict = f"rejected: BIC drops only {c.bic_drop:.3g} (< {MIN_BIC_DROP:g})"
     elif not c.gain >= criteria.min_gain:

@@ -21,6 +21,7 @@ regressions on rod states) and :class:`~identification.discovery.multi_step.Mult
 
 from __future__ import annotations
 
+import math
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -40,8 +41,10 @@ from identification.discovery.judge import (
     runner_up,
 )
 from identification.discovery.library import FittedModel, Proposal
+from identification.discovery.negligible import force_ratio
 from identification.discovery.residual_network import ResidualFit
 from identification.linear.regression import NotFittedError
+from tensegrity_env.engine import State
 from tensegrity_env.io_utils import InputError
 
 F = TypeVar("F")
@@ -120,6 +123,17 @@ class Scorer(ABC, Generic[F]):
     @abstractmethod
     def accept(self, chosen: Candidate[F]) -> Candidate[F]:
         """The chosen candidate as the next current model (refitted where the scorer does)."""
+
+    def sample_states(self) -> State | None:
+        """Rod states sampled from the training data, where candidates' forces are
+        measured (:func:`~identification.discovery.negligible.force_ratio`); None: not
+        measured."""
+        return None
+
+    def finish(self, current: Candidate[F]) -> Candidate[F]:
+        """The final model, refitted where the scorer does before it is reported (default:
+        ``current`` as it is)."""
+        return current
 
     @abstractmethod
     def residual(self, current: Candidate[F], k: int, plots: Path | None) -> Residual:
@@ -279,6 +293,9 @@ class EffectDiscovery:
                 note = (f" (runner-up {r.name}: predicted changes correlate {r.correlation:.3f}, "
                         f"{r.note}" + ("; CANNOT be told apart)" if r.ambiguous else ")"))  # fmt: skip
             log(f"added {it.chosen.name}{note}")
+        final = scorer.finish(current)
+        if final is not current:
+            current, test_now = final, scorer.test_errors(final)
         unexplained, network = scorer.leftover(current)
         self.result_ = DiscoveryResult(
             method=scorer.method, description=scorer.describe(), iterations=iterations,
@@ -295,6 +312,7 @@ class EffectDiscovery:
         scorer, log = self.scorer, self.log
         tried: list[Candidate[Any]] = []
         skipped: list[Proposal] = []
+        states = scorer.sample_states()
         for p in scorer.propose(current, self.candidates):
             if p.effect is None:
                 skipped.append(p)
@@ -309,7 +327,8 @@ class EffectDiscovery:
                 skipped.append(Proposal(p.name, None, f"fit failed: {e}"))
                 continue
             c.gate, c.seconds = p.gate, time.perf_counter() - t0
-            judge(c, current, scorer.gain(c, current), scorer.criteria)
+            size = math.nan if states is None else force_ratio(c.model, current.model, states)
+            judge(c, current, scorer.gain(c, current), scorer.criteria, size)
             c.rank = scorer.rank(c)
             log("    " + "; ".join(e.describe() for e in c.model.effects))
             log(f"  candidate {p.name:20s} {scorer.summary(c)}, gain "

@@ -41,6 +41,7 @@ RMS (which cannot fall below the noise) and, when the clean trajectories are kno
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -68,7 +69,7 @@ from identification.discovery.end_cap_residuals import (
     window_residuals,
 )
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate
-from identification.discovery.library import FittedModel, Proposal, propose
+from identification.discovery.library import FittedModel, Proposal, contact_gate, propose
 from identification.discovery.loop import CandidateSkipped, Residual, Scorer
 from identification.discovery.residual_network import ResidualFit
 from identification.linear.extended import evaluate_model
@@ -79,10 +80,17 @@ from identification.trajectory.slack_regression import (
     slack_regression,
 )
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
-from identification.trajectory.windows import Windows, sees_roll
+from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import ImplicitLinearDrag, SlackSprings
+from tensegrity_env.engine import State
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
+
+#: smoothed training samples per sample where candidates' forces are measured
+SAMPLE_STRIDE = 4
+#: longest window of the final refit [s] (whole trajectories up to this long)
+FINAL_WINDOW_S = 1.0
 
 
 @dataclass
@@ -303,6 +311,50 @@ class MultiStepScorer(Scorer[EndCapFits]):
         scored = self.score(chosen.name, EndCapFits(fit, final))
         return replace(chosen, fit=scored.fit, model=scored.model, heldout=scored.heldout,
                        bic=scored.bic)  # fmt: skip
+
+    def sample_states(self) -> State | None:
+        """Every :data:`SAMPLE_STRIDE`-th smoothed training state (defined ones only)."""
+        grid = self.data.smooth["train"]
+        arrays = [np.asarray(getattr(grid, k))[:, ::SAMPLE_STRIDE] for k in STATE_KEYS]
+        arrays = [a.reshape(-1, *a.shape[2:]) for a in arrays]
+        ok = np.logical_and.reduce([np.isfinite(a).all(axis=(1, 2)) for a in arrays])
+        if not ok.any():
+            return None
+        return State.from_numpy(*(a[ok] for a in arrays))
+
+    def finish(self, current: Candidate[EndCapFits]) -> Candidate[EndCapFits]:
+        """The final model refitted on the whole training split in its longest windows.
+
+        Selection fits on short windows (a model missing an effect drifts on long ones),
+        and the accepted models on :attr:`~TrajectorySettings.fit_windows` random ones;
+        the model written out is refitted from there on every training trajectory, cut
+        into windows of up to :data:`FINAL_WINDOW_S`: the spring damping, the weakest
+        group, is pinned by long windows (see :mod:`identification.trajectory.identifier`).
+        On data with a floor the fits stay on the airborne stretches and touchdowns.
+        A refit that diverges or leaves the physical domain is not used.
+        """
+        data, s = self.data, self.settings
+        if contact_gate(data.train, data.topology)[0]:
+            return current
+        t0 = time.perf_counter()
+        last = current.fit.final
+        steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
+        windows = data.cut("train", steps, sys.maxsize, 4)
+        final = fit_many(data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
+        ok = not fit_diverged(final.rms, self.noise) and all(e.physical() for e in final.effects)
+        try:
+            final.params.validate(data.topology, source="the final refit")
+        except InputError:
+            ok = False
+        self.log(f"final refit on {final.windows.size} training windows of {steps} steps: "
+                 f"end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
+                 + ("" if ok else "; not used (diverged or unphysical)"))  # fmt: skip
+        if not ok:
+            return current
+        fits = replace(current.fit, final=final)
+        ds = self.dataset
+        model = FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k)
+        return replace(current, fit=fits, model=model)
 
     # ------------------------------------------------------------------ what is left
     def residual(self, current: Candidate[EndCapFits], k: int, plots: Path | None) -> Residual:

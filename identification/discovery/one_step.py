@@ -46,10 +46,14 @@ from identification.discovery.residuals import (
 from identification.linear.extended import acting_split, evaluate_model
 from identification.linear.features import cable_commands_at, transitions_of
 from identification.report.tables import error_text
+from identification.trajectory.windows import STATE_KEYS
 from tensegrity_env.effects import ResidualNetwork, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
-from tensegrity_env.engine import Engine
+from tensegrity_env.engine import Engine, State
 from tensegrity_env.io_utils import InputError
+
+#: training rod states per sample where candidates' forces are measured
+SAMPLE_STRIDE = 10
 
 
 def one_step_bic(dataset: Dataset, model: FittedModel, max_transitions: int = 20_000) -> float:
@@ -143,6 +147,12 @@ class OneStepScorer(Scorer[FittedModel]):
             name, model, model, heldout=val, bic=one_step_bic(self.dataset, model),
             physical=all(e.physical() for e in model.effects),
         )  # fmt: skip
+
+    def sample_states(self) -> State | None:
+        """Every :data:`SAMPLE_STRIDE`-th rod state of the training split."""
+        split = self.dataset.split("train")
+        arrays = [np.asarray(getattr(split, k))[:, ::SAMPLE_STRIDE] for k in STATE_KEYS]
+        return State.from_numpy(*(a.reshape(-1, *a.shape[2:]) for a in arrays))
 
     def errors(self, model: FittedModel, split: str) -> dict[str, Any]:
         """One-step and rollout errors [m] of ``model`` on a split (``evaluate_model``)."""

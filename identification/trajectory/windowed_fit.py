@@ -33,7 +33,8 @@ class NormalEquations:
 
     Attributes:
         H_ll: (B, n_l, n_l); H_lg: (B, n_l, n_g); g_l: (B, n_l);
-        H_gg: (n_g, n_g); g_g: (n_g,); sse: sum of squared residuals [m^2]; m: residuals.
+        H_gg: (n_g, n_g); g_g: (n_g,); sse: sum of squared residuals [m^2]; m: residuals;
+        g_gb: each window's share of ``g_g``, (B, n_g) (the sandwich's scores).
     """
 
     H_ll: torch.Tensor
@@ -43,6 +44,7 @@ class NormalEquations:
     g_g: torch.Tensor
     sse: float
     m: int
+    g_gb: torch.Tensor
 
 
 def linearize(
@@ -57,14 +59,15 @@ def linearize(
     data, where the residual vanishes). ``exact_gradient`` replaces ``Jᵀr`` by the
     exact gradient (reverse mode through the engine), about twice the cost.
     """
-    H_ll, H_lg, g_l = [], [], []
+    H_ll, H_lg, g_l, g_gb = [], [], [], []
     n_g = len(theta)
     H_gg = torch.zeros(n_g, n_g, dtype=DTYPE)
     g_g = torch.zeros(n_g, dtype=DTYPE)
     sse, m = 0.0, 0
     for start in range(0, win.size, chunk):
         part = win.take(slice(start, start + chunk))
-        ll, lg, gg, gl, gt, part_sse = gauss_newton_fd(engine, vec, part, basis, theta, step)
+        ll, lg, gg, gl, gb, part_sse = gauss_newton_fd(engine, vec, part, basis, theta, step)
+        gt = gb.sum(0)
         if exact_gradient:
             z = torch.zeros(part.size, basis.shape[0], dtype=DTYPE, requires_grad=True)
             th = theta.clone().requires_grad_(True)
@@ -73,11 +76,14 @@ def linearize(
         H_ll.append(ll)
         H_lg.append(lg)
         g_l.append(gl)
+        g_gb.append(gb)
         H_gg += gg
         g_g += gt
         sse += part_sse
         m += part.residuals
-    return NormalEquations(torch.cat(H_ll), torch.cat(H_lg), torch.cat(g_l), H_gg, g_g, sse, m)
+    return NormalEquations(
+        torch.cat(H_ll), torch.cat(H_lg), torch.cat(g_l), H_gg, g_g, sse, m, torch.cat(g_gb)
+    )
 
 
 @torch.no_grad()
@@ -93,7 +99,7 @@ def gauss_newton_fd(
     """``JᵀJ`` and ``Jᵀr`` by forward differences, and the sum of squares ``rᵀr`` [m^2].
 
     Returns ``H_ll`` (B, n_l, n_l), ``H_lg`` (B, n_l, n_g), ``H_gg`` (n_g, n_g), ``g_l``
-    (B, n_l), ``g_g`` (n_g,) and ``rᵀr``. The windows and one perturbed copy per
+    (B, n_l), ``g_g`` per window (B, n_g) and ``rᵀr``. The windows and one perturbed copy per
     coordinate (``n_t = n_l + n_g``) are stepped as one batch of ``(n_t + 1) B`` (the
     parameters get a batch dimension); the products are accumulated every ``block``
     steps, so memory does not grow with the window length.
@@ -122,7 +128,7 @@ def gauss_newton_fd(
     H_lg = torch.zeros(b, n_l, n_g, dtype=DTYPE)
     H_gg = torch.zeros(n_g, n_g, dtype=DTYPE)
     g_l = torch.zeros(b, n_l, dtype=DTYPE)
-    g_g = torch.zeros(n_g, dtype=DTYPE)
+    g_g = torch.zeros(b, n_g, dtype=DTYPE)
     sse, t0 = 0.0, 0
     caps = [end_caps(engine, state.p, state.q)]
     caps_e = [[end_caps(engine, s.p, s.q)] for s in extra_state]
@@ -149,7 +155,7 @@ def gauss_newton_fd(
             H_lg += torch.einsum("ibm,jbm->bij", Jl, Jg)
             H_gg += torch.einsum("ibm,jbm->ij", Jg, Jg)
             g_l += torch.einsum("ibm,bm->bi", Jl, r)
-            g_g += torch.einsum("ibm,bm->i", Jg, r)
+            g_g += torch.einsum("ibm,bm->bi", Jg, r)
             sse += float((r * r).sum())
             t0, caps, caps_e = t0 + len(caps), [], [[] for _ in range(n_e)]
     return H_ll, H_lg, H_gg, g_l, g_g, sse
@@ -212,7 +218,9 @@ class WindowFit:
         windows: the windows with fitted initial states.
         history: mean squared end-cap error [m^2] at the start and after each iteration.
         stderr: standard error of each free log-parameter (= relative standard error of
-            the parameter) from the Gauss-Newton covariance ``σ² S⁻¹``, (n_free,).
+            the parameter), (n_free,): the larger of the Gauss-Newton ``σ̂² S⁻¹`` and the
+            window-clustered sandwich (:func:`window_stderr`); inf where the data cannot
+            see the parameter.
         score: the chi-square decrease the first Gauss-Newton step promised.
         converged: the stopping rule was met (not just ``max_iter``).
     """
@@ -296,10 +304,45 @@ def fit_windows(
         if newton < tol * ne.sse / dof or history[-1] < exact:
             converged = True
             break
-    stderr = _stderr(S, ne.sse / dof).numpy()
+    stderr = window_stderr(ne, S, ne.sse / dof)
     return WindowFit(theta, windows, history, stderr, score, converged)
 
 
-def _stderr(S: torch.Tensor, sigma2: float) -> torch.Tensor:
-    """Standard errors ``sqrt(diag(σ² S⁻¹))`` of the parameters, (n_g,)."""
-    return torch.sqrt(torch.diagonal(sigma2 * torch.linalg.pinv(S, hermitian=True)).clamp_min(0))
+#: eigenvalues of ``S`` below this fraction of its largest are directions the data does
+#: not see: a parameter with a share in them has an infinite standard error
+UNSEEN = 1e-13
+
+
+def window_stderr(ne: NormalEquations, S: torch.Tensor, sigma2: float) -> np.ndarray:
+    """Standard errors of the global coordinates, (n_g,), never exactly 0.
+
+    The larger of the Gauss-Newton ``σ̂² diag(S⁻¹)`` (independent residuals) and the
+    sandwich ``S⁻¹ (Σ_b s_b s_bᵀ) S⁻¹ · B/(B-1)`` clustered by window, with ``s_b`` the
+    window's profiled score ``g_g,b - H_lg,bᵀ H_ll,b⁻¹ g_l,b`` (its initial state
+    eliminated), centred: the end-cap errors along one window are far from independent
+    (a model error or a poor initial state shifts them together), which the
+    Gauss-Newton value ignores. The same form as the contact search's standard errors,
+    clustered per touchdown (:mod:`identification.trajectory.touchdown`). A coordinate
+    with a share in a direction the data does not see (eigenvalue of ``S`` below
+    :data:`UNSEEN` of the largest) gets inf.
+    """
+    n_g = S.shape[0]
+    if n_g == 0:
+        return np.zeros(0)
+    w, V = torch.linalg.eigh(0.5 * (S + S.T))
+    seen = w > UNSEEN * w.abs().max().clamp_min(1e-300)
+    inv = (V[:, seen] / w[seen]) @ V[:, seen].T
+    blind = (V[:, ~seen] ** 2).sum(-1) > 1e-12
+    gauss = sigma2 * torch.diagonal(inv)
+    var = gauss
+    B = ne.g_gb.shape[0]
+    if B > 1:
+        A_ll, _ = _damped(ne.H_ll, 0.0)
+        y = torch.linalg.solve(A_ll, ne.g_l.unsqueeze(-1)).squeeze(-1)  # (B, n_l)
+        scores = ne.g_gb - torch.einsum("bli,bl->bi", ne.H_lg, y)
+        scores = scores - scores.mean(0)
+        sandwich = inv @ (scores.T @ scores) @ inv * (B / (B - 1))
+        var = torch.maximum(gauss, torch.diagonal(sandwich))
+    se = torch.sqrt(var.clamp_min(0)).numpy().copy()
+    se[blind.numpy() | ~(se > 0)] = np.inf
+    return se

@@ -18,6 +18,7 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import SimOptions, from_mjcf, to_mjcf
 from tensegrity_env.mjcf_checks import IgnoredFeatureWarning
 from tensegrity_env.mujoco_state import mj_to_rod_state
+from tensegrity_env.rotations import quat_to_matrix
 
 #: free-joint damping [N*s/m and N*m*s]: with a 1.5 kg, 16 mm rod (axial inertia
 #: 1.92e-4 kg*m^2) and a 1 ms step, β h / I ≈ 2.08 about the rod's own axis, where an
@@ -107,3 +108,24 @@ def test_unknown_form_is_a_one_line_error() -> None:
     doc = {**_drag(LinearDrag, element()).to_dict(), "form": "semi"}
     with pytest.raises(InputError, match="form must be one of explicit, implicit"):
         effect_from_dict(doc, element().topology)
+
+
+def test_regression_columns_at_the_velocities_after_the_step() -> None:
+    """``M a = f - b v'`` and ``I α_l = τ_l - β ω_l'``: linear in (b, β) at the next state."""
+    asm, mj, _, d = _damped_case()
+    drag = _drag(ImplicitLinearDrag, asm)
+    s0 = _state(mj, d)
+    s1 = Engine(asm.topology, dt=1e-3, effects=[drag]).step(s0, asm.params)
+    plain = Engine(asm.topology, dt=1e-3)
+    a0, alpha0, _ = plain.accelerations(s0, asm.params)
+    kin = plain.kinematics(s0)
+    f, tq = drag.transition_basis(s0, s1, kin, asm.params)
+    theta = drag.theta().double()
+    mass, inertia = asm.params.mass.double(), asm.params.inertia.double()
+    lhs = mass[:, None] * (s1.v - s0.v) / 1e-3
+    assert torch.allclose(lhs, mass[:, None] * a0 + f @ theta, atol=1e-9)
+    rot1 = quat_to_matrix(s1.q)
+    w0 = torch.einsum("brji,brj->bri", kin.rot, s0.omega)
+    w1 = torch.einsum("brji,brj->bri", rot1, s1.omega)
+    torque_l = torch.einsum("brji,brj->bri", kin.rot, tq @ theta)
+    assert torch.allclose(inertia * (w1 - w0) / 1e-3, inertia * alpha0 + torque_l, atol=1e-9)

@@ -1,0 +1,61 @@
+"""Negligible effects: the force a candidate adds on the rods, in rod weights."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from identification.discovery import FittedModel
+from identification.discovery.judge import ONE_STEP, Candidate, judge
+from identification.discovery.negligible import NEGLIGIBLE, force_ratio
+from tensegrity_env import assemblies
+from tensegrity_env.effects import ControlLag, ForceField, LinearDrag
+from tensegrity_env.engine import State
+from tensegrity_env.model import Model
+
+ICO = assemblies.icosahedron()
+
+
+def _model(effects=()) -> FittedModel:
+    return FittedModel(Model(ICO.topology, ICO.params, list(effects)), n_params=0)
+
+
+def _states(n: int = 16, seed: int = 0) -> State:
+    rng = np.random.default_rng(seed)
+    R = ICO.topology.n_rods
+    q = np.repeat(ICO.pose_q[None], n, 0)
+    return State.from_numpy(np.repeat(ICO.pose_p[None], n, 0), rng.normal(size=(n, R, 3)), q,
+                            rng.normal(size=(n, R, 3)))  # fmt: skip
+
+
+def test_a_uniform_force_is_its_size_in_rod_weights() -> None:
+    force = torch.tensor([0.003, 0.0, 0.004])  # 5 mN on every rod
+    ratio = force_ratio(_model([ForceField(ICO.topology, force=force)]), _model(), _states())
+    weight = ICO.params.mass.double() * 9.81
+    expected = float(((0.005 / weight) ** 2).mean().sqrt())
+    assert ratio == pytest.approx(expected, rel=1e-3)
+    assert ratio < NEGLIGIBLE
+
+
+def test_drag_torque_counts_as_a_force_at_the_rod_end() -> None:
+    drag = LinearDrag(ICO.topology, translational=[0, 0, 0], rotational=[0.5, 0.5, 0])
+    ratio = force_ratio(_model([drag]), _model(), _states())
+    assert ratio > NEGLIGIBLE
+
+
+def test_control_lag_is_not_measured() -> None:
+    assert math.isnan(force_ratio(_model([ControlLag(ICO.topology)]), _model(), _states()))
+
+
+def test_judge_reports_a_negligible_effect_and_rejects_it() -> None:
+    current = Candidate("nothing", None, _model(), bic=0.0)
+    small = Candidate("force_field", None, _model(), bic=-100.0)
+    judge(small, current, 0.9, ONE_STEP, size=2e-4)
+    assert not small.accepted
+    assert small.verdict.startswith("negligible: its force on the rods is 0.02% of their weight")
+    big = Candidate("force_field", None, _model(), bic=-100.0)
+    judge(big, current, 0.9, ONE_STEP, size=0.02)
+    assert big.accepted

@@ -26,7 +26,7 @@ from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_unit, ratio, write_params, write_report
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
-from tensegrity_env.effects import EFFECTS
+from tensegrity_env.effects import EFFECTS, GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
@@ -190,16 +190,19 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
 def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepScorer:
     """Windowed trajectory fits on end caps, from ``--params``' declared model if given."""
     anchors = dict(parse_anchor(a) for a in args.anchor)
-    start = None
+    start, contact = None, None
     if args.params is not None:
         model = Model.read(args.params, dt=dataset.dt)
         if not model.topology.same_as(dataset.topology):
             raise InputError(f"{args.params}: topology differs from {args.dataset}")
         start = model.params
         anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(start.mass[0]))
-        if model.effects:
+        floors = [e for e in model.effects if isinstance(e, GroundContact)]
+        if len(floors) < len(model.effects) or len(floors) > 1:
             raise InputError(f"{args.params}: --method trajectory starts from the declared "
-                             "model only (remove its 'effects')")  # fmt: skip
+                             "model and at most one ground_contact (remove its other "
+                             "'effects')")  # fmt: skip
+        contact = floors[0] if floors else None
     dt = dataset.dt
     if args.window < 2 * dt or args.windows < 1 or args.fit_windows < 1:
         raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
@@ -214,4 +217,4 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   val_windows=args.windows, test_windows=args.windows,
                                   fit_windows=args.fit_windows, fit_window=fit_window,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
-    return MultiStepScorer(settings, args.horizon, start)
+    return MultiStepScorer(settings, args.horizon, start, contact=contact)

@@ -167,6 +167,11 @@ class EndCapData:
         self.stretches: Windows | None = None
         #: every fit also fits the windows' rolls (set once an accepted effect sees them)
         self.roll = False
+        #: no airborne stretch: ground contact is in the model from the start
+        #: (:mod:`identification.discovery.floor_fits`)
+        self.on_floor = False
+        #: where a floor fit starts the contact (a params file's), None: the default
+        self.contact_start: GroundContact | None = None
 
     def cut(
         self, name: str, steps: int, count: int, stream: int, airborne: bool = False

@@ -43,6 +43,7 @@ from identification.discovery.end_cap_data import (
     held,
     hold_declared,
 )
+from identification.discovery.floor_fits import fit_declared_on_floor
 from identification.discovery.library import contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.airborne import airborne_stretches, cap_radii, past_touchdown
@@ -76,7 +77,9 @@ def fit_declared(
     windows bring it near the optimum), then on the few training windows that
     selection compares candidates on (from there, so both fits share the origin).
     Where end caps reach a floor, the "many windows" are every airborne stretch of the
-    training split, each whole (:func:`~identification.trajectory.airborne.airborne_stretches`).
+    training split, each whole (:func:`~identification.trajectory.airborne.airborne_stretches`);
+    where there is none, ground contact is fitted with the declared model from the start
+    (:func:`~identification.discovery.floor_fits.fit_declared_on_floor`).
 
     ``effects`` are fitted with it (a hypothesis that changes the declared springs, such
     as slack cables) and ``values`` replace the stage-1 regression (natural units, as
@@ -86,6 +89,11 @@ def fit_declared(
     # (contact's gate closed): fitted through impacts, the declared model drifts to make
     # up for contact
     airborne = contact_gate(data.train, data.topology)[0]
+    grid = {key: getattr(data.smooth["train"], key) for key in STATE_KEYS}
+    if airborne and (data.on_floor or airborne_stretches(data.train.nodes, data.train.control,
+                                                         grid, data.topology) is None):  # fmt: skip
+        # never airborne long enough to fit apart from contact: contact from the start
+        return fit_declared_on_floor(data, s, start, effects, values, data.contact_start)
     if values is None and start is None:
         values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
                                      s.anchors, keep=airborne_keep(data))  # fmt: skip
@@ -117,7 +125,6 @@ def fit_declared(
             theta = fit_trajectory(data, vec, short, theta, s.base_iter).theta
         elif airborne:
             # each airborne stretch whole: far more precise than cut into windows
-            grid = {key: getattr(data.smooth["train"], key) for key in STATE_KEYS}
             stretches = airborne_stretches(data.train.nodes, data.train.control, grid,
                                            data.topology)  # fmt: skip
             many_windows = short if stretches is None else stretches

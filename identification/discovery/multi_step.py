@@ -68,6 +68,7 @@ from identification.discovery.end_cap_residuals import (
     summarize_window_residuals,
     window_residuals,
 )
+from identification.discovery.floor_fits import floor_rows
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate
 from identification.discovery.library import FittedModel, Proposal, contact_gate, propose
 from identification.discovery.loop import CandidateSkipped, Residual, Scorer
@@ -81,7 +82,7 @@ from identification.trajectory.slack_regression import (
 )
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
-from tensegrity_env.effects import ImplicitLinearDrag, SlackSprings
+from tensegrity_env.effects import GroundContact, ImplicitLinearDrag, SlackSprings
 from tensegrity_env.engine import State
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
@@ -123,6 +124,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
             regression on smoothed end caps.
         clean: the same trajectories without noise, with rod states (planted data),
             for the test errors against the truth; never used for fitting or selection.
+        contact: where a floor fit starts the ground contact (a params file's; None:
+            the default start, see :mod:`identification.discovery.floor_fits`).
     """
 
     criteria = MULTI_STEP
@@ -134,16 +137,19 @@ class MultiStepScorer(Scorer[EndCapFits]):
         horizon_s: float = 1.0,
         start: Params | None = None,
         clean: Dataset | None = None,
+        contact: GroundContact | None = None,
     ) -> None:
         self.settings = settings
         self.horizon_s = horizon_s
         self.start = start
         self.clean = clean
+        self.contact = contact
 
     def begin(self, dataset: Dataset, log: Callable[[str], None]) -> Candidate[EndCapFits]:
         self.dataset, self.log = dataset, log
         self.data = EndCapData(dataset, self.settings)
         self.data.log = log
+        self.data.contact_start = self.contact
         t0 = time.perf_counter()
         self.noise = noise_level(dataset.split("train").nodes)
         log(f"noise level estimated from the training end caps: {self.noise * 1e3:.3g} mm")
@@ -211,8 +217,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
         data = self.data
         old = [e for e in current.effects if isinstance(e, SlackSprings)]
         known = {int(i) for e in old for i in e.values["springs"].tolist()}
+        rows = {"rod_keep": floor_rows(data)} if data.on_floor else {"keep": airborne_keep(data)}
         reg = slack_regression(data.topology, data.smooth["train"], data.train.control,
-                               self.settings.anchors, keep=airborne_keep(data))  # fmt: skip
+                               self.settings.anchors, **rows)  # fmt: skip
         new = sorted(set(reg.cables()) - known)
         if not new:
             free = [i for i in range(data.topology.n_springs) if i not in known]

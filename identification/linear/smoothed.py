@@ -139,11 +139,15 @@ def smoothed_regression(
     gravity: Sequence[float] = (0.0, 0.0, -9.81),
     keep: np.ndarray | None = None,
     knots: np.ndarray | None = None,
+    rod_keep: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Stage 1: linear regression on end caps smoothed by
     :func:`~identification.data.end_caps.smooth_rod_states`.
 
     ``keep`` (N, T): the samples used (None: all), e.g. those away from a floor.
+    ``rod_keep`` (N, T, R): the rods' Newton-Euler equations used at each sample (None:
+    every rod of a kept sample), e.g. only the rods away from a floor: a rod that does
+    not touch it obeys the declared model while the others roll on it.
     ``knots`` (S,) [m]: also fit each spring's stiffness change ``ΔK`` below its knot
     (:func:`~identification.linear.design.hinge_blocks`), returned as ``compression_stiffness``
     with its standard error ``compression_stiffness_se`` (S,) [N/m].
@@ -157,10 +161,19 @@ def smoothed_regression(
     axes = RodAxes.of(topo)
     layout = ParameterLayout.build(topo)
     slots = rod_slots(layout)
+    if rod_keep is not None:
+        keep = rod_keep.any(-1) if keep is None else keep & rod_keep.any(-1)
     feat = smoothed_features(topo, smooth, control, keep)
     P = layout.n_params
     S = topo.n_springs if knots is not None else 0
     blocks = rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE))
+    if rod_keep is not None:  # the same samples smoothed_features picked, (n, R)
+        assert keep is not None
+        used = keep & smooth.whole[:, : control.shape[1]]
+        t = slice(smooth.margin, max(smooth.margin + 1,
+                                     min(control.shape[1], smooth.p.shape[1] - smooth.margin)))  # fmt: skip
+        rows = torch.as_tensor(rod_keep[:, t][used[:, t]], dtype=DTYPE)
+        blocks = blocks * rows[:, :, None, None]
     if knots is not None:
         blocks = torch.cat([blocks, hinge_blocks(feat, slots, torch.as_tensor(knots))], dim=-1)
         slots = with_hinges(slots, P, S)

@@ -146,10 +146,12 @@ def find_touchdowns(
     )  # fmt: skip
 
 
-def contact_at(contact: GroundContact, x: np.ndarray) -> GroundContact:
-    """``contact`` with :data:`CONTACT_FREE` at coordinates ``x`` (4,) (log/logit)."""
+def contact_at(
+    contact: GroundContact, x: np.ndarray, keys: Sequence[str] = CONTACT_FREE
+) -> GroundContact:
+    """``contact`` with ``keys`` at coordinates ``x`` (len(keys),) (log/logit/as is)."""
     values = {k: from_free(contact.PARAMS[k], torch.tensor(float(x[j]), dtype=torch.float64))
-              for j, k in enumerate(CONTACT_FREE)}  # fmt: skip
+              for j, k in enumerate(keys)}  # fmt: skip
     return contact.with_values(validate=False, **values)  # type: ignore[return-value]
 
 
@@ -186,42 +188,46 @@ def search_contact(
     touch: Touchdowns,
     log: Callable[[str], None] = lambda s: None,
     horizons: Sequence[int] = HORIZONS,
+    keys: Sequence[str] = CONTACT_FREE,
+    restarts: int = RESTARTS,
 ) -> ContactSearch:
     """Contact parameters from the touchdowns (module docstring, steps 2 and 3).
 
     ``engine`` and ``params``: the model without contact; ``others``: its effects
     (contact acts after them); ``start``: the contact the search starts from (its
-    parameters outside :data:`CONTACT_FREE` are kept); ``horizons``: steps after the
-    touchdowns fitted in turn (at most the touchdowns' length).
+    parameters outside ``keys`` are kept); ``horizons``: steps after the touchdowns
+    fitted in turn (at most the touchdowns' length); ``keys``: the contact parameters
+    searched (default :data:`CONTACT_FREE`); ``restarts``: Nelder-Mead runs per horizon.
     """
     evals = 0
 
     def error(x: np.ndarray, steps: int) -> float:
         nonlocal evals
         evals += 1
-        r = touchdown_residual(engine, params, others, contact_at(start, x), touch, steps)
+        r = touchdown_residual(engine, params, others, contact_at(start, x, keys), touch, steps)
         value = float((r**2).mean())
         return value if np.isfinite(value) else BLOWN_UP
 
     x = np.array([to_free(start.PARAMS[k], float(start.values[k].reshape(-1)[0]))
-                  for k in CONTACT_FREE])  # fmt: skip
+                  for k in keys])  # fmt: skip
     rms: dict[int, float] = {}
     for steps in horizons:
-        for _ in range(RESTARTS):
+        for _ in range(restarts):
             simplex = np.vstack([x, x + SIMPLEX_STEP * np.eye(len(x))])
             res = minimize(error, x, args=(steps,), method="Nelder-Mead",
                            options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-14,
                                     "maxfev": MAX_EVALS})  # fmt: skip
             x = res.x
         rms[steps] = float(np.sqrt(res.fun))
-        found = contact_at(start, x)
+        found = contact_at(start, x, keys)
         log(f"    touchdowns, {steps} steps: end-cap RMS {rms[steps] * 1e3:.3f} mm; "
-            + ", ".join(f"{k} {float(found.values[k]):.4g}" for k in CONTACT_FREE))  # fmt: skip
-    contact = contact_at(start, x)
-    se = _stderr(engine, params, others, start, touch, x, horizons[-1])
-    for k, s in zip(CONTACT_FREE, se, strict=True):
+            + ", ".join(f"{k} {float(found.values[k]):.4g}" for k in keys))  # fmt: skip
+    contact = contact_at(start, x, keys)
+    se = _stderr(engine, params, others, start, touch, x, horizons[-1], keys)
+    for k, s in zip(keys, se, strict=True):
         spec, v = start.PARAMS[k], float(contact.values[k].reshape(-1)[0])
-        contact.uncertainty[k] = (v * (1 - v) if spec.unit_interval else abs(v)) * float(s)
+        slope = v * (1 - v) if spec.unit_interval else (abs(v) if spec.positive else 1.0)
+        contact.uncertainty[k] = slope * float(s)
     return ContactSearch(contact, rms, evals)
 
 
@@ -233,6 +239,7 @@ def _stderr(
     touch: Touchdowns,
     x: np.ndarray,
     steps: int,
+    keys: Sequence[str] = CONTACT_FREE,
     h: float = 1e-4,
 ) -> np.ndarray:
     """Standard errors of the coordinates ``x`` (central differences of the residuals).
@@ -244,7 +251,7 @@ def _stderr(
     """
 
     def r(y: np.ndarray) -> np.ndarray:
-        res = touchdown_residual(engine, params, others, contact_at(start, y), touch, steps)
+        res = touchdown_residual(engine, params, others, contact_at(start, y, keys), touch, steps)
         return res.reshape(touch.size, -1).numpy()
 
     r0 = r(x)  # (N, m_i)
@@ -255,7 +262,7 @@ def _stderr(
     except np.linalg.LinAlgError:
         return np.full(len(x), np.inf)
     sigma2 = float(rf @ rf) / max(rf.size - len(x), 1)
-    g = np.einsum("imk,im->ik", J, r0)  # per-touchdown scores, (N, 4)
+    g = np.einsum("imk,im->ik", J, r0)  # per-touchdown scores, (N, len(keys))
     n = touch.size
     sandwich = bread @ (g.T @ g) @ bread * (n / max(n - 1, 1))
     var = np.maximum(sigma2 * np.diag(bread), np.diag(sandwich))

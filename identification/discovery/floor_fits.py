@@ -1,0 +1,102 @@
+"""The declared model on data that never leaves the floor: fitted with ground contact.
+
+Where end caps reach a floor and no stretch of the training split is airborne long
+enough to fit the declared model apart from contact
+(:func:`~identification.trajectory.airborne.airborne_stretches`), the loop's starting
+model holds ground contact from the start and fits it jointly with the declared
+parameters (:mod:`identification.trajectory.floor_fit`). Every later fit keeps the
+contact's parameters free (:data:`~identification.trajectory.floor_fit.FLOOR_FREE`),
+so each candidate effect is judged with the contact refitted beside it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from identification.discovery.end_cap_data import (
+    EndCapData,
+    TrajectorySettings,
+    TrajFit,
+    common_axis,
+    fit_trajectory,
+)
+from identification.linear.smoothed import parse_anchors, smoothed_regression
+from identification.trajectory.floor_fit import (
+    FLOOR_FREE,
+    FLOOR_WINDOW_S,
+    fit_on_floor,
+    floor_contact,
+    rods_off_floor,
+    with_floor,
+)
+from identification.trajectory.identifier import TrajectoryIdentifier
+from identification.trajectory.param_vector import params_values
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.params import Params
+
+
+def floor_steps(data: EndCapData, s: TrajectorySettings, steps: int) -> int:
+    """``steps`` capped at :data:`FLOOR_WINDOW_S` of samples (at least 2)."""
+    return max(2, min(steps, round(FLOOR_WINDOW_S / data.dt)))
+
+
+def fit_declared_on_floor(
+    data: EndCapData,
+    s: TrajectorySettings,
+    start: Params | None = None,
+    effects: Sequence[PhysicalEffect] = (),
+    values: dict[str, np.ndarray] | None = None,
+    contact: GroundContact | None = None,
+) -> tuple[TrajFit, TrajFit]:
+    """The declared model and ground contact (and ``effects``) fitted together.
+
+    Returns the fit on the many windows of the training split and the fit on the
+    training windows selection compares on (as
+    :func:`~identification.discovery.end_cap_fits.fit_declared`). The declared
+    parameters start from ``values`` (a regression), else ``start`` (a params file),
+    else the regression on the rods away from the floor; the contact from the one in
+    ``effects``, else ``contact`` (a params file's), else the default start. Windows are at most
+    :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long.
+    """
+    t0 = time.perf_counter()
+    data.on_floor = True
+    if values is None and start is None:
+        values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
+                                     s.anchors, rod_keep=floor_rows(data))  # fmt: skip
+    elif values is None:
+        assert start is not None
+        values = params_values(start, data.axes)
+    has_control = bool(np.any(data.train.control != 0))
+    vec = TrajectoryIdentifier(anchors=s.anchors).start_vector(
+        data.topology, data.axes, values, parse_anchors(data.topology, s.anchors), has_control
+    )
+    data.declared_k = int(vec.free.sum())
+    others = [e for e in effects if not isinstance(e, GroundContact)]
+    given = [e for e in effects if isinstance(e, GroundContact)]
+    begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
+    vec = with_floor(vec, others, begin, common_axis(data.axes))
+    data.contact_free = FLOOR_FREE
+    data.log(f"    on the floor: ground contact in the model from the start (floor height "
+             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps)")  # fmt: skip
+    many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window),
+                            s.fit_windows, 3)  # fmt: skip
+    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, s.state_iter,
+                     log=data.log)  # fmt: skip
+    m = w.windows.residuals
+    many = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
+    many.origin = many.theta
+    data.windows["fit"] = many.windows
+    fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)
+    fit.origin = many.theta
+    data.log(f"    declared model and contact on {many.windows.size} floor windows: end-cap "
+             f"RMS {many.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    return many, fit
+
+
+def floor_rows(data: EndCapData) -> np.ndarray:
+    """The rods' equations the regressions use on the floor: rods away from it, (N, T, R)."""
+    return rods_off_floor(data.train.nodes, data.topology, data.sg)

@@ -1,0 +1,181 @@
+"""Identification on the floor: the declared model and ground contact fitted together.
+
+A robot that rolls and tumbles on a floor touches it in almost every sample: there is
+no airborne stretch to fit the declared model on apart from contact. Here contact is
+in the model from the start and its parameters are fitted with the declared ones,
+through the engine, on short windows that touch the floor:
+
+1. **Start.** The declared parameters come from the regression on smoothed end caps
+   restricted, at each sample, to the **rods** whose end caps are all away from the
+   floor (:func:`rods_off_floor`; a rod that does not touch the floor obeys the
+   declared model while the others roll on it). The floor height starts at the median
+   height (``z - r``) of the lowest end cap over the samples where it is near the
+   floor (:func:`floor_height`): a cap resting on a soft floor sinks into it, so the
+   height is fitted too. The contact starts from a params file's ``ground_contact``
+   when one is given, else from
+   :data:`~identification.trajectory.effect_coords.CONTACT_START`.
+2. **Alternation** (:func:`fit_on_floor`), :data:`ROUNDS` times: the windows' initial
+   states are fitted with the model held; a derivative-free **Nelder-Mead search**
+   over the contact parameters (:data:`FLOOR_FREE`, log/logit coordinates) minimises
+   the windows' end-cap error with the declared parameters and the states held
+   (:func:`~identification.trajectory.touchdown.search_contact`); then
+   **Levenberg-Marquardt** fits everything jointly (declared parameters, contact,
+   states) from there. The end-cap error is discontinuous in the contact parameters
+   (an impact moving across a physics step makes it jump): the search steps over the
+   jumps that stall a Gauss-Newton step, and the joint fit then moves the declared
+   parameters the contact was traded against.
+
+What the data pins: masses, inertias, stiffnesses, damping and rest lengths from the
+rods' motion away from and against the floor; the contact's stiffness, impedance and
+height together from how deep resting and landing caps sink (the three trade off
+against each other on resting caps alone, impacts separate them); its damping from
+how impacts die out; friction only from caps that slide or roll (a structure resting
+on three caps says nothing about it).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import numpy as np
+import torch
+from scipy.ndimage import minimum_filter1d
+
+from identification.trajectory.airborne import AIRBORNE, cap_radii
+from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
+from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
+from identification.trajectory.window_states import fit_states
+from identification.trajectory.windowed_fit import WindowFit, fit_windows
+from identification.trajectory.windows import Windows
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.engine import Engine
+from tensegrity_env.topology import Topology
+
+#: contact parameters fitted on the floor (the floor's height too)
+FLOOR_FREE = (*CONTACT_FREE, "height")
+#: rounds of search and joint fit
+ROUNDS = 2
+#: Nelder-Mead runs per search
+SEARCH_RESTARTS = 1
+#: longest window on the floor [s]: each one's initial state is fitted, and a window
+#: spanning several impacts stalls that fit
+FLOOR_WINDOW_S = 0.25
+
+
+def rods_off_floor(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
+    """Per sample and rod (N, T, R): both end caps :data:`AIRBORNE` above the floor over
+    the smoothing filter's ``span`` [samples] around the sample.
+
+    ``nodes`` (N, T+1, 2R, 3) [m] the measured end caps; the floor is taken at z = 0.
+    """
+    N, T1 = nodes.shape[:2]
+    gap = (nodes[..., 2] - cap_radii(topology)).reshape(N, T1, topology.n_rods, 2).min(-1)
+    off = (gap > AIRBORNE).astype(np.uint8)
+    return minimum_filter1d(off, size=span, axis=1)[:, :-1].astype(bool)
+
+
+def floor_height(nodes: np.ndarray, topology: Topology) -> float:
+    """Starting floor height [m]: the median ``z - r`` of the lowest end cap over the
+    samples where it is within :data:`~identification.trajectory.touchdown.TOUCH` of z = 0
+    (or below). ``nodes`` (N, T+1, 2R, 3) [m]."""
+    lowest = (nodes[..., 2] - cap_radii(topology)).min(-1)
+    near = lowest[np.isfinite(lowest) & (lowest < TOUCH)]
+    return float(np.median(near)) if near.size else 0.0
+
+
+def floor_contact(
+    topology: Topology, nodes: np.ndarray, start: GroundContact | None = None
+) -> GroundContact:
+    """The contact a floor fit starts from: ``start``'s values (a params file, or a fit)
+    if given, else :data:`CONTACT_START` at the height :func:`floor_height` estimates."""
+    values = dict(CONTACT_START)
+    values["height"] = floor_height(nodes, topology)
+    if start is not None:
+        values.update({k: float(start.values[k].reshape(-1)[0]) for k in start.PARAMS})
+    return GroundContact(topology, **values)
+
+
+def with_floor(
+    vec: ParamVector, effects: Sequence[PhysicalEffect], contact: GroundContact, axis: int | None
+) -> ParamVector:
+    """``vec`` with ``effects`` and ``contact`` (last) as coordinates, contact's
+    :data:`FLOOR_FREE` free."""
+    return replace(vec, coords=EffectCoords.of([*effects, contact], axis, FLOOR_FREE))
+
+
+def held_states(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
+    """``vec`` at ``theta``, nothing free, no coordinates (for state-only fits)."""
+    return replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
+                   coords=None)  # fmt: skip
+
+
+def search_floor_contact(
+    engine: Engine,
+    vec: ParamVector,
+    windows: Windows,
+    theta: torch.Tensor,
+    log: Callable[[str], None] = lambda s: None,
+) -> torch.Tensor:
+    """``theta`` with the contact's coordinates from a Nelder-Mead search on ``windows``.
+
+    The declared parameters, the other effects and the windows' states are held. The
+    contact is ``vec``'s last effect, its coordinates the last of ``theta``.
+    """
+    assert vec.coords is not None
+    n = vec.n_free
+    effects = vec.coords.effects_at(theta[n:].detach())
+    others, contact = effects[:-1], effects[-1]
+    assert isinstance(contact, GroundContact)
+    params = vec.params(vec.full(theta.detach()))
+    touch = Touchdowns(state=windows.state, obs=windows.obs, control=windows.control,
+                       traj=windows.traj, first=windows.start, prefix_rms=float("nan"))  # fmt: skip
+    found = search_contact(engine, params, others, contact, touch, log,
+                           horizons=(windows.steps,), keys=FLOOR_FREE,
+                           restarts=SEARCH_RESTARTS)  # fmt: skip
+    k = len(FLOOR_FREE)
+    x = torch.tensor([float(v) for v in _coords(found.contact)], dtype=theta.dtype)
+    return torch.cat([theta[: len(theta) - k], x])
+
+
+def _coords(contact: GroundContact) -> list[float]:
+    """:data:`FLOOR_FREE` of ``contact`` in the fit's coordinates."""
+    coords = EffectCoords.of([contact], None, FLOOR_FREE)
+    return coords.start().tolist()
+
+
+def fit_on_floor(
+    engine: Engine,
+    vec: ParamVector,
+    windows: Windows,
+    theta: torch.Tensor,
+    iters: int,
+    state_iters: int,
+    rounds: int = ROUNDS,
+    log: Callable[[str], None] = lambda s: None,
+) -> WindowFit:
+    """Declared parameters, effects and contact fitted jointly on floor ``windows``.
+
+    ``vec`` holds the contact as its last effect with :data:`FLOOR_FREE` free
+    (:func:`with_floor`); ``theta`` is where the fit starts. Each round (module
+    docstring, step 2): the windows' states with the model held, a Nelder-Mead search
+    of the contact with the rest held, and a joint Levenberg-Marquardt fit of
+    ``iters`` iterations. Returns the last joint fit.
+    """
+    fit: WindowFit | None = None
+    for k in range(rounds):
+        t0 = time.perf_counter()
+        states = fit_states(vec.engine(engine, theta), held_states(vec, theta), windows,
+                            state_iters)  # fmt: skip
+        windows = states.windows
+        theta = search_floor_contact(engine, vec, windows, theta, log)
+        fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=False)
+        theta, windows = fit.theta, fit.windows
+        log(f"    floor round {k + 1}: states {np.sqrt(states.history[-1]) * 1e3:.3f} mm, "
+            f"joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
+            f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+    assert fit is not None
+    return fit

@@ -1,0 +1,100 @@
+"""The floor fit's helpers: rods away from the floor, the floor height, the start contact,
+and the regression restricted to rods (identification.trajectory.floor_fit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
+from identification.linear.smoothed import smoothed_regression
+from identification.simulation.generate import GenerateSpec, generate_dataset
+from identification.trajectory.effect_coords import CONTACT_START
+from identification.trajectory.floor_fit import (
+    FLOOR_FREE,
+    floor_contact,
+    floor_height,
+    rods_off_floor,
+    search_floor_contact,
+    with_floor,
+)
+from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.windows import STATE_KEYS, cut_windows
+from tensegrity_env import assemblies
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.engine import Engine
+
+
+def _caps(z: np.ndarray) -> np.ndarray:
+    """End caps (1, T+1, 12, 3) of the icosahedron at heights ``z`` (T+1, 12) [m]."""
+    nodes = np.zeros((1, *z.shape, 3))
+    nodes[0, ..., 2] = z
+    return nodes
+
+
+def test_rods_off_floor_marks_rods_whose_caps_all_stay_clear_over_the_span() -> None:
+    topo = assemblies.icosahedron().topology
+    r = topo.rods[0].radius
+    z = np.full((21, 12), 0.5)
+    z[10, 0] = r  # rod 0's first cap touches at sample 10
+    z[:, 5] = r + 0.001  # rod 2's second cap always within 5 mm
+    off = rods_off_floor(_caps(z), topo, span=5)
+    assert off.shape == (1, 20, 6)
+    assert not off[0, 8:13, 0].any() and off[0, :8, 0].all() and off[0, 13:, 0].all()
+    assert not off[0, :, 2].any()
+    assert off[0, :, [1, 3, 4, 5]].all()
+
+
+def test_floor_height_is_where_the_lowest_cap_rests() -> None:
+    topo = assemblies.icosahedron().topology
+    r = topo.rods[0].radius
+    rng = np.random.default_rng(0)
+    z = np.full((201, 12), 0.3)
+    z[:, 0] = r - 0.004 + 1e-3 * rng.standard_normal(201)  # a cap resting 4 mm deep
+    z[:20, 0] = 0.2  # the drop before it lands does not count
+    assert abs(floor_height(_caps(z), topo) + 0.004) < 3e-4
+    start = floor_contact(topo, _caps(z))
+    assert abs(float(start.values["height"]) - floor_height(_caps(z), topo)) < 1e-12
+    assert float(start.values["stiffness"]) == CONTACT_START["stiffness"]
+    given = GroundContact(topo, stiffness=2000.0, friction=0.9, height=0.01)
+    mine = floor_contact(topo, _caps(z), given)  # a params file's contact wins
+    assert float(mine.values["friction"]) == 0.9 and float(mine.values["height"]) == 0.01
+
+
+def test_rod_keep_equal_to_sample_keep_gives_the_same_regression() -> None:
+    a = assemblies.icosahedron()
+    ds, truth = generate_dataset(GenerateSpec(n_train=2, n_val=0, n_test=0, steps=300, seed=1))
+    split = ds.split("train")
+    axes = RodAxes.of(a.topology)
+    smooth = smooth_rod_states(split.nodes, ds.dt, axes, odd_window(0.05 / ds.dt))
+    keep = np.zeros(split.control.shape[:2], bool)
+    keep[:, 40:200] = True
+    anchors = {"mass[rod0]": float(truth.params.mass[0])}
+    by_sample = smoothed_regression(a.topology, smooth, split.control, anchors, keep=keep)
+    rod_keep = np.repeat(keep[..., None], a.topology.n_rods, axis=-1)
+    by_rod = smoothed_regression(a.topology, smooth, split.control, anchors, rod_keep=rod_keep)
+    for key in ("stiffness", "mass", "rest_length"):
+        np.testing.assert_allclose(by_rod[key], by_sample[key], rtol=1e-10)
+    rod_keep[:, :, 1] = False  # rod 1's equations dropped: the others still pin the springs
+    fewer = smoothed_regression(a.topology, smooth, split.control, anchors, rod_keep=rod_keep)
+    assert np.isfinite(fewer["stiffness"]).all()
+    assert not np.allclose(fewer["stiffness"], by_sample["stiffness"], rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_contact_search_on_windows_recovers_a_moved_contact_from_clean_floor_data() -> None:
+    ds, truth = generate_dataset(GenerateSpec(n_train=2, n_val=0, n_test=0, steps=400, seed=2,
+                                              ground=True))  # fmt: skip
+    split, topo = ds.split("train"), ds.topology
+    grid = {k: getattr(split, k)[:, 200:] for k in STATE_KEYS}  # after landing: on the floor
+    windows = cut_windows(split.nodes[:, 200:], split.control[:, 200:], grid, 40)
+    contact = GroundContact(topo, **truth.effects[0]["params"])
+    vec = with_floor(ParamVector.at(topo, truth.params), [], contact, None)
+    theta = vec.theta0()
+    moved = theta.clone()
+    moved[-len(FLOOR_FREE) :] += torch.tensor([0.3, -0.3, 0.2, 0.0, 0.0], dtype=moved.dtype)
+    found = search_floor_contact(Engine(topo, ds.dt), vec, windows, moved)
+    np.testing.assert_allclose(found[: vec.n_free], theta[: vec.n_free])
+    err = (found - theta)[-len(FLOOR_FREE) :].abs()
+    assert err[:3].max() < 0.05, err  # stiffness, damping (log) and friction back within 5 %

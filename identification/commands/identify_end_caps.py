@@ -20,10 +20,19 @@ import numpy as np
 
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
+from identification.discovery.end_cap_data import TrajectorySettings
+from identification.discovery.floor_fits import (
+    FLOOR_WINDOWS,
+    FloorIdentification,
+    identify_on_floor,
+    on_floor,
+)
 from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
+from identification.trajectory.airborne import MIN_STRETCH
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.stage_check import check_stage, noise_level
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import substeps_for
 from tensegrity_env.io_utils import InputError, StageError
 from tensegrity_env.model import Model
@@ -32,7 +41,9 @@ UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/
          "rest_length": "m", "control_gain": "1"}  # fmt: skip
 
 
-def parameter_rows(est: TrajectoryIdentifier, anchors: dict[str, float]) -> list[ParameterRow]:
+def parameter_rows(
+    est: TrajectoryIdentifier | FloorIdentification, anchors: dict[str, float]
+) -> list[ParameterRow]:
     """The identify table's rows from a fitted trajectory identifier.
 
     ``stderr_`` of the fit is relative (the parameters are fitted as logarithms):
@@ -90,11 +101,24 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     noise = noise_level(split.nodes)
     print(f"noise level estimated from the end caps: {noise * 1e3:.3g} mm")
     t0 = time.perf_counter()
-    est = TrajectoryIdentifier(
-        anchors=anchors, window=samples_of(window, dt, 2),
-        first_window=samples_of(args.first_window, dt, 2), smoothing=args.smoothing,
-        seed=args.seed, progress=True, physics_dt=args.physics_dt,
-    ).fit(dataset, args.split)  # fmt: skip
+    est: TrajectoryIdentifier | FloorIdentification
+    effects: list[PhysicalEffect] = []
+    if on_floor(dataset, args.split):
+        print(f"end caps rest and roll on a floor, never airborne for {MIN_STRETCH} steps: "
+              "ground contact is fitted with the declared model")  # fmt: skip
+        settings = TrajectorySettings(
+            anchors=anchors, smoothing=args.smoothing, seed=args.seed,
+            physics_dt=args.physics_dt, fit_window=samples_of(window, dt, 2),
+            fit_windows=FLOOR_WINDOWS,
+        )  # fmt: skip
+        est = identify_on_floor(dataset, settings, args.split)
+        effects = [est.contact_]
+    else:
+        est = TrajectoryIdentifier(
+            anchors=anchors, window=samples_of(window, dt, 2),
+            first_window=samples_of(args.first_window, dt, 2), smoothing=args.smoothing,
+            seed=args.seed, progress=True, physics_dt=args.physics_dt,
+        ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
     check_stage("the trajectory fit", est.rms_, noise,
                 "shorter windows (--window), a smaller --physics-dt, or 'diagnose' if the data "
@@ -138,6 +162,8 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
             r.name: e for r, e in zip(rows, errs, strict=True) if np.isfinite(e)
         }
     physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
-    Model(dataset.topology, est.params_, dt=physics).save(args.output, extra)
+    if effects:
+        print("\n" + "\n".join(e.describe() for e in effects))
+    Model(dataset.topology, est.params_, effects, dt=physics).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

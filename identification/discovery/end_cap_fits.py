@@ -46,7 +46,12 @@ from identification.discovery.end_cap_data import (
 from identification.discovery.floor_fits import fit_declared_on_floor
 from identification.discovery.library import contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
-from identification.trajectory.airborne import airborne_stretches, cap_radii, past_touchdown
+from identification.trajectory.airborne import (
+    airborne_stretches,
+    cap_radii,
+    has_airborne_stretch,
+    past_touchdown,
+)
 from identification.trajectory.effect_coords import EffectCoords
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
@@ -90,8 +95,7 @@ def fit_declared(
     # up for contact
     airborne = contact_gate(data.train, data.topology)[0]
     grid = {key: getattr(data.smooth["train"], key) for key in STATE_KEYS}
-    if airborne and (data.on_floor or airborne_stretches(data.train.nodes, data.train.control,
-                                                         grid, data.topology) is None):  # fmt: skip
+    if airborne and (data.on_floor or not has_airborne_stretch(data.train.nodes, data.topology)):
         # never airborne long enough to fit apart from contact: contact from the start
         return fit_declared_on_floor(data, s, start, effects, values, data.contact_start)
     if values is None and start is None:

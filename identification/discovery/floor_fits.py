@@ -12,10 +12,14 @@ so each candidate effect is judged with the contact refitted beside it.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import torch
 
+from identification.data.dataset import Dataset
 from identification.discovery.end_cap_data import (
     EndCapData,
     TrajectorySettings,
@@ -23,7 +27,9 @@ from identification.discovery.end_cap_data import (
     common_axis,
     fit_trajectory,
 )
+from identification.discovery.library import contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
+from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     FLOOR_WINDOW_S,
@@ -37,6 +43,11 @@ from identification.trajectory.param_vector import params_values
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
+
+#: most windows of the floor fit of the declared model and contact (each window's
+#: initial state is fitted through every contact, which costs)
+FLOOR_WINDOWS = 8
 
 
 def floor_steps(data: EndCapData, s: TrajectorySettings, steps: int) -> int:
@@ -51,12 +62,14 @@ def fit_declared_on_floor(
     effects: Sequence[PhysicalEffect] = (),
     values: dict[str, np.ndarray] | None = None,
     contact: GroundContact | None = None,
+    selection: bool = True,
 ) -> tuple[TrajFit, TrajFit]:
     """The declared model and ground contact (and ``effects``) fitted together.
 
     Returns the fit on the many windows of the training split and the fit on the
     training windows selection compares on (as
-    :func:`~identification.discovery.end_cap_fits.fit_declared`). The declared
+    :func:`~identification.discovery.end_cap_fits.fit_declared`; without ``selection``
+    the second is the first, not refitted). The declared
     parameters start from ``values`` (a regression), else ``start`` (a params file),
     else the regression on the rods away from the floor; the contact from the one in
     ``effects``, else ``contact`` (a params file's), else the default start. Windows are at most
@@ -83,15 +96,16 @@ def fit_declared_on_floor(
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps)")  # fmt: skip
     many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window),
-                            s.fit_windows, 3)  # fmt: skip
-    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, s.state_iter,
-                     log=data.log)  # fmt: skip
+                            min(s.fit_windows, FLOOR_WINDOWS), 3)  # fmt: skip
+    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     m = w.windows.residuals
     many = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
     many.origin = many.theta
     data.windows["fit"] = many.windows
-    fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)
-    fit.origin = many.theta
+    fit = many
+    if selection:
+        fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)
+        fit.origin = many.theta
     data.log(f"    declared model and contact on {many.windows.size} floor windows: end-cap "
              f"RMS {many.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     return many, fit
@@ -100,3 +114,67 @@ def fit_declared_on_floor(
 def floor_rows(data: EndCapData) -> np.ndarray:
     """The rods' equations the regressions use on the floor: rods away from it, (N, T, R)."""
     return rods_off_floor(data.train.nodes, data.topology, data.sg)
+
+
+def on_floor(dataset: Dataset, split: str = "train") -> bool:
+    """Whether ``split``'s end caps reach a floor and no stretch is airborne long enough
+    to fit the declared model apart from contact."""
+    s = dataset.split(split)
+    return contact_gate(s, dataset.topology)[0] and not has_airborne_stretch(
+        s.nodes, dataset.topology
+    )
+
+
+@dataclass
+class FloorIdentification:
+    """``identify`` on floor data: the declared parameters and the contact fitted together.
+
+    The attributes mirror :class:`~identification.trajectory.identifier.TrajectoryIdentifier`'s
+    (``params_``, ``topology_``, ``stderr_`` relative per free parameter, ``mode_``,
+    ``notes_``, ``rms_`` [m], ``converged_``, ``stages_``), plus ``contact_`` (the fitted
+    :class:`GroundContact`, standard errors as its ``uncertainty``).
+    """
+
+    params_: Params
+    topology_: Topology
+    stderr_: dict[str, float]
+    mode_: str
+    notes_: dict[str, str]
+    rms_: float
+    converged_: bool
+    stages_: list[dict[str, Any]]
+    contact_: GroundContact
+
+
+def identify_on_floor(
+    dataset: Dataset,
+    settings: TrajectorySettings,
+    split: str = "train",
+    log: Callable[[str], None] = print,
+) -> FloorIdentification:
+    """The declared model and ground contact fitted on ``split``'s end caps
+    (:func:`fit_declared_on_floor`: ``settings.fit_windows`` windows of
+    ``settings.fit_window`` steps at most), as ``identify`` reports it."""
+    if split != "train":
+        splits = {**dataset.splits, "train": dataset.split(split)}
+        dataset = Dataset(dataset.topology, dataset.dt, splits, dataset.attrs)
+    data = EndCapData(dataset, settings)
+    data.log = log
+    many, _ = fit_declared_on_floor(data, settings, selection=False)
+    vec, topo = many.vec, dataset.topology
+    ident = TrajectoryIdentifier(anchors=settings.anchors)
+    has_control = bool(np.any(data.train.control != 0))
+    ident.start_vector(topo, data.axes, params_values(many.params, data.axes),
+                       parse_anchors(topo, settings.anchors), has_control)  # fmt: skip
+    names = vec.names()
+    free = torch.nonzero(vec.free)[:, 0].tolist()
+    stderr = {names[i]: float(s) for i, s in zip(free, many.stderr[: len(free)], strict=True)}
+    contact = many.effects[-1]
+    assert isinstance(contact, GroundContact)
+    stages = [{"window": many.windows.steps, "windows": many.windows.size, "floor": True,
+               "rms": many.rms}]  # fmt: skip
+    return FloorIdentification(
+        params_=many.params, topology_=topo, stderr_=stderr, mode_=ident.mode_,
+        notes_=TrajectoryIdentifier.notes(topo, data.axes, has_control), rms_=many.rms,
+        converged_=True, stages_=stages, contact_=contact,
+    )  # fmt: skip

@@ -39,6 +39,18 @@ def airborne_samples(nodes: np.ndarray, topology: Topology, span: int) -> np.nda
     return minimum_filter1d(air, size=span, axis=1)[:, :-1].astype(bool)
 
 
+def has_airborne_stretch(
+    nodes: np.ndarray, topology: Topology, shortest: int = MIN_STRETCH
+) -> bool:
+    """Whether some trajectory of ``nodes`` (N, T+1, 2R, 3) [m] stays airborne for at
+    least ``shortest`` steps (as :func:`airborne_stretches` counts them)."""
+    for row in airborne_mask(nodes, topology):
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], row.astype(np.int8), [0]])))
+        if np.any(edges[1::2] - 1 - edges[::2] >= shortest):
+            return True
+    return False
+
+
 def airborne_stretches(
     nodes: np.ndarray,
     control: np.ndarray,

@@ -59,6 +59,8 @@ from tensegrity_env.topology import Topology
 FLOOR_FREE = (*CONTACT_FREE, "height")
 #: rounds of search and joint fit
 ROUNDS = 2
+#: iterations of each round's state fit (the joint fit refits the states)
+STATE_ITERS = 5
 #: Nelder-Mead runs per search
 SEARCH_RESTARTS = 1
 #: longest window on the floor [s]: each one's initial state is fitted, and a window
@@ -135,7 +137,7 @@ def search_floor_contact(
                        traj=windows.traj, first=windows.start, prefix_rms=float("nan"))  # fmt: skip
     found = search_contact(engine, params, others, contact, touch, log,
                            horizons=(windows.steps,), keys=FLOOR_FREE,
-                           restarts=SEARCH_RESTARTS)  # fmt: skip
+                           restarts=SEARCH_RESTARTS, what="contact search on floor windows")  # fmt: skip
     k = len(FLOOR_FREE)
     x = torch.tensor([float(v) for v in _coords(found.contact)], dtype=theta.dtype)
     return torch.cat([theta[: len(theta) - k], x])
@@ -153,7 +155,7 @@ def fit_on_floor(
     windows: Windows,
     theta: torch.Tensor,
     iters: int,
-    state_iters: int,
+    state_iters: int = STATE_ITERS,
     rounds: int = ROUNDS,
     log: Callable[[str], None] = lambda s: None,
 ) -> WindowFit:

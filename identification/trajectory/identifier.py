@@ -231,7 +231,7 @@ class TrajectoryIdentifier:
         names = vec.names()
         free = torch.nonzero(vec.free)[:, 0].tolist()
         self.stderr_ = {names[i]: float(s) for i, s in zip(free, final.stderr, strict=True)}
-        self.notes_ = self._notes(topo, axes, has_control)
+        self.notes_ = self.notes(topo, axes, has_control)
         return self
 
     def start_vector(
@@ -267,7 +267,7 @@ class TrajectoryIdentifier:
         )
 
     @staticmethod
-    def _notes(topo: Topology, axes: RodAxes, has_control: bool) -> dict[str, str]:
+    def notes(topo: Topology, axes: RodAxes, has_control: bool) -> dict[str, str]:
         notes = {
             f"inertia[{rod.name},{'xyz'[k]}]": (
                 "axial inertia: spin about the axis through both end caps is invisible in "

@@ -190,6 +190,7 @@ def search_contact(
     horizons: Sequence[int] = HORIZONS,
     keys: Sequence[str] = CONTACT_FREE,
     restarts: int = RESTARTS,
+    what: str = "touchdowns",
 ) -> ContactSearch:
     """Contact parameters from the touchdowns (module docstring, steps 2 and 3).
 
@@ -197,7 +198,8 @@ def search_contact(
     (contact acts after them); ``start``: the contact the search starts from (its
     parameters outside ``keys`` are kept); ``horizons``: steps after the touchdowns
     fitted in turn (at most the touchdowns' length); ``keys``: the contact parameters
-    searched (default :data:`CONTACT_FREE`); ``restarts``: Nelder-Mead runs per horizon.
+    searched (default :data:`CONTACT_FREE`); ``restarts``: Nelder-Mead runs per horizon; ``what``: the
+    windows' name in the log.
     """
     evals = 0
 
@@ -220,7 +222,7 @@ def search_contact(
             x = res.x
         rms[steps] = float(np.sqrt(res.fun))
         found = contact_at(start, x, keys)
-        log(f"    touchdowns, {steps} steps: end-cap RMS {rms[steps] * 1e3:.3f} mm; "
+        log(f"    {what}, {steps} steps: end-cap RMS {rms[steps] * 1e3:.3f} mm; "
             + ", ".join(f"{k} {float(found.values[k]):.4g}" for k in keys))  # fmt: skip
     contact = contact_at(start, x, keys)
     se = _stderr(engine, params, others, start, touch, x, horizons[-1], keys)

@@ -149,7 +149,10 @@ def coverage_section(cells: dict[str, Any]) -> list[str]:
     lines = ["", "## Standard errors: 2-sigma coverage (`identify`)", "",
              "The fraction of true parameters (masses, inertias, stiffness, damping, rest",
              "lengths) within two standard errors stated in `identify`'s params file "
-             "(the window-clustered sandwich or Gauss-Newton, whichever is larger).", "",
+             "(the window-clustered sandwich or Gauss-Newton, whichever is larger), per cell;",
+             "cells with `diagnose` skipped come from", "",
+             "    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/bench_measured.py --settings flight \\",
+             "        --effects none --seeds 10 --seed0 1 --identify-only", "",
              f"Overall: **{100 * np.mean(every):.1f} %** of {len(every)} parameters over "
              f"{len(rows)} cells.", "",
              "| cell | parameters | coverage | largest relative error |",

@@ -225,7 +225,7 @@ class TrajectoryIdentifier:
         self.vector_ = vec
         self.params_ = vec.params(vec.full(theta).detach())
         self.initial_params_ = vec.params(vec.start)
-        self.converged_ = final.converged
+        self.converged_ = bool(final.converged)
         self.windows_ = final.windows
         self.rms_ = float(np.sqrt(self.history_[-1]))
         names = vec.names()

@@ -268,7 +268,7 @@ def fit_windows(
     _, _, newton, S = schur_step(ne, 0.0)
     score = newton / max(ne.sse / dof, 1e-300)
     lo, hi = vec.bounds()
-    done = score < tol or history[-1] < exact or (gate is not None and score < gate)
+    done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
     lam, nu, converged = 1e-7, 2.0, done
     for _ in range(max_iter if not done else 0):
         while True:

@@ -35,6 +35,21 @@ def read_json(path: Path, option: str) -> dict[str, Any]:
     return doc
 
 
+#: what the seeds table keeps of each run's record
+RUN_KEYS = ("algo", "env_id", "seed", "timesteps", "wall_s", "hyperparams_file", "command")
+
+
+def repo_path(path: str | None) -> str:
+    """A file of this repository by its path inside it (``policies/...``, ``docs/...``)."""
+    if not path:
+        return "?"
+    parts = Path(path).parts
+    for i, part in enumerate(parts):
+        if part in ("policies", "docs"):
+            return "/".join(parts[i:])
+    return path
+
+
 def fmt(x: float | None, spec: str = ".2f") -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, spec)
 
@@ -45,7 +60,8 @@ def shipped_table(doc: dict[str, Any]) -> list[str]:
     lines = [
         f"## Shipped policy\n\n{rec.get('algo', '?').upper()} trained on {rec.get('env_id')} for "
         f"{rec.get('timesteps', 0):,} env steps in {fmt(rec.get('wall_s'), '.0f')} s (seed "
-        f"{rec.get('seed')}; `{rec.get('command')}`), evaluated deterministically over the same "
+        f"{rec.get('seed')}, hyperparameters `{repo_path(rec.get('hyperparams_file'))}`; "
+        f"`{rec.get('command')}`), evaluated deterministically over the same "
         f"{n} seeded episodes (seeds {doc['seed']}..{doc['seed'] + n - 1}) in both envs.\n",
         "| evaluated in | mean return ± std | success | mean time to goal [s] |",
         "| --- | --- | --- | --- |",
@@ -69,9 +85,17 @@ def seeds_table(doc: dict[str, Any]) -> list[str]:
         a = agg[k]
         return f"{format(scale * a['iqm'], spec)} [{format(scale * a['low'], spec)}, {format(scale * a['high'], spec)}]"
 
+    recs = [r.get("record") or {} for r in runs]
+    files = sorted({repo_path(r.get("hyperparams_file")) for r in recs})
+    steps = sorted({r.get("timesteps") or 0 for r in recs})
+    trained = (
+        f" trained with `{'`, `'.join(files)}` for {', '.join(f'{n:,}' for n in steps)} env steps"
+        if any(recs)
+        else ""
+    )
     lines = [
-        f"## Seeds\n\n{agg['n_runs']} runs, {doc['episodes']} episodes each; IQM with 95 % "
-        "stratified bootstrap interval (rliable).\n",
+        f"## Seeds\n\n{agg['n_runs']} runs{trained}, {doc['episodes']} episodes each; IQM "
+        "with 95 % stratified bootstrap interval (rliable).\n",
         f"| seed | return {src} | success {src} | return {tgt} | success {tgt} | ratio |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
@@ -135,6 +159,21 @@ def study_table(doc: dict[str, Any]) -> list[str]:
     return lines
 
 
+def shipped_origin(shipped: dict[str, Any], study: dict[str, Any]) -> list[str]:
+    """Whether the shipped policy's settings are the search's best trial (by file name)."""
+    rec, best = shipped.get("record", {}), study.get("best")
+    algo = rec.get("algo", "?")
+    if best is None or Path(rec.get("hyperparams_file") or "").name != f"best_{algo}.yml":
+        return []
+    s = study.get("settings", {})
+    return [
+        f"Its settings are the best trial of the search below: trial {best['number']} "
+        f"({trial_origin(best)}), mean return {fmt(best['value'])} at "
+        f"{s.get('timesteps', 0):,} env steps per trial, retrained from scratch for "
+        f"{rec.get('timesteps', 0):,} env steps with seed {rec.get('seed')}."
+    ]
+
+
 def markdown(doc: dict[str, Any]) -> str:
     """The tables of a combined results document."""
     parts = [
@@ -144,6 +183,8 @@ def markdown(doc: dict[str, Any]) -> str:
     for key, table in (("shipped", shipped_table), ("seeds", seeds_table), ("study", study_table)):
         if doc.get(key) is not None:
             parts += [*table(doc[key]), ""]
+            if key == "shipped" and doc.get("study") is not None:
+                parts += [*shipped_origin(doc["shipped"], doc["study"]), ""]
     return "\n".join(parts)
 
 
@@ -170,6 +211,12 @@ def main(argv: list[str] | None = None) -> int:
             record = args.record or Path(doc["shipped"]["policy"]).with_suffix(".json")
             doc["shipped"]["record"] = read_json(record, "--shipped (run record)")
             doc["seeds"] = read_json(args.seeds, "--seeds") if args.seeds else None
+            if doc["seeds"] is not None:
+                for run in doc["seeds"].get("runs", []):
+                    rec = read_json(
+                        Path(run["policy"]).with_suffix(".json"), "--seeds (run record)"
+                    )
+                    run["record"] = {k: rec.get(k) for k in RUN_KEYS}
             doc["study"] = read_json(args.study, "--study") if args.study else None
             atomic_write_text(args.output.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
         atomic_write_text(args.output.with_suffix(".md"), markdown(doc))

@@ -31,3 +31,19 @@ def test_search_section_names_the_winner_and_ranks_trials() -> None:
     # complete trials best first, then pruned; failed trials are not ranked
     assert [r.split(" | ")[0] for r in rows] == ["| 1", "| 0", "| 2"]
     assert "enqueued `ppo.yml`" in rows[1] and "50%" in rows[1]
+
+
+def test_seeds_section_names_the_recipe_of_its_runs() -> None:
+    def run(seed: int) -> dict:
+        env = {"mean_return": 50.0 + seed, "success_rate": 0.9}
+        return {"seed": seed, "ratio": 1.0,
+                "source": {**env, "env_id": "SR"}, "target": {**env, "env_id": "MJ"},
+                "record": {"seed": seed, "timesteps": 3_002_368, "command": "train ...",
+                           "hyperparams_file": "/somewhere/repo/policies/hyperparams/ppo.yml"}}  # fmt: skip
+
+    cell = {"iqm": 0.9, "low": 0.8, "high": 1.0}
+    agg = {"n_runs": 2, **{k: cell for k in ("source_return", "target_return", "source_success",
+                                             "target_success", "ratio")}}  # fmt: skip
+    text = markdown({"seeds": {"episodes": 100, "runs": [run(0), run(1)], "aggregate": agg}})
+    assert "2 runs trained with `policies/hyperparams/ppo.yml` for 3,002,368 env steps" in text
+    assert "| 1 | 51.00 | 90% | 51.00 | 90% | 1.000 |" in text

@@ -44,6 +44,8 @@ def test_seeds_section_names_the_recipe_of_its_runs() -> None:
     cell = {"iqm": 0.9, "low": 0.8, "high": 1.0}
     agg = {"n_runs": 2, **{k: cell for k in ("source_return", "target_return", "source_success",
                                              "target_success", "ratio")}}  # fmt: skip
-    text = markdown({"seeds": {"episodes": 100, "runs": [run(0), run(1)], "aggregate": agg}})
+    group = {"episodes": 100, "runs": [run(0), run(1)], "aggregate": agg}
+    text = markdown({"seeds": [group, group]})
+    assert text.count("## Seeds of `policies/hyperparams/ppo.yml`") == 2
     assert "2 runs trained with `policies/hyperparams/ppo.yml` for 3,002,368 env steps" in text
     assert "| 1 | 51.00 | 90% | 51.00 | 90% | 1.000 |" in text

@@ -23,7 +23,8 @@ from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from measured_plant import Cell, write_cell
 
-pytestmark = pytest.mark.usefixtures("one_torch_thread")
+#: 5-15 minutes on one core: run with `pytest -m slow tests/accuracy/test_floor_identification.py`
+pytestmark = [pytest.mark.usefixtures("one_torch_thread"), pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")

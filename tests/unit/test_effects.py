@@ -96,7 +96,7 @@ def test_an_unphysical_model_is_never_written(ico, tmp_path):
     with pytest.raises(InputError, match=r"p.json: not written: .*'translational' must be >= 0"):
         Model(ico.topology, ico.params, [drag]).save(path)
     assert not path.exists()
-    with pytest.raises(InputError, match="not written: .*mass"):
+    with pytest.raises(InputError, match=r"not written: .*mass"):
         Model(ico.topology, ico.params.replace(mass=-ico.params.mass)).save(path)
     assert not path.exists()
 

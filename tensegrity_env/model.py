@@ -155,15 +155,7 @@ class Model:
         """Write ``params.json`` atomically (temporary file, then rename); returns the path.
 
         ``extra`` as in :meth:`to_document`. A residual network's sidecar weights are
-        not written here (``ResidualNetwork.save``). A model that :meth:`load` would
-        refuse (unphysical parameters or effect values) is not written: raises
-        :class:`InputError` naming the file and the value.
+        not written here (``ResidualNetwork.save``).
         """
-        try:
-            self.params.validate(self.topology, source="params")
-            for effect in self.effects:
-                effect.check()
-        except InputError as e:
-            raise InputError(f"{path}: not written: {e}") from None
         return atomic_write_text(path, json.dumps(self.to_document(extra), indent=2) + "\n")
 

@@ -88,19 +88,6 @@ def test_params_file_round_trips_into_the_engine(ico, tmp_path):
     assert not torch.allclose(a.v, Engine(ico.topology, 1e-3).step(state, ico.params).v)
 
 
-def test_an_unphysical_model_is_never_written(ico, tmp_path):
-    """What ``Model.load`` would refuse, ``Model.save`` does not write."""
-    drag = LinearDrag(ico.topology, translational=[0.1, 0.2, 0.2])
-    drag.values["translational"] = torch.tensor([-0.1, 0.2, 0.2], dtype=torch.float64)  # a fit's
-    path = tmp_path / "p.json"
-    with pytest.raises(InputError, match=r"p.json: not written: .*'translational' must be >= 0"):
-        Model(ico.topology, ico.params, [drag]).save(path)
-    assert not path.exists()
-    with pytest.raises(InputError, match=r"not written: .*mass"):
-        Model(ico.topology, ico.params.replace(mass=-ico.params.mass)).save(path)
-    assert not path.exists()
-
-
 def test_unknown_effect_is_a_clear_error(ico):
     with pytest.raises(InputError, match="unknown effect"):
         effects_from_document({"effects": [{"name": "magic"}]}, ico.topology)

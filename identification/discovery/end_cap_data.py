@@ -25,9 +25,11 @@ import torch
 from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.discovery.library import contact_gate
+from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii
 from identification.trajectory.effect_coords import CONTACT_FREE
-from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.identifier import TrajectoryIdentifier
+from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import fit_windows
 from identification.trajectory.windows import STATE_KEYS, Windows, cut_windows, end_caps
@@ -280,3 +282,25 @@ def predicted_caps(data: EndCapData, fit: TrajFit, windows: Windows) -> torch.Te
     engine, vec = fixed_engine(data, fit)
     roll = engine.rollout(windows.state, vec.params(vec.start), windows.steps, windows.control)
     return end_caps(engine, roll.p, roll.q)
+
+
+def declared_start(
+    data: EndCapData,
+    anchors: dict[str, float],
+    start: Params | None,
+    values: dict[str, np.ndarray] | None,
+    **keep: Any,
+) -> ParamVector:
+    """The declared model's parameter vector to fit from: ``values`` (a regression), else
+    ``start`` (a params file), else the regression on the smoothed training end caps
+    restricted by ``keep`` (``keep=`` samples or ``rod_keep=`` rod-samples)."""
+    if values is None and start is None:
+        values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
+                                     anchors, **keep)  # fmt: skip
+    elif values is None:
+        assert start is not None
+        values = params_values(start, data.axes)
+    has_control = bool(np.any(data.train.control != 0))
+    return TrajectoryIdentifier(anchors=anchors).start_vector(
+        data.topology, data.axes, values, parse_anchors(data.topology, anchors), has_control
+    )

@@ -38,6 +38,7 @@ from identification.discovery.end_cap_data import (
     airborne_keep,
     common_axis,
     contact_searched,
+    declared_start,
     fit_trajectory,
     has_contact,
     held,
@@ -45,7 +46,6 @@ from identification.discovery.end_cap_data import (
 )
 from identification.discovery.floor_fits import fit_declared_on_floor
 from identification.discovery.library import contact_gate
-from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.airborne import (
     airborne_stretches,
     cap_radii,
@@ -53,8 +53,7 @@ from identification.trajectory.airborne import (
     past_touchdown,
 )
 from identification.trajectory.effect_coords import EffectCoords
-from identification.trajectory.identifier import TrajectoryIdentifier
-from identification.trajectory.param_vector import ParamVector, params_values
+from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import find_touchdowns, search_contact
 from identification.trajectory.window_states import GROW, fit_states, prefix
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
@@ -98,17 +97,7 @@ def fit_declared(
     if airborne and (data.on_floor or not has_airborne_stretch(data.train.nodes, data.topology)):
         # never airborne long enough to fit apart from contact: contact from the start
         return fit_declared_on_floor(data, s, start, effects, values, data.contact_start)
-    if values is None and start is None:
-        values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
-                                     s.anchors, keep=airborne_keep(data))  # fmt: skip
-    elif values is None:
-        assert start is not None
-        values = params_values(start, data.axes)
-    has_control = bool(np.any(data.train.control != 0))
-    anchors = parse_anchors(data.topology, s.anchors)
-    vec = TrajectoryIdentifier(anchors=s.anchors).start_vector(
-        data.topology, data.axes, values, anchors, has_control
-    )
+    vec = declared_start(data, s.anchors, start, values, keep=airborne_keep(data))
     if effects:
         vec = replace(vec, coords=EffectCoords.of(list(effects), common_axis(data.axes),
                                                   data.contact_free))  # fmt: skip

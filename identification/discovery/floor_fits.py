@@ -25,10 +25,11 @@ from identification.discovery.end_cap_data import (
     TrajectorySettings,
     TrajFit,
     common_axis,
+    declared_start,
     fit_trajectory,
 )
 from identification.discovery.library import contact_gate
-from identification.linear.smoothed import parse_anchors, smoothed_regression
+from identification.linear.smoothed import parse_anchors
 from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
@@ -77,16 +78,7 @@ def fit_declared_on_floor(
     """
     t0 = time.perf_counter()
     data.on_floor = True
-    if values is None and start is None:
-        values = smoothed_regression(data.topology, data.smooth["train"], data.train.control,
-                                     s.anchors, rod_keep=floor_rows(data))  # fmt: skip
-    elif values is None:
-        assert start is not None
-        values = params_values(start, data.axes)
-    has_control = bool(np.any(data.train.control != 0))
-    vec = TrajectoryIdentifier(anchors=s.anchors).start_vector(
-        data.topology, data.axes, values, parse_anchors(data.topology, s.anchors), has_control
-    )
+    vec = declared_start(data, s.anchors, start, values, rod_keep=floor_rows(data))
     data.declared_k = int(vec.free.sum())
     others = [e for e in effects if not isinstance(e, GroundContact)]
     given = [e for e in effects if isinstance(e, GroundContact)]

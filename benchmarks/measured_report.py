@@ -21,7 +21,7 @@ from identification.data.dataset import read_dataset
 from tensegrity_env.effects import effects_from_document
 from tensegrity_env.engine.state import State
 from tensegrity_env.engine.step import Engine
-from tensegrity_env.io_utils import atomic_write_text
+from tensegrity_env.io_utils import InputError, atomic_write_text
 from tensegrity_env.params import params_from_dict
 from tensegrity_env.rotations import quat_to_matrix
 
@@ -109,6 +109,10 @@ def score_params(data: CellData, path: Path) -> dict[str, Any]:
     est = {k: np.asarray(v, float) for k, v in doc["params"].items()}
     topo = read_dataset(data.clean).topology
     out: dict[str, Any] = {"written": True, "unphysical": unphysical(est)}
+    try:  # each effect's own domain (drag >= 0, contact in range, ...), as a user loads it
+        effects_from_document(doc, topo, root=path.parent)
+    except InputError as e:
+        out["unphysical"].append(f"effect refused: {e}")
     out["errors"] = relative_errors(est, truth)
     out["effects"] = [e.get("name") for e in doc.get("effects", [])]
     out["coverage"] = coverage_pairs(doc, truth, [r.name for r in topo.rods],

@@ -92,6 +92,20 @@ class Model:
 
         return Engine(self.topology, self.dt, self.effects, dtype=dtype, device=device)
 
+    def violation(self) -> str:
+        """What lies outside the physical domain, in one line, or ``""`` when nothing does.
+
+        The checks :meth:`load` applies: :meth:`~tensegrity_env.params.Params.validate`
+        on the declared parameters and each effect's
+        :meth:`~tensegrity_env.effects.base.PhysicalEffect.check` (for example drag
+        coefficients >= 0 within 3 of their standard errors).
+        """
+        try:
+            self.params.validate(self.topology, source="declared parameters")
+        except InputError as e:
+            return str(e)
+        return next((v for v in (e.violation() for e in self.effects) if v), "")
+
     # ------------------------------------------------------------------ files
     @classmethod
     def read(cls, path: str | Path, dt: float = DEFAULT_DT) -> Model:
@@ -158,4 +172,3 @@ class Model:
         not written here (``ResidualNetwork.save``).
         """
         return atomic_write_text(path, json.dumps(self.to_document(extra), indent=2) + "\n")
-

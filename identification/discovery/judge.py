@@ -2,16 +2,19 @@
 
 A candidate (the current model plus one effect, fitted) is accepted only when
 
-1. its identified values are physical, and it is not negligible: the force it adds on
-   the rods is at least :data:`~identification.discovery.negligible.NEGLIGIBLE` of their
-   weight (:func:`~identification.discovery.negligible.force_ratio`);
+1. its model lies in the physical domain (:func:`unphysical`: the checks a params file
+   must pass to load, e.g. drag coefficients >= 0), and it is not negligible: the force
+   it adds on the rods is at least :data:`~identification.discovery.negligible.NEGLIGIBLE`
+   of their weight (:func:`~identification.discovery.negligible.force_ratio`);
 2. it lowers the **Bayesian information criterion** of the training errors by at least
    :data:`MIN_BIC_DROP` (``n ln(SSE / n) + k ln n``: each added parameter must pay);
 3. it lowers the **held-out** (validation) error by at least the scorer's minimum
    gain: the fraction :data:`MIN_GAIN` of the one-step error on rod states, or
    :data:`MIN_CHI2_GAIN` of the chi-square of multi-step end-cap predictions.
 
-The best accepted candidate is added. When the runner-up also passes, the two are
+The best accepted candidate is added; if the scorer's refit of it leaves the physical
+domain, :func:`overrule` rejects it after all and the next passing one is tried. When
+the runner-up also passes, the two are
 **ambiguous** if their predicted changes (against the current model) correlate above
 :data:`AMBIGUOUS_CORRELATION` and their held-out errors are closer than the scorer's
 separation (a factor :data:`AMBIGUOUS_RATIO` of one-step errors, or
@@ -88,7 +91,6 @@ class Candidate(Generic[F]):
         bic: information criterion of the training errors.
         rank: the scorer's ordering among candidates, lower is better.
         gate: why the candidate may act here.
-        physical: the identified effect values pass their physical checks.
         seconds: fit and score wall time [s].
         gain: how much it lowers the held-out error (:class:`Criteria` unit).
         bic_drop: how much it lowers the BIC.
@@ -104,7 +106,6 @@ class Candidate(Generic[F]):
     bic: float = float("nan")
     rank: float = 0.0
     gate: str = ""
-    physical: bool = True
     seconds: float = 0.0
     gain: float = 0.0
     bic_drop: float = 0.0
@@ -126,8 +127,9 @@ def judge(
     """
     c = candidate
     c.gain, c.bic_drop, c.size = gain, current.bic - c.bic, size
-    if not c.physical:
-        c.verdict = "rejected: identified values are unphysical"
+    reason = unphysical(c.model)
+    if reason:
+        c.verdict = f"rejected: unphysical ({reason})"
     elif size < NEGLIGIBLE:
         c.verdict = (
             f"negligible: its force on the rods is {size:.2%} of their weight (< {NEGLIGIBLE:.1%})"
@@ -141,6 +143,24 @@ def judge(
         c.verdict = (
             f"passes ({criteria.measure} -{criteria.format_gain(c.gain)}, ΔBIC -{c.bic_drop:.4g})"
         )
+
+
+def unphysical(model: FittedModel) -> str:
+    """Why ``model`` lies outside the physical domain (one line), or ``""``.
+
+    The domain is the one a params file must lie in to load
+    (:meth:`~tensegrity_env.model.Model.violation`): positive masses, inertias and
+    stiffnesses, and each effect's own checks (drag coefficients >= 0 within 3 of their
+    standard errors, contact parameters in range, ...).
+    """
+    return model.model.violation()
+
+
+def overrule(candidate: Candidate[F], reason: str) -> None:
+    """Reject an accepted ``candidate`` after all: its refit (as the next current model)
+    is unphysical for ``reason``."""
+    candidate.accepted = False
+    candidate.verdict = f"rejected: its refit as the model is unphysical ({reason})"
 
 
 @dataclass

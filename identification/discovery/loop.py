@@ -10,7 +10,9 @@ library times an optimizer). Each iteration
    model) on held-out data;
 3. accepts the best candidate only if :func:`~identification.discovery.judge.judge`
    passes it (BIC, held-out gain, physical values), and flags the attribution when
-   the runner-up also passes and the two explain the same thing;
+   the runner-up also passes and the two explain the same thing; when the scorer's
+   refit of it (:meth:`Scorer.accept`) leaves the physical domain it is rejected after
+   all (:func:`~identification.discovery.judge.overrule`) and the next passing one tried;
 4. stops when no candidate is accepted: the residual is noise, or nothing in the
    library explains it (:meth:`Scorer.leftover` says which).
 
@@ -38,7 +40,9 @@ from identification.discovery.judge import (
     RunnerUp,
     correlation,
     judge,
+    overrule,
     runner_up,
+    unphysical,
 )
 from identification.discovery.library import FittedModel, Proposal
 from identification.discovery.negligible import force_ratio
@@ -283,9 +287,10 @@ class EffectDiscovery:
                 break
             it = self.iterate(current, residual, test_now)
             iterations.append(it)
-            if it.chosen is None:
+            added = self.add(it)
+            if added is None:
                 break
-            current = it.added = scorer.accept(it.chosen)
+            current = added
             test_now = it.test_after = scorer.test_errors(current)
             note = ""
             if it.runner_up is not None:
@@ -335,14 +340,40 @@ class EffectDiscovery:
                 f"{scorer.criteria.format_gain(c.gain)}, ΔBIC {-c.bic_drop:+.4g}: {c.verdict} "
                 f"({c.seconds:.1f} s)")  # fmt: skip
             tried.append(c)
+        chosen, second = self.choose(current, tried)
+        return Iteration(current, tried, skipped, chosen, second, residual, test_now)
+
+    def choose(
+        self, current: Candidate[Any], tried: list[Candidate[Any]]
+    ) -> tuple[Candidate[Any] | None, RunnerUp | None]:
+        """The best accepted candidate (None: none), and the runner-up if it also passed
+        (``tried`` is sorted best first, accepted ones first)."""
+        scorer = self.scorer
         tried.sort(key=lambda c: (not c.accepted, c.rank))
         chosen = tried[0] if tried and tried[0].accepted else None
-        second = None
-        if chosen is not None and len(tried) > 1 and tried[1].accepted:
-            runner = tried[1]
-            corr = correlation(
-                scorer.predicted_change(current, chosen), scorer.predicted_change(current, runner)
-            )
-            separation, note = scorer.separation(chosen, runner)
-            second = runner_up(runner.name, corr, separation, note, scorer.criteria)
-        return Iteration(current, tried, skipped, chosen, second, residual, test_now)
+        if chosen is None or len(tried) < 2 or not tried[1].accepted:
+            return chosen, None
+        runner = tried[1]
+        corr = correlation(
+            scorer.predicted_change(current, chosen), scorer.predicted_change(current, runner)
+        )
+        separation, note = scorer.separation(chosen, runner)
+        return chosen, runner_up(runner.name, corr, separation, note, scorer.criteria)
+
+    def add(self, it: Iteration) -> Candidate[Any] | None:
+        """``it.chosen`` as the next current model (:meth:`Scorer.accept`), or None.
+
+        A refit outside the physical domain (e.g. it drives an effect added earlier to a
+        negative drag) overrules the choice: the candidate is rejected with the reason,
+        and the next passing candidate, if any, is tried the same way.
+        """
+        while it.chosen is not None:
+            added = self.scorer.accept(it.chosen)
+            reason = unphysical(added.model)
+            if not reason:
+                it.added = added
+                return added
+            overrule(it.chosen, reason)
+            self.log(f"  candidate {it.chosen.name}: {it.chosen.verdict}")
+            it.chosen, it.runner_up = self.choose(it.before, it.candidates)
+        return None

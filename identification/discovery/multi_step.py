@@ -69,7 +69,7 @@ from identification.discovery.end_cap_residuals import (
     window_residuals,
 )
 from identification.discovery.floor_fits import floor_rows
-from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate
+from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import FittedModel, Proposal, contact_gate, propose
 from identification.discovery.loop import CandidateSkipped, Residual, Scorer
 from identification.discovery.residual_network import ResidualFit
@@ -84,7 +84,6 @@ from identification.trajectory.stage_check import check_stage, fit_diverged, noi
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import GroundContact, ImplicitLinearDrag, SlackSprings
 from tensegrity_env.engine import State
-from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 
@@ -171,7 +170,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         return Candidate(
             name, fits, FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k),
             heldout={"caps_rms": float(np.sqrt(fits.val_sse / max(fits.val_m, 1)))},
-            bic=fits.fit.bic, physical=all(e.physical() for e in fits.fit.effects),
+            bic=fits.fit.bic,
         )  # fmt: skip
 
     def test_errors(self, current: Candidate[EndCapFits]) -> dict[str, Any]:
@@ -348,19 +347,15 @@ class MultiStepScorer(Scorer[EndCapFits]):
         steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
         windows = data.cut("train", steps, sys.maxsize, 4)
         final = fit_many(data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
-        ok = not fit_diverged(final.rms, self.noise) and all(e.physical() for e in final.effects)
-        try:
-            final.params.validate(data.topology, source="the final refit")
-        except InputError:
-            ok = False
-        self.log(f"final refit on {final.windows.size} training windows of {steps} steps: "
-                 f"end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
-                 + ("" if ok else "; not used (diverged or unphysical)"))  # fmt: skip
-        if not ok:
-            return current
-        fits = replace(current.fit, final=final)
         ds = self.dataset
         model = FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k)
+        why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)
+        self.log(f"final refit on {final.windows.size} training windows of {steps} steps: "
+                 f"end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
+                 + (f"; not used ({why})" if why else ""))  # fmt: skip
+        if why:
+            return current
+        fits = replace(current.fit, final=final)
         return replace(current, fit=fits, model=model)
 
     # ------------------------------------------------------------------ what is left

@@ -145,7 +145,6 @@ class OneStepScorer(Scorer[FittedModel]):
         val = self.errors(model, self.val_split)
         return Candidate(
             name, model, model, heldout=val, bic=one_step_bic(self.dataset, model),
-            physical=all(e.physical() for e in model.effects),
         )  # fmt: skip
 
     def sample_states(self) -> State | None:

@@ -138,13 +138,17 @@ class PhysicalEffect(EffectBase):
     def check(self) -> None:
         """Physical sign checks of the values; raise :class:`InputError`. Override."""
 
-    def physical(self) -> bool:
-        """Whether the values pass :meth:`check` (a fit may give unphysical ones)."""
+    def violation(self) -> str:
+        """Why the values fail :meth:`check` (its message), or ``""`` when they pass."""
         try:
             self.check()
-        except InputError:
-            return False
-        return True
+        except InputError as e:
+            return str(e)
+        return ""
+
+    def physical(self) -> bool:
+        """Whether the values pass :meth:`check` (a fit may give unphysical ones)."""
+        return not self.violation()
 
     def value(self, key: str, like: torch.Tensor) -> torch.Tensor:
         """Parameter ``key`` on the dtype and device of ``like``."""

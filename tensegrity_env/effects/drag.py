@@ -67,9 +67,16 @@ class _Drag(LinearEffect):
     def check(self) -> None:
         """Drag opposes motion: coefficients >= 0 (or within 3 standard errors of 0)."""
         for k, v in self.values.items():
-            se = torch.as_tensor(np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float)))
-            if (v.detach() < -3 * se.to(v)).any():
-                raise InputError(f"effect '{self.name}': '{k}' must be >= 0 (drag opposes motion)")
+            se = np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float))
+            x = v.detach().cpu().numpy()
+            se = np.broadcast_to(se, x.shape)
+            bad = np.flatnonzero(x < -3 * se)
+            if bad.size:
+                i = int(bad[0])
+                raise InputError(
+                    f"effect '{self.name}': '{k}' must be >= 0 (drag opposes motion), got "
+                    f"[{i}] = {x[i]:.4g} ± {se[i]:.2g} {self.PARAMS[k].unit}"
+                )
 
 
 class LinearDrag(_Drag):

@@ -14,24 +14,37 @@ from identification.discovery.judge import (
     correlation,
     judge,
     runner_up,
+    unphysical,
 )
 from identification.linear.regression import NotFittedError
 from tensegrity_env import assemblies
+from tensegrity_env.effects import LinearDrag
 from tensegrity_env.model import Model
 
 ICO = assemblies.icosahedron()
 DECLARED = FittedModel(Model(ICO.topology, ICO.params), n_params=0)
 
 
+def with_drag(b_axial: float, se: float = 0.0) -> FittedModel:
+    """The declared model plus linear drag whose axial coefficient is ``b_axial`` ± ``se``."""
+    drag = LinearDrag(ICO.topology, validate=False, translational=[0.4, 0.4, b_axial],
+                      uncertainty={"translational": [0.01, 0.01, se]})  # fmt: skip
+    return FittedModel(Model(ICO.topology, ICO.params, [drag]), n_params=6)
+
+
+#: a fit that drove a drag coefficient negative, 5 standard errors below 0
+NEGATIVE_DRAG = with_drag(-0.131, 0.0267)
+
+
 def scored(name: str, bic: float, physical: bool = True) -> Candidate[None]:
-    return Candidate(name, None, DECLARED, bic=bic, physical=physical)
+    return Candidate(name, None, DECLARED if physical else NEGATIVE_DRAG, bic=bic)
 
 
 @pytest.mark.parametrize(
     ("bic", "gain", "physical", "accepted", "reason"),
     [
         (-20.0, 0.5, True, True, "passes"),
-        (-20.0, 0.5, False, False, "unphysical"),
+        (-20.0, 0.5, False, False, "rejected: unphysical (effect 'linear_drag'"),
         (-(MIN_BIC_DROP - 1), 0.5, True, False, "BIC drops only"),
         (float("nan"), 0.5, True, False, "BIC drops only"),
         (-20.0, 0.1, True, False, "one-step error drops only 10.0%"),
@@ -75,3 +88,23 @@ def test_results_before_fit_raise():
         _ = loop.model_
     with pytest.raises(NotFittedError):
         _ = loop.iterations_
+
+
+def test_negative_drag_is_rejected_with_the_value_and_its_standard_error():
+    current, c = scored("nothing", 0.0), scored("linear_drag", -500.0, physical=False)
+    judge(c, current, 1e4, MULTI_STEP)  # far better on every score, but not physical
+    assert not c.accepted
+    assert c.verdict == (
+        "rejected: unphysical (effect 'linear_drag': 'translational' must be >= 0 (drag "
+        "opposes motion), got [2] = -0.131 ± 0.027 N*s/m)"
+    )
+    # within 3 standard errors of 0 it is zero drag, as Model.load reads it
+    c = Candidate("linear_drag", None, with_drag(-0.05, 0.0267), bic=-500.0)
+    judge(c, current, 1e4, MULTI_STEP)
+    assert c.accepted and unphysical(c.model) == ""
+
+
+def test_unphysical_declared_parameters_are_named():
+    bad = FittedModel(Model(ICO.topology, ICO.params.replace(mass=-ICO.params.mass)), 0)
+    assert unphysical(bad).startswith("declared parameters: masses must be positive")
+    assert unphysical(DECLARED) == ""

@@ -1,0 +1,136 @@
+"""The residual loop names nothing outside the physical domain.
+
+A stub scorer stands in for the fits: each candidate's fit and its refit as the next
+model (:meth:`Scorer.accept`) are given, so the test asserts the loop's decisions alone.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pytest
+
+from identification.discovery import EffectDiscovery, FittedModel
+from identification.discovery.judge import MULTI_STEP, Candidate
+from identification.discovery.library import Proposal
+from identification.discovery.loop import Residual, Scorer
+from identification.discovery.residual_network import ResidualFit
+from tensegrity_env import assemblies
+from tensegrity_env.effects import LinearDrag, QuadraticDrag
+from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.model import Model
+
+ICO = assemblies.icosahedron()
+
+
+def model_with(*effects: PhysicalEffect) -> FittedModel:
+    return FittedModel(Model(ICO.topology, ICO.params, list(effects)), n_params=6 * len(effects))
+
+
+def drag(cls: type[LinearDrag] | type[QuadraticDrag], axial: float, se: float) -> PhysicalEffect:
+    """Drag of 0.4 across the rods and ``axial`` ± ``se`` along them (natural units)."""
+    return cls(ICO.topology, validate=False, translational=[0.4, 0.4, axial],
+               uncertainty={"translational": [0.01, 0.01, se]})  # fmt: skip
+
+
+class StubScorer(Scorer[None]):
+    """Candidates with given fits, held-out gains and refits."""
+
+    criteria = MULTI_STEP
+    method = "stub"
+
+    def __init__(self, fits: dict[str, tuple[FittedModel, float, FittedModel]]) -> None:
+        self.fits = fits  # name -> (candidate fit, held-out gain, refit as the model)
+
+    def begin(self, dataset: Any, log: Callable[[str], None]) -> Candidate[None]:
+        return Candidate("nothing", None, model_with(), bic=0.0)
+
+    def test_errors(self, current: Candidate[None]) -> dict[str, Any]:
+        return {}
+
+    def propose(self, current: Candidate[None], names: Sequence[str] | None) -> list[Proposal]:
+        return [Proposal(n, m.effects[-1], "stub") for n, (m, _, _) in self.fits.items()]
+
+    def fit_candidate(self, current: Candidate[None], proposal: Proposal) -> Candidate[None]:
+        return Candidate(proposal.name, None, self.fits[proposal.name][0], bic=-500.0)
+
+    def gain(self, candidate: Candidate[None], current: Candidate[None]) -> float:
+        return self.fits[candidate.name][1]
+
+    def rank(self, candidate: Candidate[None]) -> float:
+        return -candidate.gain
+
+    def summary(self, candidate: Candidate[None]) -> str:
+        return ""
+
+    def separation(self, chosen: Candidate[None], runner: Candidate[None]) -> tuple[float, str]:
+        return chosen.gain - runner.gain, ""
+
+    def predicted_change(self, current: Candidate[None], candidate: Candidate[None]) -> np.ndarray:
+        return np.zeros(3)
+
+    def accept(self, chosen: Candidate[None]) -> Candidate[None]:
+        return Candidate(chosen.name, None, self.fits[chosen.name][2], bic=chosen.bic)
+
+    def residual(self, current: Candidate[None], k: int, plots: Any) -> Residual:
+        return Residual({}, "")
+
+    def leftover(self, current: Candidate[None]) -> tuple[str, ResidualFit | None]:
+        return "", None
+
+    def describe(self) -> str:
+        return "stub"
+
+    def test_labels(self) -> dict[str, tuple[str, str]]:
+        return {}
+
+    def settings_summary(self) -> dict[str, Any]:
+        return {}
+
+
+LINEAR_OK = model_with(drag(LinearDrag, 0.1, 0.01))
+#: the refit drove the axial drag to -0.131 N*s/m, 5 standard errors below 0
+LINEAR_NEGATIVE = model_with(drag(LinearDrag, -0.131, 0.0267))
+QUADRATIC_OK = model_with(drag(QuadraticDrag, 0.09, 0.008))
+
+
+def run(fits: dict[str, tuple[FittedModel, float, FittedModel]]) -> EffectDiscovery:
+    lines: list[str] = []
+    loop = EffectDiscovery(StubScorer(fits), max_effects=1, log=lines.append).fit(None)  # type: ignore[arg-type]
+    loop.lines = lines  # type: ignore[attr-defined]
+    return loop
+
+
+def test_a_candidate_fitted_with_negative_drag_is_not_named():
+    loop = run({"linear_drag": (LINEAR_NEGATIVE, 1e4, LINEAR_NEGATIVE),
+                "quadratic_drag": (QUADRATIC_OK, 50.0, QUADRATIC_OK)})  # fmt: skip
+    assert loop.result_.added == ["quadratic_drag"]
+    verdicts = {c.name: c.verdict for c in loop.iterations_[0].candidates}
+    assert verdicts["linear_drag"].startswith(
+        "rejected: unphysical (effect 'linear_drag': 'translational' must be >= 0"
+    )
+    assert "[2] = -0.131 ± 0.027 N*s/m" in verdicts["linear_drag"]
+
+
+@pytest.mark.parametrize("quadratic_refit", [QUADRATIC_OK, LINEAR_NEGATIVE])
+def test_a_refit_that_leaves_the_domain_overrules_the_choice(quadratic_refit):
+    """The best candidate passes on its own fit, but its refit as the model is unphysical:
+    it is rejected with the reason and the next passing candidate is tried the same way."""
+    loop = run({"linear_drag": (LINEAR_OK, 1e4, LINEAR_NEGATIVE),
+                "quadratic_drag": (QUADRATIC_OK, 50.0, quadratic_refit)})  # fmt: skip
+    it = loop.iterations_[0]
+    verdicts = {c.name: c.verdict for c in it.candidates}
+    assert verdicts["linear_drag"] == (
+        "rejected: its refit as the model is unphysical (effect 'linear_drag': 'translational' "
+        "must be >= 0 (drag opposes motion), got [2] = -0.131 ± 0.027 N*s/m)"
+    )
+    if quadratic_refit is QUADRATIC_OK:
+        assert loop.result_.added == ["quadratic_drag"] and it.added is not None
+        assert loop.model_.names == ["quadratic_drag"]
+    else:  # nothing passes in the physical domain: nothing is named, the declared model stays
+        assert loop.result_.added == [] and it.chosen is None and it.added is None
+        assert verdicts["quadratic_drag"].startswith("rejected: its refit as the model")
+        assert loop.model_.names == [] and loop.model_.model.violation() == ""
+    assert any("candidate linear_drag: rejected: its refit" in ln for ln in loop.lines)

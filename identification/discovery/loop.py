@@ -13,6 +13,9 @@ library times an optimizer). Each iteration
    the runner-up also passes and the two explain the same thing; when the scorer's
    refit of it (:meth:`Scorer.accept`) leaves the physical domain it is rejected after
    all (:func:`~identification.discovery.judge.overrule`) and the next passing one tried;
+   when it is an effect added earlier that the refit drives out of its domain, that
+   effect stood in for the candidate: the candidate **in place of** it is fitted and
+   judged against the current model first (:meth:`EffectDiscovery.replace`);
 4. stops when no candidate is accepted: the residual is noise, or nothing in the
    library explains it (:meth:`Scorer.leftover` says which).
 
@@ -98,8 +101,11 @@ class Scorer(ABC, Generic[F]):
         """The library's candidates not in ``current`` (``names``: only these), gated."""
 
     @abstractmethod
-    def fit_candidate(self, current: Candidate[F], proposal: Proposal) -> Candidate[F]:
-        """``current`` plus the proposed effect, fitted jointly and scored.
+    def fit_candidate(
+        self, current: Candidate[F], proposal: Proposal, drop: Sequence[str] = ()
+    ) -> Candidate[F]:
+        """``current`` plus the proposed effect, fitted jointly and scored; ``drop``:
+        effects of ``current`` left out (the candidate in place of them).
 
         Raises :class:`CandidateSkipped` when the fit cannot be judged (it diverged).
         """
@@ -174,6 +180,8 @@ class Iteration:
         residual: what the current model leaves.
         test_before, test_after: test-split errors of the model before and after.
         added: ``chosen`` as the next current model (refitted where the scorer does).
+        replaced: effects of ``before`` that ``chosen`` replaces (see
+            :meth:`EffectDiscovery.replace`).
     """
 
     before: Candidate[Any]
@@ -185,6 +193,7 @@ class Iteration:
     test_before: dict[str, Any]
     test_after: dict[str, Any] | None = None
     added: Candidate[Any] | None = None
+    replaced: list[str] = field(default_factory=list)
 
     @property
     def ambiguous(self) -> tuple[str, float] | None:
@@ -227,7 +236,12 @@ class DiscoveryResult:
 
     @property
     def added(self) -> list[str]:
-        return [it.chosen.name for it in self.iterations if it.chosen is not None]
+        """Effects added, in order, less those a later one replaced."""
+        names: list[str] = []
+        for it in self.iterations:
+            if it.chosen is not None:
+                names = [n for n in names if n not in it.replaced] + [it.chosen.name]
+        return names
 
 
 class EffectDiscovery:
@@ -297,7 +311,8 @@ class EffectDiscovery:
                 r = it.runner_up
                 note = (f" (runner-up {r.name}: predicted changes correlate {r.correlation:.3f}, "
                         f"{r.note}" + ("; CANNOT be told apart)" if r.ambiguous else ")"))  # fmt: skip
-            log(f"added {it.chosen.name}{note}")
+            instead = f" in place of {', '.join(it.replaced)}" if it.replaced else ""
+            log(f"added {it.chosen.name}{instead}{note}")
         final = scorer.finish(current)
         if final is not current:
             current, test_now = final, scorer.test_errors(final)
@@ -314,7 +329,7 @@ class EffectDiscovery:
         self, current: Candidate[Any], residual: Residual, test_now: dict[str, Any]
     ) -> Iteration:
         """One pass: every candidate fitted, scored and judged; the best passing one chosen."""
-        scorer, log = self.scorer, self.log
+        scorer = self.scorer
         tried: list[Candidate[Any]] = []
         skipped: list[Proposal] = []
         states = scorer.sample_states()
@@ -332,16 +347,21 @@ class EffectDiscovery:
                 skipped.append(Proposal(p.name, None, f"fit failed: {e}"))
                 continue
             c.gate, c.seconds = p.gate, time.perf_counter() - t0
-            size = math.nan if states is None else force_ratio(c.model, current.model, states)
-            judge(c, current, scorer.gain(c, current), scorer.criteria, size)
-            c.rank = scorer.rank(c)
-            log("    " + "; ".join(e.describe() for e in c.model.effects))
-            log(f"  candidate {p.name:20s} {scorer.summary(c)}, gain "
-                f"{scorer.criteria.format_gain(c.gain)}, ΔBIC {-c.bic_drop:+.4g}: {c.verdict} "
-                f"({c.seconds:.1f} s)")  # fmt: skip
+            self.judged(c, current, states)
             tried.append(c)
         chosen, second = self.choose(current, tried)
         return Iteration(current, tried, skipped, chosen, second, residual, test_now)
+
+    def judged(self, c: Candidate[Any], current: Candidate[Any], states: State | None) -> None:
+        """Judge ``c`` against ``current`` (its force measured on ``states``), rank, log."""
+        scorer, log = self.scorer, self.log
+        size = math.nan if states is None else force_ratio(c.model, current.model, states)
+        judge(c, current, scorer.gain(c, current), scorer.criteria, size)
+        c.rank = scorer.rank(c)
+        log("    " + "; ".join(e.describe() for e in c.model.effects))
+        log(f"  candidate {c.name:20s} {scorer.summary(c)}, gain "
+            f"{scorer.criteria.format_gain(c.gain)}, ΔBIC {-c.bic_drop:+.4g}: {c.verdict} "
+            f"({c.seconds:.1f} s)")  # fmt: skip
 
     def choose(
         self, current: Candidate[Any], tried: list[Candidate[Any]]
@@ -368,12 +388,51 @@ class EffectDiscovery:
         and the next passing candidate, if any, is tried the same way.
         """
         while it.chosen is not None:
-            added = self.scorer.accept(it.chosen)
+            chosen = it.chosen
+            added = self.scorer.accept(chosen)
             reason = unphysical(added.model)
             if not reason:
                 it.added = added
                 return added
-            overrule(it.chosen, reason)
-            self.log(f"  candidate {it.chosen.name}: {it.chosen.verdict}")
+            overrule(chosen, reason)
+            self.log(f"  candidate {chosen.name}: {chosen.verdict}")
+            earlier = set(it.before.model.names) - {chosen.name}
+            stale = [e.name for e in added.model.effects if e.name in earlier and e.violation()]
+            if stale and (added := self.replace(it, chosen, stale)) is not None:
+                return added
             it.chosen, it.runner_up = self.choose(it.before, it.candidates)
         return None
+
+    def replace(
+        self, it: Iteration, chosen: Candidate[Any], stale: list[str]
+    ) -> Candidate[Any] | None:
+        """``chosen`` in place of the effects ``stale`` of the current model, or None.
+
+        The refit of ``chosen`` drove the effects ``stale``, added earlier, out of their
+        physical domain (e.g. a negative linear drag beside quadratic drag): they stood
+        in for it. The current model without them plus ``chosen``'s effect is fitted and
+        judged against the current model like any candidate (and added to
+        ``it.candidates``); if it passes and its refit stays physical it is the choice.
+        """
+        scorer, t0 = self.scorer, time.perf_counter()
+        effect = next(e for e in chosen.model.effects if e.name == chosen.name)
+        gate = (f"in place of {', '.join(stale)}, which its refit drove out of the physical "
+                "domain")  # fmt: skip
+        try:
+            c = scorer.fit_candidate(it.before, Proposal(chosen.name, effect, gate), stale)
+        except (CandidateSkipped, RuntimeError, ValueError, InputError) as e:
+            self.log(f"  {chosen.name} {gate}: not judged ({e})")
+            return None
+        c.gate, c.seconds = gate, time.perf_counter() - t0
+        self.judged(c, it.before, scorer.sample_states())
+        it.candidates.append(c)
+        if not c.accepted:
+            return None
+        added = scorer.accept(c)
+        reason = unphysical(added.model)
+        if reason:
+            overrule(c, reason)
+            self.log(f"  candidate {c.name}: {c.verdict}")
+            return None
+        it.chosen, it.runner_up, it.added, it.replaced = c, None, added, stale
+        return added

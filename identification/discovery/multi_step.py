@@ -83,6 +83,7 @@ from identification.trajectory.slack_regression import (
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import GroundContact, ImplicitLinearDrag, SlackSprings
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import State
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
@@ -237,19 +238,22 @@ class MultiStepScorer(Scorer[EndCapFits]):
                         start=reg.values)  # fmt: skip
 
     def fit_candidate(
-        self, current: Candidate[EndCapFits], proposal: Proposal
+        self, current: Candidate[EndCapFits], proposal: Proposal, drop: Sequence[str] = ()
     ) -> Candidate[EndCapFits]:
         s, now = self.settings, current.fit.fit
         assert proposal.effect is not None
+        keep = [e for e in now.start_effects if e.name not in drop]
         if proposal.start is not None:
-            fit = self.fit_slack(now, proposal)
+            fit = self.fit_slack(now, proposal, keep)
         else:
-            fit = fit_with(self.data, now, [*now.start_effects, proposal.effect], s.candidate_iter)
+            fit = fit_with(self.data, now, [*keep, proposal.effect], s.candidate_iter)
         if fit_diverged(fit.rms, self.noise):
             raise CandidateSkipped(f"its fit diverged (end-cap RMS {fit.rms * 1e3:.3g} mm)")
         return self.score(proposal.name, EndCapFits(fit, fit))
 
-    def fit_slack(self, current: TrajFit, proposal: Proposal) -> TrajFit:
+    def fit_slack(
+        self, current: TrajFit, proposal: Proposal, keep: Sequence[PhysicalEffect]
+    ) -> TrajFit:
         """The cable hypothesis fitted like the declared model, from its own regression.
 
         Started from the current model instead, a fit stays near the compromise the
@@ -258,7 +262,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         runs instead.
         """
         assert proposal.effect is not None
-        effects = [*current.start_effects, proposal.effect]
+        effects = [*keep, proposal.effect]
         if contact_searched(current.vec):
             return fit_with(self.data, current, effects, self.settings.candidate_iter)
         many, fit = fit_declared(self.data, self.settings, effects=effects, values=proposal.start)

@@ -180,10 +180,13 @@ class OneStepScorer(Scorer[FittedModel]):
         return propose(ds.split("train"), ds.topology, model.names, names, gates)
 
     def fit_candidate(
-        self, current: Candidate[FittedModel], proposal: Proposal
+        self, current: Candidate[FittedModel], proposal: Proposal, drop: Sequence[str] = ()
     ) -> Candidate[FittedModel]:
-        fitted = fit_proposal(self.dataset, current.model, proposal, self.settings)
-        return self.score(proposal.name, fitted)
+        now = current.model
+        if drop:
+            keep = [e for e in now.effects if e.name not in drop]
+            now = FittedModel(now.model.replace(effects=keep), now.n_params)
+        return self.score(proposal.name, fit_proposal(self.dataset, now, proposal, self.settings))
 
     def gain(self, candidate: Candidate[FittedModel], current: Candidate[FittedModel]) -> float:
         """Fraction of the held-out one-step error removed (floored at round-off)."""

@@ -129,7 +129,8 @@ def write_report(
             continue
         c = it.added or it.chosen
         added = next(e for e in c.model.effects if e.name == c.name)
-        L += [f"**Added: {c.name}** ({type(added).summary})", ""]
+        instead = f", in place of {', '.join(it.replaced)}" if it.replaced else ""
+        L += [f"**Added: {c.name}** ({type(added).summary}){instead}", ""]
         if it.runner_up is not None:
             r = it.runner_up
             L += [

@@ -41,11 +41,22 @@ class StubScorer(Scorer[None]):
     criteria = MULTI_STEP
     method = "stub"
 
-    def __init__(self, fits: dict[str, tuple[FittedModel, float, FittedModel]]) -> None:
+    def __init__(
+        self,
+        fits: dict[str, tuple[FittedModel, float, FittedModel]],
+        start: FittedModel | None = None,
+        replacing: dict[str, tuple[FittedModel, float, FittedModel]] | None = None,
+    ) -> None:
         self.fits = fits  # name -> (candidate fit, held-out gain, refit as the model)
+        self.start = start or model_with()  # the current model at the start
+        self.replacing = replacing or {}  # the same, for the candidate in place of others
+        self.dropped: list[list[str]] = []
 
     def begin(self, dataset: Any, log: Callable[[str], None]) -> Candidate[None]:
-        return Candidate("nothing", None, model_with(), bic=0.0)
+        return Candidate("nothing", None, self.start, bic=0.0)
+
+    def entry(self, c: Candidate[None]) -> tuple[FittedModel, float, FittedModel]:
+        return (self.replacing if "in place of" in c.gate else self.fits)[c.name]
 
     def test_errors(self, current: Candidate[None]) -> dict[str, Any]:
         return {}
@@ -53,11 +64,17 @@ class StubScorer(Scorer[None]):
     def propose(self, current: Candidate[None], names: Sequence[str] | None) -> list[Proposal]:
         return [Proposal(n, m.effects[-1], "stub") for n, (m, _, _) in self.fits.items()]
 
-    def fit_candidate(self, current: Candidate[None], proposal: Proposal) -> Candidate[None]:
-        return Candidate(proposal.name, None, self.fits[proposal.name][0], bic=-500.0)
+    def fit_candidate(
+        self, current: Candidate[None], proposal: Proposal, drop: Sequence[str] = ()
+    ) -> Candidate[None]:
+        if drop:
+            self.dropped.append(list(drop))
+        c = Candidate(proposal.name, None, model_with(), bic=-500.0, gate=proposal.gate)
+        c.model = self.entry(c)[0]
+        return c
 
     def gain(self, candidate: Candidate[None], current: Candidate[None]) -> float:
-        return self.fits[candidate.name][1]
+        return self.entry(candidate)[1]
 
     def rank(self, candidate: Candidate[None]) -> float:
         return -candidate.gain
@@ -72,7 +89,7 @@ class StubScorer(Scorer[None]):
         return np.zeros(3)
 
     def accept(self, chosen: Candidate[None]) -> Candidate[None]:
-        return Candidate(chosen.name, None, self.fits[chosen.name][2], bic=chosen.bic)
+        return Candidate(chosen.name, None, self.entry(chosen)[2], bic=chosen.bic)
 
     def residual(self, current: Candidate[None], k: int, plots: Any) -> Residual:
         return Residual({}, "")
@@ -96,9 +113,10 @@ LINEAR_NEGATIVE = model_with(drag(LinearDrag, -0.131, 0.0267))
 QUADRATIC_OK = model_with(drag(QuadraticDrag, 0.09, 0.008))
 
 
-def run(fits: dict[str, tuple[FittedModel, float, FittedModel]]) -> EffectDiscovery:
+def run(fits: dict[str, tuple[FittedModel, float, FittedModel]], **kw: Any) -> EffectDiscovery:
     lines: list[str] = []
-    loop = EffectDiscovery(StubScorer(fits), max_effects=1, log=lines.append).fit(None)  # type: ignore[arg-type]
+    loop = EffectDiscovery(StubScorer(fits, **kw), max_effects=1, log=lines.append)
+    loop.fit(None)  # type: ignore[arg-type]
     loop.lines = lines  # type: ignore[attr-defined]
     return loop
 
@@ -134,3 +152,29 @@ def test_a_refit_that_leaves_the_domain_overrules_the_choice(quadratic_refit):
         assert verdicts["quadratic_drag"].startswith("rejected: its refit as the model")
         assert loop.model_.names == [] and loop.model_.model.violation() == ""
     assert any("candidate linear_drag: rejected: its refit" in ln for ln in loop.lines)
+
+
+@pytest.mark.parametrize("gain_alone", [60.0, 1.0])
+def test_an_earlier_effect_driven_out_of_its_domain_is_replaced(gain_alone):
+    """Linear drag stood in for quadratic drag: the joint refit drives it negative. The
+    candidate in place of it is fitted and judged against the current model; it is the
+    choice only if it passes on its own."""
+    joint = model_with(drag(LinearDrag, 0.1, 0.01), drag(QuadraticDrag, 0.09, 0.008))
+    joint_refit = model_with(drag(LinearDrag, -0.131, 0.0267), drag(QuadraticDrag, 0.09, 0.008))
+    loop = run({"quadratic_drag": (joint, 1e3, joint_refit)}, start=LINEAR_OK,
+               replacing={"quadratic_drag": (QUADRATIC_OK, gain_alone, QUADRATIC_OK)})  # fmt: skip
+    it = loop.iterations_[0]
+    assert loop.scorer.dropped == [["linear_drag"]]
+    first, alone = it.candidates
+    assert first.verdict.startswith("rejected: its refit as the model is unphysical (effect "
+                                    "'linear_drag'")  # fmt: skip
+    assert alone.gate.startswith("in place of linear_drag")
+    if gain_alone >= MULTI_STEP.min_gain:
+        assert alone.accepted and it.chosen is alone and it.replaced == ["linear_drag"]
+        assert loop.model_.names == ["quadratic_drag"] and loop.result_.added == ["quadratic_drag"]
+        assert any(
+            ln.startswith("added quadratic_drag in place of linear_drag") for ln in loop.lines
+        )
+    else:  # quadratic drag alone does not beat linear drag: the current model stays
+        assert not alone.accepted and "drops only 1" in alone.verdict
+        assert it.chosen is None and loop.model_.names == ["linear_drag"]

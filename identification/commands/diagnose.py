@@ -20,10 +20,11 @@ from identification.data.end_caps import with_measured_states
 from identification.data.sample_grid import on_nominal_grid
 from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.library import FitSettings
-from identification.discovery.loop import EffectDiscovery, Scorer
+from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_unit, ratio, write_params, write_report
+from identification.discovery.scorer import Scorer
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from tensegrity_env.effects import EFFECTS, GroundContact

@@ -9,10 +9,11 @@ report writer (:func:`write_report`, :func:`write_params`).
 
 from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.library import LIBRARY, FitSettings, FittedModel
-from identification.discovery.loop import DiscoveryResult, EffectDiscovery, Scorer
+from identification.discovery.loop import DiscoveryResult, EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import write_params, write_report
+from identification.discovery.scorer import Scorer
 
 __all__ = [
     "LIBRARY",

@@ -3,7 +3,8 @@
 :class:`EffectDiscovery` is an effect library times a scorer (as in PySINDy, a
 library times an optimizer). Each iteration
 
-1. looks at the current model's **residuals** (:meth:`Scorer.residual`);
+1. looks at the current model's **residuals**
+   (:meth:`~identification.discovery.scorer.Scorer.residual`);
 2. fits every **candidate** of the effect library whose physical gate the data passes
    (:func:`~identification.discovery.library.propose`), each jointly with everything
    already in the model, and scores it against "nothing is missing" (the current
@@ -11,13 +12,14 @@ library times an optimizer). Each iteration
 3. accepts the best candidate only if :func:`~identification.discovery.judge.judge`
    passes it (BIC, held-out gain, physical values), and flags the attribution when
    the runner-up also passes and the two explain the same thing; when the scorer's
-   refit of it (:meth:`Scorer.accept`) leaves the physical domain it is rejected after
-   all (:func:`~identification.discovery.judge.overrule`) and the next passing one tried;
+   refit of it (:meth:`~identification.discovery.scorer.Scorer.accept`) leaves the
+   physical domain it is rejected after all
+   (:func:`~identification.discovery.judge.overrule`) and the next passing one tried;
    when it is an effect added earlier that the refit drives out of its domain, that
    effect stood in for the candidate: the candidate **in place of** it is fitted and
    judged against the current model first (:meth:`EffectDiscovery.replace`);
 4. stops when no candidate is accepted: the residual is noise, or nothing in the
-   library explains it (:meth:`Scorer.leftover` says which).
+   library explains it (:meth:`~identification.discovery.scorer.Scorer.leftover` says which).
 
 Two scorers: :class:`~identification.discovery.one_step.OneStepScorer` (one-step
 regressions on rod states) and :class:`~identification.discovery.multi_step.MultiStepScorer`
@@ -28,13 +30,10 @@ from __future__ import annotations
 
 import math
 import time
-from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generic, TypeVar
-
-import numpy as np
+from typing import Any
 
 from identification.data.dataset import Dataset
 from identification.discovery.judge import (
@@ -50,121 +49,10 @@ from identification.discovery.judge import (
 from identification.discovery.library import FittedModel, Proposal
 from identification.discovery.negligible import force_ratio
 from identification.discovery.residual_network import ResidualFit
+from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
 from identification.linear.regression import NotFittedError
 from tensegrity_env.engine import State
 from tensegrity_env.io_utils import InputError
-
-F = TypeVar("F")
-
-
-class CandidateSkipped(Exception):
-    """A scorer's refusal to judge a candidate; the message says why (one line)."""
-
-
-@dataclass
-class Residual:
-    """What the current model leaves: numbers, the same as markdown, and a figure.
-
-    Attributes:
-        numbers: residual signatures by name (the scorer's).
-        markdown: the same for the report.
-        plot: PNG of the residuals, if written.
-    """
-
-    numbers: dict[str, float]
-    markdown: str
-    plot: Path | None = None
-
-
-class Scorer(ABC, Generic[F]):
-    """How the loop fits and scores models on one kind of data.
-
-    ``F`` is what the scorer fits (kept in :attr:`Candidate.fit`). :meth:`begin` binds
-    a dataset; every other method works on the dataset last begun.
-    """
-
-    #: how the held-out gain is judged
-    criteria: Criteria
-    #: the scorer's name in reports and params files
-    method: str
-
-    @abstractmethod
-    def begin(self, dataset: Dataset, log: Callable[[str], None]) -> Candidate[F]:
-        """The declared model fitted on ``dataset`` and scored (named ``"nothing"``)."""
-
-    @abstractmethod
-    def test_errors(self, current: Candidate[F]) -> dict[str, Any]:
-        """Errors [m] of ``current``'s model on the test split (never used for selection)."""
-
-    @abstractmethod
-    def propose(self, current: Candidate[F], names: Sequence[str] | None) -> list[Proposal]:
-        """The library's candidates not in ``current`` (``names``: only these), gated."""
-
-    @abstractmethod
-    def fit_candidate(
-        self, current: Candidate[F], proposal: Proposal, drop: Sequence[str] = ()
-    ) -> Candidate[F]:
-        """``current`` plus the proposed effect, fitted jointly and scored; ``drop``:
-        effects of ``current`` left out (the candidate in place of them).
-
-        Raises :class:`CandidateSkipped` when the fit cannot be judged (it diverged).
-        """
-
-    @abstractmethod
-    def gain(self, candidate: Candidate[F], current: Candidate[F]) -> float:
-        """How much ``candidate`` lowers the held-out error (:attr:`criteria` unit)."""
-
-    @abstractmethod
-    def rank(self, candidate: Candidate[F]) -> float:
-        """Its place among the passing (and among the failing) candidates, lower is better."""
-
-    @abstractmethod
-    def summary(self, candidate: Candidate[F]) -> str:
-        """Its held-out errors, for the log."""
-
-    @abstractmethod
-    def separation(self, chosen: Candidate[F], runner: Candidate[F]) -> tuple[float, str]:
-        """How far apart two passing candidates' held-out errors are, and in words."""
-
-    @abstractmethod
-    def predicted_change(self, current: Candidate[F], candidate: Candidate[F]) -> np.ndarray:
-        """What ``candidate`` changes in the predictions of ``current`` (held-out data)."""
-
-    @abstractmethod
-    def accept(self, chosen: Candidate[F]) -> Candidate[F]:
-        """The chosen candidate as the next current model (refitted where the scorer does)."""
-
-    def sample_states(self) -> State | None:
-        """Rod states sampled from the training data, where candidates' forces are
-        measured (:func:`~identification.discovery.negligible.force_ratio`); None: not
-        measured."""
-        return None
-
-    def finish(self, current: Candidate[F]) -> Candidate[F]:
-        """The final model, refitted where the scorer does before it is reported (default:
-        ``current`` as it is)."""
-        return current
-
-    @abstractmethod
-    def residual(self, current: Candidate[F], k: int, plots: Path | None) -> Residual:
-        """The residual of ``current`` (iteration ``k``; its PNG under ``plots``)."""
-
-    @abstractmethod
-    def leftover(self, current: Candidate[F]) -> tuple[str, ResidualFit | None]:
-        """Why structure is left (empty: the residual is noise), and a residual network
-        that absorbs it (NOT a physical effect) or None."""
-
-    @abstractmethod
-    def describe(self) -> str:
-        """How models are compared, one paragraph for the report."""
-
-    @abstractmethod
-    def test_labels(self) -> dict[str, tuple[str, str]]:
-        """Test error name -> (label, unit ``"m"`` or ``"mm"``), in report order."""
-
-    @abstractmethod
-    def settings_summary(self) -> dict[str, Any]:
-        """The settings worth recording beside the result."""
 
 
 @dataclass
@@ -381,7 +269,7 @@ class EffectDiscovery:
         return chosen, runner_up(runner.name, corr, separation, note, scorer.criteria)
 
     def add(self, it: Iteration) -> Candidate[Any] | None:
-        """``it.chosen`` as the next current model (:meth:`Scorer.accept`), or None.
+        """``it.chosen`` as the next current model (:meth:`~identification.discovery.scorer.Scorer.accept`), or None.
 
         A refit outside the physical domain (e.g. it drives an effect added earlier to a
         negative drag) overrules the choice: the candidate is rejected with the reason,

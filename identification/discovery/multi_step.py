@@ -71,8 +71,8 @@ from identification.discovery.end_cap_residuals import (
 from identification.discovery.floor_fits import floor_rows
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import FittedModel, Proposal, contact_gate, propose
-from identification.discovery.loop import CandidateSkipped, Residual, Scorer
 from identification.discovery.residual_network import ResidualFit
+from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
 from identification.trajectory.slack_regression import (

@@ -35,7 +35,6 @@ from identification.discovery.library import (
     propose,
     slack_probe,
 )
-from identification.discovery.loop import Residual, Scorer
 from identification.discovery.residual_network import ResidualFit, fit_residual_network
 from identification.discovery.residuals import (
     compute_residuals,
@@ -43,6 +42,7 @@ from identification.discovery.residuals import (
     summarize,
     summary_table,
 )
+from identification.discovery.scorer import Residual, Scorer
 from identification.linear.extended import acting_split, evaluate_model
 from identification.linear.features import cable_commands_at, transitions_of
 from identification.report.tables import error_text

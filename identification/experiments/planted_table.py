@@ -33,10 +33,11 @@ import torch
 from identification.data.end_caps import with_measured_states
 from identification.discovery.end_cap_data import FIT_WINDOW, TrajectorySettings
 from identification.discovery.library import FitSettings
-from identification.discovery.loop import EffectDiscovery, Scorer
+from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_err, ratio, write_params
+from identification.discovery.scorer import Scorer
 from identification.experiments.drop_check import drop_check
 from identification.simulation.planted import PLANTS, PlantSpec, planted_dataset
 from tensegrity_env.effects import GroundContact

@@ -15,8 +15,8 @@ import pytest
 from identification.discovery import EffectDiscovery, FittedModel
 from identification.discovery.judge import MULTI_STEP, Candidate
 from identification.discovery.library import Proposal
-from identification.discovery.loop import Residual, Scorer
 from identification.discovery.residual_network import ResidualFit
+from identification.discovery.scorer import Residual, Scorer
 from tensegrity_env import assemblies
 from tensegrity_env.effects import LinearDrag, QuadraticDrag
 from tensegrity_env.effects.base import PhysicalEffect

@@ -1,0 +1,135 @@
+"""The residual loop's interface to the data: how models are fitted and scored.
+
+:class:`Scorer` is what :class:`~identification.discovery.loop.EffectDiscovery` calls;
+:class:`~identification.discovery.one_step.OneStepScorer` (one-step regressions on rod
+states) and :class:`~identification.discovery.multi_step.MultiStepScorer` (multi-step
+prediction of measured end caps through the engine) implement it.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from identification.data.dataset import Dataset
+from identification.discovery.judge import Candidate, Criteria
+from identification.discovery.library import Proposal
+from identification.discovery.residual_network import ResidualFit
+from tensegrity_env.engine import State
+
+F = TypeVar("F")
+
+
+class CandidateSkipped(Exception):
+    """A scorer's refusal to judge a candidate; the message says why (one line)."""
+
+
+@dataclass
+class Residual:
+    """What the current model leaves: numbers, the same as markdown, and a figure.
+
+    Attributes:
+        numbers: residual signatures by name (the scorer's).
+        markdown: the same for the report.
+        plot: PNG of the residuals, if written.
+    """
+
+    numbers: dict[str, float]
+    markdown: str
+    plot: Path | None = None
+
+
+class Scorer(ABC, Generic[F]):
+    """How the loop fits and scores models on one kind of data.
+
+    ``F`` is what the scorer fits (kept in :attr:`Candidate.fit`). :meth:`begin` binds
+    a dataset; every other method works on the dataset last begun.
+    """
+
+    #: how the held-out gain is judged
+    criteria: Criteria
+    #: the scorer's name in reports and params files
+    method: str
+
+    @abstractmethod
+    def begin(self, dataset: Dataset, log: Callable[[str], None]) -> Candidate[F]:
+        """The declared model fitted on ``dataset`` and scored (named ``"nothing"``)."""
+
+    @abstractmethod
+    def test_errors(self, current: Candidate[F]) -> dict[str, Any]:
+        """Errors [m] of ``current``'s model on the test split (never used for selection)."""
+
+    @abstractmethod
+    def propose(self, current: Candidate[F], names: Sequence[str] | None) -> list[Proposal]:
+        """The library's candidates not in ``current`` (``names``: only these), gated."""
+
+    @abstractmethod
+    def fit_candidate(
+        self, current: Candidate[F], proposal: Proposal, drop: Sequence[str] = ()
+    ) -> Candidate[F]:
+        """``current`` plus the proposed effect, fitted jointly and scored; ``drop``:
+        effects of ``current`` left out (the candidate in place of them).
+
+        Raises :class:`CandidateSkipped` when the fit cannot be judged (it diverged).
+        """
+
+    @abstractmethod
+    def gain(self, candidate: Candidate[F], current: Candidate[F]) -> float:
+        """How much ``candidate`` lowers the held-out error (:attr:`criteria` unit)."""
+
+    @abstractmethod
+    def rank(self, candidate: Candidate[F]) -> float:
+        """Its place among the passing (and among the failing) candidates, lower is better."""
+
+    @abstractmethod
+    def summary(self, candidate: Candidate[F]) -> str:
+        """Its held-out errors, for the log."""
+
+    @abstractmethod
+    def separation(self, chosen: Candidate[F], runner: Candidate[F]) -> tuple[float, str]:
+        """How far apart two passing candidates' held-out errors are, and in words."""
+
+    @abstractmethod
+    def predicted_change(self, current: Candidate[F], candidate: Candidate[F]) -> np.ndarray:
+        """What ``candidate`` changes in the predictions of ``current`` (held-out data)."""
+
+    @abstractmethod
+    def accept(self, chosen: Candidate[F]) -> Candidate[F]:
+        """The chosen candidate as the next current model (refitted where the scorer does)."""
+
+    def sample_states(self) -> State | None:
+        """Rod states sampled from the training data, where candidates' forces are
+        measured (:func:`~identification.discovery.negligible.force_ratio`); None: not
+        measured."""
+        return None
+
+    def finish(self, current: Candidate[F]) -> Candidate[F]:
+        """The final model, refitted where the scorer does before it is reported (default:
+        ``current`` as it is)."""
+        return current
+
+    @abstractmethod
+    def residual(self, current: Candidate[F], k: int, plots: Path | None) -> Residual:
+        """The residual of ``current`` (iteration ``k``; its PNG under ``plots``)."""
+
+    @abstractmethod
+    def leftover(self, current: Candidate[F]) -> tuple[str, ResidualFit | None]:
+        """Why structure is left (empty: the residual is noise), and a residual network
+        that absorbs it (NOT a physical effect) or None."""
+
+    @abstractmethod
+    def describe(self) -> str:
+        """How models are compared, one paragraph for the report."""
+
+    @abstractmethod
+    def test_labels(self) -> dict[str, tuple[str, str]]:
+        """Test error name -> (label, unit ``"m"`` or ``"mm"``), in report order."""
+
+    @abstractmethod
+    def settings_summary(self) -> dict[str, Any]:
+        """The settings worth recording beside the result."""

@@ -68,6 +68,8 @@ def end_cap_sites(
     besides the control arm; else the site at each end along the rod's long axis
     (``axis`` of the principal frame, positions ``local``), the one nearest the axis
     among sites equally far out (a site on an end cap's surface beside its centre).
+    Sites count as equally far out within 0.1 % of the rod's site span (the rounding of
+    hand-written coordinates), and as equally near the axis within 1e-9 of it.
     """
     rod = mj_name(m, mujoco.mjtObj.mjOBJ_BODY, body)
     why = "the end caps are the points motion capture tracks and the floor touches"
@@ -88,10 +90,11 @@ def end_cap_sites(
         return sorted(cands)
     along = np.array([local[s][axis] for s in cands])
     off = np.array([np.linalg.norm(np.delete(local[s], axis)) for s in cands])
-    tol = 1e-9 * (1.0 + float(np.ptp(along)))
+    span = float(np.ptp(along))
+    tol = 1e-9 * (1.0 + span)
     ends = []
     for extreme in (along.min(), along.max()):
-        out = [k for k in range(len(cands)) if abs(along[k] - extreme) <= tol]
+        out = [k for k in range(len(cands)) if abs(along[k] - extreme) <= 1e-3 * span + tol]
         near = [k for k in out if off[k] <= off[out].min() + tol]
         if len(near) > 1:
             names = ", ".join(f"'{mj_name(m, mujoco.mjtObj.mjOBJ_SITE, cands[k])}'" for k in near)

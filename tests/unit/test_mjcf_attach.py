@@ -4,6 +4,7 @@ neighbouring rod. The end caps stay the points motion capture tracks."""
 
 from __future__ import annotations
 
+import re
 from functools import cache
 from pathlib import Path
 
@@ -206,3 +207,15 @@ def test_generate_takes_the_end_caps_option(tmp_path: Path, capsys) -> None:
     assert main([*args, "--force", "--end-caps", "r0_s0,nope"]) == 2
     err = capsys.readouterr().err
     assert "end-cap site 'nope' does not exist" in err and "Traceback" not in err
+
+
+def test_end_caps_survive_coordinates_rounded_as_in_a_hand_written_file() -> None:
+    """Surface sites a cap radius beside the end-cap centres, every coordinate rounded to
+    5 decimals (axial positions then differ by ~1e-6 m): the centres stay the end caps."""
+    exact = lab_mjcf("surface")
+    rounded = re.sub(r"-?\d+\.\d{6,}", lambda m: f"{float(m.group()):.5f}", exact)
+    assert rounded != exact
+    a, b = from_mjcf("<exact>", xml=exact).topology, from_mjcf("<rounded>", xml=rounded).topology
+    # a side site taken as an end cap would move it by the cap radius, 17.5 cm
+    np.testing.assert_allclose(b.end_offsets, a.end_offsets, atol=1e-5)
+    assert np.array_equal(b.spring_nodes, a.spring_nodes)

@@ -6,7 +6,9 @@ env-step budget, one after the other in this process, and evaluates both policie
 the same seeded episodes in the MuJoCo twin. Prints the transfer table of the
 SR-trained policy and the ratios against the MuJoCo-trained reference measured here:
 return (at least 0.9 when the identified env stands in for MuJoCo) and training wall
-time (below 1 when it is also cheaper).
+time (below 1 when it is also cheaper). The ratio of the two runs' process CPU time
+(every thread) is printed beside it: it measures the same cost apart from whatever else
+the machine runs meanwhile, which changes the wall-time ratio.
 
     python benchmarks/bench_transfer.py --timesteps 1000000 -o runs/bench_transfer
 
@@ -81,6 +83,11 @@ def main(argv: list[str] | None = None) -> int:
             ),
         ]
     )
+    cpu_ratio = sr.cpu_s / mj.cpu_s
+    text += (
+        f"\n\ntraining CPU time, transferred / reference: **{cpu_ratio:.3f}** "
+        f"({sr.cpu_s:.0f} s / {mj.cpu_s:.0f} s, every thread of the training process)"
+    )
     print(text)
     atomic_write_text(args.output / "bench_transfer.md", text + "\n")
     doc = {
@@ -90,6 +97,7 @@ def main(argv: list[str] | None = None) -> int:
         "reference_time_to_goal_s": ref.time_to_goal,
         "return_vs_reference": result.target.mean_return / ref.mean_return,
         "wall_s": {"sr": sr.wall_s, "mj": mj.wall_s, "ratio": sr.wall_s / mj.wall_s},
+        "cpu_s": {"sr": sr.cpu_s, "mj": mj.cpu_s, "ratio": cpu_ratio},
         "timesteps": {"sr": sr.timesteps, "mj": mj.timesteps},
     }
     atomic_write_text(args.output / "bench_transfer.json", json.dumps(doc, indent=2) + "\n")

@@ -56,6 +56,8 @@ class TrainResult:
         model_path: the final model zip.
         timesteps: env steps trained in all (across resumes).
         wall_s: training wall-clock time in all [s] (across resumes).
+        cpu_s: CPU time of the training process in all [s] (every thread, across
+            resumes): the cost of a run apart from what else the machine runs.
         record: the run record written beside the model.
         policy: the trained policy in memory (statistics frozen), as it was saved.
     """
@@ -63,6 +65,7 @@ class TrainResult:
     model_path: Path
     timesteps: int
     wall_s: float
+    cpu_s: float
     record: dict[str, Any]
     policy: LoadedPolicy
 
@@ -103,29 +106,30 @@ class Checkpoint(BaseCallback):
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
             self._next = (self.num_timesteps // self.every + 1) * self.every
-            save_checkpoint(self.model, self.folder, self.record, self.clock.total())
+            save_checkpoint(self.model, self.folder, {**self.record, **self.clock.times()})
         return True
 
 
 class Clock:
-    """Wall time of a run, carried over from the run it resumes."""
+    """Wall and process CPU time of a run [s], carried over from the run it resumes."""
 
-    def __init__(self, before: float = 0.0) -> None:
-        self.before, self.start = float(before), time.perf_counter()
+    def __init__(self, wall_before: float = 0.0, cpu_before: float = 0.0) -> None:
+        self.wall_before, self.cpu_before = float(wall_before), float(cpu_before)
+        self.wall_start, self.cpu_start = time.perf_counter(), time.process_time()
 
-    def total(self) -> float:
-        return self.before + time.perf_counter() - self.start
+    def times(self) -> dict[str, float]:
+        """``{"wall_s": ..., "cpu_s": ...}`` in all so far."""
+        return {
+            "wall_s": self.wall_before + time.perf_counter() - self.wall_start,
+            "cpu_s": self.cpu_before + time.process_time() - self.cpu_start,
+        }
 
 
-def save_checkpoint(
-    model: BaseAlgorithm, folder: Path, record: dict[str, Any], wall_s: float
-) -> Path:
+def save_checkpoint(model: BaseAlgorithm, folder: Path, record: dict[str, Any]) -> Path:
     """Write ``ckpt_<steps>`` files into ``folder``; returns the zip's path."""
     path = folder / f"ckpt_{model.num_timesteps:010d}.zip"
     vecnorm = model.get_vec_normalize_env()
-    save_policy(
-        model, vecnorm, path, {**record, "timesteps": model.num_timesteps, "wall_s": wall_s}
-    )
+    save_policy(model, vecnorm, path, {**record, "timesteps": model.num_timesteps})
     if isinstance(model, OffPolicyAlgorithm):
         buffer = path.with_name(f"{path.stem}_replay_buffer.pkl")
         with atomic_path(buffer) as tmp:
@@ -248,7 +252,7 @@ def train(
     torch.set_num_threads(torch_threads)
     venv = make_training_env(env_id, n_envs, seed, threads)
     tb_dir = out / "tb" if tensorboard else None
-    before = 0.0
+    before = {"wall_s": 0.0, "cpu_s": 0.0}
     if ckpt is not None:
         prev = read_record(ckpt)
         if prev.get("algo", algo) != algo or prev.get("env_id", env_id) != env_id:
@@ -256,7 +260,7 @@ def train(
                 f"{ckpt}: was trained with {prev.get('algo')} on {prev.get('env_id')}, "
                 f"not {algo} on {env_id}"
             )
-        before = float(prev.get("wall_s", 0.0))
+        before = {k: float(prev.get(k, 0.0)) for k in before}
         goal_frame = bool(prev.get("goal_frame", hp.goal_frame))
         model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose, goal_frame)
     else:
@@ -281,7 +285,7 @@ def train(
         "physics_threads": threads,
         "command": command if command is not None else " ".join(sys.argv),
     }
-    clock = Clock(before)
+    clock = Clock(before["wall_s"], before["cpu_s"])
     steps: list[BaseCallback] = [
         Checkpoint(out / "checkpoints", max(1, checkpoint_every), record, clock),
         *callbacks,
@@ -296,9 +300,11 @@ def train(
             reset_num_timesteps=ckpt is None,
             tb_log_name=algo.upper(),
         )
-    wall = clock.total()
-    record = {**record, "timesteps": int(model.num_timesteps), "wall_s": wall}
+    times = clock.times()
+    record = {**record, "timesteps": int(model.num_timesteps), **times}
     path = save_policy(model, vecnorm, out / "model.zip", record)
     venv.close()
     policy = LoadedPolicy(model, vecnorm, path, record, goal_frame)
-    return TrainResult(path, int(model.num_timesteps), wall, record, policy)
+    return TrainResult(
+        path, int(model.num_timesteps), times["wall_s"], times["cpu_s"], record, policy
+    )

@@ -105,6 +105,7 @@ def test_resume_continues_the_timestep_counter(trained: TrainResult, tmp_path: P
     assert (run / "checkpoints" / "ckpt_0000003072.zip").exists()
     assert [p.name for p in (run / "tb").iterdir()] == ["PPO_1"]  # one TensorBoard run
     assert resumed.wall_s > trained.wall_s  # wall time accumulates across resumes
+    assert resumed.cpu_s > trained.cpu_s > 0  # and so does CPU time
 
 
 def test_sac_saves_its_replay_buffer_and_reloads_identically(tmp_path: Path) -> None:

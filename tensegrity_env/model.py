@@ -100,11 +100,17 @@ class Model:
         :meth:`~tensegrity_env.effects.base.PhysicalEffect.check` (for example drag
         coefficients >= 0 within 3 of their standard errors).
         """
+        return self.params_violation() or next(
+            (v for v in (e.violation() for e in self.effects) if v), ""
+        )
+
+    def params_violation(self) -> str:
+        """What of the declared parameters lies outside the physical domain, or ``""``."""
         try:
             self.params.validate(self.topology, source="declared parameters")
         except InputError as e:
             return str(e)
-        return next((v for v in (e.violation() for e in self.effects) if v), "")
+        return ""
 
     # ------------------------------------------------------------------ files
     @classmethod

@@ -127,7 +127,7 @@ def judge(
     """
     c = candidate
     c.gain, c.bic_drop, c.size = gain, current.bic - c.bic, size
-    reason = unphysical(c.model)
+    reason = unphysical(c.model, current.model)
     if reason:
         c.verdict = f"rejected: unphysical ({reason})"
     elif size < NEGLIGIBLE:
@@ -145,14 +145,22 @@ def judge(
         )
 
 
-def unphysical(model: FittedModel) -> str:
+def unphysical(model: FittedModel, current: FittedModel | None = None) -> str:
     """Why ``model`` lies outside the physical domain (one line), or ``""``.
 
     The domain is the one a params file must lie in to load
     (:meth:`~tensegrity_env.model.Model.violation`): positive masses, inertias and
     stiffnesses, and each effect's own checks (drag coefficients >= 0 within 3 of their
     standard errors, contact parameters in range, ...).
+
+    ``current``: the model ``model`` would replace. When its declared parameters are
+    already outside the domain (an effect still missing biases them, e.g. a thin rod's
+    inertias past the triangle inequality), only ``model``'s effects are checked: the
+    candidate did not put the declared parameters there, and it may be what brings them
+    back.
     """
+    if current is not None and current.model.params_violation():
+        return next((v for v in (e.violation() for e in model.model.effects) if v), "")
     return model.model.violation()
 
 

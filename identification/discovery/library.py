@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from identification.data.dataset import Dataset, Split
-from identification.linear.extended import ExtendedIdentifier
+from identification.linear.extended import ExtendedIdentifier, acting_split
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
 from identification.trajectory.effect_fit import fit_effect_params, sample_windows
 from tensegrity_env.effects import (
@@ -147,7 +147,9 @@ def _fit_contact(
     i: int,
     settings: FitSettings,
 ) -> tuple[list[PhysicalEffect], str]:
-    split = dataset.split("train")
+    # the commands that act: a window starts with the control lag's state carried
+    # from the trajectory's start, not at rest
+    split = acting_split(effects, dataset.split("train"), dataset.dt)
     fit = None
     for length, count in settings.contact_windows:
         windows = sample_windows(split, length, count, seed=settings.seed + length)
@@ -310,11 +312,33 @@ def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSetti
     """Control lag: the time constant τ [s] that minimises the regression's residual.
 
     Given τ the model is linear in its parameters (the regression refits the gains h
-    and the cable gains for each τ), so the search is one-dimensional: the residual on
-    :data:`LAG_GRID`, then a bounded search in log τ between the best grid point's
-    neighbours (to :data:`LAG_TOLERANCE` relative). A lag of zero (no filter) is not in
-    the search: that model is ``base`` itself.
+    and the cable gains for each τ), so the search is one-dimensional
+    (:func:`search_lag`). A lag of zero (no filter) is not in the search: that model is
+    ``base`` itself. Where ``base`` has floor contact (held at its values during the
+    search), the contact is refitted through the engine with the lag found (as
+    :func:`fit_model` fits it), τ is searched again near the first value with that
+    contact, and the contact refitted once more.
     """
+    best = search_lag(dataset, base, settings)
+    if not any(isinstance(e, GroundContact) for e in base):
+        return best
+    refit = fit_model(dataset, best.effects, settings)
+    lag = next(e for e in refit.effects if isinstance(e, ControlLag))
+    rest = [e for e in refit.effects if not isinstance(e, ControlLag)]
+    best = search_lag(dataset, rest, settings, near=float(lag.values["time_constant"]))
+    return fit_model(dataset, best.effects, settings)
+
+
+def search_lag(
+    dataset: Dataset,
+    base: Sequence[PhysicalEffect],
+    settings: FitSettings,
+    near: float | None = None,
+) -> FittedModel:
+    """The regression's best τ with ``base`` held: the residual on :data:`LAG_GRID`, then
+    a bounded search in log τ between the best grid point's neighbours (to
+    :data:`LAG_TOLERANCE` relative); with ``near`` [s], a search within 10 % of it to a
+    tenth of that tolerance instead."""
     fits: dict[float, tuple[float, FittedModel]] = {}
 
     def rss_at(tau: float) -> float:
@@ -329,12 +353,17 @@ def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSetti
             fits[tau] = (float(est.solution_.rss), FittedModel(model, n))
         return fits[tau][0]
 
-    grid = [rss_at(tau) for tau in LAG_GRID]
-    k = int(np.argmin(grid))
-    lo = np.log(LAG_GRID[max(k - 1, 0)])
-    hi = np.log(LAG_GRID[min(k + 1, len(LAG_GRID) - 1)])
+    if near is None:
+        grid = [rss_at(tau) for tau in LAG_GRID]
+        k = int(np.argmin(grid))
+        lo = np.log(LAG_GRID[max(k - 1, 0)])
+        hi = np.log(LAG_GRID[min(k + 1, len(LAG_GRID) - 1)])
+        tolerance = LAG_TOLERANCE
+    else:
+        rss_at(near)
+        lo, hi, tolerance = np.log(near / 1.1), np.log(near * 1.1), LAG_TOLERANCE / 10
     minimize_scalar(lambda x: rss_at(float(np.exp(x))), bounds=(lo, hi), method="bounded",
-                    options={"xatol": LAG_TOLERANCE})  # fmt: skip
+                    options={"xatol": tolerance})  # fmt: skip
     return min(fits.values(), key=lambda f: f[0])[1]
 
 

@@ -278,7 +278,7 @@ class EffectDiscovery:
         while it.chosen is not None:
             chosen = it.chosen
             added = self.scorer.accept(chosen)
-            reason = unphysical(added.model)
+            reason = unphysical(added.model, it.before.model)
             if not reason:
                 it.added = added
                 return added
@@ -317,7 +317,7 @@ class EffectDiscovery:
         if not c.accepted:
             return None
         added = scorer.accept(c)
-        reason = unphysical(added.model)
+        reason = unphysical(added.model, it.before.model)
         if reason:
             overrule(c, reason)
             self.log(f"  candidate {c.name}: {c.verdict}")

@@ -34,11 +34,14 @@ class Windows:
         init: measured rod state at each window's first sample, (W, R, ·).
         caps: measured end caps over the window, (W, L+1, 2R, 3) [m].
         control: commands during each step, (W, L, R, 3).
+        cables: cable actuators' commands during each step, (W, L, C); None without
+            cable actuators.
     """
 
     init: State
     caps: torch.Tensor
     control: torch.Tensor
+    cables: torch.Tensor | None = None
 
     @property
     def steps(self) -> int:
@@ -62,19 +65,29 @@ def sample_windows(split: Split, length: int, count: int, seed: int = 0) -> Wind
     init = State(*(pick(getattr(split, k)) for k in ("p", "v", "q", "omega")))
     caps = torch.as_tensor(split.nodes[traj[:, None], t], dtype=DTYPE)
     control = torch.as_tensor(split.control[traj[:, None], t[:, :-1]], dtype=DTYPE)
-    return Windows(init, caps, control)
+    cables = None
+    if split.cable_control is not None:
+        cables = torch.as_tensor(split.cable_control[traj[:, None], t[:, :-1]], dtype=DTYPE)
+    return Windows(init, caps, control, cables)
 
 
 def rollout_caps(
-    engine: Engine, params: Params, init: State, control: torch.Tensor
+    engine: Engine,
+    params: Params,
+    init: State,
+    control: torch.Tensor,
+    cables: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """End caps (W, L+1, 2R, 3) [m] of the engine rolled out from ``init`` under ``control``."""
+    """End caps (W, L+1, 2R, 3) [m] of the engine rolled out from ``init`` under
+    ``control`` (W, L, R, 3) and cable commands ``cables`` (W, L, C) if any."""
     R = init.p.shape[1]
     state, caps = init, []
     ends = engine.end_offsets
     for t in range(control.shape[1] + 1):
         if t:
-            state = engine.step(state, params, control[:, t - 1])
+            state = engine.step(
+                state, params, control[:, t - 1], None if cables is None else cables[:, t - 1]
+            )
         rot_arms = torch.einsum("wrij,rkj->wrki", quat_to_matrix(state.q), ends)
         caps.append((state.p.unsqueeze(2) + rot_arms).reshape(-1, 2 * R, 3))
     return torch.stack(caps, dim=1)
@@ -158,7 +171,7 @@ def fit_effect_params(
             return torch.full((windows.caps.numel(),), float("inf"), dtype=DTYPE)
         eng = Engine(topology, dt, effects=_apply(effects, free, theta))
         with torch.no_grad():
-            caps = rollout_caps(eng, params, windows.init, windows.control)
+            caps = rollout_caps(eng, params, windows.init, windows.control, windows.cables)
         return (caps - windows.caps).reshape(-1)
 
     theta = theta_of(effects)

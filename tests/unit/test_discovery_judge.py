@@ -108,3 +108,21 @@ def test_unphysical_declared_parameters_are_named():
     bad = FittedModel(Model(ICO.topology, ICO.params.replace(mass=-ICO.params.mass)), 0)
     assert unphysical(bad).startswith("declared parameters: masses must be positive")
     assert unphysical(DECLARED) == ""
+
+
+def test_declared_parameters_already_unphysical_are_not_held_against_a_candidate():
+    """A thin rod's inertias biased past the triangle inequality by an effect still
+    missing: the candidate that may fix it is judged on its own effects."""
+    inertia = ICO.params.inertia.clone()
+    inertia[0] = inertia[0] * inertia.new_tensor([1.0, 1.0, 0.0]) + inertia.new_tensor(
+        [0.0, 0.0, 1e-6]
+    )
+    inertia[0, 0] *= 1.2  # Ixx > Iyy + Izz
+    biased = ICO.params.replace(inertia=inertia)
+    current = FittedModel(Model(ICO.topology, biased), n_params=0)
+    assert "triangle" in unphysical(current)
+    candidate = FittedModel(Model(ICO.topology, biased, with_drag(0.4).model.effects), 6)
+    assert unphysical(candidate, current) == ""
+    assert "triangle" in unphysical(candidate, DECLARED)  # it made them unphysical
+    bad = FittedModel(Model(ICO.topology, biased, NEGATIVE_DRAG.model.effects), 6)
+    assert "linear_drag" in unphysical(bad, current)  # its own effect is still checked

@@ -208,6 +208,35 @@ def step_touchdowns(demo: Demo) -> None:
                       + "\n".join(lines) + "\n")  # fmt: skip
 
 
+def step_lab_robot(demo: Demo) -> None:
+    banner("A robot model as labs write it: sphere end caps, cables off the caps, filtered "
+           "cable actuators, on a floor")  # fmt: skip
+    from tensegrity_env.model import Model
+
+    robot = Path(__file__).resolve().parent.parent / "tensegrity_env" / "assets" / "lab_prism.xml"
+    path = demo.out / "lab_prism.h5"
+    demo.cli("generate", "--mjcf", robot, "--n-train", demo.size(4, 8), "--n-val", 1,
+             "--n-test", 1, "--steps", 1000, "--seed", 11, "--control-std", 1,
+             "--no-progress", "-o", path)  # fmt: skip
+    truth = read_ground_truth(path)
+    assert truth is not None
+    # the floor and the filter are in the file, but the data alone has to show them
+    demo.cli("diagnose", path, "--anchor", f"mass[r0]={float(truth.params.mass[0])!r}",
+             "--candidates", "ground_contact,control_lag,linear_drag", "--max-effects", 2,
+             "-o", demo.out / "diagnose_lab")  # fmt: skip
+    found = Model.load(demo.out / "diagnose_lab" / "params.json")
+    declared = {e.name: e for e in Model.read(robot).effects}
+    lines = ["| effect | parameter | identified | in the file |", "|---|---|---|---|"]
+    for e in found.effects:
+        for key, spec in e.PARAMS.items():
+            if key in ("time_constant", "stiffness", "damping", "impedance", "friction"):
+                lines.append(f"| {e.name} | {key} [{spec.unit}] | {float(e.values[key]):.5g} | "
+                             f"{float(declared[e.name].values[key]):.5g} |")  # fmt: skip
+    print("\n".join(lines))
+    atomic_write_text(demo.out / "lab_robot.md", "# Floor contact and actuator filter of "
+                      "the lab prism, from its motion\n\n" + "\n".join(lines) + "\n")  # fmt: skip
+
+
 def step_slack(demo: Demo) -> None:
     banner("Which springs are cables? Segmented regression through 1 mm noise")
     from identification.data.end_caps import RodAxes, smooth_rod_states
@@ -291,12 +320,19 @@ def step_mocap(demo: Demo) -> None:
     from identification.data.mocap.c3d_files import write_c3d
     from identification.simulation.mocap_takes import record_take, simulate_caps
 
-    robot = Path(__file__).resolve().parent.parent / "tensegrity_env" / "assets" / "icosahedron_rolling.xml"
+    robot = (
+        Path(__file__).resolve().parent.parent
+        / "tensegrity_env"
+        / "assets"
+        / "icosahedron_rolling.xml"
+    )
     rng = np.random.default_rng(120)
     files = []
     for k in range(demo.size(3, 8)):
         t, caps, names = simulate_caps(robot.read_text(), 120.0, demo.size(1.0, 3.0), rng)
-        take = record_take(t, caps, names, rng, noise=1e-3, dropout=0.01, unlabelled=True, ghosts=0.05)
+        take = record_take(
+            t, caps, names, rng, noise=1e-3, dropout=0.01, unlabelled=True, ghosts=0.05
+        )
         files.append(write_c3d(demo.out / f"take{k}.c3d", take.points, take.names, 120.0))
     data = demo.out / "mocap.h5"
     demo.cli("import-mocap", *files, "--robot", robot, "-o", data)
@@ -314,6 +350,7 @@ STEPS: dict[str, Callable[[Demo], None]] = {
     "diagnose": step_diagnose,
     "touchdowns": step_touchdowns,
     "slack": step_slack,
+    "lab_robot": step_lab_robot,
     "environments": step_environments,
     "transfer": step_transfer,
 }
@@ -351,7 +388,9 @@ def main(argv: list[str] | None = None) -> int:
     def work() -> int:
         bad = [s for s in steps if s not in STEPS]
         if bad:
-            raise InputError(f"--steps: unknown step(s) {', '.join(bad)} (known: {', '.join(STEPS)})")
+            raise InputError(
+                f"--steps: unknown step(s) {', '.join(bad)} (known: {', '.join(STEPS)})"
+            )
         demo = Demo(check_output_dir(args.out, args.force, option="--out"), args.full, args.force)
         demo.out.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()

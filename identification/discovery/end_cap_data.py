@@ -116,6 +116,17 @@ class TrajFit:
         return self.vec.coords.effects_at(self.theta.detach()[n:], self.stderr[n:])
 
     @property
+    def uncertainty(self) -> dict[str, float]:
+        """Standard errors of the fitted declared parameters by name, in their units
+        (``value x`` the standard error of its logarithm); ``inertia_perp[rod]`` is the
+        perpendicular inertia both perpendicular axes share."""
+        n = self.vec.n_free
+        full = torch.exp(self.vec.full(self.theta.detach())).numpy()
+        names = self.vec.names()
+        free = torch.nonzero(self.vec.free)[:, 0].tolist()
+        return {names[i]: float(full[i] * se) for i, se in zip(free, self.stderr[:n], strict=True)}
+
+    @property
     def start_effects(self) -> list[PhysicalEffect]:
         """The effects at ``origin`` (where the next fits start)."""
         if self.vec.coords is None or self.origin is None:

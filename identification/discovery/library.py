@@ -89,11 +89,14 @@ class FittedModel:
             uncertainty) and time step.
         n_params: number of fitted parameters (for the information criterion).
         notes: remarks from the fit (effect name -> text).
+        uncertainty: standard errors of the fitted declared parameters by name (e.g.
+            ``stiffness[s0]``), in their units; empty where the fit states none.
     """
 
     model: Model
     n_params: int
     notes: dict[str, str] = field(default_factory=dict)
+    uncertainty: dict[str, float] = field(default_factory=dict)
 
     @property
     def params(self) -> Params:
@@ -137,7 +140,18 @@ def fit_model(
     for e in fitted:
         if isinstance(e, ControlLag):
             n += 1
-    return FittedModel(Model(dataset.topology, est.params_, fitted, dataset.dt), n, notes)
+    model = Model(dataset.topology, est.params_, fitted, dataset.dt)
+    return FittedModel(model, n, notes, regression_uncertainty(est))
+
+
+def regression_uncertainty(est: ExtendedIdentifier) -> dict[str, float]:
+    """Standard errors of the declared parameters a regression fitted, by name [units]
+    (anchored, frozen and unidentifiable ones left out)."""
+    return {
+        r.name: float(r.stderr)
+        for r in est.table_
+        if r.status in ("identified", "ratio") and np.isfinite(r.stderr)
+    }
 
 
 def _fit_contact(
@@ -350,7 +364,10 @@ def search_lag(
             ).fit(dataset)  # fmt: skip
             n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable)) + 1
             model = Model(dataset.topology, est.params_, est.effects_, dataset.dt)
-            fits[tau] = (float(est.solution_.rss), FittedModel(model, n))
+            fits[tau] = (
+                float(est.solution_.rss),
+                FittedModel(model, n, uncertainty=regression_uncertainty(est)),
+            )
         return fits[tau][0]
 
     if near is None:

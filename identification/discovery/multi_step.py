@@ -169,7 +169,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         )
         final, ds = fits.final, self.dataset
         return Candidate(
-            name, fits, FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k),
+            name, fits, FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k,
+                                    uncertainty=final.uncertainty),
             heldout={"caps_rms": float(np.sqrt(fits.val_sse / max(fits.val_m, 1)))},
             bic=fits.fit.bic,
         )  # fmt: skip
@@ -352,7 +353,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         windows = data.cut("train", steps, sys.maxsize, 4)
         final = fit_many(data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
         ds = self.dataset
-        model = FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k)
+        model = FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k,
+                            uncertainty=final.uncertainty)  # fmt: skip
         why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)
         self.log(f"final refit on {final.windows.size} training windows of {steps} steps: "
                  f"end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"

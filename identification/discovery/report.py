@@ -213,6 +213,7 @@ def write_params(result: DiscoveryResult, path: Path, extra: dict[str, Any]) -> 
             "test_errors_after": {k: v for k, v in result.final_test.items() if k != "curve"},
             "unexplained": result.unexplained,
         },
+        "uncertainty": result.model.uncertainty,
     }
     fit = result.residual_network
     if fit is not None:

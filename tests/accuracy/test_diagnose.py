@@ -109,8 +109,14 @@ def test_cli_writes_report_and_params_the_engine_loads(tmp_path):
     assert (out / "residuals_0.png").stat().st_size > 10_000
     model = Model.load(out / "params.json")
     assert model.effect_names == ["linear_drag"]
-    assert json.loads((out / "params.json").read_text())["diagnose"]["added"] == ["linear_drag"]
+    doc = json.loads((out / "params.json").read_text())
+    assert doc["diagnose"]["added"] == ["linear_drag"]
     model.engine()  # runs the extended model
+    # standard errors of the declared parameters: every fitted one, none exactly 0
+    uncertainty = doc["uncertainty"]
+    springs = {f"stiffness[{s.name}]" for s in model.topology.springs}
+    assert springs <= set(uncertainty) and "mass[rod0]" not in uncertainty  # the anchor
+    assert all(0 < v < np.inf for v in uncertainty.values()), uncertainty
 
 
 # ---------------------------------------------------------------------- thorough

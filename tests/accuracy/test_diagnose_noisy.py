@@ -98,6 +98,9 @@ def test_noisy_linear_drag_is_named_and_errors_drop() -> None:
     assert b["one_step"] / f["one_step"] >= 100
     assert b["rollout"] / f["rollout"] >= 10
     assert f["caps_rms"] < 1.1e-3  # at the 1 mm noise
+    # standard errors of the declared parameters from the end-cap fit, none exactly 0
+    stiffness = [v for k, v in r.model.uncertainty.items() if k.startswith("stiffness[")]
+    assert len(stiffness) == 24 and all(0 < v < np.inf for v in stiffness)
 
 
 def test_noisy_control_adds_nothing() -> None:

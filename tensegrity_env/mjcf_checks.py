@@ -36,7 +36,8 @@ FEATURES: dict[str, str] = {
     "tendon-friction": "tendon friction loss and armature are not modelled",
     "nonlinear-springs": "springs are linear (stiffness/damping polynomials, yield or dead "
     "bands other than tension-only are not modelled)",
-    "joint-dynamics": "free-joint damping, armature, friction loss and springs are not modelled",
+    "joint-dynamics": "free-joint armature, friction loss and springs are not modelled, nor "
+    "damping other than one value on every rod whose body frame is at its centre of mass",
     "actuators": "control inputs are world-frame site forces and cable (tendon) actuators"
     " with a fixed gain, no bias, no force or activation limits and at most a first-order"
     " filter (dyntype none or filter, actearly false)",
@@ -102,6 +103,24 @@ def _collide(m: mujoco.MjModel, g1: int, g2: int) -> bool:
     )
 
 
+def joint_damping_of(m: mujoco.MjModel, rod_bodies: Sequence[int]) -> float | None:
+    """The rods' free-joint damping [N*s/m and N*m*s] when the model has it as implicit
+    linear drag, or None when it cannot.
+
+    MuJoCo damps each of a free joint's six velocities (the body origin's, the angular
+    one) by ``damping``, implicitly under its Euler integrator: the model's
+    ``linear_drag`` in its implicit form, isotropic with ``b = β = damping``, when every
+    rod has the same value and its body frame at its centre of mass (else the damping
+    force acts off the centre of mass). 0 without damping.
+    """
+    values = {float(m.dof_damping[d]) for b in rod_bodies
+              for d in range(m.body_dofadr[b], m.body_dofadr[b] + m.body_dofnum[b])}  # fmt: skip
+    if values <= {0.0}:
+        return 0.0
+    centred = all(np.allclose(m.body_ipos[b], 0.0, atol=1e-9) for b in rod_bodies)
+    return values.pop() if len(values) == 1 and centred else None
+
+
 def unsupported_features(
     m: mujoco.MjModel, rod_bodies: Sequence[int], floor: Sequence[int], actuators: Sequence[int]
 ) -> list[Unsupported]:
@@ -154,13 +173,21 @@ def unsupported_features(
         lo, hi = m.tendon_lengthspring[t]
         if lo != hi and lo != 0:
             add("nonlinear-springs", f"tendon '{name}' has a spring dead band [{lo:g}, {hi:g}]")
+    damping = joint_damping_of(m, rod_bodies)
     for b in rod_bodies:
         dofs = range(m.body_dofadr[b], m.body_dofadr[b] + m.body_dofnum[b])
-        if any(m.dof_damping[d] or m.dof_armature[d] or m.dof_frictionloss[d] for d in dofs):
+        if any(m.dof_armature[d] or m.dof_frictionloss[d] for d in dofs):
             add(
                 "joint-dynamics",
-                f"rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, b)}' has free-joint damping,"
-                " armature or friction loss",
+                f"rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, b)}' has free-joint armature or"
+                " friction loss",
+            )
+        elif damping is None and any(m.dof_damping[d] for d in dofs):
+            add(
+                "joint-dynamics",
+                f"rod '{_name(m, mujoco.mjtObj.mjOBJ_BODY, b)}' has free-joint damping that"
+                " is not one value on every rod and axis, or a body frame off its centre of"
+                " mass",
             )
         if m.jnt_stiffness[m.body_jntadr[b]]:
             add(

@@ -10,7 +10,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from tensegrity_env.effects import ControlLag, GroundContact, SlackSprings
+from tensegrity_env.effects import ControlLag, GroundContact, ImplicitLinearDrag, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf.end_caps import (
@@ -27,6 +27,7 @@ from tensegrity_env.mjcf_checks import (
     cable_actuator_problem,
     check_ignore_names,
     contact_of,
+    joint_damping_of,
     refuse_or_warn,
     unsupported_features,
 )
@@ -59,6 +60,9 @@ class MjcfAssembly:
             ``topology.cable_actuators``.
         cable_lag: the time constant of the cable actuators' first-order filter [s]
             (``dyntype="filter"``), 0 without a filter.
+        joint_damping: the rods' free-joint damping [N*s/m and N*m*s], declared as
+            implicit linear drag (:func:`~tensegrity_env.mjcf_checks.joint_damping_of`);
+            0 without.
     """
 
     topology: Topology
@@ -75,12 +79,13 @@ class MjcfAssembly:
     slack_springs: tuple[int, ...] = ()
     cable_actuators: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     cable_lag: float = 0.0
+    joint_damping: float = 0.0
 
     def declared_effects(self, ground: bool | None = None) -> list[PhysicalEffect]:
         """What the file declares beyond linear springs, as effects: floor contact with
         the file's friction, solref and solimp (``ground``: whether there is a floor,
         default: the file's); tension-only springs; the cable actuators' filter as
-        ``control_lag``."""
+        ``control_lag``; free-joint damping as implicit ``linear_drag``."""
         effects: list[PhysicalEffect] = []
         if self.options.ground if ground is None else ground:
             contact = self.contact or {"friction": self.options.friction}
@@ -89,6 +94,9 @@ class MjcfAssembly:
             effects.append(SlackSprings(self.topology, springs=list(self.slack_springs)))
         if self.cable_lag:
             effects.append(ControlLag(self.topology, time_constant=self.cable_lag))
+        if self.joint_damping:
+            d = [self.joint_damping] * 3
+            effects.append(ImplicitLinearDrag(self.topology, translational=d, rotational=d))
         return effects
 
 
@@ -331,6 +339,7 @@ def from_mjcf(
         slack_springs=slack,
         cable_actuators=np.array(cables.ids, dtype=int),
         cable_lag=cables.lag,
+        joint_damping=joint_damping_of(m, rod_bodies) or 0.0,
     )
 
 

@@ -33,8 +33,7 @@ def _damped_case(seed: int = 3):
         '<freejoint name="rod0"', f'<joint type="free" damping="{DAMPING}" name="rod0"'
     )
     assert f'damping="{DAMPING}"' in xml
-    with pytest.warns(IgnoredFeatureWarning):
-        mj = from_mjcf("<test>", xml=xml, ignore=("joint-dynamics",))
+    mj = from_mjcf("<test>", xml=xml)  # read as declared implicit linear drag
     m, d = mj.model, mujoco.MjData(mj.model)
     rng = np.random.default_rng(seed)
     d.qvel[:] = rng.normal(size=m.nv) * 3.0
@@ -51,9 +50,13 @@ def _drag(cls: type[LinearDrag], asm) -> LinearDrag:
 
 
 def test_implicit_form_equals_mujoco_joint_damping_over_1000_steps() -> None:
+    """The file's free-joint damping, read as the declared effect, steps like MuJoCo."""
     asm, mj, m, d = _damped_case()
     assert DAMPING * m.opt.timestep / asm.params.inertia[0, 2].item() > 2.0
-    engine = Engine(asm.topology, dt=m.opt.timestep, effects=[_drag(ImplicitLinearDrag, asm)])
+    (declared,) = mj.declared_effects()
+    assert isinstance(declared, ImplicitLinearDrag) and mj.joint_damping == DAMPING
+    assert declared.to_dict() == _drag(ImplicitLinearDrag, asm).to_dict()
+    engine = Engine(asm.topology, dt=m.opt.timestep, effects=[declared])
     state = _state(mj, d)
     err_p, err_w = [], []
     for _ in range(1000):
@@ -129,3 +132,22 @@ def test_regression_columns_at_the_velocities_after_the_step() -> None:
     w1 = torch.einsum("brji,brj->bri", rot1, s1.omega)
     torque_l = torch.einsum("brji,brj->bri", kin.rot, tq @ theta)
     assert torch.allclose(inertia * (w1 - w0) / 1e-3, inertia * alpha0 + torque_l, atol=1e-9)
+
+
+def test_joint_damping_the_model_cannot_hold_is_refused_by_name() -> None:
+    """Different values on two rods (the drag is one per axis for all rods), or a body
+    frame off the centre of mass (the damping force would act off it)."""
+    from tensegrity_env.assemblies import icosahedron
+
+    asm = icosahedron()
+    xml = to_mjcf(asm.topology, asm.params, SimOptions(), asm.pose_p, asm.pose_q)
+    uneven = xml.replace('<freejoint name="rod0"', '<joint type="free" damping="0.4" name="rod0"')
+    with pytest.raises(
+        InputError, match=r"rod0.*not one value on every rod.*--ignore joint-dynamics"
+    ):
+        from_mjcf("<test>", xml=uneven)
+    with pytest.warns(IgnoredFeatureWarning):
+        ignored = from_mjcf("<test>", xml=uneven, ignore=("joint-dynamics",))
+    assert ignored.joint_damping == 0.0 and not ignored.declared_effects()
+    even = xml.replace("<freejoint ", '<joint type="free" damping="0.4" ')
+    assert from_mjcf("<test>", xml=even).joint_damping == 0.4

@@ -107,6 +107,8 @@ class DiscoveryResult:
         settings: settings recorded beside the result.
         residual_network: a residual network fitted to what is left, when it lowers the
             held-out (test) one-step error (NOT a physical effect, not part of ``model``).
+        rollout_plot: PNG of measured end caps against the declared and the final model
+            rolled out over a test stretch, or None.
     """
 
     method: str
@@ -121,6 +123,7 @@ class DiscoveryResult:
     unexplained: str = ""
     settings: dict[str, Any] = field(default_factory=dict)
     residual_network: ResidualFit | None = None
+    rollout_plot: Path | None = None
 
     @property
     def added(self) -> list[str]:
@@ -180,7 +183,7 @@ class EffectDiscovery:
     def fit(self, dataset: Dataset) -> EffectDiscovery:
         """Run the loop on ``dataset``; the result is in :attr:`result_`."""
         scorer, log = self.scorer, self.log
-        current = scorer.begin(dataset, log)
+        current = start = scorer.begin(dataset, log)
         baseline = test_now = scorer.test_errors(current)
         iterations: list[Iteration] = []
         for k in range(self.max_effects + 1):
@@ -205,11 +208,14 @@ class EffectDiscovery:
         if final is not current:
             current, test_now = final, scorer.test_errors(final)
         unexplained, network = scorer.leftover(current)
+        rollouts = None
+        if self.plots is not None:
+            rollouts = scorer.rollout_plot(start, current, self.plots / "rollout.png")
         self.result_ = DiscoveryResult(
             method=scorer.method, description=scorer.describe(), iterations=iterations,
             model=current.model, baseline_test=baseline, final_test=test_now,
             test_labels=scorer.test_labels(), criteria=scorer.criteria, final_residual=residual, unexplained=unexplained,
-            settings=scorer.settings_summary(), residual_network=network,
+            settings=scorer.settings_summary(), residual_network=network, rollout_plot=rollouts,
         )  # fmt: skip
         return self
 

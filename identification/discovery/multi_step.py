@@ -72,6 +72,7 @@ from identification.discovery.floor_fits import floor_rows
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import FittedModel, Proposal, contact_gate, propose
 from identification.discovery.residual_network import ResidualFit
+from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
@@ -174,6 +175,13 @@ class MultiStepScorer(Scorer[EndCapFits]):
             heldout={"caps_rms": float(np.sqrt(fits.val_sse / max(fits.val_m, 1)))},
             bic=fits.fit.bic,
         )  # fmt: skip
+
+    def rollout_plot(
+        self, before: Candidate[EndCapFits], after: Candidate[EndCapFits], path: Path
+    ) -> Path:
+        return end_cap_rollout_plot(
+            self.data, before.fit.final, after.fit.final, self.settings.state_iter, path
+        )
 
     def test_errors(self, current: Candidate[EndCapFits]) -> dict[str, Any]:
         """Test-split errors: held-out end-cap RMS [m]; against the clean truth if given."""

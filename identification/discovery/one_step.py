@@ -42,6 +42,7 @@ from identification.discovery.residuals import (
     summarize,
     summary_table,
 )
+from identification.discovery.rollout_plots import rod_state_rollout_plot
 from identification.discovery.scorer import Residual, Scorer
 from identification.linear.extended import acting_split, evaluate_model
 from identification.linear.features import cable_commands_at, transitions_of
@@ -160,6 +161,13 @@ class OneStepScorer(Scorer[FittedModel]):
 
     def test_errors(self, current: Candidate[FittedModel]) -> dict[str, Any]:
         return self.errors(current.model, self.test_split)
+
+    def rollout_plot(
+        self, before: Candidate[FittedModel], after: Candidate[FittedModel], path: Path
+    ) -> Path:
+        return rod_state_rollout_plot(
+            self.dataset, self.test_split, self.horizon_s, before.model, after.model, path
+        )
 
     def propose(
         self, current: Candidate[FittedModel], names: Sequence[str] | None

@@ -113,6 +113,12 @@ class Scorer(ABC, Generic[F]):
         ``current`` as it is)."""
         return current
 
+    def rollout_plot(self, before: Candidate[F], after: Candidate[F], path: Path) -> Path | None:
+        """A PNG at ``path``: measured end caps of a test stretch against the open-loop
+        rollouts of ``before`` (the declared model) and ``after`` (the final one); None
+        where the scorer draws none."""
+        return None
+
     @abstractmethod
     def residual(self, current: Candidate[F], k: int, plots: Path | None) -> Residual:
         """The residual of ``current`` (iteration ``k``; its PNG under ``plots``)."""

@@ -57,3 +57,36 @@ def plot_rollout_comparison(
     )
     ax2.grid(True, which="both", alpha=0.3)
     return save_figure(fig, path)
+
+
+def plot_end_cap_rollouts(
+    dt: float,
+    measured: np.ndarray,
+    models: dict[str, np.ndarray],
+    path: str | Path,
+    title: str,
+) -> Path:
+    """Measured end-cap heights against each model's open-loop rollout, one panel a model.
+
+    Args:
+        dt: sample period [s].
+        measured: measured end caps of one stretch, (T+1, n_caps, 3) [m] (NaN in gaps).
+        models: label -> the model's end caps from the stretch's initial state,
+            (T+1, n_caps, 3) [m].
+        path: output PNG.
+        title: what the stretch is (the figure's title).
+    """
+    t = np.arange(measured.shape[0]) * dt
+    every = max(1, measured.shape[0] // 150)  # at most ~150 dots a cap: the lines stay visible
+    fig, axes = plt.subplots(1, len(models), figsize=(5.5 * len(models), 4), sharey=True,
+                             squeeze=False)  # fmt: skip
+    for ax, (label, caps) in zip(axes[0], models.items(), strict=True):
+        err = np.sqrt(np.nanmean(np.sum((caps - measured) ** 2, axis=-1)))
+        for k in range(measured.shape[1]):
+            (line,) = ax.plot(t, caps[:, k, 2], lw=1.2)
+            ax.plot(t[::every], measured[::every, k, 2], ".", ms=3, color=line.get_color())
+        ax.set(xlabel="time [s]", title=f"{label}: end-cap RMS {err * 1e3:.3g} mm")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel("end-cap height z [m]  (dots measured, lines model)")
+    fig.suptitle(title)
+    return save_figure(fig, path)

@@ -107,6 +107,7 @@ def test_cli_writes_report_and_params_the_engine_loads(tmp_path):
     report = (out / "report.md").read_text()
     assert "Added: linear_drag" in report and "residuals_0.png" in report
     assert (out / "residuals_0.png").stat().st_size > 10_000
+    assert "(rollout.png)" in report and (out / "rollout.png").stat().st_size > 10_000
     model = Model.load(out / "params.json")
     assert model.effect_names == ["linear_drag"]
     doc = json.loads((out / "params.json").read_text())

@@ -69,12 +69,13 @@ def test_effect_columns_of_the_jacobian_match_autograd() -> None:
     )
 
 
-def discover(dataset, scorer, max_effects: int, candidates=None) -> DiscoveryResult:
-    loop = EffectDiscovery(scorer, max_effects, candidates, log=lambda m: None)
+def discover(dataset, scorer, max_effects: int, candidates=None, plots=None) -> DiscoveryResult:
+    loop = EffectDiscovery(scorer, max_effects, candidates, log=lambda m: None, plots=plots)
     return loop.fit(dataset).result_
 
 
-def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = False, **kw):
+def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = False,
+           plots=None, **kw):  # fmt: skip
     d = planted_dataset(PlantSpec(effect, strength, noise=0.001, seed=seed, n_train=3, n_val=2,
                                   n_test=2, steps=500))  # fmt: skip
     s = TrajectorySettings(anchors={"mass[rod0]": float(d.ground_truth.params.mass[0])},
@@ -83,17 +84,18 @@ def _small(effect: str, strength: str, seed: int, candidates, from_data: bool = 
     with np.errstate(invalid="ignore", divide="ignore"):
         scorer = MultiStepScorer(s, horizon_s=0.5, clean=d.clean,
                                  start=None if from_data else d.ground_truth.params)  # fmt: skip
-        r = discover(d.dataset, scorer, 1, candidates)
+        r = discover(d.dataset, scorer, 1, candidates, plots)
     return d, r
 
 
-def test_noisy_linear_drag_is_named_and_errors_drop() -> None:
+def test_noisy_linear_drag_is_named_and_errors_drop(tmp_path) -> None:
     """Strong linear drag, seed 13, two candidates: at least 100x one-step and
     10x rollout gain against the clean trajectories. The final fit runs on the default
     300-step windows (here each 500-step trajectory whole): 382x and 3034x measured
     (28.6x one-step on 100-step windows)."""
-    _, r = _small("linear_drag", "strong", 13, ["linear_drag", "force_field"])
+    _, r = _small("linear_drag", "strong", 13, ["linear_drag", "force_field"], plots=tmp_path)
     assert r.model.names == ["linear_drag"]
+    assert r.rollout_plot == tmp_path / "rollout.png" and r.rollout_plot.stat().st_size > 10_000
     b, f = r.baseline_test, r.final_test
     assert b["one_step"] / f["one_step"] >= 100
     assert b["rollout"] / f["rollout"] >= 10

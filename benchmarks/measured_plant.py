@@ -269,6 +269,22 @@ def initial_states(cell: Cell, n: int, rng: np.random.Generator) -> dict[str, np
     return {"p": p, "v": v, "q": q, "omega": omega}
 
 
+def drop_states(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """``n`` drops from rest: the nominal shape turned at random, its lowest end cap
+    0.1-0.5 m above the floor, every velocity zero (same layout as :func:`initial_states`)."""
+    a = assemblies.icosahedron()
+    R = a.topology.n_rods
+    rot = _unit(rng.normal(size=(n, 4)))
+    centre = a.pose_p.mean(axis=0)
+    p = np.einsum("nij,rj->nri", np_quat_to_matrix(rot), a.pose_p - centre)
+    q = _quat_mul(np.repeat(rot[:, None], R, axis=1), np.broadcast_to(a.pose_q, (n, R, 4)))
+    caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", np_quat_to_matrix(q), a.topology.end_offsets)
+    low = caps[..., 2].reshape(n, -1).min(axis=1) - a.topology.rods[0].radius
+    p[..., 2] += (rng.uniform(0.1, 0.5, n) - low)[:, None]
+    zero = np.zeros((n, R, 3))
+    return {"p": p, "v": zero, "q": q, "omega": zero.copy()}
+
+
 def simulate(cell: Cell, truth: Truth, init: dict[str, np.ndarray], duration: float) -> Split:
     """Roll MuJoCo from ``init`` and record clean states and end caps at the sample times.
 
@@ -286,6 +302,9 @@ def simulate(cell: Cell, truth: Truth, init: dict[str, np.ndarray], duration: fl
     bodies = [model.body(f"rod{r}").id for r in range(R)]
 
     def record(i: int, t: int) -> None:
+        # mj_step leaves site positions at the start of its last step: recompute them at
+        # the state it ends in, so end caps and rod states are of the same instant
+        mujoco.mj_kinematics(model, data)
         qpos, qvel = data.qpos.reshape(R, 7), data.qvel.reshape(R, 6)
         out["p"][i, t], out["q"][i, t], out["v"][i, t] = qpos[:, :3], qpos[:, 3:], qvel[:, :3]
         out["omega"][i, t] = np.einsum("rij,rj->ri", np_quat_to_matrix(qpos[:, 3:]), qvel[:, 3:])

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from measured_plant import CellData
+from measured_plant import CellData, drop_states, simulate
 
 from identification.data.dataset import read_dataset
 from tensegrity_env.effects import effects_from_document
@@ -27,6 +27,8 @@ from tensegrity_env.rotations import quat_to_matrix
 
 GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
 HORIZON = 1.0
+#: the floor cells' drop check: drops from rest, seconds each, passing within 2 cm
+N_DROPS, DROP_SECONDS, DROP_TOLERANCE = 3, 2.0, 0.02
 
 
 def unphysical(p: dict[str, np.ndarray]) -> list[str]:
@@ -78,12 +80,38 @@ def coverage_pairs(doc: dict[str, Any], truth: dict[str, np.ndarray], rods: list
 def rollout_error(data: CellData, doc: dict[str, Any], path: Path) -> dict[str, Any]:
     """End-cap RMS error [m] of the params file's model over the clean test split's first second."""
     clean = read_dataset(data.clean)
-    topo, split = clean.topology, clean.split("test")
-    n_sub = data.cell.substeps
+    split = clean.split("test")
     steps = min(split.n_transitions, round(HORIZON / clean.dt))
+    init = {k: getattr(split, k)[:, 0] for k in ("p", "v", "q", "omega")}
+    return caps_error(data, doc, path, init, split.nodes, steps)
+
+
+def drop_error(data: CellData, doc: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The 2-s drop check of a floor cell: :data:`N_DROPS` drops from rest simulated by the
+    plant, the params file's model rolled out from the same states; end-cap RMS error [m]
+    per sample (``mean`` over the 2 s, ``worst`` sample, ``final``)."""
+    init = drop_states(N_DROPS, np.random.default_rng([data.cell.seed, 29]))
+    drops = simulate(data.cell, data.truth, init, DROP_SECONDS)
+    steps = drops.nodes.shape[1] - 1
+    return caps_error(data, doc, path, init, drops.nodes, steps)
+
+
+def caps_error(
+    data: CellData,
+    doc: dict[str, Any],
+    path: Path,
+    init: dict[str, np.ndarray],
+    nodes: np.ndarray,
+    steps: int,
+) -> dict[str, Any]:
+    """End-cap RMS error [m] per sample of the params file's model rolled out open-loop
+    from rod states ``init`` (n, R, ·) against clean end caps ``nodes`` (n, >= steps+1,
+    2R, 3), at the cell's physics step."""
+    clean = read_dataset(data.clean)
+    topo, n_sub = clean.topology, data.cell.substeps
     params = params_from_dict(doc["params"])
     engine = Engine(topo, clean.dt / n_sub, effects_from_document(doc, topo, root=path.parent))
-    state = State(*(torch.as_tensor(getattr(split, k)[:, 0]) for k in ("p", "v", "q", "omega")))
+    state = State(*(torch.as_tensor(init[k]) for k in ("p", "v", "q", "omega")))
     offsets = torch.as_tensor(topo.end_offsets)
     rms = [0.0]
     with torch.no_grad():
@@ -92,12 +120,14 @@ def rollout_error(data: CellData, doc: dict[str, Any], path: Path) -> dict[str, 
                 state = engine.step(state, params)
             caps = state.p[:, :, None] + torch.einsum("brij,rkj->brki", quat_to_matrix(state.q),
                                                       offsets)  # fmt: skip
-            diff = caps.reshape(caps.shape[0], -1, 3).numpy() - split.nodes[:, t]
+            diff = caps.reshape(caps.shape[0], -1, 3).numpy() - nodes[:, t]
             e = float(np.sqrt(np.mean(np.sum(diff**2, -1))))
             rms.append(e if math.isfinite(e) else math.inf)
             if not math.isfinite(e) or e > 10.0:
-                return {"diverged_at_s": t * clean.dt, "mean": math.inf, "final": math.inf}
-    return {"mean": float(np.mean(rms)), "final": rms[-1], "seconds": steps * clean.dt}
+                return {"diverged_at_s": t * clean.dt, "mean": math.inf, "final": math.inf,
+                        "worst": math.inf}  # fmt: skip
+    return {"mean": float(np.mean(rms)), "final": rms[-1], "worst": float(np.max(rms)),
+            "seconds": steps * clean.dt}  # fmt: skip
 
 
 def score_params(data: CellData, path: Path) -> dict[str, Any]:
@@ -117,10 +147,14 @@ def score_params(data: CellData, path: Path) -> dict[str, Any]:
     out["effects"] = [e.get("name") for e in doc.get("effects", [])]
     out["coverage"] = coverage_pairs(doc, truth, [r.name for r in topo.rods],
                                      [s.name for s in topo.springs])  # fmt: skip
-    try:
-        out["rollout"] = rollout_error(data, doc, path)
-    except Exception as e:  # the model file itself is the result under test
-        out["rollout"] = {"error": f"{type(e).__name__}: {e}"}
+    checks = {"rollout": rollout_error}
+    if data.cell.setting == "floor":
+        checks["drop"] = drop_error
+    for key, check in checks.items():
+        try:
+            out[key] = check(data, doc, path)
+        except Exception as e:  # the model file itself is the result under test
+            out[key] = {"error": f"{type(e).__name__}: {e}"}
     return out
 
 
@@ -166,6 +200,30 @@ def coverage_section(cells: dict[str, Any]) -> list[str]:
         worst = max(errs, key=lambda g: errs[g]["max"]) if errs else None
         text = "-" if worst is None else f"{worst} {100 * errs[worst]['max']:.2g} %"
         lines.append(f"| {label} | {len(hits)} | {100 * np.mean(hits):.1f} % | {text} |")
+    return lines
+
+
+def floor_section(cells: dict[str, Any]) -> list[str]:
+    """The floor cells' checks: 1-s rolling (the clean test trajectories) and 2-s drops."""
+    rows = [(label, k, r[k]) for label, r in sorted(cells.items()) if r["cell"]["setting"] == "floor"
+            for k in ("before", "after") if r[k].get("drop")]  # fmt: skip
+    if not rows:
+        return []
+    lines = ["", "## Floor checks", "",
+             f"Rolling: the clean test trajectories (tumbling and rolling on the floor), end-cap "
+             f"RMS error over the first second, mean and at 1 s. Drop: {N_DROPS} drops from "
+             f"rest, 0.1-0.5 m above the floor, simulated by the plant for {DROP_SECONDS:g} s; "
+             f"the worst end-cap RMS error over the samples, passing below "
+             f"{DROP_TOLERANCE * 100:g} cm. Model: `identify` (before) or `diagnose` (after).", "",
+             "| cell | model | rolling mean [mm] | rolling at 1 s [mm] | drop worst [mm] | drop passes |",
+             "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for label, k, rec in rows:
+        roll, drop = rec.get("rollout", {}), rec["drop"]
+        worst = drop.get("worst")
+        ok = "-" if worst is None else ("yes" if worst < DROP_TOLERANCE else "no")
+        model = "identify" if k == "before" else "diagnose"
+        lines.append(f"| {label} | {model} | {_mm(roll.get('mean'))} | {_mm(roll.get('final'))} "
+                     f"| {_mm(worst)} | {ok} |")  # fmt: skip
     return lines
 
 
@@ -225,6 +283,7 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
             f"| {_pct(a, 'damping')} | {_mm(b.get('rollout', {}).get('mean'))} "
             f"| {_mm(a.get('rollout', {}).get('mean'))} | {'; '.join(unphys) or 'none'} |"
         )
+    lines += floor_section(cells)
     lines += coverage_section(cells)
     lines += ["", "## Every cell run", ""]
     runs = list(cells.values())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from measured_plant import Cell, initial_states, measure, simulate, true_model
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import ForceField, GroundContact
 from tensegrity_env.engine import Engine, State, substeps_for
+from tensegrity_env.rotations import quat_to_matrix
 
 
 def _rollout_error(cell: Cell, effects: list, duration: float) -> float:
@@ -68,3 +70,36 @@ def test_measurement_noise_and_dropouts():
     second = np.abs(seen[:, 2:] - 2 * seen[:, 1:-1] + seen[:, :-2]).max(axis=-1)
     filled = (second < 1e-12).mean()
     assert 0.018 < filled < 0.022
+
+
+def test_drops_start_at_rest_and_the_true_model_follows_them(tmp_path):
+    """The floor cells' checks: the plant's drops from rest and its rolling test
+    trajectories, followed to round-off by the engine with the true model and MuJoCo's
+    default contact at the plant's physics step; its end caps and rod states are of the
+    same instant."""
+    from measured_plant import drop_states, write_cell
+    from measured_report import DROP_SECONDS, drop_error, rollout_error
+
+    from tensegrity_env.model import Model
+
+    init = drop_states(3, np.random.default_rng(0))
+    assert not init["v"].any() and not init["omega"].any()
+    topo = icosahedron().topology
+    offsets = topo.end_offsets
+    caps = init["p"][:, :, None] + np.einsum(
+        "nrij,rkj->nrki", quat_to_matrix(torch.as_tensor(init["q"])).numpy(), offsets
+    )
+    low = caps[..., 2].reshape(3, -1).min(axis=1) - topo.rods[0].radius
+    assert np.all((low > 0.1 - 1e-9) & (low < 0.5 + 1e-9))
+    cell = Cell("floor", 120.0, 0.0, 0.0, "none")
+    data = write_cell(cell, tmp_path / "cell")
+    path = tmp_path / "true.json"
+    Model(topo, data.truth.params, [GroundContact(topo, friction=1.0, height=0.0)]).save(path, {})
+    doc = json.loads(path.read_text())
+    drop = drop_error(data, doc, path)
+    assert drop["seconds"] == DROP_SECONDS and drop["worst"] < 1e-8, drop
+    assert rollout_error(data, doc, path)["worst"] < 1e-8
+    # without the floor the model falls through it: the check sees it
+    bare = tmp_path / "bare.json"
+    Model(topo, data.truth.params).save(bare, {})
+    assert drop_error(data, json.loads(bare.read_text()), bare)["worst"] > 0.1

@@ -188,18 +188,22 @@ def coverage_section(cells: dict[str, Any]) -> list[str]:
              "The fraction of true parameters (masses, inertias, stiffness, damping, rest",
              "lengths) within two standard errors stated in `identify`'s params file "
              "(the window-clustered sandwich or Gauss-Newton, whichever is larger), per cell;",
-             "cells with `diagnose` skipped come from", "",
+             "cells with `diagnose` skipped come from runs with `--identify-only`: the seeds",
+             "and the other rates, noise levels and dropouts of the control cell from", "",
              "    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/bench_measured.py --settings flight \\",
-             "        --effects none --seeds 10 --seed0 1 --identify-only", "",
+             "        --effects none --seeds 10 --seed0 1 --identify-only",
+             "    python benchmarks/bench_measured.py --settings flight --effects none --identify-only \\",
+             "        --rates 60,240        # and: --noise 2; --dropout 2", "",
              f"Overall: **{100 * np.mean(every):.1f} %** of {len(every)} parameters over "
              f"{len(rows)} cells.", "",
-             "| cell | parameters | coverage | largest relative error |",
-             "| --- | --- | --- | --- |"]  # fmt: skip
+             "| cell | parameters | coverage | largest relative error | 1-s rollout [mm] |",
+             "| --- | --- | --- | --- | --- |"]  # fmt: skip
     for label, r, hits in rows:
         errs = r["before"].get("errors", {})
         worst = max(errs, key=lambda g: errs[g]["max"]) if errs else None
         text = "-" if worst is None else f"{worst} {100 * errs[worst]['max']:.2g} %"
-        lines.append(f"| {label} | {len(hits)} | {100 * np.mean(hits):.1f} % | {text} |")
+        roll = _mm(r["before"].get("rollout", {}).get("mean"))
+        lines.append(f"| {label} | {len(hits)} | {100 * np.mean(hits):.1f} % | {text} | {roll} |")
     return lines
 
 

@@ -47,7 +47,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from measured_plant import PLANTED, SETTINGS, Cell, write_cell
+from measured_plant import PLANT_VERSION, PLANTED, SETTINGS, Cell, write_cell
 from measured_report import evaluate_cell, write_markdown
 
 from tensegrity_env.io_utils import atomic_write_text
@@ -91,7 +91,7 @@ def run_cell(
     t0 = time.perf_counter()
     data = write_cell(cell, folder)
     record: dict[str, Any] = {"cell": cell.__dict__ | {"label": cell.label},
-                              "expected": list(cell.expected),
+                              "expected": list(cell.expected), "plant_version": PLANT_VERSION,
                               "data_seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
     anchor = f"mass[rod0]={float(data.truth.params.mass[0])!r}"
     ident = folder / "identify.json"

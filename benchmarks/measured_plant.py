@@ -66,6 +66,9 @@ DAMAGE = 0.3
 JOINT_DAMPING = 0.4
 FRICTION = 1.0
 PHYSICS_DT = 1e-3
+#: the plant's version, recorded with each cell: 2 records end caps at the same instant
+#: as rod states (version 1 recorded them one physics step late)
+PLANT_VERSION = 2
 #: mean spring stiffness [N/m] and rest length as a fraction of the nominal spring
 #: length: a prestressed structure that stands on a face under its own weight
 STIFFNESS = 300.0

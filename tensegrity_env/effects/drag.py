@@ -67,7 +67,9 @@ class _Drag(LinearEffect):
     def check(self) -> None:
         """Drag opposes motion: coefficients >= 0 (or within 3 standard errors of 0)."""
         for k, v in self.values.items():
-            se = np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float))
+            # no standard error: none; an infinite one (the data cannot see it): any value
+            se = np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float), nan=0.0,
+                               posinf=np.inf, neginf=np.inf)  # fmt: skip
             x = v.detach().cpu().numpy()
             se = np.broadcast_to(se, x.shape)
             bad = np.flatnonzero(x < -3 * se)

@@ -126,3 +126,10 @@ def test_declared_parameters_already_unphysical_are_not_held_against_a_candidate
     assert "triangle" in unphysical(candidate, DECLARED)  # it made them unphysical
     bad = FittedModel(Model(ICO.topology, biased, NEGATIVE_DRAG.model.effects), 6)
     assert "linear_drag" in unphysical(bad, current)  # its own effect is still checked
+
+
+def test_a_drag_coefficient_the_data_cannot_see_is_in_the_domain(recwarn):
+    """An infinite standard error (unobservable) admits any value, without overflow."""
+    assert unphysical(with_drag(-0.5, float("inf"))) == ""
+    assert unphysical(with_drag(-0.5, float("nan"))).startswith("effect 'linear_drag'")
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]

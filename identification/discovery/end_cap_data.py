@@ -237,10 +237,12 @@ def fit_trajectory(
     roll: bool | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
-    (None: ``data.roll``). The BIC counts the rolls.
+    (None: ``data.roll``). The BIC counts the rolls. On the floor the states include
+    each rod's axial spin (:mod:`identification.trajectory.floor_fit`).
     """
     roll = data.roll if roll is None else roll
-    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=False, roll=roll)
+    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=data.on_floor,
+                      roll=roll)  # fmt: skip
     m = fit.windows.residuals
     rolls = windows.size * data.topology.n_rods if roll else 0  # state unknowns, not common
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
@@ -282,7 +284,7 @@ def hold_declared(vec: ParamVector) -> ParamVector:
 def heldout(data: EndCapData, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:
     """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
     engine, vec = fixed_engine(data, fit)
-    w = fit_states(engine, vec, data.windows[split], iters, roll=data.roll)
+    w = fit_states(engine, vec, data.windows[split], iters, spin=data.on_floor, roll=data.roll)
     m = w.windows.residuals
     return w.history[-1] * m, m, w.windows
 

@@ -162,7 +162,7 @@ def fit_many(
     engine = vec.engine(data.engine, theta.detach())
     fixed = held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
-    states = fit_states(engine, fixed, many, s.state_iter, roll=data.roll)
+    states = fit_states(engine, fixed, many, s.state_iter, spin=data.on_floor, roll=data.roll)
     fit = fit_trajectory(data, vec, states.windows, theta, iters)
     if sees_roll(engine) and not data.roll:
         # the rolls only matter once the effect is near its size: fitted from there

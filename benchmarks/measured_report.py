@@ -240,8 +240,8 @@ def stale(r: dict[str, Any]) -> str:
 #: the footnote of cells marked by :func:`stale`
 STALE_NOTE = ("† measured with the plant's first version, whose end caps lagged its rod states "
               "by one physics step (about 1 ms), which adds millimetres to the rollout errors "
-              "(the control cell's `identify`: 4.8-5.7 mm over seeds 0-10 with it, 0.1-0.4 mm "
-              "at 60-240 Hz without).")  # fmt: skip
+              "(the control cell's `identify` at 120 Hz: 4.8-5.7 mm over seeds 0-10 with it, "
+              "0.13-0.24 mm over seeds 1-10 without).")  # fmt: skip
 
 
 def _mm(x: Any) -> str:

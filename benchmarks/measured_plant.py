@@ -233,6 +233,26 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
 
+def _turned_pose(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal pose turned about its centre by ``n`` random rotations: rod centres
+    p (n, R, 3) [m] and orientations q (n, R, 4)."""
+    a = assemblies.icosahedron()
+    R = a.topology.n_rods
+    rot = _unit(rng.normal(size=(n, 4)))
+    p = np.einsum("nij,rj->nri", np_quat_to_matrix(rot), a.pose_p - a.pose_p.mean(axis=0))
+    q = _quat_mul(np.repeat(rot[:, None], R, axis=1), np.broadcast_to(a.pose_q, (n, R, 4)))
+    return p, q
+
+
+def _lift(p: np.ndarray, q: np.ndarray, rng: np.random.Generator, lo: float, hi: float) -> None:
+    """Raise each pose (in place) so its lowest end cap's surface is ``lo``-``hi`` [m]
+    above the floor (uniform at random)."""
+    topo = assemblies.icosahedron().topology
+    caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", np_quat_to_matrix(q), topo.end_offsets)
+    low = caps[..., 2].reshape(len(p), -1).min(axis=1) - topo.rods[0].radius
+    p[..., 2] += (rng.uniform(lo, hi, len(p)) - low)[:, None]
+
+
 def initial_states(cell: Cell, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``n`` random initial rod states: p, v, omega (n, R, 3) [m, m/s, rad/s], q (n, R, 4).
 
@@ -241,12 +261,8 @@ def initial_states(cell: Cell, n: int, rng: np.random.Generator) -> dict[str, np
     horizontal, 1-3 rad/s about a horizontal axis, lowest cap 2-20 cm above the floor;
     ``flight``: 0.5-2 m/s in any direction, 1-5 rad/s about any axis.
     """
-    a = assemblies.icosahedron()
-    R = a.topology.n_rods
-    rot = _unit(rng.normal(size=(n, 4)))
-    centre = a.pose_p.mean(axis=0)
-    p = np.einsum("nij,rj->nri", np_quat_to_matrix(rot), a.pose_p - centre)
-    q = _quat_mul(np.repeat(rot[:, None], R, axis=1), np.broadcast_to(a.pose_q, (n, R, 4)))
+    R = assemblies.icosahedron().topology.n_rods
+    p, q = _turned_pose(n, rng)
     p = p + rng.normal(0.0, 0.02, (n, R, 3))
     axis = _unit(rng.normal(size=(n, R, 3)))
     half = 0.5 * rng.normal(0.0, 0.05, (n, R, 1))
@@ -263,10 +279,7 @@ def initial_states(cell: Cell, n: int, rng: np.random.Generator) -> dict[str, np
     v = V[:, None] + np.cross(W[:, None], p) + rng.normal(0.0, 0.3 / np.sqrt(3), (n, R, 3))
     omega = W[:, None] + rng.normal(0.0, 1.0 / np.sqrt(3), (n, R, 3))
     if cell.setting == "floor":
-        caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", np_quat_to_matrix(q),
-                                         a.topology.end_offsets)  # fmt: skip
-        low = caps[..., 2].reshape(n, -1).min(axis=1) - a.topology.rods[0].radius
-        p[..., 2] += (rng.uniform(0.02, 0.2, n) - low)[:, None]
+        _lift(p, q, rng, 0.02, 0.2)
     else:
         p[..., 2] += 1.0
     return {"p": p, "v": v, "q": q, "omega": omega}
@@ -275,16 +288,9 @@ def initial_states(cell: Cell, n: int, rng: np.random.Generator) -> dict[str, np
 def drop_states(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``n`` drops from rest: the nominal shape turned at random, its lowest end cap
     0.1-0.5 m above the floor, every velocity zero (same layout as :func:`initial_states`)."""
-    a = assemblies.icosahedron()
-    R = a.topology.n_rods
-    rot = _unit(rng.normal(size=(n, 4)))
-    centre = a.pose_p.mean(axis=0)
-    p = np.einsum("nij,rj->nri", np_quat_to_matrix(rot), a.pose_p - centre)
-    q = _quat_mul(np.repeat(rot[:, None], R, axis=1), np.broadcast_to(a.pose_q, (n, R, 4)))
-    caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", np_quat_to_matrix(q), a.topology.end_offsets)
-    low = caps[..., 2].reshape(n, -1).min(axis=1) - a.topology.rods[0].radius
-    p[..., 2] += (rng.uniform(0.1, 0.5, n) - low)[:, None]
-    zero = np.zeros((n, R, 3))
+    p, q = _turned_pose(n, rng)
+    _lift(p, q, rng, 0.1, 0.5)
+    zero = np.zeros(p.shape)
     return {"p": p, "v": zero, "q": q, "omega": zero.copy()}
 
 

@@ -100,9 +100,12 @@ class Model:
         :meth:`~tensegrity_env.effects.base.PhysicalEffect.check` (for example drag
         coefficients >= 0 within 3 of their standard errors).
         """
-        return self.params_violation() or next(
-            (v for v in (e.violation() for e in self.effects) if v), ""
-        )
+        return self.params_violation() or self.effects_violation()
+
+    def effects_violation(self) -> str:
+        """The first effect's :meth:`~tensegrity_env.effects.base.PhysicalEffect.check`
+        failure, or ``""`` when every effect lies in its physical domain."""
+        return next((v for v in (e.violation() for e in self.effects) if v), "")
 
     def params_violation(self) -> str:
         """What of the declared parameters lies outside the physical domain, or ``""``."""

@@ -24,7 +24,7 @@ import torch
 
 from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.library import contact_gate
+from identification.discovery.library import FittedModel, contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii
 from identification.trajectory.effect_coords import CONTACT_FREE
@@ -36,7 +36,9 @@ from identification.trajectory.windows import STATE_KEYS, Windows, cut_windows, 
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
+from tensegrity_env.model import Model
 from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
 
 #: steps per window of the final fits (declared model's many-window fit excepted): on
 #: noisy linear drag (seed 0) 300-step windows gave one-step 563x and rollout 5810x
@@ -125,6 +127,12 @@ class TrajFit:
         names = self.vec.names()
         free = torch.nonzero(self.vec.free)[:, 0].tolist()
         return {names[i]: float(full[i] * se) for i, se in zip(free, self.stderr[:n], strict=True)}
+
+    def fitted_model(self, topology: Topology, dt: float) -> FittedModel:
+        """The fit as the loop's model: parameters, effects, fitted-parameter count and
+        the declared parameters' standard errors."""
+        model = Model(topology, self.params, self.effects, dt)
+        return FittedModel(model, self.k, uncertainty=self.uncertainty)
 
     @property
     def start_effects(self) -> list[PhysicalEffect]:

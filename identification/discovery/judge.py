@@ -160,7 +160,7 @@ def unphysical(model: FittedModel, current: FittedModel | None = None) -> str:
     back.
     """
     if current is not None and current.model.params_violation():
-        return next((v for v in (e.violation() for e in model.model.effects) if v), "")
+        return model.model.effects_violation()
     return model.model.violation()
 
 

@@ -70,7 +70,7 @@ from identification.discovery.end_cap_residuals import (
 )
 from identification.discovery.floor_fits import floor_rows
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
-from identification.discovery.library import FittedModel, Proposal, contact_gate, propose
+from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
@@ -86,7 +86,6 @@ from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import GroundContact, ImplicitLinearDrag, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import State
-from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 
 #: smoothed training samples per sample where candidates' forces are measured
@@ -170,8 +169,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         )
         final, ds = fits.final, self.dataset
         return Candidate(
-            name, fits, FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k,
-                                    uncertainty=final.uncertainty),
+            name, fits, final.fitted_model(ds.topology, ds.dt),
             heldout={"caps_rms": float(np.sqrt(fits.val_sse / max(fits.val_m, 1)))},
             bic=fits.fit.bic,
         )  # fmt: skip
@@ -361,8 +359,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         windows = data.cut("train", steps, sys.maxsize, 4)
         final = fit_many(data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
         ds = self.dataset
-        model = FittedModel(Model(ds.topology, final.params, final.effects, ds.dt), final.k,
-                            uncertainty=final.uncertainty)  # fmt: skip
+        model = final.fitted_model(ds.topology, ds.dt)
         why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)
         self.log(f"final refit on {final.windows.size} training windows of {steps} steps: "
                  f"end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"

@@ -18,6 +18,7 @@ import torch
 from measured_plant import PLANT_VERSION, CellData, drop_states, simulate
 
 from identification.data.dataset import read_dataset
+from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import effects_from_document
 from tensegrity_env.engine.state import State
 from tensegrity_env.engine.step import Engine
@@ -107,10 +108,9 @@ def caps_error(
     """End-cap RMS error [m] per sample of the params file's model rolled out open-loop
     from rod states ``init`` (n, R, ·) against clean end caps ``nodes`` (n, >= steps+1,
     2R, 3), at the cell's physics step."""
-    clean = read_dataset(data.clean)
-    topo, n_sub = clean.topology, data.cell.substeps
+    topo, dt, n_sub = icosahedron().topology, 1.0 / data.cell.rate, data.cell.substeps
     params = params_from_dict(doc["params"])
-    engine = Engine(topo, clean.dt / n_sub, effects_from_document(doc, topo, root=path.parent))
+    engine = Engine(topo, dt / n_sub, effects_from_document(doc, topo, root=path.parent))
     state = State(*(torch.as_tensor(init[k]) for k in ("p", "v", "q", "omega")))
     offsets = torch.as_tensor(topo.end_offsets)
     rms = [0.0]
@@ -124,10 +124,10 @@ def caps_error(
             e = float(np.sqrt(np.mean(np.sum(diff**2, -1))))
             rms.append(e if math.isfinite(e) else math.inf)
             if not math.isfinite(e) or e > 10.0:
-                return {"diverged_at_s": t * clean.dt, "mean": math.inf, "final": math.inf,
+                return {"diverged_at_s": t * dt, "mean": math.inf, "final": math.inf,
                         "worst": math.inf}  # fmt: skip
     return {"mean": float(np.mean(rms)), "final": rms[-1], "worst": float(np.max(rms)),
-            "seconds": steps * clean.dt}  # fmt: skip
+            "seconds": steps * dt}  # fmt: skip
 
 
 def score_params(data: CellData, path: Path) -> dict[str, Any]:

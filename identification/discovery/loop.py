@@ -283,19 +283,26 @@ class EffectDiscovery:
         """
         while it.chosen is not None:
             chosen = it.chosen
-            added = self.scorer.accept(chosen)
-            reason = unphysical(added.model, it.before.model)
-            if not reason:
+            added = self.refit(chosen, it.before)
+            if chosen.accepted:
                 it.added = added
                 return added
-            overrule(chosen, reason)
-            self.log(f"  candidate {chosen.name}: {chosen.verdict}")
             earlier = set(it.before.model.names) - {chosen.name}
             stale = [e.name for e in added.model.effects if e.name in earlier and e.violation()]
             if stale and (added := self.replace(it, chosen, stale)) is not None:
                 return added
             it.chosen, it.runner_up = self.choose(it.before, it.candidates)
         return None
+
+    def refit(self, c: Candidate[Any], before: Candidate[Any]) -> Candidate[Any]:
+        """``c`` as the next current model (the scorer's refit); a refit outside the
+        physical domain overrules ``c`` (``c.accepted`` turns False, logged)."""
+        added = self.scorer.accept(c)
+        reason = unphysical(added.model, before.model)
+        if reason:
+            overrule(c, reason)
+            self.log(f"  candidate {c.name}: {c.verdict}")
+        return added
 
     def replace(
         self, it: Iteration, chosen: Candidate[Any], stale: list[str]
@@ -322,11 +329,8 @@ class EffectDiscovery:
         it.candidates.append(c)
         if not c.accepted:
             return None
-        added = scorer.accept(c)
-        reason = unphysical(added.model, it.before.model)
-        if reason:
-            overrule(c, reason)
-            self.log(f"  candidate {c.name}: {c.verdict}")
+        added = self.refit(c, it.before)
+        if not c.accepted:
             return None
         it.chosen, it.runner_up, it.added, it.replaced = c, None, added, stale
         return added

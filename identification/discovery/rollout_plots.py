@@ -16,13 +16,12 @@ from identification.data.dataset import Dataset
 from identification.discovery.end_cap_data import (
     EndCapData,
     TrajFit,
-    fixed_engine,
+    heldout,
     predicted_caps,
 )
 from identification.discovery.library import FittedModel
 from identification.linear.extended import acting_split
 from identification.report.plots import plot_end_cap_rollouts
-from identification.trajectory.window_states import fit_states
 from identification.trajectory.windows import STATE_KEYS, end_caps
 from tensegrity_env.engine import Engine, State
 
@@ -64,14 +63,11 @@ def end_cap_rollout_plot(
     """The first test window against ``before`` and ``after``, each rolled out from the
     initial state it fits to the window (``iters`` state iterations)."""
     windows = data.windows["test"]
-    models, measured = {}, None
+    models = {}
     for label, fit in zip(LABELS, (before, after), strict=True):
-        engine, vec = fixed_engine(data, fit)
-        fitted = fit_states(engine, vec, windows, iters, roll=data.roll).windows
+        _, _, fitted = heldout(data, fit, "test", iters)  # the window states it fits
         models[label] = predicted_caps(data, fit, fitted)[0].numpy()
-        measured = fitted.obs[0].numpy()
-    assert measured is not None
     names = [e.name for e in after.effects]
     title = (f"test window 0 ({windows.steps * data.dataset.dt:g} s), open loop from the state "
              f"each model fits to it ({', '.join(names) or 'nothing'} added)")  # fmt: skip
-    return plot_end_cap_rollouts(data.dataset.dt, measured, models, path, title)
+    return plot_end_cap_rollouts(data.dataset.dt, windows.obs[0].numpy(), models, path, title)

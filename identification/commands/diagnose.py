@@ -27,6 +27,7 @@ from identification.discovery.report import fmt_unit, ratio, write_params, write
 from identification.discovery.scorer import Scorer
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
+from identification.trajectory.floor_evidence import contact_evidence
 from tensegrity_env.effects import EFFECTS, GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT
@@ -156,8 +157,14 @@ def run(args: argparse.Namespace) -> int:
     with np.errstate(invalid="ignore", divide="ignore"):  # candidates may fit badly: judged
         result = loop.fit(dataset).result_
     truth = read_ground_truth(args.dataset)
-    report = write_report(result, out, str(args.dataset), None if truth is None else truth.effects)
+    contacts = [e for e in result.model.effects if isinstance(e, GroundContact)]
+    evidence = [contact_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology, c)
+                for c in contacts]  # fmt: skip
+    report = write_report(result, out, str(args.dataset), None if truth is None else truth.effects,
+                          [e.markdown() for e in evidence])  # fmt: skip
     extra: dict[str, Any] = {"dataset": str(args.dataset)}
+    if evidence:
+        extra["floor_evidence"] = evidence[0].as_dict()
     if multi_step:
         extra["method"] = "trajectory"
     extra["seconds"] = time.perf_counter() - t0

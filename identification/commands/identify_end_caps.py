@@ -30,6 +30,7 @@ from identification.discovery.floor_fits import (
 from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
 from identification.trajectory.airborne import MIN_STRETCH
+from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.stage_check import check_stage, noise_level
 from tensegrity_env.effects.base import PhysicalEffect
@@ -103,6 +104,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     t0 = time.perf_counter()
     est: TrajectoryIdentifier | FloorIdentification
     effects: list[PhysicalEffect] = []
+    evidence: FloorEvidence | None = None
     if on_floor(dataset, args.split):
         print(f"end caps rest and roll on a floor, never airborne for {MIN_STRETCH} steps: "
               "ground contact is fitted with the declared model")  # fmt: skip
@@ -113,6 +115,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         )  # fmt: skip
         est = identify_on_floor(dataset, settings, args.split)
         effects = [est.contact_]
+        evidence = contact_evidence(split.nodes, dt, dataset.topology, est.contact_)
     else:
         est = TrajectoryIdentifier(
             anchors=anchors, window=samples_of(window, dt, 2),
@@ -164,6 +167,13 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
     if effects:
         print("\n" + "\n".join(e.describe() for e in effects))
+    if evidence is not None:
+        print("what the floor data shows: " + "; ".join(evidence.lines()))
+        unseen = {f"ground_contact.{k}": why for k, why in evidence.unseen().items()}
+        for name, why in unseen.items():
+            print(f"  {name}: {why}")
+        extra["identifiability"]["not_identifiable"] = {**est.notes_, **unseen}
+        extra["floor_evidence"] = evidence.as_dict()
     Model(dataset.topology, est.params_, effects, dt=physics).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

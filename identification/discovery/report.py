@@ -5,6 +5,7 @@ One writer for both scorers (:class:`~identification.discovery.loop.DiscoveryRes
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -101,8 +102,11 @@ def write_report(
     out: Path,
     source: str,
     planted: list[dict[str, Any]] | None = None,
+    sections: Sequence[str] = (),
 ) -> Path:
-    """``out/report.md``: every iteration's candidates, the choice, errors before and after."""
+    """``out/report.md``: every iteration's candidates, the choice, errors before and after.
+
+    ``sections`` (markdown, each with its own heading) follow the result."""
     labels = result.test_labels
     data = "rod states" if result.method == "one_step" else "end caps"
     L = [f"# Residual loop: {source} ({data})", "", result.description, ""]
@@ -113,6 +117,8 @@ def write_report(
               f"({result.rollout_plot.name})", ""]  # fmt: skip
     for e in result.model.effects:
         L += [f"### {e.name}", "", effect_table(e), ""]
+    for section in sections:
+        L += [section, ""]
     if planted is not None:
         names = [p.get("name") for p in planted] or ["nothing"]
         L += [

@@ -48,7 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from measured_plant import PLANT_VERSION, PLANTED, SETTINGS, Cell, write_cell
-from measured_report import evaluate_cell, write_markdown
+from measured_report import evaluate_cell, selection, write_markdown
 
 from tensegrity_env.io_utils import atomic_write_text
 
@@ -167,6 +167,7 @@ def main() -> int:
             print(f"{cell.label} ...", flush=True)
             rec = run_cell(cell, work, args.timeout, extra)
             rec["diagnose_args"] = args.diagnose_args
+            rec["selection"] = selection(args.diagnose_args)
             results["cells"][cell.label] = rec
             atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
             print(f"  identify {rec['identify']['status']}, diagnose {rec['diagnose']['status']} "

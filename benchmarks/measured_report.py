@@ -7,9 +7,11 @@ with the truth the plant simulated; :func:`write_markdown` renders the JSON that
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import re
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,8 @@ import numpy as np
 import torch
 from measured_plant import PLANT_VERSION, CellData, drop_states, simulate
 
+from identification.commands.diagnose import WINDOW_S, WINDOWS
+from identification.commands.durations import seconds
 from identification.data.dataset import read_dataset
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import effects_from_document
@@ -27,6 +31,8 @@ from tensegrity_env.params import params_from_dict
 from tensegrity_env.rotations import quat_to_matrix
 
 GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
+#: the selection windows of cells that did not record theirs (``diagnose``'s default then)
+OLD_SELECTION = {"window_s": 0.1, "windows": 8}
 HORIZON = 1.0
 #: the floor cells' drop check: drops from rest, seconds each, passing within 2 cm
 N_DROPS, DROP_SECONDS, DROP_TOLERANCE = 3, 2.0, 0.02
@@ -232,9 +238,41 @@ def floor_section(cells: dict[str, Any]) -> list[str]:
     return lines
 
 
+def selection(diagnose_args: str) -> dict[str, float]:
+    """The selection windows ``diagnose`` runs with given extra options ``diagnose_args``:
+    ``window_s`` (length [s]) and ``windows`` (random windows per split)."""
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--window", type=seconds, default=WINDOW_S)
+    ap.add_argument("--windows", type=int, default=WINDOWS)
+    known, _ = ap.parse_known_args(shlex.split(diagnose_args))
+    return {"window_s": known.window, "windows": known.windows}
+
+
+def selection_text(r: dict[str, Any]) -> str:
+    """``"8 x 0.2 s"``: a cell's selection windows (:data:`OLD_SELECTION` if unrecorded)."""
+    sel = r.get("selection") or OLD_SELECTION
+    return f"{sel['windows']} x {sel['window_s']:g} s"
+
+
 def stale(r: dict[str, Any]) -> str:
     """`` †`` for a cell measured with an older plant (see :data:`STALE_NOTE`), else ``""``."""
     return " †" if r.get("plant_version", 1) < PLANT_VERSION else ""
+
+
+def marks(r: dict[str, Any]) -> str:
+    """:func:`stale`'s mark, and `` ‡`` for a diagnosis selected on other windows than
+    ``diagnose``'s default (:func:`other_note`)."""
+    default = {"window_s": WINDOW_S, "windows": WINDOWS}
+    other = (
+        r["diagnose"]["status"] != "skipped" and (r.get("selection") or OLD_SELECTION) != default
+    )
+    return stale(r) + (" ‡" if other else "")
+
+
+def other_note() -> str:
+    """The footnote of cells marked ``‡`` by :func:`stale`."""
+    return (f"‡ candidates selected on other windows than `diagnose`'s default "
+            f"({WINDOWS} x {WINDOW_S:g} s per split; column `selection`).")  # fmt: skip
 
 
 #: the footnote of cells marked by :func:`stale`
@@ -280,9 +318,10 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         "",
         "## 120 Hz, 1 mm noise, no dropouts",
         "",
-        "| setting | planted | seed | expected | named | identify | diagnose | M | I | K | c "
-        "| rollout before | rollout after | unphysical written |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| setting | planted | seed | expected | named | selection | identify | diagnose | M | I "
+        "| K | c | rollout before | rollout after | unphysical written |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+        "| --- |",
     ]
     for _label, r in sorted(cells.items()):
         c = r["cell"]
@@ -293,10 +332,10 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         a, b = r["after"], r["before"]
         unphys = sorted(set(a.get("unphysical", [])) | set(b.get("unphysical", [])))
         lines.append(
-            f"| {c['setting']}{stale(r)} | {c['effect']} | {c['seed']} "
+            f"| {c['setting']}{marks(r)} | {c['effect']} | {c['seed']} "
             f"| {', '.join(r['expected']) or '-'} "
             f"| {'-' if r['named'] is None else ', '.join(r['named']) or 'nothing'} "
-            f"| {_status(r['identify'])} | {_status(r['diagnose'])} "
+            f"| {selection_text(r)} | {_status(r['identify'])} | {_status(r['diagnose'])} "
             f"| {_pct(a, 'mass')} | {_pct(a, 'inertia')} | {_pct(a, 'stiffness')} "
             f"| {_pct(a, 'damping')} | {_mm(b.get('rollout', {}).get('mean'))} "
             f"| {_mm(a.get('rollout', {}).get('mean'))} | {'; '.join(unphys) or 'none'} |"
@@ -325,8 +364,10 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         for label, r in sorted(cells.items()):
             nm = "-" if r["named"] is None else ", ".join(r["named"]) or "nothing"
             lines.append(
-                f"| {label}{stale(r)} | {_status(r['identify'])} | {_status(r['diagnose'])} | {nm} |"
+                f"| {label}{marks(r)} | {_status(r['identify'])} | {_status(r['diagnose'])} | {nm} |"
             )
     if any(stale(r) for r in cells.values()):
         lines += ["", STALE_NOTE]
+    if any("‡" in marks(r) for r in cells.values()):
+        lines += ["", other_note()]
     return atomic_write_text(path, "\n".join(lines) + "\n")

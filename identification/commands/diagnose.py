@@ -43,6 +43,8 @@ from tensegrity_env.model import Model
 #: default window lengths of the trajectory method [s] (100 and 300 samples at 1 kHz)
 WINDOW_S = 0.1
 FIT_WINDOW_S = 0.3
+#: default random selection windows per split of the trajectory method
+WINDOWS = 8
 
 
 def register(sub: Any) -> None:
@@ -79,8 +81,8 @@ def register(sub: Any) -> None:
                    "motion capture); auto: trajectory when the dataset holds end caps only")  # fmt: skip
     p.add_argument("--window", type=seconds, default=WINDOW_S,
                    help=f"trajectory method: length of each window (default {WINDOW_S:g}s)")  # fmt: skip
-    p.add_argument("--windows", type=int, default=8,
-                   help="trajectory method: random windows per split (default 8)")  # fmt: skip
+    p.add_argument("--windows", type=int, default=WINDOWS,
+                   help=f"trajectory method: random windows per split (default {WINDOWS})")  # fmt: skip
     p.add_argument("--fit-windows", type=int, default=32,
                    help="trajectory method: training windows of the declared and every accepted "
                    "model's final fit (default 32)")  # fmt: skip

@@ -1,0 +1,48 @@
+"""The measured benchmark's table: each diagnosis shows the selection windows it ran with."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+
+from measured_plant import PLANT_VERSION
+from measured_report import OLD_SELECTION, marks, selection, write_markdown
+
+from identification.commands.diagnose import WINDOW_S, WINDOWS
+
+
+def _record(effect: str, diagnose_args: str | None, status: str = "ok") -> dict:
+    cell = {"setting": "flight", "rate": 120.0, "noise": 1e-3, "dropout": 0.0,
+            "effect": effect, "seed": 0, "label": f"flight/120Hz/1mm/drop0%/{effect}/seed0"}  # fmt: skip
+    run = {"status": status, "code": 0, "seconds": 1.0, "message": "", "command": ""}
+    rec = {"cell": cell, "expected": [], "plant_version": PLANT_VERSION, "identify": run,
+           "diagnose": run, "before": {}, "after": {}, "named": [] if status == "ok" else None}  # fmt: skip
+    if diagnose_args is not None:  # None: a record from before cells stated their selection
+        rec["diagnose_args"] = diagnose_args
+        rec["selection"] = selection(diagnose_args)
+    return rec
+
+
+def test_selection_reads_the_window_options_as_diagnose_does():
+    assert selection("") == {"window_s": WINDOW_S, "windows": WINDOWS}
+    assert selection("--window 300ms --windows 4 --max-effects 2") == {
+        "window_s": pytest.approx(0.3), "windows": 4}  # fmt: skip
+    assert selection("--windows=32") == {"window_s": WINDOW_S, "windows": 32}
+
+
+def test_rows_selected_on_other_windows_are_marked(tmp_path):
+    cells = {"a": _record("none", ""), "b": _record("force_field", "--windows 32"),
+             "c": _record("linear_drag", "--identify-only", status="skipped")}  # fmt: skip
+    assert marks(cells["a"]) == "" and marks(cells["b"]) == " ‡"
+    assert marks(cells["c"]) == ""  # no diagnosis, nothing selected
+    old = _record("quadratic_drag", None)
+    default = {"window_s": WINDOW_S, "windows": WINDOWS}
+    assert marks(old) == ("" if OLD_SELECTION == default else " ‡")
+    text = write_markdown({"cells": cells}, tmp_path / "m.md").read_text()
+    row = next(ln for ln in text.splitlines() if ln.startswith("| flight ‡ | force_field"))
+    assert f"| 32 x {WINDOW_S:g} s |" in row
+    assert f"({WINDOWS} x {WINDOW_S:g} s per split" in text

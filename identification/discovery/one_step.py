@@ -12,12 +12,20 @@ data, a small **residual network** (:mod:`identification.discovery.residual_netw
 is fitted jointly with the declared parameters and reported, if it lowers the
 held-out (test) one-step error, as unexplained, NOT as a physical effect.
 
+Linear drag is fitted in both forms (:mod:`tensegrity_env.effects.drag`): explicit, and
+integrated implicitly as MuJoCo integrates a free joint's ``damping`` (its regression
+columns at the velocities after the step); the form with the lower training BIC (the
+same parameter count: the lower one-step error) is the candidate. Fitted explicitly,
+joint damping b leaves a constant force ``b g dt`` upward on every rod (the drag of the
+velocity gravity adds within the step) that a force field would pick up.
+
 Test errors are measured on the **test** split, which selection never sees.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +56,7 @@ from identification.linear.extended import acting_split, evaluate_model
 from identification.linear.features import cable_commands_at, transitions_of
 from identification.report.tables import error_text
 from identification.trajectory.windows import STATE_KEYS
-from tensegrity_env.effects import ResidualNetwork, SlackSprings
+from tensegrity_env.effects import ImplicitLinearDrag, LinearDrag, ResidualNetwork, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.io_utils import InputError
@@ -194,7 +202,19 @@ class OneStepScorer(Scorer[FittedModel]):
         if drop:
             keep = [e for e in now.effects if e.name not in drop]
             now = FittedModel(now.model.replace(effects=keep), now.n_params)
-        return self.score(proposal.name, fit_proposal(self.dataset, now, proposal, self.settings))
+        scored = self.score(proposal.name, fit_proposal(self.dataset, now, proposal, self.settings))
+        if type(proposal.effect) is LinearDrag:  # the implicit form too: keep the better fit
+            implicit = replace(proposal, effect=ImplicitLinearDrag(self.dataset.topology))
+            other = self.score(
+                proposal.name, fit_proposal(self.dataset, now, implicit, self.settings)
+            )
+            if finite(other.bic) and not other.bic >= scored.bic:
+                other.model.notes[proposal.name] = (
+                    f"integrated implicitly (as MuJoCo's joint damping): its training BIC "
+                    f"{other.bic:.6g} is below the explicit form's {scored.bic:.6g}"
+                )  # fmt: skip
+                scored = other
+        return scored
 
     def gain(self, candidate: Candidate[FittedModel], current: Candidate[FittedModel]) -> float:
         """Fraction of the held-out one-step error removed (floored at round-off)."""

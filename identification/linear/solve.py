@@ -30,7 +30,8 @@ class Solution:
 
     Attributes:
         theta: all unknowns, fixed ones included, (P,); NaN where not identifiable.
-        stderr: standard error of each free unknown from the residual variance, (P,);
+        stderr: standard error of each free unknown from the residual variance (floored
+            at the round-off of the normal equations: > 0 even on exact data), (P,);
             0 for fixed ones, NaN where not identifiable.
         identifiable: bool mask, (P,); fixed unknowns count as identifiable.
         fixed: bool mask of unknowns that were given (anchors, frozen), (P,).
@@ -89,7 +90,10 @@ def solve_constrained(normal: torch.Tensor, fixed: dict[int, float], n_rows: int
 
     rss = float(theta @ N @ theta)
     dof = max(n_rows - len(f_idx), 1)
-    sigma2 = max(rss, 0.0) / dof
+    # θᵀNθ cancels to round-off of the largest squared column on exact data (it can come
+    # out negative): floor it there, so an exact fit states round-off errors, not 0
+    floor = float(np.finfo(np.float64).eps * torch.diagonal(N).clamp_min(0).max())
+    sigma2 = max(rss, floor) / dof
     cov_s = Vk @ torch.diag(1.0 / lk) @ Vk.T
     stderr_f = torch.sqrt(sigma2 * torch.diagonal(cov_s).clamp_min(0)) / d
 

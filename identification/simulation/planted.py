@@ -15,6 +15,9 @@ plant                         in MuJoCo                                         
 ``linear_drag``               ``option viscosity`` (inertia-box fluid model)     viscosity β
 ``slack_springs``             tendon ``springlength = "0 l0"`` (dead band:        number of cables
                               no spring force shorter than rest)
+``joint_damping``             free-joint ``damping`` on every rod (implicit        damping b = β
+                              under MuJoCo's Euler: ``linear_drag`` in its
+                              implicit form)
 ============================  =================================================  ====================
 
 ``noise`` adds i.i.d. Gaussian noise [m] to every end-cap coordinate and drops the
@@ -46,6 +49,7 @@ PLANTS: dict[str, dict[str, float]] = {
     "quadratic_drag": {"weak": 20.0, "moderate": 100.0, "strong": 500.0},
     "linear_drag": {"weak": 0.1, "moderate": 0.5, "strong": 2.0},
     "slack_springs": {"weak": 6, "moderate": 12, "strong": 24},
+    "joint_damping": {"weak": 0.05, "moderate": 0.4, "strong": 1.0},
 }
 STRENGTH_UNITS = {
     "none": "",
@@ -53,6 +57,7 @@ STRENGTH_UNITS = {
     "quadratic_drag": "fluid density [kg/m^3]",
     "linear_drag": "fluid viscosity [Pa*s]",
     "slack_springs": "cable springs",
+    "joint_damping": "free-joint damping [N*s/m and N*m*s]",
 }
 
 
@@ -157,6 +162,13 @@ def planted_mjcf(spec: PlantSpec) -> tuple[str, dict[str, Any]]:
             if k in cables:
                 sp.set("springlength", f"0 {float(rest[k])!r}")
         record["params"] = {"springs": cables.tolist()}
+    elif spec.effect == "joint_damping":
+        for joint in root.iter("freejoint"):
+            joint.tag = "joint"
+            joint.set("type", "free")
+            joint.set("damping", repr(spec.value))
+        record = {"name": "linear_drag", "form": "implicit", "strength": spec.strength,
+                  "value": spec.value, "mujoco": {"joint_damping": spec.value}}  # fmt: skip
     ET.indent(root)
     return ET.tostring(root, encoding="unicode"), record
 

@@ -99,7 +99,7 @@ def register(sub: Any) -> None:
 
     q = sub.add_parser(
         "plant",
-        help="MuJoCo data with an undeclared effect (contact, drag, slack cables) to diagnose",
+        help="MuJoCo data with an undeclared effect (contact, drag, slack cables, joint damping) to diagnose",
         description="Write a planted dataset: " + "; ".join(
             f"{k} ({STRENGTH_UNITS[k] or 'clean control'}: {v})" for k, v in PLANTS.items()),
     )  # fmt: skip

@@ -199,7 +199,7 @@ def coverage_section(cells: dict[str, Any]) -> list[str]:
              "    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/bench_measured.py --settings flight \\",
              "        --effects none --seeds 10 --seed0 1 --identify-only",
              "    python benchmarks/bench_measured.py --settings flight --effects none --identify-only \\",
-             "        --rates 60,240        # and: --noise 2; --dropout 2", "",
+             "        --rates 60,240,1000   # and: --noise 0.5; --noise 2; --dropout 2", "",
              f"Overall: **{100 * np.mean(every):.1f} %** of {len(every)} parameters over "
              f"{len(rows)} cells.", "",
              "| cell | parameters | coverage | largest relative error | 1-s rollout [mm] |",

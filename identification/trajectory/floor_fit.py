@@ -52,23 +52,30 @@ from dataclasses import replace
 import numpy as np
 import torch
 from scipy.ndimage import minimum_filter1d
+from scipy.optimize import minimize
 
 from identification.trajectory.airborne import AIRBORNE, cap_radii
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
 from identification.trajectory.window_states import fit_states
-from identification.trajectory.windowed_fit import WindowFit, fit_windows
-from identification.trajectory.windows import Windows
+from identification.trajectory.windowed_fit import (
+    WindowFit,
+    fit_windows,
+    state_response,
+    window_sse,
+)
+from identification.trajectory.windows import Windows, local_basis, perturb
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.topology import Topology
 
 #: contact parameters fitted on the floor (the floor's height too)
 FLOOR_FREE = (*CONTACT_FREE, "height")
 #: rounds of search and joint fit
-ROUNDS = 2
+ROUNDS = 3
 #: iterations of each round's state fit (the joint fit refits the states)
 STATE_ITERS = 5
 #: Nelder-Mead runs per search
@@ -76,6 +83,16 @@ SEARCH_RESTARTS = 1
 #: longest window on the floor [s]: each one's initial state is fitted, and a window
 #: spanning several impacts stalls that fit
 FLOOR_WINDOW_S = 0.25
+#: the declared groups one common scale moves (every parameter but the rest lengths;
+#: the anchors stay fixed)
+SCALED = ("stiffness", "damping", "mass", "inertia_perp", "control_gain")
+#: common log-scale offsets tried along the scale valley (about -14 % to +28 %)
+SCALE_GRID = tuple(np.round(np.arange(-0.15, 0.2501, 0.01), 2))
+#: the Nelder-Mead simplex's edge for the valley directions and the contact coordinates
+#: (log/logit units)
+SCALE_SIMPLEX = (0.02, 0.1)
+#: most evaluations of the scale-and-contact Nelder-Mead search
+SCALE_EVALS = 200
 
 
 def rods_off_floor(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
@@ -159,6 +176,79 @@ def _coords(contact: GroundContact) -> list[float]:
     return coords.start().tolist()
 
 
+def scale_directions(vec: ParamVector) -> torch.Tensor:
+    """The valley directions of the fitted vector, (2, n_free + n_effect): the common
+    scale (1 on the free log-parameters of :data:`SCALED`) and the common rest-length
+    scale (1 on the free log rest lengths); 0 on effect coordinates.
+
+    Scaling every mass, inertia, stiffness and damping together leaves the motion
+    unchanged (gravity and the contact, per unit effective mass, scale with the
+    masses); only the anchored parameters pin the scale, through the rods they act on.
+    Shorter rest lengths with softer springs keep the pretension.
+    """
+    rows = []
+    for groups in (SCALED, ("rest_length",)):
+        full = torch.zeros(len(vec.free), dtype=torch.float64)
+        for group in groups:
+            full[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = 1.0
+        rows.append(torch.cat([full[vec.free], torch.zeros(vec.n_effect, dtype=torch.float64)]))
+    return torch.stack(rows)
+
+
+def search_scale(
+    engine: Engine, vec: ParamVector, fit: WindowFit, log: Callable[[str], None] = lambda s: None
+) -> tuple[torch.Tensor, Windows]:
+    """``fit`` moved along the valley directions and the contact by a derivative-free search.
+
+    The fit's free parameters move by ``a`` along :func:`scale_directions` (log units),
+    the windows' states follow by their Gauss-Newton response
+    (:func:`~identification.trajectory.windowed_fit.state_response`), and the contact's
+    coordinates (the last of ``theta``) are searched with them: first the common scale
+    over :data:`SCALE_GRID` with the rest held, then a Nelder-Mead search over ``a`` and
+    the contact from the best of the grid. The end-cap error jumps where an impact
+    crosses a physics step, which stalls Levenberg-Marquardt's small steps along the
+    valley; the search steps over the jumps. Returns ``theta`` and the windows at the
+    lowest end-cap error found (``fit``'s own if nothing is lower).
+    """
+    assert fit.normal is not None and vec.coords is not None
+    theta, windows = fit.theta.detach(), fit.windows
+    U = scale_directions(vec)
+    basis = local_basis(vec.axes, spin=True)
+    response = torch.stack([torch.einsum("bl,lrj->brj", state_response(fit.normal, u), basis)
+                            for u in U])  # fmt: skip
+    n, k = len(U), len(FLOOR_FREE)
+    chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))
+
+    def at(x: np.ndarray) -> tuple[torch.Tensor, Windows]:
+        a = torch.as_tensor(x[:n], dtype=theta.dtype)
+        th = theta + a @ U
+        th[len(th) - k :] = torch.as_tensor(x[n:], dtype=th.dtype)
+        d = torch.einsum("i,ibrj->brj", a, response)
+        return th, replace(windows, state=perturb(windows.state, d))
+
+    def error(x: np.ndarray) -> float:
+        th, w = at(x)
+        try:
+            sse = window_sse(engine, vec, w, basis, th, chunk)
+        except (torch.linalg.LinAlgError, FloatingPointError, InputError):
+            return np.inf
+        return sse / windows.residuals if np.isfinite(sse) else np.inf
+
+    x0 = np.concatenate([np.zeros(n), theta[len(theta) - k :].numpy()])
+    grid = [(error(np.concatenate([[a], x0[1:]])), a) for a in SCALE_GRID]
+    x0[0] = min(grid)[1]
+    steps = [SCALE_SIMPLEX[0]] * n + [SCALE_SIMPLEX[1]] * k
+    simplex = np.vstack([x0, x0 + np.diag(steps)])
+    res = minimize(error, x0, method="Nelder-Mead",
+                   options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-14,
+                            "maxfev": SCALE_EVALS})  # fmt: skip
+    start = float(fit.normal.sse / windows.residuals)
+    log(f"    scale search: common scale {np.exp(res.x[0]):.4f} (grid {np.exp(x0[0]):.3f}), "
+        f"rest lengths {np.exp(res.x[1]):.4f}, end-cap RMS {np.sqrt(start) * 1e3:.3f} -> "
+        f"{np.sqrt(min(res.fun, start)) * 1e3:.3f} mm")  # fmt: skip
+    return at(res.x) if res.fun < start else (theta, windows)
+
+
 def fit_on_floor(
     engine: Engine,
     vec: ParamVector,
@@ -180,14 +270,18 @@ def fit_on_floor(
     fit: WindowFit | None = None
     for k in range(rounds):
         t0 = time.perf_counter()
-        states = fit_states(vec.engine(engine, theta), held_states(vec, theta), windows,
-                            state_iters, spin=True)  # fmt: skip
-        windows = states.windows
-        theta = search_floor_contact(engine, vec, windows, theta, log)
+        if k == 0:
+            states = fit_states(vec.engine(engine, theta), held_states(vec, theta), windows,
+                                state_iters, spin=True)  # fmt: skip
+            windows = states.windows
+            log(f"    states {np.sqrt(states.history[-1]) * 1e3:.3f} mm")
+            theta = search_floor_contact(engine, vec, windows, theta, log)
+        else:
+            assert fit is not None
+            theta, windows = search_scale(engine, vec, fit, log)
         fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True)
         theta, windows = fit.theta, fit.windows
-        log(f"    floor round {k + 1}: states {np.sqrt(states.history[-1]) * 1e3:.3f} mm, "
-            f"joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
+        log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     assert fit is not None
     return fit

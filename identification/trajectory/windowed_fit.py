@@ -223,6 +223,7 @@ class WindowFit:
             see the parameter.
         score: the chi-square decrease the first Gauss-Newton step promised.
         converged: the stopping rule was met (not just ``max_iter``).
+        normal: the Gauss-Newton normal equations at ``theta`` and the fitted states.
     """
 
     theta: torch.Tensor
@@ -231,6 +232,7 @@ class WindowFit:
     stderr: np.ndarray
     score: float
     converged: bool
+    normal: NormalEquations | None = None
 
 
 def fit_windows(
@@ -305,7 +307,19 @@ def fit_windows(
             converged = True
             break
     stderr = window_stderr(ne, S, ne.sse / dof)
-    return WindowFit(theta, windows, history, stderr, score, converged)
+    return WindowFit(theta, windows, history, stderr, score, converged, ne)
+
+
+def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor:
+    """How the windows' fitted states follow a step of the global coordinates, (B, n_l).
+
+    The Gauss-Newton change of each window's local coordinates (its initial state,
+    see :func:`local_basis`) per unit step along ``direction`` (n_g,) with the states
+    refitted: ``-H_ll⁻¹ H_lg direction`` (the Schur complement's elimination).
+    """
+    A_ll, _ = _damped(ne.H_ll, 0.0)
+    rhs = torch.einsum("blg,g->bl", ne.H_lg, direction.to(DTYPE)).unsqueeze(-1)
+    return -torch.linalg.solve(A_ll, rhs).squeeze(-1)
 
 
 #: eigenvalues of ``S`` below this fraction of its largest are directions the data does

@@ -14,16 +14,26 @@ through the engine, on short windows that touch the floor:
    height is fitted too. The contact starts from a params file's ``ground_contact``
    when one is given, else from
    :data:`~identification.trajectory.effect_coords.CONTACT_START`.
-2. **Alternation** (:func:`fit_on_floor`), :data:`ROUNDS` times: the windows' initial
-   states are fitted with the model held; a derivative-free **Nelder-Mead search**
-   over the contact parameters (:data:`FLOOR_FREE`, log/logit coordinates) minimises
-   the windows' end-cap error with the declared parameters and the states held
-   (:func:`~identification.trajectory.touchdown.search_contact`); then
-   **Levenberg-Marquardt** fits everything jointly (declared parameters, contact,
-   states) from there. The end-cap error is discontinuous in the contact parameters
-   (an impact moving across a physics step makes it jump): the search steps over the
-   jumps that stall a Gauss-Newton step, and the joint fit then moves the declared
-   parameters the contact was traded against.
+2. **Rounds** (:func:`fit_on_floor`), :data:`ROUNDS` of them. The first fits the
+   windows' initial states with the model held and runs a derivative-free
+   **Nelder-Mead search** over the contact parameters (:data:`FLOOR_FREE`, log/logit
+   coordinates) with the declared parameters and the states held
+   (:func:`~identification.trajectory.touchdown.search_contact`). Each later round
+   starts with a **valley search** (:func:`search_scale`) from the last joint fit: the
+   declared parameters move along two directions, one common scale of every mass,
+   inertia, stiffness and damping (the anchors held) and one of every rest length,
+   with the windows' states following by their Gauss-Newton response, and the
+   contact with them (a grid over the common scale, then Nelder-Mead). Every round
+   ends with **Levenberg-Marquardt** fitting everything jointly (declared parameters,
+   contact, states).
+
+   The end-cap error is discontinuous in the parameters (an impact moving across a
+   physics step makes it jump). Gauss-Newton steps stall on the jumps where the
+   error is flat: the contact in the first round, and the common scale, which only
+   the anchored rod pins (gravity and the contact, per unit effective mass, scale
+   with the masses), so the joint fit stops with every declared parameter a few
+   percent off together. The derivative-free searches step over the jumps, the joint
+   fits then move the parameters they were traded against.
 
 What the data pins: masses, inertias, stiffnesses, damping and rest lengths from the
 rods' motion away from and against the floor; the contact's stiffness, impedance and
@@ -75,7 +85,7 @@ from tensegrity_env.topology import Topology
 #: contact parameters fitted on the floor (the floor's height too)
 FLOOR_FREE = (*CONTACT_FREE, "height")
 #: rounds of search and joint fit
-ROUNDS = 3
+ROUNDS = 2
 #: iterations of each round's state fit (the joint fit refits the states)
 STATE_ITERS = 5
 #: Nelder-Mead runs per search
@@ -262,10 +272,11 @@ def fit_on_floor(
     """Declared parameters, effects and contact fitted jointly on floor ``windows``.
 
     ``vec`` holds the contact as its last effect with :data:`FLOOR_FREE` free
-    (:func:`with_floor`); ``theta`` is where the fit starts. Each round (module
-    docstring, step 2): the windows' states with the model held, a Nelder-Mead search
-    of the contact with the rest held, and a joint Levenberg-Marquardt fit of
-    ``iters`` iterations. Returns the last joint fit.
+    (:func:`with_floor`); ``theta`` is where the fit starts. The first round (module
+    docstring, step 2) fits the windows' states (``state_iters`` iterations per
+    prefix) with the model held and searches the contact with the rest held, each
+    later round searches the valley (:func:`search_scale`); every round ends with a
+    joint Levenberg-Marquardt fit of ``iters`` iterations. Returns the last joint fit.
     """
     fit: WindowFit | None = None
     for k in range(rounds):
@@ -279,7 +290,7 @@ def fit_on_floor(
         else:
             assert fit is not None
             theta, windows = search_scale(engine, vec, fit, log)
-        fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True)
+        fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True, line_search=True)
         theta, windows = fit.theta, fit.windows
         log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip

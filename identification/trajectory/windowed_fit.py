@@ -247,6 +247,7 @@ def fit_windows(
     spin: bool = True,
     gate: float | None = None,
     roll: bool = False,
+    line_search: bool = False,
 ) -> WindowFit:
     """Stage 2: Levenberg-Marquardt on window initial states and free log-parameters.
 
@@ -259,7 +260,11 @@ def fit_windows(
     when the first step promises less than ``gate`` (a score test: the new unknowns
     cannot be told from noise). ``progress`` is called with the mean squared error
     after each iteration; ``exact_gradient``: see :func:`linearize`; ``spin`` and
-    ``roll``: see :func:`local_basis`.
+    ``roll``: see :func:`local_basis`. ``line_search``: a rejected step is tried at
+    :data:`LINE_FRACTIONS` of its length, the shortest error kept if lower, before
+    more damping (where the error jumps, as on the floor where impacts cross physics
+    steps, the damped steps turn towards the jumps while the Gauss-Newton direction
+    still descends).
     """
     basis = local_basis(vec.axes, spin, roll)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # batch of the FD Jacobian
@@ -272,6 +277,21 @@ def fit_windows(
     lo, hi = vec.bounds()
     done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
     lam, nu, converged = 1e-7, 2.0, done
+
+    def tried(d_z: torch.Tensor | None, d_theta: torch.Tensor | None) -> tuple[Windows, float]:
+        """The windows moved by ``d_z`` and their error at ``theta + d_theta`` [m^2]."""
+        if d_z is None or d_theta is None:
+            return windows, float("inf")
+        trial = replace(
+            windows, state=perturb(windows.state, torch.einsum("bl,lrj->brj", d_z, basis))
+        )
+        try:
+            return trial, window_sse(engine, vec, trial, basis, theta + d_theta, chunk)
+        except (torch.linalg.LinAlgError, FloatingPointError, InputError):
+            # a trial the engine cannot take (a contact solve or an effect at extreme or
+            # non-finite values) is a rejected step: more damping
+            return trial, float("inf")
+
     for _ in range(max_iter if not done else 0):
         while True:
             try:
@@ -279,18 +299,20 @@ def fit_windows(
                 d_theta = (theta + d_theta).clamp(lo, hi) - theta
                 if not (bool(torch.isfinite(d_theta).all()) and bool(torch.isfinite(d_z).all())):
                     raise FloatingPointError("non-finite step")
-                d_state = torch.einsum("bl,lrj->brj", d_z, basis)
-                trial = replace(windows, state=perturb(windows.state, d_state))
-                sse = window_sse(engine, vec, trial, basis, theta + d_theta, chunk)
-            except (torch.linalg.LinAlgError, FloatingPointError, InputError):
-                # a trial the engine cannot take (a contact solve or an effect at extreme or
-                # non-finite values, a singular system) is a rejected step: more damping
-                sse = float("inf")
+            except (torch.linalg.LinAlgError, FloatingPointError):
+                d_z, d_theta, pred = None, None, 0.0  # a singular system: more damping
+            trial, sse = tried(d_z, d_theta)
             rho = (ne.sse - sse) / pred if pred > 0 and np.isfinite(sse) else -1.0
             if rho > 0:
                 lam *= 0.1 if rho > 0.9 else max(1 / 3, 1 - (2 * rho - 1) ** 3)
                 nu = 2.0
                 break
+            if line_search and d_z is not None and d_theta is not None:
+                shorter = [(t, *tried(t * d_z, t * d_theta)) for t in LINE_FRACTIONS]
+                t, trial, sse = min(shorter, key=lambda x: x[2])
+                if sse < ne.sse:
+                    d_theta = t * d_theta
+                    break
             lam, nu = lam * nu, nu * 2
             if lam > 1e10:
                 break
@@ -321,6 +343,9 @@ def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor
     rhs = torch.einsum("blg,g->bl", ne.H_lg, direction.to(DTYPE)).unsqueeze(-1)
     return -torch.linalg.solve(A_ll, rhs).squeeze(-1)
 
+
+#: fractions of a rejected step tried along its direction (``line_search``)
+LINE_FRACTIONS = (0.5, 0.3, 0.1, 0.03)
 
 #: eigenvalues of ``S`` below this fraction of its largest are directions the data does
 #: not see: a parameter with a share in them has an infinite standard error

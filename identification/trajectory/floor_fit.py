@@ -25,15 +25,17 @@ through the engine, on short windows that touch the floor:
    with the windows' states following by their Gauss-Newton response, and the
    contact with them (a grid over the common scale, then Nelder-Mead). Every round
    ends with **Levenberg-Marquardt** fitting everything jointly (declared parameters,
-   contact, states).
+   contact, states), with a line search along rejected steps (``line_search``).
 
-   The end-cap error is discontinuous in the parameters (an impact moving across a
-   physics step makes it jump). Gauss-Newton steps stall on the jumps where the
-   error is flat: the contact in the first round, and the common scale, which only
-   the anchored rod pins (gravity and the contact, per unit effective mass, scale
-   with the masses), so the joint fit stops with every declared parameter a few
-   percent off together. The derivative-free searches step over the jumps, the joint
-   fits then move the parameters they were traded against.
+   The end-cap error jumps where an impact moves across a physics step. The jumps
+   stall Gauss-Newton steps on the contact (hence the first search), and they stall
+   Levenberg-Marquardt's damping: a rejected step's direction still descends over a
+   fraction of its length, while more damping turns it towards the jumps, so steps
+   shrink to nothing with every declared parameter a few percent off together. The
+   line search takes the fraction instead. The common scale is the flattest
+   direction left: only the anchored rod pins it (gravity and the contact, per unit
+   effective mass, scale with the masses); the valley search steps along it over the
+   jumps.
 
 What the data pins: masses, inertias, stiffnesses, damping and rest lengths from the
 rods' motion away from and against the floor; the contact's stiffness, impedance and

@@ -46,12 +46,13 @@ def test_floor_data_has_no_airborne_stretch(floor_fit):
 
 
 def test_declared_model_and_contact_from_floor_data_alone(floor_fit):
-    """Tolerances as measured (8 windows of 25 steps): far from the airborne fits' 0.1 %.
+    """Tolerances about twice as measured (8 windows of 25 steps): masses within 2.8 %,
+    stiffness 1.0 % (median), rest lengths 0.1 % (median), end-cap RMS 1.35 mm (1 mm
+    noise), friction 0.9995, contact stiffness 1 % off; far from the airborne fits' 0.1 %.
 
     On the floor the contact is parametrised per unit effective mass, so it carries the
     weight whatever the masses' scale: the masses follow only from their ratios to the
-    anchored rod, which the short windows pin loosely, and the stiffnesses move with them
-    (measured: masses within 14.6 %, stiffness 10.2 % median).
+    anchored rod (the floor fit searches that common scale).
     """
     _, truth, est = floor_fit
     p, t = est.params_, truth.params
@@ -67,11 +68,11 @@ def test_declared_model_and_contact_from_floor_data_alone(floor_fit):
         "rest_length_median": np.median(rel(p.rest_length, t.rest_length)),
         "contact": {k: float(c.values[k]) for k in ("stiffness", "damping", "friction", "height")},
     }
-    assert est.rms_ < 3e-3, errors  # 1 mm noise
-    assert errors["mass_max"] < 0.2, errors
-    assert errors["stiffness_median"] < 0.12, errors  # 10.2 % measured
-    assert errors["rest_length_median"] < 0.01, errors
-    assert abs(errors["contact"]["friction"] - 1.0) < 0.1, errors
-    assert abs(errors["contact"]["stiffness"] / MUJOCO_DEFAULT["stiffness"] - 1) < 0.5, errors
+    assert est.rms_ < 2e-3, errors  # 1 mm noise
+    assert errors["mass_max"] < 0.05, errors
+    assert errors["stiffness_median"] < 0.02, errors
+    assert errors["rest_length_median"] < 0.003, errors
+    assert abs(errors["contact"]["friction"] - 1.0) < 0.02, errors
+    assert abs(errors["contact"]["stiffness"] / MUJOCO_DEFAULT["stiffness"] - 1) < 0.05, errors
     assert abs(errors["contact"]["height"]) < 3e-3, errors  # the floor at z = 0
     assert c.physical()

@@ -22,10 +22,9 @@ from identification.trajectory.floor_fit import SCALED, search_scale, with_floor
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.windowed_fit import fit_windows, window_sse
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
-from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.assemblies import icosahedron, node_positions
 from tensegrity_env.effects import GroundContact
-from tensegrity_env.engine import Engine, State, substeps_for
-from tensegrity_env.rotations import quat_to_matrix
+from tensegrity_env.engine import Engine, substeps_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from measured_plant import Cell, initial_states, simulate, true_model
@@ -42,10 +41,7 @@ def scaled_start():
     cell = Cell("floor", 120.0, 0.0, 0.0, "none", seed=3)
     truth, topo = true_model(cell), icosahedron().topology
     clean = simulate(cell, truth, initial_states(cell, 1, np.random.default_rng([3, 0, 3])), 1.0)
-    state = State(*(torch.as_tensor(getattr(clean, k)) for k in STATE_KEYS))
-    caps = state.p[..., None, :] + torch.einsum("ntrij,rkj->ntrki", quat_to_matrix(state.q),
-                                                torch.as_tensor(topo.end_offsets))  # fmt: skip
-    nodes = caps.reshape(*caps.shape[:2], -1, 3).numpy()
+    nodes = node_positions(topo, clean.p, clean.q)  # (1, T+1, 12, 3): end caps only
     windows = cut_windows(nodes, clean.control, {k: getattr(clean, k) for k in STATE_KEYS}, STEPS)
     contact = GroundContact(topo, friction=1.0, height=0.0)  # MuJoCo's default floor
     true_vec = ParamVector.at(topo, truth.params)

@@ -22,7 +22,7 @@ from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import window_sse
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
-from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.assemblies import icosahedron, node_positions
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine, State, substeps_for
 from tensegrity_env.rotations import quat_to_matrix
@@ -46,10 +46,7 @@ def rolling():
     cell = Cell("floor", 120.0, 0.0, 0.0, "none", seed=0)
     truth, topo = true_model(cell), icosahedron().topology
     clean = simulate(cell, truth, initial_states(cell, 1, np.random.default_rng([0, 0, 3])), 1.0)
-    state = State(*(torch.as_tensor(getattr(clean, k)) for k in STATE_KEYS))
-    caps = state.p[..., None, :] + torch.einsum("ntrij,rkj->ntrki", quat_to_matrix(state.q),
-                                                torch.as_tensor(topo.end_offsets))  # fmt: skip
-    nodes = caps.reshape(*caps.shape[:2], -1, 3).numpy()
+    nodes = node_positions(topo, clean.p, clean.q)  # (1, T+1, 12, 3): end caps only
     grid = {k: getattr(clean, k) for k in STATE_KEYS}
     windows = cut_windows(nodes, clean.control, grid, STEPS)
     spins = _axial(windows.state).abs().max(-1).values

@@ -37,7 +37,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "diagnose": ("identification.commands.diagnose",
                  "residual loop: find the missing effect, name it, add it, report errors before/after"),
     "plant": ("identification.commands.diagnose",
-              "MuJoCo data with an undeclared effect (contact, drag, slack cables) to diagnose"),
+              "MuJoCo data with an undeclared effect (contact, drag, slack cables, joint damping) "
+              "to diagnose"),
     "train": ("policies.commands.train",
               "train a PPO or SAC policy on IcosahedronSR-v0 (or any registered env)"),
     "tune": ("policies.commands.tune",

@@ -340,6 +340,15 @@ def simulate(cell: Cell, truth: Truth, init: dict[str, np.ndarray], duration: fl
     return Split(nodes=nodes, control=np.zeros((n, T, R, 3)), **out)
 
 
+def clean_rolling(seed: int, duration: float = 1.0) -> tuple[Truth, Split]:
+    """One clean trajectory of the floor cell of ``seed`` (120 Hz, no planted effect):
+    the true model and the split, whose ``nodes`` are the end caps (1, T+1, 12, 3) [m]."""
+    cell = Cell("floor", 120.0, 0.0, 0.0, "none", seed=seed)
+    truth = true_model(cell)
+    init = initial_states(cell, 1, np.random.default_rng([seed, 0, 3]))
+    return truth, simulate(cell, truth, init, duration)
+
+
 def measure(nodes: np.ndarray, cell: Cell, rng: np.random.Generator) -> np.ndarray:
     """End caps as motion capture sees them: noise, then dropped and gap-filled markers."""
     seen = nodes + cell.noise * rng.standard_normal(nodes.shape)

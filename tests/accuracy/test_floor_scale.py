@@ -22,12 +22,12 @@ from identification.trajectory.floor_fit import SCALED, search_scale, with_floor
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.windowed_fit import fit_windows, window_sse
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
-from tensegrity_env.assemblies import icosahedron, node_positions
+from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine, substeps_for
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from measured_plant import Cell, initial_states, simulate, true_model
+from measured_plant import clean_rolling
 
 pytestmark = [pytest.mark.usefixtures("one_torch_thread"), pytest.mark.slow]
 
@@ -38,11 +38,9 @@ LOW = float(np.log(0.92))  # the start: 8 % low
 @pytest.fixture(scope="module")
 def scaled_start():
     """Four clean 30-step windows on the floor; the declared model 8 % low, rod0's mass held."""
-    cell = Cell("floor", 120.0, 0.0, 0.0, "none", seed=3)
-    truth, topo = true_model(cell), icosahedron().topology
-    clean = simulate(cell, truth, initial_states(cell, 1, np.random.default_rng([3, 0, 3])), 1.0)
-    nodes = node_positions(topo, clean.p, clean.q)  # (1, T+1, 12, 3): end caps only
-    windows = cut_windows(nodes, clean.control, {k: getattr(clean, k) for k in STATE_KEYS}, STEPS)
+    truth, clean = clean_rolling(seed=3)
+    topo = icosahedron().topology
+    windows = cut_windows(clean.nodes, clean.control, {k: getattr(clean, k) for k in STATE_KEYS}, STEPS)
     contact = GroundContact(topo, friction=1.0, height=0.0)  # MuJoCo's default floor
     true_vec = ParamVector.at(topo, truth.params)
     names = true_vec.names()

@@ -22,13 +22,13 @@ from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import window_sse
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
-from tensegrity_env.assemblies import icosahedron, node_positions
+from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine, State, substeps_for
 from tensegrity_env.rotations import quat_to_matrix
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from measured_plant import Cell, initial_states, simulate, true_model
+from measured_plant import clean_rolling
 
 pytestmark = [pytest.mark.usefixtures("one_torch_thread"), pytest.mark.slow]
 
@@ -43,12 +43,10 @@ def _axial(state: State) -> torch.Tensor:
 @pytest.fixture(scope="module")
 def rolling():
     """Two clean 30-step windows of the icosahedron rolling on the floor, the true model."""
-    cell = Cell("floor", 120.0, 0.0, 0.0, "none", seed=0)
-    truth, topo = true_model(cell), icosahedron().topology
-    clean = simulate(cell, truth, initial_states(cell, 1, np.random.default_rng([0, 0, 3])), 1.0)
-    nodes = node_positions(topo, clean.p, clean.q)  # (1, T+1, 12, 3): end caps only
+    truth, clean = clean_rolling(seed=0)
+    topo = icosahedron().topology
     grid = {k: getattr(clean, k) for k in STATE_KEYS}
-    windows = cut_windows(nodes, clean.control, grid, STEPS)
+    windows = cut_windows(clean.nodes, clean.control, grid, STEPS)
     spins = _axial(windows.state).abs().max(-1).values
     windows = windows.take(np.sort(np.argsort(-spins.numpy())[:2]))  # the fastest spins
     contact = GroundContact(topo, friction=1.0, height=0.0)  # MuJoCo's default floor

@@ -14,7 +14,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from measured_plant import Cell, initial_states, measure, simulate, true_model
 
 from tensegrity_env.assemblies import icosahedron
-from tensegrity_env.effects import ForceField, GroundContact
+from tensegrity_env.effects import ForceField, GroundContact, SlackSprings
 from tensegrity_env.engine import Engine, State, substeps_for
 from tensegrity_env.rotations import quat_to_matrix
 
@@ -53,6 +53,24 @@ def test_true_model_at_120_hz_sample_spacing_reproduces_one_second_of_flight():
     with torch.no_grad():
         roll = coarse.rollout(state, truth.params, clean.n_transitions)
     assert np.abs(roll.p.numpy() - clean.p).max() > 1e-3
+
+
+def test_slack_cables_go_slack_in_flight_and_the_true_model_follows_them():
+    """The planted cables (rest length the nominal length) are slack in a real share of
+    the samples, and the engine with them as tension-only springs follows the plant."""
+    cell = Cell("flight", 120.0, 0.0, 0.0, "slack_cables")
+    truth = true_model(cell)
+    topo = icosahedron().topology
+    cables = truth.effects[0]["params"]["springs"]
+    init = initial_states(cell, 4, np.random.default_rng(0))
+    clean = simulate(cell, truth, init, 0.6)
+    a = [s.node_a for s in topo.springs]
+    b = [s.node_b for s in topo.springs]
+    length = np.linalg.norm(clean.nodes[:, :, a] - clean.nodes[:, :, b], axis=-1)
+    slack = (length[..., cables] < truth.params.numpy()["rest_length"][cables]).mean(axis=(0, 1))
+    assert len(cables) == 12 and slack.min() > 0.01 and slack.mean() > 0.05, slack
+    assert _rollout_error(cell, [SlackSprings(topo, springs=cables)], 0.6) < 1e-9
+    assert _rollout_error(cell, [], 0.6) > 1e-3  # the cables' slack is visible
 
 
 def test_engine_reproduces_the_plant_on_the_floor():

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from tensegrity_env.engine.effects import EffectBase
+from tensegrity_env.engine.forces import kinematics_wrench
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.io_utils import InputError
@@ -277,6 +278,59 @@ class LinearEffect(PhysicalEffect):
         force, torque = self.basis(state, kin, params)
         th = self.theta().to(force)
         return force @ th, torque @ th
+
+
+class SpringLawEffect(LinearEffect):
+    """A linear effect that adds a tension ``ΔT_s = θ_s φ_s`` [N] to every spring.
+
+    Subclasses define the per-spring factor ``φ`` (:meth:`factor`, (B, S)) of their
+    one per-spring parameter ``θ`` (S,). :meth:`basis` is the dense regression design
+    (a wrench column per spring); :meth:`wrench`, which the engine calls every step,
+    sums the tensions through the springs' nodes instead (:func:`spring_tension_wrench`):
+    the same wrench at the cost of one spring force, not of S.
+    """
+
+    def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
+        """The tension per unit parameter of each spring, (B, S)."""
+        raise NotImplementedError
+
+    def basis(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        force, torque, _ = spring_unit_wrench(kin, self.topology)
+        phi = self.factor(state, kin, params)[:, None, None]
+        return force * phi, torque * phi
+
+    def wrench(
+        self, state: State, kin: Kinematics, params: Params
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        phi = self.factor(state, kin, params)
+        return spring_tension_wrench(kin, self.topology, phi * self.theta().to(phi))
+
+
+def spring_lengths(kin: Kinematics, topology: Topology) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each spring's length (B, S) [m] and unit axis from node a to node b (B, S, 3)."""
+    nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long, device=kin.x.device)
+    d = kin.x[:, nodes[:, 1]] - kin.x[:, nodes[:, 0]]
+    length = torch.linalg.vector_norm(d, dim=-1)
+    return length, d / length.unsqueeze(-1)
+
+
+def spring_tension_wrench(
+    kin: Kinematics, topology: Topology, tension: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Force and torque (B, R, 3) on every rod, world frame, of spring tensions (B, S) [N].
+
+    A positive tension pulls the spring's two nodes towards each other (as the
+    engine's springs); equal to ``spring_unit_wrench`` contracted with ``tension``.
+    """
+    nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long, device=kin.x.device)
+    _, axis = spring_lengths(kin, topology)
+    pull = tension.unsqueeze(-1) * axis  # on node a, (B, S, 3)
+    node_f = (
+        torch.zeros_like(kin.x).index_add(1, nodes[:, 0], pull).index_add(1, nodes[:, 1], -pull)
+    )
+    return kinematics_wrench(node_f, kin)
 
 
 def spring_unit_wrench(

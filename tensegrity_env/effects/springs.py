@@ -19,10 +19,11 @@ from typing import ClassVar
 import torch
 
 from tensegrity_env.effects.base import (
-    LinearEffect,
     ParamSpec,
     PhysicalEffect,
-    spring_unit_wrench,
+    SpringLawEffect,
+    spring_lengths,
+    spring_tension_wrench,
 )
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
@@ -30,7 +31,7 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 
 
-class CubicStiffness(LinearEffect):
+class CubicStiffness(SpringLawEffect):
     """Per-spring cubic stiffness ``stiffness`` k3 (S,) [N/m^3]: ``T += k3 (l - l0)^3``."""
 
     name: ClassVar[str] = "cubic_stiffness"
@@ -39,15 +40,12 @@ class CubicStiffness(LinearEffect):
         "stiffness": ParamSpec("N/m^3", 0.0, per="spring", positive=False),
     }
 
-    def basis(
-        self, state: State, kin: Kinematics, params: Params
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        force, torque, length = spring_unit_wrench(kin, self.topology)
-        stretch = (length - params.rest_length.to(length)) ** 3  # (B, S)
-        return force * stretch[:, None, None], torque * stretch[:, None, None]
+    def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
+        length, _ = spring_lengths(kin, self.topology)
+        return (length - params.rest_length.to(length)) ** 3
 
 
-class RestLengthOffset(LinearEffect):
+class RestLengthOffset(SpringLawEffect):
     """Per-spring rest-length offset ``offset`` δ (S,) [m]: ``T += -K δ``."""
 
     name: ClassVar[str] = "rest_length_offset"
@@ -56,12 +54,8 @@ class RestLengthOffset(LinearEffect):
         "offset": ParamSpec("m", 0.0, per="spring", positive=False),
     }
 
-    def basis(
-        self, state: State, kin: Kinematics, params: Params
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        force, torque, _ = spring_unit_wrench(kin, self.topology)
-        k = -params.stiffness.to(force)
-        return force * k, torque * k
+    def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
+        return -params.stiffness.to(kin.x).expand(kin.x.shape[0], -1)
 
 
 class SlackSprings(PhysicalEffect):
@@ -91,14 +85,14 @@ class SlackSprings(PhysicalEffect):
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         if self.values["springs"].numel() == 0:
             return None
-        force, torque, length = spring_unit_wrench(kin, self.topology)
+        length, _ = spring_lengths(kin, self.topology)
         stretch = length - params.rest_length.to(length)
         # remove the elastic push of slack cables: -K (l - l0) where l < l0
         dT = -params.stiffness.to(length) * stretch * (stretch < 0) * self.mask(length)
-        return torch.einsum("brks,bs->brk", force, dT), torch.einsum("brks,bs->brk", torque, dT)
+        return spring_tension_wrench(kin, self.topology, dT)
 
 
-class CompressionStiffness(LinearEffect):
+class CompressionStiffness(SpringLawEffect):
     """Per-spring stiffness change in compression ``stiffness`` ΔK (S,) [N/m].
 
     ``T += ΔK (l - l0)`` while ``l < l0``. The probe of the slack-cable candidate: a
@@ -111,9 +105,6 @@ class CompressionStiffness(LinearEffect):
         "stiffness": ParamSpec("N/m", 0.0, per="spring", positive=False),
     }
 
-    def basis(
-        self, state: State, kin: Kinematics, params: Params
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        force, torque, length = spring_unit_wrench(kin, self.topology)
-        short = (length - params.rest_length.to(length)).clamp_max(0.0)  # (B, S)
-        return force * short[:, None, None], torque * short[:, None, None]
+    def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
+        length, _ = spring_lengths(kin, self.topology)
+        return (length - params.rest_length.to(length)).clamp_max(0.0)

@@ -24,6 +24,8 @@ from tensegrity_env.effects import (
     effect_from_dict,
     effects_from_document,
 )
+from tensegrity_env.effects.base import spring_lengths, spring_tension_wrench, spring_unit_wrench
+from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.kinematics import node_kinematics
 from tensegrity_env.io_utils import InputError
@@ -102,11 +104,42 @@ def test_linear_effects_wrench_is_basis_times_theta(ico):
     for effect in _examples(ico.topology):
         if not hasattr(effect, "basis"):
             continue
-        f, _ = effect.basis(state, kin, ico.params)
+        f, t = effect.basis(state, kin, ico.params)
         wf, wt = effect.wrench(state, kin, ico.params)
         torch.testing.assert_close(wf, f @ effect.theta())
+        torch.testing.assert_close(wt, t @ effect.theta())
         twice = effect.with_theta(2 * effect.theta())
         torch.testing.assert_close(twice.wrench(state, kin, ico.params)[1], 2 * wt)
+
+
+def test_spring_tensions_act_through_the_nodes_as_the_unit_wrench(ico):
+    """Per-spring tensions summed through the nodes = the dense unit wrench contracted."""
+    topology, params = ico.topology, ico.params
+    state = _random_state(topology, seed=5)
+    eng = Engine(topology, 1e-3)
+    kin = node_kinematics(state, eng.end_offsets, eng.anchors)
+    tension = torch.as_tensor(np.random.default_rng(1).normal(0, 10, (5, topology.n_springs)))
+    force, torque, _ = spring_unit_wrench(kin, topology)
+    f, t = spring_tension_wrench(kin, topology, tension)
+    torch.testing.assert_close(f, torch.einsum("brks,bs->brk", force, tension))
+    torch.testing.assert_close(t, torch.einsum("brks,bs->brk", torque, tension))
+    # each spring pulls its two rods together: no net force on the structure
+    torch.testing.assert_close(f.sum(1), torch.zeros(5, 3, dtype=f.dtype))
+    # compression stiffness (the slack probe) through the same path as its design
+    probe = CompressionStiffness(topology, stiffness=np.linspace(-300, 50, topology.n_springs))
+    bf, bt = probe.basis(state, kin, params)
+    wf, wt = probe.wrench(state, kin, params)
+    torch.testing.assert_close(wf, bf @ probe.theta())
+    torch.testing.assert_close(wt, bt @ probe.theta())
+    # a slack cable shorter than rest loses exactly -K (l - l0) of its tension
+    cables = SlackSprings(topology, springs=list(range(topology.n_springs)))
+    length = spring_lengths(kin, topology)[0]
+    stretch = length - params.rest_length
+    lost = -params.stiffness * stretch * (stretch < 0)
+    assert bool((lost != 0).any()) and bool((lost == 0).any())
+    sf, st = cables.wrench(state, kin, params)
+    torch.testing.assert_close(sf, torch.einsum("brks,bs->brk", force, lost))
+    torch.testing.assert_close(st, torch.einsum("brks,bs->brk", torque, lost))
 
 
 def test_drag_opposes_motion(ico):

@@ -231,9 +231,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         if not new:
             free = [i for i in range(data.topology.n_springs) if i not in known]
             z = reg.significance[free]
-            lo, hi = CABLE_LOSS
             return Proposal("slack_springs", None,
-                            f"no (further) spring loses {lo:.0%}-{hi:.0%} of K when compressed "
+                            f"no (further) spring loses at least {CABLE_LOSS:.0%} of K when compressed "
                             f"by {CABLE_SIGNIFICANCE:g} standard errors (largest significance "
                             f"{z.max():.3g})")  # fmt: skip
         cables = sorted(known | set(new))

@@ -28,6 +28,7 @@ it. Default: the 120 Hz / 1 mm / no-dropout cells of both settings, seed 0.
     python benchmarks/bench_measured.py --all                                   # whole matrix
     python benchmarks/bench_measured.py --settings flight --effects none --seeds 10 --identify-only
     python benchmarks/bench_measured.py --report-only                           # rewrite the .md
+    python benchmarks/bench_measured.py --settings floor --seeds 2 --effects none --reference-only
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from measured_plant import PLANT_VERSION, PLANTED, SETTINGS, Cell, write_cell
 from measured_report import evaluate_cell, selection, write_markdown
+from measured_tolerance import tolerance_reference
 
 from tensegrity_env.io_utils import atomic_write_text
 
@@ -112,6 +114,8 @@ def run_cell(
             folder, "diagnose.log", timeout,
         )  # fmt: skip
     record.update(evaluate_cell(data, ident, diag / "params.json"))
+    if cell.setting == "floor":
+        record["reference"] = tolerance_reference(data)
     return record
 
 
@@ -134,6 +138,20 @@ def matrix(args: argparse.Namespace) -> list[Cell]:
             itertools.product(settings, rates, noises, drops, effects, seeds)]  # fmt: skip
 
 
+def add_references(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    """Add the tolerance reference (:func:`tolerance_reference`) to the selected floor
+    cells already recorded in ``results``, rewriting ``--json`` after each."""
+    with tempfile.TemporaryDirectory(prefix="bench_measured_") as work:
+        for cell in matrix(args):
+            rec = results["cells"].get(cell.label)
+            if cell.setting != "floor" or rec is None:
+                continue
+            print(f"{cell.label}: models within the targets ...", flush=True)
+            data = write_cell(cell, Path(work) / cell.label.replace("/", "_"))
+            rec["reference"] = tolerance_reference(data)
+            atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--settings", help=f"comma-separated of {','.join(SETTINGS)} (default both)")
@@ -152,6 +170,9 @@ def main() -> int:
     ap.add_argument("--json", type=Path, default=ROOT / "docs/results/measured.json")
     ap.add_argument("--md", type=Path, default=ROOT / "docs/results/measured.md")
     ap.add_argument("--report-only", action="store_true", help="only regenerate --md from --json")
+    ap.add_argument("--reference-only", action="store_true",
+                    help="only measure the floor checks of models within the targets for the "
+                         "selected floor cells already in --json (no identify or diagnose)")  # fmt: skip
     args = ap.parse_args()
     if not args.all:
         args.settings = args.settings or ",".join(SETTINGS)
@@ -160,7 +181,9 @@ def main() -> int:
     results: dict[str, Any] = {"cells": {}}
     if args.json.is_file():
         results = json.loads(args.json.read_text())
-    if not args.report_only:
+    if args.reference_only:
+        add_references(args, results)
+    elif not args.report_only:
         work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_measured_"))
         extra = None if args.identify_only else shlex.split(args.diagnose_args)
         for cell in matrix(args):

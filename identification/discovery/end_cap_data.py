@@ -193,6 +193,9 @@ class EndCapData:
         self.on_floor = False
         #: where a floor fit starts the contact (a params file's), None: the default
         self.contact_start: GroundContact | None = None
+        #: limits of the contact's coordinates in every fit after the floor fit
+        #: (:func:`~identification.trajectory.floor_fit.contact_box`; None: no limits)
+        self.contact_box: dict[str, tuple[float, float]] | None = None
 
     def cut(
         self, name: str, steps: int, count: int, stream: int, airborne: bool = False

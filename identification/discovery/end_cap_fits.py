@@ -191,7 +191,8 @@ def fit_with(
     origin = current.theta if current.origin is None else current.origin
     axis = common_axis(data.axes)
     vec = replace(current.vec, start=current.vec.full(origin.detach()),
-                  coords=EffectCoords.of(ordered, axis, data.contact_free))  # fmt: skip
+                  coords=EffectCoords.of(ordered, axis, data.contact_free,
+                                         data.contact_box))  # fmt: skip
     if contact_searched(vec):
         vec = hold_declared(vec)
     windows, theta = current.windows, vec.theta0()
@@ -222,6 +223,40 @@ def fit_with(
     fit = fit_trajectory(data, vec, windows, theta, iters)
     fit.origin = fit.theta
     return fit
+
+
+def screen_with(
+    data: EndCapData, current: TrajFit, effects: Sequence[PhysicalEffect], iters: int
+) -> TrajFit:
+    """A candidate screened on the floor: ``effects`` fitted with the declared parameters
+    and the contact held at ``current``'s fit.
+
+    Only the linear effects' coordinates (the candidate's and those already in the
+    model) and the windows' states are fitted, from ``current``'s fitted states, so a
+    candidate costs a fraction of a joint fit and cannot trade the contact against its
+    own parameters. The result is in the joint layout (declared parameters and contact
+    coordinates at ``current``'s values, free; ``origin`` there), so an accepted
+    candidate is refitted jointly from it and the BIC counts every parameter of the
+    joint model. ``current``'s vector holds the contact as its last effect.
+    """
+    ordered = [e for e in effects if not isinstance(e, GroundContact)]
+    contact = [e for e in effects if isinstance(e, GroundContact)]
+    axis = common_axis(data.axes)
+    theta = current.theta.detach()
+    n = current.vec.n_free
+    joint = replace(current.vec, start=current.vec.full(theta),
+                    coords=EffectCoords.of(ordered + contact, axis, data.contact_free,
+                                           data.contact_box))  # fmt: skip
+    only = replace(joint, free=torch.zeros_like(joint.free),
+                   coords=EffectCoords.of(ordered + contact, axis, ()))  # fmt: skip
+    fit = fit_trajectory(data, only, current.windows, only.theta0(), iters)
+    k = joint.n_effect - only.n_effect  # the contact's coordinates, held here
+    tail = joint.theta0()[len(joint.theta0()) - k :]
+    full = torch.cat([theta[:n], fit.theta.detach(), tail])
+    se = np.concatenate([current.stderr[:n], fit.stderr, current.stderr[len(current.stderr) - k :]])
+    out = TrajFit(joint, full, fit.windows, fit.sse, fit.m, se, extra_k=current.extra_k)
+    out.origin = full
+    return out
 
 
 def through_touchdowns(data: EndCapData, vec: ParamVector, iters: int) -> ParamVector:

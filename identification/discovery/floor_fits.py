@@ -4,9 +4,12 @@ Where end caps reach a floor and no stretch of the training split is airborne lo
 enough to fit the declared model apart from contact
 (:func:`~identification.trajectory.airborne.airborne_stretches`), the loop's starting
 model holds ground contact from the start and fits it jointly with the declared
-parameters (:mod:`identification.trajectory.floor_fit`). Every later fit keeps the
-contact's parameters free (:data:`~identification.trajectory.floor_fit.FLOOR_FREE`),
-so each candidate effect is judged with the contact refitted beside it.
+parameters (:mod:`identification.trajectory.floor_fit`). Candidate effects are
+screened with the declared parameters and the contact held at this fit's values
+(:func:`~identification.discovery.end_cap_fits.screen_with`); an accepted one is
+refitted jointly with them, the contact's parameters
+(:data:`~identification.trajectory.floor_fit.FLOOR_FREE`) free within
+:func:`~identification.trajectory.floor_fit.contact_box` of the floor fit's values.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     FLOOR_WINDOW_S,
+    contact_box,
     fit_on_floor,
     floor_contact,
     rods_off_floor,
@@ -94,6 +98,9 @@ def fit_declared_on_floor(
     many = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
     many.origin = many.theta
     data.windows["fit"] = many.windows
+    contact = many.effects[-1]
+    assert isinstance(contact, GroundContact)
+    data.contact_box = contact_box(contact)
     fit = many
     if selection:
         fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)

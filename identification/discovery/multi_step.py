@@ -62,7 +62,7 @@ from identification.discovery.end_cap_data import (
     heldout,
     predicted_caps,
 )
-from identification.discovery.end_cap_fits import fit_declared, fit_many, fit_with
+from identification.discovery.end_cap_fits import fit_declared, fit_many, fit_with, screen_with
 from identification.discovery.end_cap_residuals import (
     plot_window_residuals,
     summarize_window_residuals,
@@ -251,6 +251,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
         keep = [e for e in now.start_effects if e.name not in drop]
         if proposal.start is not None:
             fit = self.fit_slack(now, proposal, keep)
+        elif self.data.on_floor:
+            held = [e for e in now.effects if e.name not in drop]
+            fit = screen_with(self.data, now, [*held, proposal.effect], s.candidate_iter)
         else:
             fit = fit_with(self.data, now, [*keep, proposal.effect], s.candidate_iter)
         if fit_diverged(fit.rms, self.noise):

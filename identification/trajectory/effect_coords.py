@@ -14,7 +14,7 @@ coordinates. :class:`EffectCoords` appends the parameters of a list of effects t
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +51,9 @@ class EffectCoords:
     effects: tuple[PhysicalEffect, ...]
     slots: tuple[tuple[str, ...] | None, ...]
     held: tuple[tuple[int, ...], ...] = ()
+    #: absolute limits of contact coordinates by parameter name (fit coordinates), in
+    #: place of ±:data:`CONTACT_BOX` around the start
+    box: tuple[tuple[str, float, float], ...] = ()
 
     @classmethod
     def of(
@@ -58,11 +61,15 @@ class EffectCoords:
         effects: Sequence[PhysicalEffect],
         axial: int | None = None,
         contact_free: tuple[str, ...] = CONTACT_FREE,
+        box: Mapping[str, tuple[float, float]] | None = None,
     ) -> EffectCoords:
         """Coordinates of ``effects``; ``axial``: the rods' common end-cap axis (rod frame).
 
         ``contact_free``: the contact parameters that are coordinates (``()``: contact
         held at its values, e.g. found by :mod:`identification.trajectory.touchdown`).
+        ``box``: absolute limits (lo, hi) of contact coordinates in the fit's coordinates
+        (log, logit or as is; see
+        :func:`~identification.trajectory.floor_fit.contact_box`), for the parameters named.
 
         Rotational drag about that axis is held (at its value, 0 to start): the spin
         about it is invisible in end-cap data, so the data cannot see that drag.
@@ -80,7 +87,8 @@ class EffectCoords:
             else:
                 slots.append(())
             held.append(hold)
-        return cls(tuple(effects), tuple(slots), tuple(held))
+        limits = tuple((k, float(lo), float(hi)) for k, (lo, hi) in (box or {}).items())
+        return cls(tuple(effects), tuple(slots), tuple(held), limits)
 
     def _held(self, i: int) -> tuple[int, ...]:
         return self.held[i] if self.held else ()
@@ -110,15 +118,20 @@ class EffectCoords:
         return torch.tensor(out, dtype=DTYPE)
 
     def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Box on the coordinates: none for linear ones, ±:data:`CONTACT_BOX` for contact."""
+        """Box on the coordinates: none for linear ones, for contact :attr:`box` where it
+        names the parameter, else ±:data:`CONTACT_BOX` around the start."""
         lo, hi = [], []
         x0 = self.start()
+        limits = {k: (a, b) for k, a, b in self.box}
         i = 0
         for s, n in zip(self.slots, self.sizes(), strict=True):
             for k in range(n):
                 if s is None:
                     lo.append(-np.inf)
                     hi.append(np.inf)
+                elif s[k] in limits:
+                    lo.append(limits[s[k]][0])
+                    hi.append(limits[s[k]][1])
                 else:
                     lo.append(float(x0[i + k]) - CONTACT_BOX)
                     hi.append(float(x0[i + k]) + CONTACT_BOX)

@@ -68,6 +68,7 @@ from scipy.optimize import minimize
 
 from identification.trajectory.airborne import AIRBORNE, cap_radii
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
+from identification.trajectory.effect_fit import to_free
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
 from identification.trajectory.window_states import fit_states
@@ -105,6 +106,10 @@ SCALE_GRID = tuple(np.round(np.arange(-0.15, 0.2501, 0.01), 2))
 SCALE_SIMPLEX = (0.02, 0.1)
 #: most evaluations of the scale-and-contact Nelder-Mead search
 SCALE_EVALS = 200
+#: how far later fits may move the floor fit's contact: a factor on its positive
+#: parameters (stiffness, damping), logit units on the fractions (impedance, friction),
+#: metres on the floor height
+CONTACT_RANGE = {"factor": 3.0, "logit": 1.0, "height": 0.003}
 
 
 def rods_off_floor(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
@@ -141,11 +146,41 @@ def floor_contact(
 
 
 def with_floor(
-    vec: ParamVector, effects: Sequence[PhysicalEffect], contact: GroundContact, axis: int | None
+    vec: ParamVector,
+    effects: Sequence[PhysicalEffect],
+    contact: GroundContact,
+    axis: int | None,
+    box: dict[str, tuple[float, float]] | None = None,
 ) -> ParamVector:
     """``vec`` with ``effects`` and ``contact`` (last) as coordinates, contact's
-    :data:`FLOOR_FREE` free."""
-    return replace(vec, coords=EffectCoords.of([*effects, contact], axis, FLOOR_FREE))
+    :data:`FLOOR_FREE` free (within ``box``, see :func:`contact_box`, if given)."""
+    return replace(vec, coords=EffectCoords.of([*effects, contact], axis, FLOOR_FREE, box))
+
+
+def contact_box(
+    contact: GroundContact, keys: Sequence[str] = FLOOR_FREE
+) -> dict[str, tuple[float, float]]:
+    """Limits (lo, hi) of ``contact``'s ``keys`` in the fit's coordinates (log, logit, m)
+    within :data:`CONTACT_RANGE` of its values.
+
+    Later fits on the floor (candidate effects, accepted models) start from the floor
+    fit's contact; without limits, a joint fit of a few short windows trades the
+    contact against the new effect until the floor is nearly gone (stiffness 3e-4
+    1/s^2, floor 1.9 cm up on linear-drag data). Within them, a step that would leave
+    the range is cut at its edge (:func:`~identification.trajectory.windowed_fit.fit_windows`).
+    """
+    out = {}
+    for k in keys:
+        spec = contact.PARAMS[k]
+        x = to_free(spec, float(contact.values[k].reshape(-1)[0]))
+        if spec.unit_interval:
+            r = CONTACT_RANGE["logit"]
+        elif spec.positive:
+            r = float(np.log(CONTACT_RANGE["factor"]))
+        else:
+            r = CONTACT_RANGE["height"]
+        out[k] = (x - r, x + r)
+    return out
 
 
 def held_states(vec: ParamVector, theta: torch.Tensor) -> ParamVector:

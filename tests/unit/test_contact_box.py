@@ -1,0 +1,46 @@
+"""Limits on the contact's coordinates after the floor fit
+(identification.trajectory.floor_fit.contact_box, EffectCoords' box)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identification.trajectory.effect_coords import CONTACT_BOX, EffectCoords
+from identification.trajectory.floor_fit import CONTACT_RANGE, FLOOR_FREE, contact_box
+from tensegrity_env import assemblies
+from tensegrity_env.effects import GroundContact, LinearDrag
+
+
+def test_box_spans_the_contact_range_around_its_values() -> None:
+    topo = assemblies.icosahedron().topology
+    contact = GroundContact(topo, stiffness=1200.0, damping=80.0, friction=0.6,
+                            impedance=0.9, height=0.002)  # fmt: skip
+    box = contact_box(contact)
+    assert set(box) == set(FLOOR_FREE)
+    f = CONTACT_RANGE["factor"]
+    for k, v in (("stiffness", 1200.0), ("damping", 80.0)):
+        lo, hi = np.exp(box[k])
+        assert lo == pytest.approx(v / f) and hi == pytest.approx(v * f)
+    lo, hi = box["height"]
+    assert lo == pytest.approx(0.002 - CONTACT_RANGE["height"])
+    assert hi == pytest.approx(0.002 + CONTACT_RANGE["height"])
+    for k, v in (("friction", 0.6), ("impedance", 0.9)):
+        lo, hi = 1 / (1 + np.exp(-np.array(box[k])))  # logit -> fraction
+        assert lo < v < hi and 0 < lo and hi < 1
+
+
+def test_effect_coords_take_the_box_for_the_contact_and_leave_linear_effects_free() -> None:
+    topo = assemblies.icosahedron().topology
+    contact = GroundContact(topo, stiffness=1200.0, damping=80.0, friction=0.6,
+                            impedance=0.9, height=0.002)  # fmt: skip
+    drag = LinearDrag(topo)
+    boxed = EffectCoords.of([drag, contact], None, FLOOR_FREE, contact_box(contact))
+    lo, hi = boxed.bounds()
+    n_drag = boxed.sizes()[0]
+    assert np.all(np.isinf(lo[:n_drag].numpy())) and np.all(np.isinf(hi[:n_drag].numpy()))
+    k = FLOOR_FREE.index("height")
+    assert float(hi[n_drag + k] - lo[n_drag + k]) == pytest.approx(2 * CONTACT_RANGE["height"])
+    # without a box: ±CONTACT_BOX around the start (5 m on the floor height)
+    lo, hi = EffectCoords.of([drag, contact], None, FLOOR_FREE).bounds()
+    assert float(hi[n_drag + k] - lo[n_drag + k]) == pytest.approx(2 * CONTACT_BOX)

@@ -54,5 +54,6 @@ def test_contact_stays_within_its_range_of_the_start() -> None:
     assert np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12), (x, lo, hi)
     stiffness = float(np.exp(x[FLOOR_FREE.index("stiffness")]))
     assert stiffness > k_true / 10  # it moved towards the truth ...
-    assert stiffness <= np.exp(hi[FLOOR_FREE.index("stiffness")]) * (1 + 1e-9) < k_true  # ... not past the range
+    edge = float(np.exp(hi[FLOOR_FREE.index("stiffness")]))
+    assert stiffness <= edge * (1 + 1e-9) < k_true  # ... not past the range
     assert fit.history[-1] < fit.history[0], fit.history

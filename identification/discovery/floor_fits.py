@@ -37,7 +37,7 @@ from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     FLOOR_WINDOW_S,
-    contact_box,
+    bounded,
     fit_on_floor,
     floor_contact,
     rods_off_floor,
@@ -94,13 +94,13 @@ def fit_declared_on_floor(
     many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window),
                             min(s.fit_windows, FLOOR_WINDOWS), 3)  # fmt: skip
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
+    vec = bounded(vec, w.theta)
+    assert vec.coords is not None
+    data.contact_box = {k: (lo, hi) for k, lo, hi in vec.coords.box}
     m = w.windows.residuals
     many = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
     many.origin = many.theta
     data.windows["fit"] = many.windows
-    contact = many.effects[-1]
-    assert isinstance(contact, GroundContact)
-    data.contact_box = contact_box(contact)
     fit = many
     if selection:
         fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)

@@ -310,12 +310,23 @@ class MultiStepScorer(Scorer[EndCapFits]):
         return (predicted_caps(self.data, candidate.fit.fit, windows) - ref).numpy()
 
     def accept(self, chosen: Candidate[EndCapFits]) -> Candidate[EndCapFits]:
-        """Converged, then refitted on the many windows (rolls too once an effect sees them)."""
+        """Converged, then refitted on the many windows (rolls too once an effect sees them).
+
+        On the floor the candidate was screened with the declared model and the contact
+        held: the joint refit on the floor windows is its convergence, and the training
+        windows' states are refitted at that model for the next iteration's comparisons.
+        """
         data, s = self.data, self.settings
         now = chosen.fit.fit
-        fit = fit_with(data, now, now.effects, s.base_iter)  # converge
         t1 = time.perf_counter()
-        final = fit_many(data, fit.vec, fit.theta, s, s.base_iter)
+        if data.on_floor:
+            final = fit_many(data, now.vec, now.theta, s, s.base_iter)
+            sse, m, windows = heldout(data, final, "train", s.state_iter)
+            fit = replace(final, windows=windows, sse=sse, m=m)
+        else:
+            fit = fit_with(data, now, now.effects, s.base_iter)  # converge
+            t1 = time.perf_counter()
+            final = fit_many(data, fit.vec, fit.theta, s, s.base_iter)
         self.log(f"  refitted on {final.windows.size} training windows: end-cap RMS "
                  f"{final.rms * 1e3:.3f} mm ({time.perf_counter() - t1:.0f} s)")  # fmt: skip
         check_stage(f"the final fit with {chosen.name}", final.rms, self.noise,

@@ -87,8 +87,12 @@ class EffectCoords:
             else:
                 slots.append(())
             held.append(hold)
-        limits = tuple((k, float(lo), float(hi)) for k, (lo, hi) in (box or {}).items())
-        return cls(tuple(effects), tuple(slots), tuple(held), limits)
+        return cls(tuple(effects), tuple(slots), tuple(held)).with_box(box or {})
+
+    def with_box(self, box: Mapping[str, tuple[float, float]]) -> EffectCoords:
+        """The same coordinates with the contact's limits ``box`` (see :meth:`of`)."""
+        limits = tuple((k, float(lo), float(hi)) for k, (lo, hi) in box.items())
+        return EffectCoords(self.effects, self.slots, self.held, limits)
 
     def _held(self, i: int) -> tuple[int, ...]:
         return self.held[i] if self.held else ()

@@ -81,13 +81,12 @@ from identification.trajectory.windowed_fit import (
     WindowFit,
     fit_windows,
     state_response,
-    window_sse,
+    trial_sse,
 )
 from identification.trajectory.windows import Windows, local_basis, perturb
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine
-from tensegrity_env.io_utils import InputError
 from tensegrity_env.topology import Topology
 
 #: contact parameters fitted on the floor (the floor's height too)
@@ -293,11 +292,7 @@ def search_scale(
         th, w = at(x)
         if bool(((th < lo) | (th > hi)).any()):
             return np.inf  # out of range (the contact's box): rejected
-        try:
-            sse = window_sse(engine, vec, w, basis, th, chunk)
-        except (torch.linalg.LinAlgError, FloatingPointError, InputError):
-            return np.inf
-        return sse / windows.residuals if np.isfinite(sse) else np.inf
+        return trial_sse(engine, vec, w, basis, th, chunk) / windows.residuals
 
     x0 = np.concatenate([np.zeros(n), theta[len(theta) - k :].numpy()])
     grid = [(error(np.concatenate([[a], x0[1:]])), a) for a in SCALE_GRID]

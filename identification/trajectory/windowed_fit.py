@@ -285,12 +285,7 @@ def fit_windows(
         trial = replace(
             windows, state=perturb(windows.state, torch.einsum("bl,lrj->brj", d_z, basis))
         )
-        try:
-            return trial, window_sse(engine, vec, trial, basis, theta + d_theta, chunk)
-        except (torch.linalg.LinAlgError, FloatingPointError, InputError):
-            # a trial the engine cannot take (a contact solve or an effect at extreme or
-            # non-finite values) is a rejected step: more damping
-            return trial, float("inf")
+        return trial, trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
 
     for _ in range(max_iter if not done else 0):
         while True:
@@ -330,6 +325,26 @@ def fit_windows(
             break
     stderr = window_stderr(ne, S, ne.sse / dof)
     return WindowFit(theta, windows, history, stderr, score, converged, ne)
+
+
+def trial_sse(
+    engine: Engine,
+    vec: ParamVector,
+    windows: Windows,
+    basis: torch.Tensor,
+    theta: torch.Tensor,
+    chunk: int,
+) -> float:
+    """:func:`window_sse` of a trial point [m^2], ``inf`` where the engine cannot take it.
+
+    A trial the engine cannot take (a contact solve or an effect at extreme or
+    non-finite values, a singular system) is a rejected step, not an error.
+    """
+    try:
+        sse = window_sse(engine, vec, windows, basis, theta, chunk)
+    except (torch.linalg.LinAlgError, FloatingPointError, InputError):
+        return float("inf")
+    return sse if np.isfinite(sse) else float("inf")
 
 
 def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor:

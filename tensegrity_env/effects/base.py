@@ -343,9 +343,7 @@ def spring_unit_wrench(
     """
     nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long, device=kin.x.device)
     a, b = nodes[:, 0], nodes[:, 1]
-    d = kin.x[:, b] - kin.x[:, a]
-    length = torch.linalg.vector_norm(d, dim=-1)
-    axis = d / length.unsqueeze(-1)  # (B, S, 3)
+    length, axis = spring_lengths(kin, topology)  # (B, S), (B, S, 3)
     S, R = topology.n_springs, topology.n_rods
     # node_rod one-hot (N, R) and each node's lever (B, N, 3): end caps, anchors, points
     member = torch.zeros(kin.x.shape[1], R, dtype=kin.x.dtype, device=kin.x.device)

@@ -48,14 +48,22 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from measured_plant import PLANT_VERSION, PLANTED, SETTINGS, Cell, write_cell
+from measured_plant import (
+    DROPOUTS,
+    NOISES,
+    PLANT_VERSION,
+    PLANTED,
+    RATES,
+    SETTINGS,
+    Cell,
+    write_cell,
+)
 from measured_report import evaluate_cell, selection, write_markdown
 from measured_tolerance import tolerance_reference
 
 from tensegrity_env.io_utils import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
-RATES, NOISES, DROPOUTS = (60.0, 120.0, 240.0, 1000.0), (0.5, 1.0, 2.0), (0.0, 2.0)
 
 
 def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str, Any]:

@@ -38,6 +38,8 @@ from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_to_matrix
 
 SETTINGS = ("floor", "flight")
+#: the matrix's other axes: sample rates [Hz], end-cap noise std [mm], dropped samples [%]
+RATES, NOISES, DROPOUTS = (60.0, 120.0, 240.0, 1000.0), (0.5, 1.0, 2.0), (0.0, 2.0)
 #: planted effect -> what MuJoCo feature plants it
 PLANTED: dict[str, str] = {
     "none": "nothing (floor cells: the floor only)",

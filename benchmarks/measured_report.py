@@ -17,7 +17,17 @@ from typing import Any
 
 import numpy as np
 import torch
-from measured_plant import PLANT_VERSION, CellData, drop_states, simulate
+from measured_plant import (
+    DROPOUTS,
+    NOISES,
+    PLANT_VERSION,
+    PLANTED,
+    RATES,
+    SETTINGS,
+    CellData,
+    drop_states,
+    simulate,
+)
 
 from identification.commands.diagnose import WINDOW_S, WINDOWS
 from identification.commands.durations import seconds
@@ -314,6 +324,41 @@ def _status(run: dict[str, Any]) -> str:
     return f"{run['status']}: {msg}"
 
 
+def matrix_section(cells: dict[str, Any]) -> list[str]:
+    """How much of the whole matrix has been run: per setting and planted effect, the
+    (rate, noise, dropout) combinations with at least one cell, and any crash among them."""
+    combos = len(RATES) * len(NOISES) * len(DROPOUTS)
+    total = len(SETTINGS) * len(PLANTED) * combos
+    ran: dict[tuple[str, str], set[tuple[float, float, float]]] = {}
+    crashed: dict[tuple[str, str], int] = {}
+    for r in cells.values():
+        c = r["cell"]
+        key = (c["setting"], c["effect"])
+        ran.setdefault(key, set()).add((c["rate"], c["noise"], c["dropout"]))
+        crashed[key] = crashed.get(key, 0) + sum(
+            r[cmd]["status"] == "crash" for cmd in ("identify", "diagnose")
+        )
+    done = sum(len(v) for v in ran.values())
+    lines = [
+        "", "## The whole matrix", "",
+        f"{len(SETTINGS)} settings x {len(RATES)} rates x {len(NOISES)} noise levels x "
+        f"{len(DROPOUTS)} dropout rates x {len(PLANTED)} planted effects = {total} "
+        f"combinations; **{done} run** (any seed), with a crash in "
+        f"{sum(crashed.values())} runs.", "",
+        "| setting | planted | combinations run | with diagnose | crashes |",
+        "| --- | --- | --- | --- | --- |",
+    ]  # fmt: skip
+    for setting in SETTINGS:
+        for effect in PLANTED:
+            key = (setting, effect)
+            diag = {(r["cell"]["rate"], r["cell"]["noise"], r["cell"]["dropout"])
+                    for r in cells.values() if (r["cell"]["setting"], r["cell"]["effect"]) == key
+                    and r["diagnose"]["status"] != "skipped"}  # fmt: skip
+            lines.append(f"| {setting} | {effect} | {len(ran.get(key, ()))} of {combos} "
+                         f"| {len(diag)} | {crashed.get(key, 0)} |")  # fmt: skip
+    return lines
+
+
 def write_markdown(results: dict[str, Any], path: Path) -> Path:
     """``docs/results/measured.md``: the 120 Hz / 1 mm rows and a summary of every cell."""
     cells = results.get("cells", {})
@@ -356,6 +401,7 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         )
     lines += floor_section(cells)
     lines += coverage_section(cells)
+    lines += matrix_section(cells)
     lines += ["", "## Every cell run", ""]
     runs = list(cells.values())
     if runs:

@@ -10,7 +10,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
 from measured_plant import PLANT_VERSION
-from measured_report import OLD_SELECTION, marks, selection, write_markdown
+from measured_report import OLD_SELECTION, marks, matrix_section, selection, write_markdown
 
 from identification.commands.diagnose import WINDOW_S, WINDOWS
 
@@ -46,3 +46,19 @@ def test_rows_selected_on_other_windows_are_marked(tmp_path):
     row = next(ln for ln in text.splitlines() if ln.startswith("| flight ‡ | force_field"))
     assert f"| 32 x {WINDOW_S:g} s |" in row
     assert f"({WINDOWS} x {WINDOW_S:g} s per split" in text
+
+
+def test_matrix_counts_combinations_not_seeds_and_counts_crashes():
+    a, b = _record("none", ""), _record("none", "")
+    b["cell"] = {**b["cell"], "seed": 1, "label": "flight/120Hz/1mm/drop0%/none/seed1"}
+    c = _record("linear_drag", "")
+    c["cell"] = {**c["cell"], "rate": 60.0, "label": "flight/60Hz/1mm/drop0%/linear_drag/seed0"}
+    c["diagnose"] = {**c["diagnose"], "status": "crash"}
+    d = _record("slack_cables", "--identify-only", status="skipped")
+    lines = matrix_section({"a": a, "b": b, "c": c, "d": d})
+    text = "\n".join(lines)
+    assert "= 336 combinations; **3 run** (any seed), with a crash in 1 runs." in text
+    assert "| flight | none | 1 of 24 | 1 | 0 |" in lines
+    assert "| flight | linear_drag | 1 of 24 | 1 | 1 |" in lines
+    assert "| flight | slack_cables | 1 of 24 | 0 | 0 |" in lines
+    assert "| floor | none | 0 of 24 | 0 | 0 |" in lines

@@ -15,19 +15,10 @@ import shlex
 from pathlib import Path
 from typing import Any
 
+import measured_plant as plant
 import numpy as np
 import torch
-from measured_plant import (
-    DROPOUTS,
-    NOISES,
-    PLANT_VERSION,
-    PLANTED,
-    RATES,
-    SETTINGS,
-    CellData,
-    drop_states,
-    simulate,
-)
+from measured_plant import PLANT_VERSION, CellData, drop_states, simulate
 
 from identification.commands.diagnose import WINDOW_S, WINDOWS
 from identification.commands.durations import seconds
@@ -327,8 +318,8 @@ def _status(run: dict[str, Any]) -> str:
 def matrix_section(cells: dict[str, Any]) -> list[str]:
     """How much of the whole matrix has been run: per setting and planted effect, the
     (rate, noise, dropout) combinations with at least one cell, and any crash among them."""
-    combos = len(RATES) * len(NOISES) * len(DROPOUTS)
-    total = len(SETTINGS) * len(PLANTED) * combos
+    combos = len(plant.RATES) * len(plant.NOISES) * len(plant.DROPOUTS)
+    total = len(plant.SETTINGS) * len(plant.PLANTED) * combos
     ran: dict[tuple[str, str], set[tuple[float, float, float]]] = {}
     crashed: dict[tuple[str, str], int] = {}
     for r in cells.values():
@@ -341,15 +332,15 @@ def matrix_section(cells: dict[str, Any]) -> list[str]:
     done = sum(len(v) for v in ran.values())
     lines = [
         "", "## The whole matrix", "",
-        f"{len(SETTINGS)} settings x {len(RATES)} rates x {len(NOISES)} noise levels x "
-        f"{len(DROPOUTS)} dropout rates x {len(PLANTED)} planted effects = {total} "
+        f"{len(plant.SETTINGS)} settings x {len(plant.RATES)} rates x {len(plant.NOISES)} noise levels x "
+        f"{len(plant.DROPOUTS)} dropout rates x {len(plant.PLANTED)} planted effects = {total} "
         f"combinations; **{done} run** (any seed), with a crash in "
         f"{sum(crashed.values())} runs.", "",
         "| setting | planted | combinations run | with diagnose | crashes |",
         "| --- | --- | --- | --- | --- |",
     ]  # fmt: skip
-    for setting in SETTINGS:
-        for effect in PLANTED:
+    for setting in plant.SETTINGS:
+        for effect in plant.PLANTED:
             key = (setting, effect)
             diag = {(r["cell"]["rate"], r["cell"]["noise"], r["cell"]["dropout"])
                     for r in cells.values() if (r["cell"]["setting"], r["cell"]["effect"]) == key

@@ -350,6 +350,37 @@ def matrix_section(cells: dict[str, Any]) -> list[str]:
     return lines
 
 
+def is_default(cell: dict[str, Any]) -> bool:
+    """Whether a cell is at the committed rate, noise and dropout (120 Hz, 1 mm, none)."""
+    return cell["rate"] == 120 and abs(cell["noise"] - 1e-3) < 1e-12 and cell["dropout"] == 0
+
+
+def diagnosis_rows(cells: dict[str, Any], default: bool) -> list[str]:
+    """Table rows of the cells that ran ``diagnose``: at 120 Hz / 1 mm / no dropouts
+    (``default``: one column per axis of the cell) or elsewhere (the cell's label)."""
+    lines = []
+    for _label, r in sorted(cells.items()):
+        c = r["cell"]
+        if is_default(c) != default or r["diagnose"]["status"] == "skipped":
+            continue
+        a, b = r["after"], r["before"]
+        unphys = sorted(set(a.get("unphysical", [])) | set(b.get("unphysical", [])))
+        named = "-" if r["named"] is None else ", ".join(r["named"]) or "nothing"
+        expected = ", ".join(r["expected"]) or "-"
+        if default:
+            head = (f"| {c['setting']}{marks(r)} | {c['effect']} | {c['seed']} | {expected} "
+                    f"| {named} | {selection_text(r)} ")  # fmt: skip
+        else:
+            head = f"| {c['label']}{marks(r)} | {expected} | {named} "
+        lines.append(
+            head + f"| {_status(r['identify'])} | {_status(r['diagnose'])} "
+            f"| {_pct(a, 'mass')} | {_pct(a, 'inertia')} | {_pct(a, 'stiffness')} "
+            f"| {_pct(a, 'damping')} | {_mm(b.get('rollout', {}).get('mean'))} "
+            f"| {_mm(a.get('rollout', {}).get('mean'))} | {'; '.join(unphys) or 'none'} |"
+        )
+    return lines
+
+
 def write_markdown(results: dict[str, Any], path: Path) -> Path:
     """``docs/results/measured.md``: the 120 Hz / 1 mm rows and a summary of every cell."""
     cells = results.get("cells", {})
@@ -373,23 +404,15 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
         "| --- |",
     ]
-    for _label, r in sorted(cells.items()):
-        c = r["cell"]
-        if not (c["rate"] == 120 and abs(c["noise"] - 1e-3) < 1e-12 and c["dropout"] == 0):
-            continue
-        if r["diagnose"]["status"] == "skipped":
-            continue
-        a, b = r["after"], r["before"]
-        unphys = sorted(set(a.get("unphysical", [])) | set(b.get("unphysical", [])))
-        lines.append(
-            f"| {c['setting']}{marks(r)} | {c['effect']} | {c['seed']} "
-            f"| {', '.join(r['expected']) or '-'} "
-            f"| {'-' if r['named'] is None else ', '.join(r['named']) or 'nothing'} "
-            f"| {selection_text(r)} | {_status(r['identify'])} | {_status(r['diagnose'])} "
-            f"| {_pct(a, 'mass')} | {_pct(a, 'inertia')} | {_pct(a, 'stiffness')} "
-            f"| {_pct(a, 'damping')} | {_mm(b.get('rollout', {}).get('mean'))} "
-            f"| {_mm(a.get('rollout', {}).get('mean'))} | {'; '.join(unphys) or 'none'} |"
-        )
+    lines += diagnosis_rows(cells, default=True)
+    lines += [
+        "", "## Other rates, noise levels and dropouts", "",
+        "The cells of the rest of the matrix that ran `diagnose`; columns as above.", "",
+        "| cell | expected | named | identify | diagnose | M | I | K | c | rollout before "
+        "| rollout after | unphysical written |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]  # fmt: skip
+    lines += diagnosis_rows(cells, default=False)
     lines += floor_section(cells)
     lines += coverage_section(cells)
     lines += matrix_section(cells)

@@ -62,3 +62,14 @@ def test_matrix_counts_combinations_not_seeds_and_counts_crashes():
     assert "| flight | linear_drag | 1 of 24 | 1 | 1 |" in lines
     assert "| flight | slack_cables | 1 of 24 | 0 | 0 |" in lines
     assert "| floor | none | 0 of 24 | 0 | 0 |" in lines
+
+
+def test_diagnosed_cells_off_the_committed_rate_get_their_own_table(tmp_path):
+    here, there = _record("force_field", ""), _record("force_field", "")
+    there["cell"] = {**there["cell"], "rate": 240.0, "label": "flight/240Hz/1mm/drop0%/force_field/seed0"}
+    text = write_markdown({"cells": {"a": here, "b": there}}, tmp_path / "m.md").read_text()
+    main, other = text.split("## Other rates, noise levels and dropouts")
+    assert "| flight | force_field | 0 |" in main and "240Hz" not in main.split("## Floor")[0]
+    other = other.split("## ")[0]
+    assert "| flight/240Hz/1mm/drop0%/force_field/seed0 | - | nothing |" in other
+    assert "| flight | force_field" not in other

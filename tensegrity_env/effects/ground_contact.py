@@ -281,30 +281,37 @@ def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) ->
     ``H`` (..., n, n) symmetric positive definite, ``b`` and ``mask`` (..., n). A
     primal-dual active-set iteration (exact once the active set settles, a few
     iterations for n = 8); if it has not settled, one projected Gauss-Seidel sweep.
+    Each iteration solves only the problems whose active set is still changing (a
+    settled one would give the same forces again); a problem with nothing on ``mask``
+    gets no force.
     """
-    eye = torch.eye(H.shape[-1], dtype=H.dtype, device=H.device)
+    n = H.shape[-1]
+    batch = b.shape[:-1]
+    H, b, mask = H.reshape(-1, n, n), b.reshape(-1, n), mask.reshape(-1, n)
+    eye = torch.eye(n, dtype=H.dtype, device=H.device)
     S = mask & (b < 0)
     f = torch.zeros_like(b)
-    settled = False
+    todo = torch.nonzero(mask.any(-1)).squeeze(-1)  # problems still unsettled
     for _ in range(ACTIVE_SET_ITERATIONS):
-        both = (S.unsqueeze(-1) & S.unsqueeze(-2)).to(H.dtype)
-        H_S = H * both + eye * (1.0 - S.to(H.dtype)).unsqueeze(-1)
-        f, info = torch.linalg.solve_ex(H_S, torch.where(S, -b, torch.zeros_like(b)))
-        # singular only for a state that has blown up (caps 1e9 m away): no force there
-        f = torch.where((info > 0).unsqueeze(-1), torch.zeros_like(f), f)
-        w = (H @ f.unsqueeze(-1)).squeeze(-1) + b
-        S_new = mask & ((S & (f > 0)) | (~S & (w < 0)))
-        if bool((S_new == S).all()):
-            settled = True
+        if todo.numel() == 0:
             break
-        S = S_new
+        H_t, b_t, S_t = H[todo], b[todo], S[todo]
+        both = (S_t.unsqueeze(-1) & S_t.unsqueeze(-2)).to(H.dtype)
+        H_S = H_t * both + eye * (1.0 - S_t.to(H.dtype)).unsqueeze(-1)
+        f_t, info = torch.linalg.solve_ex(H_S, torch.where(S_t, -b_t, torch.zeros_like(b_t)))
+        # singular only for a state that has blown up (caps 1e9 m away): no force there
+        f_t = torch.where((info > 0).unsqueeze(-1), torch.zeros_like(f_t), f_t)
+        f = f.index_copy(0, todo, f_t)
+        w = (H_t @ f_t.unsqueeze(-1)).squeeze(-1) + b_t
+        S_new = mask[todo] & ((S_t & (f_t > 0)) | (~S_t & (w < 0)))
+        changed = (S_new != S_t).any(-1)
+        S = S.index_copy(0, todo, S_new)
+        todo = todo[changed]
     f = torch.where(mask, f.clamp_min(0.0), torch.zeros_like(f))
-    if settled:  # exact: f >= 0 on S, w >= 0 off S
-        return f
-    for i in range(H.shape[-1]):
+    if todo.numel() == 0:  # exact: f >= 0 on S, w >= 0 off S
+        return f.reshape(*batch, n)
+    for i in range(n):
         w_i = (H[..., i, :] * f).sum(-1) + b[..., i]
         new = (f[..., i] - w_i / H[..., i, i]).clamp_min(0.0)
-        f = torch.where(
-            (torch.arange(H.shape[-1], device=f.device) == i) & mask, new.unsqueeze(-1), f
-        )
-    return f
+        f = torch.where((torch.arange(n, device=f.device) == i) & mask, new.unsqueeze(-1), f)
+    return f.reshape(*batch, n)

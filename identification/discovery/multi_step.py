@@ -25,10 +25,7 @@ stays stable for stiff damping about a thin rod's own axis, and equals MuJoCo's
 free-joint damping.
 
 Slack cables are named by a segmented regression on the smoothed end caps
-(:mod:`identification.trajectory.slack_regression`: a stiffness change below each
-spring's rest length); the candidate, those springs as cables, is then fitted like
-the declared model, from that regression, and compared with the current model as any
-other.
+(:mod:`identification.discovery.slack_hypothesis`) and fitted from it.
 
 A rod's **roll** about its own axis is invisible to end caps, but box-form quadratic
 drag depends on it (``sees_roll``): once such an effect is accepted, the windows'
@@ -55,8 +52,6 @@ from identification.discovery.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     TrajFit,
-    airborne_keep,
-    contact_searched,
     fit_trajectory,
     fixed_engine,
     heldout,
@@ -68,23 +63,17 @@ from identification.discovery.end_cap_residuals import (
     summarize_window_residuals,
     window_residuals,
 )
-from identification.discovery.floor_fits import floor_rows
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
+from identification.discovery.slack_hypothesis import fit_slack, slack_hypothesis
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
-from identification.trajectory.slack_regression import (
-    CABLE_LOSS,
-    CABLE_SIGNIFICANCE,
-    slack_regression,
-)
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
-from tensegrity_env.effects import GroundContact, ImplicitLinearDrag, SlackSprings
-from tensegrity_env.effects.base import PhysicalEffect
+from tensegrity_env.effects import GroundContact, ImplicitLinearDrag
 from tensegrity_env.engine import State
 from tensegrity_env.params import Params
 
@@ -144,6 +133,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         self.start = start
         self.clean = clean
         self.contact = contact
+        self._tested: dict[int, tuple[TrajFit, tuple[float, int, Windows]]] = {}
 
     def begin(self, dataset: Dataset, log: Callable[[str], None]) -> Candidate[EndCapFits]:
         self.dataset, self.log = dataset, log
@@ -177,14 +167,19 @@ class MultiStepScorer(Scorer[EndCapFits]):
     def rollout_plot(
         self, before: Candidate[EndCapFits], after: Candidate[EndCapFits], path: Path
     ) -> Path:
-        return end_cap_rollout_plot(
-            self.data, before.fit.final, after.fit.final, self.settings.state_iter, path
-        )
+        fitted = (self.tested(before.fit.final)[2], self.tested(after.fit.final)[2])
+        return end_cap_rollout_plot(self.data, before.fit.final, after.fit.final, fitted, path)
+
+    def tested(self, fit: TrajFit) -> tuple[float, int, Windows]:
+        """:func:`heldout` of ``fit`` on the test split, fitted once per fit."""
+        if id(fit) not in self._tested:  # the fit is kept with its score: its id stays its own
+            self._tested[id(fit)] = (fit, heldout(self.data, fit, "test", self.settings.state_iter))
+        return self._tested[id(fit)][1]
 
     def test_errors(self, current: Candidate[EndCapFits]) -> dict[str, Any]:
         """Test-split errors: held-out end-cap RMS [m]; against the clean truth if given."""
         fit = current.fit.final
-        sse, m, _ = heldout(self.data, fit, "test", self.settings.state_iter)
+        sse, m, _ = self.tested(fit)
         out = {"caps_rms": float(np.sqrt(sse / m))}
         if self.clean is not None:
             topo = self.data.topology
@@ -201,7 +196,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         control = bool(np.any(data.train.control != 0))
         lag = "not yet available for end-cap-only data" if control else "no control in this data"
         gates: dict[str, Callable[[], Proposal]] = {
-            "slack_springs": lambda: self.slack_hypothesis(fit),
+            "slack_springs": lambda: slack_hypothesis(data, fit, self.settings.anchors),
             "rest_length_offset": lambda: Proposal(
                 "rest_length_offset", None, "rest lengths are fitted already"
             ),
@@ -215,34 +210,6 @@ class MultiStepScorer(Scorer[EndCapFits]):
         have = [e.name for e in fit.effects]
         return propose(data.train, data.topology, have, names, gates, again=("slack_springs",))
 
-    def slack_hypothesis(self, current: TrajFit) -> Proposal:
-        """Cables from the segmented regression (:mod:`identification.trajectory.slack_regression`).
-
-        The candidate holds every cable, old and new (None when no new one shows), and
-        starts from the regression's parameter values.
-        """
-        data = self.data
-        old = [e for e in current.effects if isinstance(e, SlackSprings)]
-        known = {int(i) for e in old for i in e.values["springs"].tolist()}
-        rows = {"rod_keep": floor_rows(data)} if data.on_floor else {"keep": airborne_keep(data)}
-        reg = slack_regression(data.topology, data.smooth["train"], data.train.control,
-                               self.settings.anchors, **rows)  # fmt: skip
-        new = sorted(set(reg.cables()) - known)
-        if not new:
-            free = [i for i in range(data.topology.n_springs) if i not in known]
-            z = reg.significance[free]
-            return Proposal("slack_springs", None,
-                            f"no (further) spring loses at least {CABLE_LOSS:.0%} of K when compressed "
-                            f"by {CABLE_SIGNIFICANCE:g} standard errors (largest significance "
-                            f"{z.max():.3g})")  # fmt: skip
-        cables = sorted(known | set(new))
-        loss = reg.loss[new]
-        gate = (f"{len(new)} {'more ' if known else ''}springs lose {np.median(loss):.0%} of K "
-                f"when compressed (segmented regression, ≥{reg.significance[new].min():.0f} "
-                f"standard errors)")  # fmt: skip
-        return Proposal("slack_springs", SlackSprings(data.topology, springs=cables), gate,
-                        start=reg.values)  # fmt: skip
-
     def fit_candidate(
         self, current: Candidate[EndCapFits], proposal: Proposal, drop: Sequence[str] = ()
     ) -> Candidate[EndCapFits]:
@@ -250,7 +217,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         assert proposal.effect is not None
         keep = [e for e in now.start_effects if e.name not in drop]
         if proposal.start is not None:
-            fit = self.fit_slack(now, proposal, keep)
+            fit = fit_slack(self.data, s, now, proposal, keep)
         elif self.data.on_floor:
             held = [e for e in now.effects if e.name not in drop]
             fit = screen_with(self.data, now, [*held, proposal.effect], s.candidate_iter)
@@ -259,25 +226,6 @@ class MultiStepScorer(Scorer[EndCapFits]):
         if fit_diverged(fit.rms, self.noise):
             raise CandidateSkipped(f"its fit diverged (end-cap RMS {fit.rms * 1e3:.3g} mm)")
         return self.score(proposal.name, EndCapFits(fit, fit))
-
-    def fit_slack(
-        self, current: TrajFit, proposal: Proposal, keep: Sequence[PhysicalEffect]
-    ) -> TrajFit:
-        """The cable hypothesis fitted like the declared model, from its own regression.
-
-        Started from the current model instead, a fit stays near the compromise the
-        springs made for the missing cables (lower stiffness, shorter rest length).
-        With a searched contact in the model (its parameters held) the usual joint fit
-        runs instead.
-        """
-        assert proposal.effect is not None
-        effects = [*keep, proposal.effect]
-        if contact_searched(current.vec):
-            return fit_with(self.data, current, effects, self.settings.candidate_iter)
-        many, fit = fit_declared(self.data, self.settings, effects=effects, values=proposal.start)
-        self.log(f"    {proposal.name}: fitted from the segmented regression, end-cap RMS "
-                 f"{many.rms * 1e3:.3f} mm on {many.windows.size} windows")  # fmt: skip
-        return fit
 
     def gain(self, candidate: Candidate[EndCapFits], current: Candidate[EndCapFits]) -> float:
         """Held-out chi-square removed: ``(SSE_val(current) - SSE_val) / σ̂²``."""
@@ -318,8 +266,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         """
         data, s = self.data, self.settings
         now = chosen.fit.fit
-        t1 = time.perf_counter()
         if data.on_floor:
+            t1 = time.perf_counter()
             final = fit_many(data, now.vec, now.theta, s, s.base_iter)
             sse, m, windows = heldout(data, final, "train", s.state_iter)
             fit = replace(final, windows=windows, sse=sse, m=m)

@@ -16,13 +16,12 @@ from identification.data.dataset import Dataset
 from identification.discovery.end_cap_data import (
     EndCapData,
     TrajFit,
-    heldout,
     predicted_caps,
 )
 from identification.discovery.library import FittedModel
 from identification.linear.extended import acting_split
 from identification.report.plots import plot_end_cap_rollouts
-from identification.trajectory.windows import STATE_KEYS, end_caps
+from identification.trajectory.windows import STATE_KEYS, Windows, end_caps
 from tensegrity_env.engine import Engine, State
 
 #: the two models of the figure, in panel order
@@ -58,15 +57,19 @@ def rod_state_rollout_plot(
 
 
 def end_cap_rollout_plot(
-    data: EndCapData, before: TrajFit, after: TrajFit, iters: int, path: Path
+    data: EndCapData,
+    before: TrajFit,
+    after: TrajFit,
+    fitted: tuple[Windows, Windows],
+    path: Path,
 ) -> Path:
     """The first test window against ``before`` and ``after``, each rolled out from the
-    initial state it fits to the window (``iters`` state iterations)."""
+    initial state it fits to the window (``fitted``: the test windows with the states
+    each fits, as :func:`~identification.discovery.end_cap_data.heldout` returns them)."""
     windows = data.windows["test"]
     models = {}
-    for label, fit in zip(LABELS, (before, after), strict=True):
-        _, _, fitted = heldout(data, fit, "test", iters)  # the window states it fits
-        models[label] = predicted_caps(data, fit, fitted)[0].numpy()
+    for label, fit, states in zip(LABELS, (before, after), fitted, strict=True):
+        models[label] = predicted_caps(data, fit, states)[0].numpy()
     names = [e.name for e in after.effects]
     title = (f"test window 0 ({windows.steps * data.dataset.dt:g} s), open loop from the state "
              f"each model fits to it ({', '.join(names) or 'nothing'} added)")  # fmt: skip

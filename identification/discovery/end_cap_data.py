@@ -197,6 +197,18 @@ class EndCapData:
         #: (:func:`~identification.trajectory.floor_fit.contact_box`; None: no limits)
         self.contact_box: dict[str, tuple[float, float]] | None = None
 
+    @property
+    def spin(self) -> bool:
+        """Whether the windows' states include each rod's axial spin.
+
+        On the floor (friction turns a rod about its axis), and once the rolls are
+        fitted: the spin turns the roll that such an effect sees (box-form quadratic
+        drag of a thin rod in free flight: 1.8 rad/s of axial spin, mean over the rods
+        of a measured-benchmark flight, set to zero moved the true model's 1-s rollout
+        by 49 mm).
+        """
+        return self.on_floor or self.roll
+
     def cut(
         self, name: str, steps: int, count: int, stream: int, airborne: bool = False
     ) -> Windows:
@@ -252,10 +264,11 @@ def fit_trajectory(
     each rod's axial spin (:mod:`identification.trajectory.floor_fit`).
     """
     roll = data.roll if roll is None else roll
-    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1, spin=data.on_floor,
-                      roll=roll)  # fmt: skip
+    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1,
+                      spin=data.on_floor or roll, roll=roll)  # fmt: skip
     m = fit.windows.residuals
-    rolls = windows.size * data.topology.n_rods if roll else 0  # state unknowns, not common
+    # state unknowns, not common: the rolls and (in flight) the spins that turn them
+    rolls = windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
                    extra_k=extra_k(data, vec) + rolls)  # fmt: skip
 
@@ -295,7 +308,7 @@ def hold_declared(vec: ParamVector) -> ParamVector:
 def heldout(data: EndCapData, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:
     """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
     engine, vec = fixed_engine(data, fit)
-    w = fit_states(engine, vec, data.windows[split], iters, spin=data.on_floor, roll=data.roll)
+    w = fit_states(engine, vec, data.windows[split], iters, spin=data.spin, roll=data.roll)
     m = w.windows.residuals
     return w.history[-1] * m, m, w.windows
 

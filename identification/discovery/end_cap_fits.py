@@ -162,13 +162,14 @@ def fit_many(
     engine = vec.engine(data.engine, theta.detach())
     fixed = held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
-    states = fit_states(engine, fixed, many, s.state_iter, spin=data.on_floor, roll=data.roll)
+    states = fit_states(engine, fixed, many, s.state_iter, spin=data.spin, roll=data.roll)
     fit = fit_trajectory(data, vec, states.windows, theta, iters)
     if sees_roll(engine) and not data.roll:
         # the rolls only matter once the effect is near its size: fitted from there
         t0 = time.perf_counter()
         engine = vec.engine(data.engine, fit.theta.detach())
-        states = fit_states(engine, held(vec, fit.theta), fit.windows, s.state_iter, roll=True)
+        states = fit_states(engine, held(vec, fit.theta), fit.windows, s.state_iter, spin=True,
+                            roll=True)  # fmt: skip
         fit = fit_trajectory(data, vec, states.windows, fit.theta, iters, roll=True)
         data.log(f"    rolls fitted too: end-cap RMS {fit.rms * 1e3:.3f} mm "
                  f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip

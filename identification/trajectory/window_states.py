@@ -56,13 +56,15 @@ def fit_states(
     error [m^2]).
     """
     empty = torch.zeros(0, dtype=torch.float64)
+    if roll and spin:
+        windows = replace(windows, state=rigid_spins(windows.state, vec.axes.axis))
+    if roll:
+        windows = search_rolls(engine, vec, windows, spin)
     for n in (g for g in GROW if g < windows.steps):
         w = fit_windows(engine, vec, prefix(windows, n), empty, iters, tol=0.01,
                         spin=spin and n >= 25 and not roll, roll=False)  # fmt: skip
         windows = replace(windows, state=w.windows.state)
     if roll:
-        if spin:
-            windows = replace(windows, state=rigid_spins(windows.state, vec.axes.axis))
         windows = search_rolls(engine, vec, windows, spin)
     return fit_windows(engine, vec, windows, empty, iters, tol=0.01, spin=spin, roll=roll)
 

@@ -19,7 +19,7 @@ from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import LinearDrag, QuadraticDrag
 from tensegrity_env.engine import Engine
 from tensegrity_env.engine.state import State
-from tensegrity_env.rotations import quat_mul
+from tensegrity_env.rotations import quat_mul, quat_to_matrix
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -70,3 +70,48 @@ def test_rolls_are_recovered_under_quadratic_drag() -> None:
         rms[roll] = float(np.sqrt(fit.history[-1]))
     assert rms[False] > 1e-3
     assert rms[True] < 1e-5
+
+
+def test_rolls_and_spins_of_a_tumbling_structure_are_recovered() -> None:
+    """Clean end caps of an icosahedron thrown tumbling at 3 rad/s (0.3 s, MuJoCo-sized
+    drag), every rod rolled at random: end caps show the rods' angular velocity across
+    their axes only. From the rolls of the nominal pose and no axial spin, a state fit
+    with rolls and spins (the spins started from the structure's common angular
+    velocity, the rolls searched) matches the end caps to below a micrometre; with the
+    spins held it cannot get below 0.1 mm."""
+    a = icosahedron()
+    topo = a.topology
+    vec = ParamVector.at(topo, a.params)
+    drag = QuadraticDrag(topo, translational=[1.44, 1.44, 0.04], rotational=[0.05, 0.05, 0.0])
+    engine = Engine(topo, 1e-3, effects=[drag])
+    rng = np.random.default_rng(11)
+    B, R, W = 2, topo.n_rods, 300
+    p = np.broadcast_to(a.pose_p, (B, R, 3)) + np.array([0.0, 0.0, 1.0])
+    tumble = rng.normal(size=(B, 1, 3))
+    tumble *= 3.0 / np.linalg.norm(tumble, axis=-1, keepdims=True)
+    v = rng.normal(0, 1.0, (B, 1, 3)) + np.cross(tumble, p - p.mean(1, keepdims=True))
+    q = np.broadcast_to(a.pose_q, (B, R, 4)).copy()
+    omega = np.broadcast_to(tumble, (B, R, 3)).copy()
+    axis = RodAxes.of(topo).axis
+    angle = torch.as_tensor(rng.uniform(0, np.pi, (B, R)))
+    half = torch.zeros(B, R, 4, dtype=torch.float64)
+    half[..., 0] = torch.cos(angle / 2)
+    for r in range(R):
+        half[:, r, 1 + axis[r]] = torch.sin(angle / 2)[:, r]
+    true = State.from_numpy(p, v, q, omega)
+    rolled = State(true.p, true.v, quat_mul(true.q, half), true.omega)
+    params = vec.params(vec.start)
+    truth = engine.rollout(rolled, params, W)
+    obs = end_caps(engine, truth.p, truth.q)
+    # what end caps show: the nominal rolls, each rod's angular velocity across its axis
+    rot = quat_to_matrix(true.q)
+    along = torch.stack([rot[:, r, :, int(axis[r])] for r in range(R)], 1)
+    across = true.omega - along * (along * true.omega).sum(-1, keepdim=True)
+    seen = State(true.p, true.v, true.q, across)
+    win = Windows(obs=obs, control=None, state=seen, traj=np.arange(B), start=np.zeros(B, int))
+    rms = {}
+    for spin in (False, True):
+        fit = fit_states(engine, vec, win, 20, spin=spin, roll=True)
+        rms[spin] = float(np.sqrt(fit.history[-1]))
+    assert rms[False] > 1e-4
+    assert rms[True] < 1e-6

@@ -152,9 +152,9 @@ def fit_many(
     quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to
     1.13 mm (1 mm noise), and the drag coefficients from 8 % to 1 % off. The rolls are
     fitted in a second pass, from the fit without them: from a small drag (0.058 of
-    1.44 after the candidate's 10 iterations) a joint fit stopped at 4.3 mm. (A third
-    pass with the axial spins went from 1.217 to 1.024 mm in one trial and from 1.130
-    to 1.461 mm in the loop: not used.) Selection's first fits leave the roll out: from
+    1.44 after the candidate's 10 iterations) a joint fit stopped at 4.3 mm. The second
+    pass fits each rod's axial spin too: it turns the roll the drag sees
+    (:mod:`identification.trajectory.window_states`). Selection's first fits leave the roll out: from
     zero drag its columns are zero, and the quadratic drag candidate then converged
     more slowly than the linear one. Once such an effect is accepted, every later fit
     and score fits the rolls (``data.roll``).

@@ -305,10 +305,18 @@ def hold_declared(vec: ParamVector) -> ParamVector:
     return replace(vec, free=torch.zeros_like(vec.free))
 
 
-def heldout(data: EndCapData, fit: TrajFit, split: str, iters: int) -> tuple[float, int, Windows]:
-    """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted."""
+def heldout(
+    data: EndCapData, fit: TrajFit, split: str, iters: int, warm: Windows | None = None
+) -> tuple[float, int, Windows]:
+    """Sum of squared end-cap errors [m^2] on a split's windows, only their states fitted.
+
+    The states start from smoothing, fitted on growing prefixes; ``warm``: from these
+    windows' states instead (fitted at a nearby model), on the whole windows at once.
+    """
     engine, vec = fixed_engine(data, fit)
-    w = fit_states(engine, vec, data.windows[split], iters, spin=data.spin, roll=data.roll)
+    start = data.windows[split] if warm is None else warm
+    w = fit_states(engine, vec, start, iters, spin=data.spin, roll=data.roll,
+                   grow=warm is None)  # fmt: skip
     m = w.windows.residuals
     return w.history[-1] * m, m, w.windows
 

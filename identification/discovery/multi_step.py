@@ -178,10 +178,20 @@ class MultiStepScorer(Scorer[EndCapFits]):
         return replace(fits, reference=fit_with(self.data, now, now.effects,
                                                 self.settings.candidate_iter))  # fmt: skip
 
-    def score(self, name: str, fits: EndCapFits) -> Candidate[EndCapFits]:
-        """Held-out (validation) end-cap errors of ``fits.scored``, states only fitted."""
+    def score(
+        self, name: str, fits: EndCapFits, near: EndCapFits | None = None
+    ) -> Candidate[EndCapFits]:
+        """Held-out (validation) end-cap errors of ``fits.scored``, states only fitted.
+
+        On the floor a candidate's states start from ``near``'s (the current model's)
+        fitted ones: refitted from smoothing, each model's windows stop in other basins
+        (the impacts make the error jump), which gave a candidate whose coefficients
+        stayed at 1e-6 (a copy of the current model) a held-out chi-square gain of 62 on
+        floor data with nothing planted (seed 0); from the current model's states, 0.002.
+        """
+        warm = near.val_windows if near is not None and self.data.on_floor else None
         fits.val_sse, fits.val_m, fits.val_windows = heldout(
-            self.data, fits.scored, "val", self.settings.state_iter
+            self.data, fits.scored, "val", self.settings.state_iter, warm
         )
         final, ds = fits.final, self.dataset
         return Candidate(
@@ -251,7 +261,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
             fit = fit_with(self.data, now, [*keep, proposal.effect], s.candidate_iter)
         if fit_diverged(fit.rms, self.noise):
             raise CandidateSkipped(f"its fit diverged (end-cap RMS {fit.rms * 1e3:.3g} mm)")
-        return self.score(proposal.name, EndCapFits(fit, fit))
+        return self.score(proposal.name, EndCapFits(fit, fit), current.fit)
 
     def gain(self, candidate: Candidate[EndCapFits], current: Candidate[EndCapFits]) -> float:
         """Held-out chi-square removed: ``(SSE_val(current) - SSE_val) / σ̂²``."""

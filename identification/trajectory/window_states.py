@@ -48,7 +48,7 @@ def prefix(windows: Windows, steps: int) -> Windows:
 
 def fit_states(
     engine: Engine, vec: ParamVector, windows: Windows, iters: int, spin: bool = False,
-    roll: bool = False,
+    roll: bool = False, grow: bool = True,
 ) -> WindowFit:  # fmt: skip
     """Only the windows' initial states (``vec``: nothing free), on growing prefixes.
 
@@ -56,15 +56,15 @@ def fit_states(
     roll about their axes (see :func:`~identification.trajectory.windows.local_basis`),
     searched and fitted on the whole window only, with the spins if ``spin`` (started
     from :func:`rigid_spins`).
-    Returns the fit on the whole windows (its ``history[-1]``: mean squared end-cap
-    error [m^2]).
+    ``grow=False``: no prefixes, for states already fitted at a nearby model. Returns
+    the fit on the whole windows (its ``history[-1]``: mean squared end-cap error [m^2]).
     """
     empty = torch.zeros(0, dtype=torch.float64)
     if roll and spin:
         windows = replace(windows, state=rigid_spins(windows.state, vec.axes.axis))
     if roll:
         windows = search_rolls(engine, vec, windows, spin)
-    for n in (g for g in GROW if g < windows.steps):
+    for n in (g for g in GROW if grow and g < windows.steps):
         w = fit_windows(engine, vec, prefix(windows, n), empty, iters, tol=0.01,
                         spin=spin and n >= 25 and not roll, roll=False)  # fmt: skip
         windows = replace(windows, state=w.windows.state)

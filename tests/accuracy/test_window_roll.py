@@ -15,7 +15,7 @@ from identification.data.end_caps import RodAxes
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windows import Windows, end_caps, local_basis, sees_roll
-from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.assemblies import Assembly, icosahedron
 from tensegrity_env.effects import LinearDrag, QuadraticDrag
 from tensegrity_env.engine import Engine
 from tensegrity_env.engine.state import State
@@ -37,15 +37,30 @@ def test_basis_gains_one_roll_per_rod_and_only_quadratic_drag_asks_for_it() -> N
     assert sees_roll(e.with_effects([QuadraticDrag(a.topology, translational=[1, 1, 0.1])]))
 
 
+def _quad_drag_engine() -> tuple[Assembly, ParamVector, Engine]:
+    """The icosahedron, its parameter vector at the nominal values and an engine with
+    MuJoCo-sized box drag (1 ms step)."""
+    a = icosahedron()
+    drag = QuadraticDrag(a.topology, translational=[1.44, 1.44, 0.04],
+                         rotational=[0.05, 0.05, 0.0])  # fmt: skip
+    return a, ParamVector.at(a.topology, a.params), Engine(a.topology, 1e-3, effects=[drag])
+
+
+def _rolled(q: torch.Tensor, angle: torch.Tensor, axis: np.ndarray) -> torch.Tensor:
+    """Orientations q (B, R, 4) turned by angle (B, R) [rad] about each rod's own axis."""
+    half = torch.zeros(*angle.shape, 4, dtype=torch.float64)
+    half[..., 0] = torch.cos(angle / 2)
+    for r in range(angle.shape[1]):
+        half[:, r, 1 + axis[r]] = torch.sin(angle / 2)[:, r]
+    return quat_mul(q, half)
+
+
 def test_rolls_are_recovered_under_quadratic_drag() -> None:
     """Clean end caps of rolled rods (0.3 s, MuJoCo-sized drag): a state fit with the
     rolls matches them to round-off (4e-16 m RMS measured), one without cannot get below
     a millimetre (1.14 mm)."""
-    a = icosahedron()
+    a, vec, engine = _quad_drag_engine()
     topo = a.topology
-    vec = ParamVector.at(topo, a.params)
-    drag = QuadraticDrag(topo, translational=[1.44, 1.44, 0.04], rotational=[0.05, 0.05, 0.0])
-    engine = Engine(topo, 1e-3, effects=[drag])
     rng = np.random.default_rng(7)
     B, R, W = 3, topo.n_rods, 300
     p = np.broadcast_to(a.pose_p, (B, R, 3)) + rng.normal(0, 0.01, (B, R, 3))
@@ -53,11 +68,7 @@ def test_rolls_are_recovered_under_quadratic_drag() -> None:
     plain = State.from_numpy(p, rng.normal(0, 2.0, (B, R, 3)), q, np.zeros((B, R, 3)))
     axis = RodAxes.of(topo).axis
     angle = torch.as_tensor(rng.uniform(0, np.pi / 2, (B, R)))
-    half = torch.zeros(B, R, 4, dtype=torch.float64)
-    half[..., 0] = torch.cos(angle / 2)
-    for r in range(R):
-        half[:, r, 1 + axis[r]] = torch.sin(angle / 2)[:, r]
-    rolled = State(plain.p, plain.v, quat_mul(plain.q, half), plain.omega)
+    rolled = State(plain.p, plain.v, _rolled(plain.q, angle, axis), plain.omega)
     params = vec.params(vec.start)
     truth = engine.rollout(rolled, params, W)
     obs = end_caps(engine, truth.p, truth.q)
@@ -79,11 +90,8 @@ def test_rolls_and_spins_of_a_tumbling_structure_are_recovered() -> None:
     with rolls and spins (the spins started from the structure's common angular
     velocity, the rolls searched) matches the end caps to below a micrometre; with the
     spins held it cannot get below 0.1 mm."""
-    a = icosahedron()
+    a, vec, engine = _quad_drag_engine()
     topo = a.topology
-    vec = ParamVector.at(topo, a.params)
-    drag = QuadraticDrag(topo, translational=[1.44, 1.44, 0.04], rotational=[0.05, 0.05, 0.0])
-    engine = Engine(topo, 1e-3, effects=[drag])
     rng = np.random.default_rng(11)
     B, R, W = 2, topo.n_rods, 300
     p = np.broadcast_to(a.pose_p, (B, R, 3)) + np.array([0.0, 0.0, 1.0])
@@ -94,12 +102,8 @@ def test_rolls_and_spins_of_a_tumbling_structure_are_recovered() -> None:
     omega = np.broadcast_to(tumble, (B, R, 3)).copy()
     axis = RodAxes.of(topo).axis
     angle = torch.as_tensor(rng.uniform(0, np.pi, (B, R)))
-    half = torch.zeros(B, R, 4, dtype=torch.float64)
-    half[..., 0] = torch.cos(angle / 2)
-    for r in range(R):
-        half[:, r, 1 + axis[r]] = torch.sin(angle / 2)[:, r]
     true = State.from_numpy(p, v, q, omega)
-    rolled = State(true.p, true.v, quat_mul(true.q, half), true.omega)
+    rolled = State(true.p, true.v, _rolled(true.q, angle, axis), true.omega)
     params = vec.params(vec.start)
     truth = engine.rollout(rolled, params, W)
     obs = end_caps(engine, truth.p, truth.q)

@@ -3,7 +3,9 @@
 A candidate (the current model plus one effect, fitted) is accepted only when
 
 1. its model lies in the physical domain (:func:`unphysical`: the checks a params file
-   must pass to load, e.g. drag coefficients >= 0), and it is not negligible: the force
+   must pass to load, e.g. drag coefficients >= 0), a drag it adds removes energy over
+   the data (:func:`~identification.discovery.negligible.added_power` < 0), and it is
+   not negligible: the force
    it adds on the rods is at least :data:`~identification.discovery.negligible.NEGLIGIBLE`
    of their weight (:func:`~identification.discovery.negligible.force_ratio`);
 2. it lowers the **Bayesian information criterion** of the training errors by at least
@@ -120,16 +122,22 @@ def judge(
     gain: float,
     criteria: Criteria,
     size: float = float("nan"),
+    power: float = float("nan"),
 ) -> None:
     """Accept or reject ``candidate`` against ``current`` (sets its verdict fields).
 
-    ``size``: the force the candidate adds, in rod weights (NaN: not checked).
+    ``size``: the force the candidate adds, in rod weights; ``power``: the mean power it
+    adds over the data [W] (NaN: not checked).
     """
     c = candidate
     c.gain, c.bic_drop, c.size = gain, current.bic - c.bic, size
     reason = unphysical(c.model, current.model)
+    drag = any(e.dissipative for e in c.model.effects if e.name == c.name)
     if reason:
         c.verdict = f"rejected: unphysical ({reason})"
+    elif drag and power > 0:
+        c.verdict = (f"rejected: unphysical ({c.name} adds {power:.3g} W over the data; "
+                     "drag only removes energy)")  # fmt: skip
     elif size < NEGLIGIBLE:
         c.verdict = (
             f"negligible: its force on the rods is {size:.2%} of their weight (< {NEGLIGIBLE:.1%})"

@@ -47,7 +47,7 @@ from identification.discovery.judge import (
     unphysical,
 )
 from identification.discovery.library import FittedModel, Proposal
-from identification.discovery.negligible import force_ratio
+from identification.discovery.negligible import added_power, force_ratio
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
 from identification.linear.regression import NotFittedError
@@ -282,10 +282,14 @@ class EffectDiscovery:
                 "since (see EffectDiscovery.settled)")  # fmt: skip
 
     def judged(self, c: Candidate[Any], current: Candidate[Any], states: State | None) -> None:
-        """Judge ``c`` against ``current`` (its force measured on ``states``), rank, log."""
+        """Judge ``c`` against ``current`` (its force and power measured on ``states``),
+        rank, log."""
         scorer, log = self.scorer, self.log
-        size = math.nan if states is None else force_ratio(c.model, current.model, states)
-        judge(c, current, scorer.gain(c, current), scorer.criteria, size)
+        size = power = math.nan
+        if states is not None:
+            size = force_ratio(c.model, current.model, states)
+            power = added_power(c.model, current.model, states)
+        judge(c, current, scorer.gain(c, current), scorer.criteria, size, power)
         c.rank = scorer.rank(c)
         log("    " + "; ".join(e.describe() for e in c.model.effects))
         log(f"  candidate {c.name:20s} {scorer.summary(c)}, gain "

@@ -7,7 +7,8 @@ what a candidate changes in the forces on the rods over sampled states of the da
 per rod and sample ``|ΔF| + |Δτ| / (L/2)`` (the torque as a force at the rod's end),
 its RMS divided by the rod's weight ``M |g|``. A candidate below :data:`NEGLIGIBLE`
 is reported as negligible and not added
-(:func:`~identification.discovery.judge.judge`).
+(:func:`~identification.discovery.judge.judge`). :func:`added_power` is the energy it
+adds per second: a drag that adds energy is not drag.
 """
 
 from __future__ import annotations
@@ -24,12 +25,36 @@ from tensegrity_env.engine import PHYSICS_DT, Engine, State
 NEGLIGIBLE = 1e-3
 
 
+def added_forces(
+    candidate: FittedModel, current: FittedModel, states: State
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """What ``candidate`` changes in the forces on the rods at ``states``.
+
+    Both models are evaluated with the candidate's declared parameters, so only the
+    effects differ.
+
+    Returns:
+        ΔF (B, R, 3) [N] in the world frame, Δτ (B, R, 3) [N*m] and ω (B, R, 3) [rad/s],
+        both in each rod's frame.
+    """
+    topo, params = candidate.model.topology, candidate.params
+    with torch.no_grad():
+        out = []
+        for effects in (candidate.effects, current.effects):
+            engine = Engine(topo, PHYSICS_DT, effects, dtype=states.p.dtype)
+            out.append(engine.accelerations(states, params))
+        mass = params.mass.to(states.p)
+        inertia = params.inertia.to(states.p)
+        # the same state and parameters: the gyroscopic terms cancel in the difference
+        return (mass[:, None] * (out[0][0] - out[1][0]), inertia * (out[0][1] - out[1][1]),
+                out[0][2])  # fmt: skip
+
+
 def force_ratio(candidate: FittedModel, current: FittedModel, states: State) -> float:
     """RMS force ``candidate`` adds over ``current`` at ``states``, in rod weights.
 
-    Both models are evaluated with the candidate's declared parameters, so only the
-    effects differ. NaN where that cannot be measured without the commands (a control
-    lag acts on the commands only).
+    NaN where that cannot be measured without the commands (a control lag acts on the
+    commands only).
 
     Args:
         candidate: the current model plus one effect, fitted.
@@ -38,22 +63,30 @@ def force_ratio(candidate: FittedModel, current: FittedModel, states: State) -> 
     """
     if any(isinstance(e, ControlLag) for e in candidate.effects):
         return math.nan
-    topo, params = candidate.model.topology, candidate.params
-    with torch.no_grad():
-        out = []
-        for effects in (candidate.effects, current.effects):
-            engine = Engine(topo, PHYSICS_DT, effects, dtype=states.p.dtype)
-            a, alpha_l, _ = engine.accelerations(states, params)
-            out.append((a, alpha_l))
-        mass = params.mass.to(states.p)
-        inertia = params.inertia.to(states.p)
-        half = torch.tensor([r.length / 2 for r in topo.rods], dtype=states.p.dtype)
-        d_force = mass[:, None] * (out[0][0] - out[1][0])
-        d_torque = inertia * (out[0][1] - out[1][1])
-        size = d_force.norm(dim=-1) + d_torque.norm(dim=-1) / half
-        weight = mass * params.gravity.to(states.p).norm()
-        ratio = size / weight
-        ratio = ratio[torch.isfinite(ratio)]
+    params, topo = candidate.params, candidate.model.topology
+    d_force, d_torque, _ = added_forces(candidate, current, states)
+    half = torch.tensor([r.length / 2 for r in topo.rods], dtype=states.p.dtype)
+    size = d_force.norm(dim=-1) + d_torque.norm(dim=-1) / half
+    weight = params.mass.to(states.p) * params.gravity.to(states.p).norm()
+    ratio = size / weight
+    ratio = ratio[torch.isfinite(ratio)]
     if ratio.numel() == 0:
         return math.nan
     return float(ratio.pow(2).mean().sqrt())
+
+
+def added_power(candidate: FittedModel, current: FittedModel, states: State) -> float:
+    """Mean power [W] that ``candidate``'s forces add over ``current``'s at ``states``
+    (all rods, ``ΔF·v + Δτ·ω``); NaN where it cannot be measured (as :func:`force_ratio`).
+
+    A drag (:attr:`~tensegrity_env.effects.base.PhysicalEffect.dissipative`) removes
+    energy: a fitted one that adds it compensates for something else (a declared model
+    or contact a little too dissipative), even when each coefficient is within its
+    standard errors of zero.
+    """
+    if any(isinstance(e, ControlLag) for e in candidate.effects):
+        return math.nan
+    d_force, d_torque, omega_l = added_forces(candidate, current, states)
+    power = (d_force * states.v).sum((-1, -2)) + (d_torque * omega_l).sum((-1, -2))
+    power = power[torch.isfinite(power)]
+    return float(power.mean()) if power.numel() else math.nan

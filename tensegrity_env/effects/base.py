@@ -77,6 +77,9 @@ class PhysicalEffect(EffectBase):
     #: whether the effect depends on each rod's roll about its own axis (which end caps
     #: cannot see); fits through end caps then fit each window's roll too
     sees_roll: ClassVar[bool] = False
+    #: whether the effect can only remove energy from the rods (drag): a fit in which it
+    #: adds energy over the data is unphysical, whatever its standard errors
+    dissipative: ClassVar[bool] = False
 
     def __init__(
         self,

@@ -52,6 +52,7 @@ def _axis_basis(rot: torch.Tensor, rate_local: torch.Tensor, quadratic: bool) ->
 
 class _Drag(LinearEffect):
     quadratic: ClassVar[bool] = False
+    dissipative: ClassVar[bool] = True
 
     def basis(
         self, state: State, kin: Kinematics, params: Params

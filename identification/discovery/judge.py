@@ -3,9 +3,9 @@
 A candidate (the current model plus one effect, fitted) is accepted only when
 
 1. its model lies in the physical domain (:func:`unphysical`: the checks a params file
-   must pass to load, e.g. drag coefficients >= 0), a drag it adds removes energy over
-   the data (:func:`~identification.discovery.negligible.added_power` < 0), and it is
-   not negligible: the force
+   must pass to load, e.g. drag coefficients >= 0), each part of a drag it adds removes
+   energy over the data (:func:`~identification.discovery.negligible.group_power`), and
+   it is not negligible: the force
    it adds on the rods is at least :data:`~identification.discovery.negligible.NEGLIGIBLE`
    of their weight (:func:`~identification.discovery.negligible.force_ratio`);
 2. it lowers the **Bayesian information criterion** of the training errors by at least
@@ -25,6 +25,7 @@ separation (a factor :data:`AMBIGUOUS_RATIO` of one-step errors, or
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
@@ -122,22 +123,24 @@ def judge(
     gain: float,
     criteria: Criteria,
     size: float = float("nan"),
-    power: float = float("nan"),
+    power: Mapping[str, float] | None = None,
 ) -> None:
     """Accept or reject ``candidate`` against ``current`` (sets its verdict fields).
 
-    ``size``: the force the candidate adds, in rod weights; ``power``: the mean power it
-    adds over the data [W] (NaN: not checked).
+    ``size``: the force the candidate adds, in rod weights (NaN: not checked);
+    ``power``: the mean power [W] each part of the drag it adds puts in over the data
+    (:func:`~identification.discovery.negligible.group_power`; None: not a drag).
     """
     c = candidate
     c.gain, c.bic_drop, c.size = gain, current.bic - c.bic, size
     reason = unphysical(c.model, current.model)
-    drag = any(e.dissipative for e in c.model.effects if e.name == c.name)
+    adding = {k: p for k, p in (power or {}).items() if p > 0}
     if reason:
         c.verdict = f"rejected: unphysical ({reason})"
-    elif drag and power > 0:
-        c.verdict = (f"rejected: unphysical ({c.name} adds {power:.3g} W over the data; "
-                     "drag only removes energy)")  # fmt: skip
+    elif adding:
+        key, p = next(iter(adding.items()))
+        c.verdict = (f"rejected: unphysical ({c.name}: its {key} part adds {p:.3g} W over "
+                     "the data; drag only removes energy)")  # fmt: skip
     elif size < NEGLIGIBLE:
         c.verdict = (
             f"negligible: its force on the rods is {size:.2%} of their weight (< {NEGLIGIBLE:.1%})"

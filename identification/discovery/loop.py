@@ -47,7 +47,7 @@ from identification.discovery.judge import (
     unphysical,
 )
 from identification.discovery.library import FittedModel, Proposal
-from identification.discovery.negligible import added_power, force_ratio
+from identification.discovery.negligible import force_ratio, group_power
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
 from identification.linear.regression import NotFittedError
@@ -285,10 +285,12 @@ class EffectDiscovery:
         """Judge ``c`` against ``current`` (its force and power measured on ``states``),
         rank, log."""
         scorer, log = self.scorer, self.log
-        size = power = math.nan
+        size, power = math.nan, None
+        drag = next((e for e in c.model.effects if e.name == c.name and e.dissipative), None)
         if states is not None:
             size = force_ratio(c.model, current.model, states)
-            power = added_power(c.model, current.model, states)
+            if drag is not None:
+                power = group_power(drag, c.model.params, states)
         judge(c, current, scorer.gain(c, current), scorer.criteria, size, power)
         c.rank = scorer.rank(c)
         log("    " + "; ".join(e.describe() for e in c.model.effects))

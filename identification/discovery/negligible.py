@@ -7,41 +7,46 @@ what a candidate changes in the forces on the rods over sampled states of the da
 per rod and sample ``|ΔF| + |Δτ| / (L/2)`` (the torque as a force at the rod's end),
 its RMS divided by the rod's weight ``M |g|``. A candidate below :data:`NEGLIGIBLE`
 is reported as negligible and not added
-(:func:`~identification.discovery.judge.judge`). :func:`added_power` is the energy it
-adds per second: a drag that adds energy is not drag.
+(:func:`~identification.discovery.judge.judge`). :func:`group_power` is the energy a
+part of an effect adds per second: a drag that adds energy is not drag.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 
 from identification.discovery.library import FittedModel
 from tensegrity_env.effects import ControlLag
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT, Engine, State
+from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
 
 #: an effect whose forces on the rods are below this fraction of their weight is negligible
 NEGLIGIBLE = 1e-3
 
 
-def added_forces(
-    candidate: FittedModel, current: FittedModel, states: State
+def force_change(
+    topology: Topology,
+    params: Params,
+    effects: Sequence[PhysicalEffect],
+    reference: Sequence[PhysicalEffect],
+    states: State,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """What ``candidate`` changes in the forces on the rods at ``states``.
-
-    Both models are evaluated with the candidate's declared parameters, so only the
-    effects differ.
+    """What ``effects`` change in the forces on the rods against ``reference`` at
+    ``states``, both with the same declared ``params``.
 
     Returns:
         ΔF (B, R, 3) [N] in the world frame, Δτ (B, R, 3) [N*m] and ω (B, R, 3) [rad/s],
         both in each rod's frame.
     """
-    topo, params = candidate.model.topology, candidate.params
     with torch.no_grad():
         out = []
-        for effects in (candidate.effects, current.effects):
-            engine = Engine(topo, PHYSICS_DT, effects, dtype=states.p.dtype)
+        for fx in (effects, reference):
+            engine = Engine(topology, PHYSICS_DT, list(fx), dtype=states.p.dtype)
             out.append(engine.accelerations(states, params))
         mass = params.mass.to(states.p)
         inertia = params.inertia.to(states.p)
@@ -64,7 +69,7 @@ def force_ratio(candidate: FittedModel, current: FittedModel, states: State) -> 
     if any(isinstance(e, ControlLag) for e in candidate.effects):
         return math.nan
     params, topo = candidate.params, candidate.model.topology
-    d_force, d_torque, _ = added_forces(candidate, current, states)
+    d_force, d_torque, _ = force_change(topo, params, candidate.effects, current.effects, states)
     half = torch.tensor([r.length / 2 for r in topo.rods], dtype=states.p.dtype)
     size = d_force.norm(dim=-1) + d_torque.norm(dim=-1) / half
     weight = params.mass.to(states.p) * params.gravity.to(states.p).norm()
@@ -75,18 +80,23 @@ def force_ratio(candidate: FittedModel, current: FittedModel, states: State) -> 
     return float(ratio.pow(2).mean().sqrt())
 
 
-def added_power(candidate: FittedModel, current: FittedModel, states: State) -> float:
-    """Mean power [W] that ``candidate``'s forces add over ``current``'s at ``states``
-    (all rods, ``ΔF·v + Δτ·ω``); NaN where it cannot be measured (as :func:`force_ratio`).
+def group_power(effect: PhysicalEffect, params: Params, states: State) -> dict[str, float]:
+    """Mean power [W] that each parameter group of ``effect`` adds on its own at
+    ``states`` (all rods, ``ΔF·v + Δτ·ω``, the group's values kept and the others at
+    zero); NaN where not finite.
 
     A drag (:attr:`~tensegrity_env.effects.base.PhysicalEffect.dissipative`) removes
-    energy: a fitted one that adds it compensates for something else (a declared model
-    or contact a little too dissipative), even when each coefficient is within its
-    standard errors of zero.
+    energy through its translational and its rotational part alike: a fitted one whose
+    part adds energy compensates for something else (a declared model or contact a
+    little too dissipative), even when each coefficient is within its standard errors of
+    zero and the other part removes more.
     """
-    if any(isinstance(e, ControlLag) for e in candidate.effects):
-        return math.nan
-    d_force, d_torque, omega_l = added_forces(candidate, current, states)
-    power = (d_force * states.v).sum((-1, -2)) + (d_torque * omega_l).sum((-1, -2))
-    power = power[torch.isfinite(power)]
-    return float(power.mean()) if power.numel() else math.nan
+    out = {}
+    for key in effect.PARAMS:
+        alone = type(effect)(effect.topology, validate=False, **{
+            k: v if k == key else torch.zeros_like(v) for k, v in effect.values.items()})  # fmt: skip
+        d_force, d_torque, omega_l = force_change(effect.topology, params, [alone], [], states)
+        power = (d_force * states.v).sum((-1, -2)) + (d_torque * omega_l).sum((-1, -2))
+        power = power[torch.isfinite(power)]
+        out[key] = float(power.mean()) if power.numel() else math.nan
+    return out

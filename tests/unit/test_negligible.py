@@ -10,7 +10,7 @@ import torch
 
 from identification.discovery import FittedModel
 from identification.discovery.judge import ONE_STEP, Candidate, judge
-from identification.discovery.negligible import NEGLIGIBLE, added_power, force_ratio
+from identification.discovery.negligible import NEGLIGIBLE, force_ratio, group_power
 from tensegrity_env import assemblies
 from tensegrity_env.effects import ControlLag, ForceField, LinearDrag
 from tensegrity_env.engine import State
@@ -62,38 +62,35 @@ def test_judge_reports_a_negligible_effect_and_rejects_it() -> None:
 
 
 def test_isotropic_drag_removes_b_v_squared() -> None:
-    """Linear drag b on every axis, none on rotation: the power it adds is -b |v|^2 per
-    rod, summed over the rods, mean over the states."""
+    """Linear drag b on every axis: the power its translational part adds is -b |v|^2 per
+    rod, summed over the rods, mean over the states; its rotational part removes too."""
     states = _states()
-    drag = LinearDrag(ICO.topology, translational=[0.3, 0.3, 0.3], rotational=[0, 0, 0])
-    power = added_power(_model([drag]), _model(), states)
+    drag = LinearDrag(ICO.topology, translational=[0.3, 0.3, 0.3], rotational=[0.01, 0.01, 0.01])
+    power = group_power(drag, ICO.params, states)
     expected = -0.3 * float(states.v.double().pow(2).sum((-1, -2)).mean())
-    assert power == pytest.approx(expected, rel=1e-9)
-    spin = LinearDrag(ICO.topology, translational=[0, 0, 0], rotational=[0.01, 0.01, 0.01])
-    assert added_power(_model([spin]), _model(), states) < 0
+    assert power["translational"] == pytest.approx(expected, rel=1e-9)
+    assert power["rotational"] < 0
 
 
-def test_judge_rejects_drag_that_adds_energy_even_within_its_standard_errors() -> None:
-    """A fitted drag of -0.1 N*s/m ± 0.05 passes the params file's sign check (within 3
-    standard errors of 0) but adds energy over the data: not drag."""
+def test_judge_rejects_a_drag_part_that_adds_energy_even_within_its_standard_errors() -> None:
+    """Translational drag of about -0.1 N*s/m ± 0.05 beside a positive rotational one
+    passes the params file's sign check (within 3 standard errors of 0) and may remove
+    energy as a whole, but its translational part adds energy: not drag."""
     se = {"translational": [0.05, 0.05, 0.05], "rotational": [0.05, 0.05, 0.05]}
-    values = {"translational": [-0.1, -0.04, -0.09], "rotational": [0.0, 0.0, 0.0]}
-    pushing = _model([LinearDrag(ICO.topology, uncertainty=se, **values)])
+    values = {"translational": [-0.1, -0.04, -0.09], "rotational": [0.5, 0.5, 0.0]}
+    drag = LinearDrag(ICO.topology, uncertainty=se, **values)
+    pushing = _model([drag])
     assert pushing.model.violation() == ""
     states, current = _states(), Candidate("nothing", None, _model(), bic=0.0)
-    power = added_power(pushing, _model(), states)
-    assert power > 0
+    power = group_power(drag, ICO.params, states)
+    assert power["translational"] > 0 > power["rotational"]
+    assert sum(power.values()) < 0  # as a whole it removes energy
     c = Candidate("linear_drag", None, pushing, bic=-100.0)
     judge(c, current, 30.0, ONE_STEP, size=0.02, power=power)
     assert not c.accepted
-    assert c.verdict.startswith("rejected: unphysical (linear_drag adds")
-    resisting = _model([LinearDrag(ICO.topology, translational=[0.1, 0.04, 0.09],
-                                   rotational=[0, 0, 0])])  # fmt: skip
-    ok = Candidate("linear_drag", None, resisting, bic=-100.0)
+    assert c.verdict.startswith("rejected: unphysical (linear_drag: its translational part adds")
+    resisting = LinearDrag(ICO.topology, translational=[0.1, 0.04, 0.09], rotational=[0, 0, 0])
+    ok = Candidate("linear_drag", None, _model([resisting]), bic=-100.0)
     judge(ok, current, 30.0, ONE_STEP, size=0.02,
-          power=added_power(resisting, _model(), states))  # fmt: skip
+          power=group_power(resisting, ICO.params, states))  # fmt: skip
     assert ok.accepted
-    field = _model([ForceField(ICO.topology, force=torch.tensor([0.3, 0.0, 0.4]))])
-    f = Candidate("force_field", None, field, bic=-100.0)
-    judge(f, current, 30.0, ONE_STEP, size=0.02, power=1.0)  # not a drag: no sign of power
-    assert f.accepted

@@ -29,6 +29,7 @@ it. Default: the 120 Hz / 1 mm / no-dropout cells of both settings, seed 0.
     python benchmarks/bench_measured.py --settings flight --effects none --seeds 10 --identify-only
     python benchmarks/bench_measured.py --report-only                           # rewrite the .md
     python benchmarks/bench_measured.py --settings floor --seeds 2 --effects none --reference-only
+    python benchmarks/bench_measured.py --settings floor --rescore --workdir DIR   # kept cells
 """
 
 from __future__ import annotations
@@ -56,6 +57,8 @@ from measured_plant import (
     RATES,
     SETTINGS,
     Cell,
+    CellData,
+    true_model,
     write_cell,
 )
 from measured_report import evaluate_cell, selection, write_markdown
@@ -160,6 +163,23 @@ def add_references(args: argparse.Namespace, results: dict[str, Any]) -> None:
             atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
 
 
+def rescore(args: argparse.Namespace, results: dict[str, Any]) -> None:
+    """Score again the selected cells recorded in ``results`` whose files are kept in
+    ``--workdir`` (``measured.h5``, ``clean.h5``, ``identify.json``,
+    ``diagnose/params.json``): the command records stay, the scores are replaced."""
+    if args.workdir is None:
+        raise SystemExit("error: --rescore needs --workdir, the folder of a run's kept cells")
+    for cell in matrix(args):
+        rec = results["cells"].get(cell.label)
+        folder = args.workdir / cell.label.replace("/", "_")
+        if rec is None or not (folder / "clean.h5").is_file():
+            continue
+        print(f"{cell.label}: scored again from {folder}", flush=True)
+        data = CellData(folder / "measured.h5", folder / "clean.h5", true_model(cell), cell)
+        rec.update(evaluate_cell(data, folder / "identify.json", folder / "diagnose/params.json"))
+        atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--settings", help=f"comma-separated of {','.join(SETTINGS)} (default both)")
@@ -181,6 +201,9 @@ def main() -> int:
     ap.add_argument("--reference-only", action="store_true",
                     help="only measure the floor checks of models within the targets for the "
                          "selected floor cells already in --json (no identify or diagnose)")  # fmt: skip
+    ap.add_argument("--rescore", action="store_true",
+                    help="only score again the selected cells in --json from the files a run "
+                         "kept in --workdir (no identify or diagnose)")  # fmt: skip
     args = ap.parse_args()
     if not args.all:
         args.settings = args.settings or ",".join(SETTINGS)
@@ -191,6 +214,8 @@ def main() -> int:
         results = json.loads(args.json.read_text())
     if args.reference_only:
         add_references(args, results)
+    elif args.rescore:
+        rescore(args, results)
     elif not args.report_only:
         work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_measured_"))
         extra = None if args.identify_only else shlex.split(args.diagnose_args)

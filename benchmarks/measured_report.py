@@ -12,6 +12,7 @@ import json
 import math
 import re
 import shlex
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +29,14 @@ from tensegrity_env.effects import effects_from_document
 from tensegrity_env.engine.state import State
 from tensegrity_env.engine.step import Engine
 from tensegrity_env.io_utils import InputError, atomic_write_text
+from tensegrity_env.mjcf import from_mjcf
+from tensegrity_env.mjcf_checks import FEATURES, IgnoredFeatureWarning
 from tensegrity_env.params import params_from_dict
 from tensegrity_env.rotations import quat_to_matrix
 
 GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
+#: the ground contact's parameters scored by relative error (the floor height: by distance)
+CONTACT_KEYS = ("stiffness", "damping", "impedance", "friction")
 #: the selection windows of cells that did not record theirs (``diagnose``'s default then)
 OLD_SELECTION = {"window_s": 0.1, "windows": 8}
 HORIZON = 1.0
@@ -63,6 +68,30 @@ def relative_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) ->
     for g in GROUPS:
         e = np.abs(np.asarray(est[g], float) / truth[g] - 1.0).ravel()
         out[g] = {"max": float(np.max(e)), "median": float(np.median(e))}
+    return out
+
+
+def true_contact(data: CellData) -> dict[str, float]:
+    """The plant's floor contact as :class:`~tensegrity_env.effects.GroundContact`
+    parameters: read from its MJCF by :func:`~tensegrity_env.mjcf.from_mjcf` (MuJoCo's
+    ``solref``/``solimp`` mapped as the engine reproduces them), the floor at ``z = 0``.
+    The planted features (fluid drag, joint damping, ...) are ignored: only the contact
+    is read here."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IgnoredFeatureWarning)
+        asm = from_mjcf("<plant>", xml=data.truth.xml, ignore=tuple(FEATURES))
+    return {**asm.contact, "height": 0.0}
+
+
+def contact_errors(doc: dict[str, Any], truth: dict[str, float]) -> dict[str, float] | None:
+    """|relative error| of the params file's ground contact per :data:`CONTACT_KEYS`, and
+    ``height_mm``, the floor height's distance from the truth [mm]; None without contact."""
+    found = [e for e in doc.get("effects", []) if e.get("name") == "ground_contact"]
+    if not found:
+        return None
+    p = found[0]["params"]
+    out = {k: float(abs(float(p[k]) / truth[k] - 1.0)) for k in CONTACT_KEYS}
+    out["height_mm"] = float(abs(float(p["height"]) - truth["height"]) * 1e3)
     return out
 
 
@@ -157,6 +186,7 @@ def score_params(data: CellData, path: Path) -> dict[str, Any]:
     checks = {"rollout": rollout_error}
     if data.cell.setting == "floor":
         checks["drop"] = drop_error
+        out["contact"] = contact_errors(doc, true_contact(data))
     for key, check in checks.items():
         try:
             out[key] = check(data, doc, path)
@@ -251,6 +281,29 @@ def floor_section(cells: dict[str, Any]) -> list[str]:
                          f"| {_mm(ref['rolling_median'])} | - | {_mm(ref['drop_median'])} "
                          f"| {ref['drop_passes']} of {ref['models']} |")  # fmt: skip
     return lines
+
+
+def contact_section(cells: dict[str, Any]) -> list[str]:
+    """The floor cells' ground-contact parameters against the plant's (``contact``)."""
+    rows = []
+    for label, r in sorted(cells.items()):
+        for k, model in (("before", "identify"), ("after", "diagnose")):
+            c = r.get(k, {}).get("contact")
+            if c:
+                rows.append(f"| {label} | {model} | "
+                            + " | ".join(f"{100 * c[key]:.3g}" for key in CONTACT_KEYS)
+                            + f" | {c['height_mm']:.3g} |")  # fmt: skip
+    if not rows:
+        return []
+    head = " | ".join(f"{key} [%]" for key in CONTACT_KEYS)
+    return ["", "## Contact parameters", "",
+            "The identified ground contact against the plant's (MuJoCo's default soft contact "
+            "read from the plant's MJCF as the engine's parameters: stiffness and damping per "
+            "unit effective mass, impedance, friction; the floor at z = 0): |relative error| "
+            "[%], and the floor height's distance [mm]. Cells scored before the contact was "
+            "recorded are not listed; `--rescore --workdir DIR` scores kept cells again.", "",
+            f"| cell | model | {head} | height [mm] |",
+            "| --- | --- | " + "--- | " * len(CONTACT_KEYS) + "--- |", *rows]  # fmt: skip
 
 
 def selection(diagnose_args: str) -> dict[str, float]:
@@ -414,6 +467,7 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
     ]  # fmt: skip
     lines += diagnosis_rows(cells, default=False)
     lines += floor_section(cells)
+    lines += contact_section(cells)
     lines += coverage_section(cells)
     lines += matrix_section(cells)
     lines += ["", "## Every cell run", ""]

@@ -1,4 +1,5 @@
-"""The measured benchmark's table: each diagnosis shows the selection windows it ran with."""
+"""The measured benchmark's table: each diagnosis shows the selection windows it ran with;
+the floor cells' contact is scored against the plant's."""
 
 from __future__ import annotations
 
@@ -9,8 +10,17 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
-from measured_plant import PLANT_VERSION
-from measured_report import OLD_SELECTION, marks, matrix_section, selection, write_markdown
+from measured_plant import FRICTION, PLANT_VERSION, Cell, CellData, true_model
+from measured_report import (
+    OLD_SELECTION,
+    contact_errors,
+    contact_section,
+    marks,
+    matrix_section,
+    selection,
+    true_contact,
+    write_markdown,
+)
 
 from identification.commands.diagnose import WINDOW_S, WINDOWS
 
@@ -73,3 +83,29 @@ def test_diagnosed_cells_off_the_committed_rate_get_their_own_table(tmp_path):
     other = other.split("## ")[0]
     assert "| flight/240Hz/1mm/drop0%/force_field/seed0 | - | nothing |" in other
     assert "| flight | force_field" not in other
+
+
+def test_contact_is_scored_against_the_plants_mujoco_contact(tmp_path):
+    cell = Cell("floor", 120.0, 1e-3, 0.0, "linear_drag", 0)
+    data = CellData(tmp_path / "m.h5", tmp_path / "c.h5", true_model(cell), cell)
+    truth = true_contact(data)
+    # MuJoCo's default soft contact (solref 0.02 1, solimp 0.9 0.95 0.001) at a 0.93 ms step
+    # (refsafe leaves tc = 0.02 s): K = 1/(dmax tc)^2, B = 2/(dmax tc), per unit mass
+    assert truth["stiffness"] == pytest.approx(1 / (0.95 * 0.02) ** 2)
+    assert truth["damping"] == pytest.approx(2 / (0.95 * 0.02))
+    assert truth["impedance"] == pytest.approx(0.95)
+    assert truth["friction"] == pytest.approx(FRICTION) and truth["height"] == 0.0
+    fitted = {**truth, "stiffness": 1.1 * truth["stiffness"], "friction": 0.8 * FRICTION,
+              "height": -0.002}  # fmt: skip
+    doc = {"effects": [{"name": "linear_drag", "params": {}},
+                       {"name": "ground_contact", "params": fitted}]}  # fmt: skip
+    errors = contact_errors(doc, truth)
+    assert errors is not None
+    assert errors["stiffness"] == pytest.approx(0.1) and errors["friction"] == pytest.approx(0.2)
+    assert errors["damping"] == errors["impedance"] == 0.0
+    assert errors["height_mm"] == pytest.approx(2.0)
+    assert contact_errors({"effects": []}, truth) is None
+    rec = _record("linear_drag", "")
+    rec["after"] = {"contact": errors}
+    row = next(ln for ln in contact_section({"floor/x": rec}) if ln.startswith("| floor/x "))
+    assert row.endswith("| diagnose | 10 | 0 | 0 | 20 | 2 |")

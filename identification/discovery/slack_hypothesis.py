@@ -135,8 +135,8 @@ def fit_slack(
     proposal: Proposal,
     keep: Sequence[PhysicalEffect],
 ) -> TrajFit:
-    """The cable hypothesis (``proposal``, with ``keep``) fitted like the declared model,
-    from its own regression; returns the fit on the training windows.
+    """The cable hypothesis (``proposal``, with ``keep`` but its cables) fitted like the
+    declared model, from its own regression; returns the fit on the training windows.
 
     Started from the current model instead, a fit stays near the compromise the
     springs made for the missing cables (lower stiffness, shorter rest length).
@@ -144,7 +144,9 @@ def fit_slack(
     runs instead.
     """
     assert proposal.effect is not None
-    effects = [*keep, proposal.effect]
+    # the proposal holds every cable, old and new: the current cables' effect is replaced
+    # (kept beside it, the push of a cable in both would be removed twice: a pull)
+    effects = [*(e for e in keep if not isinstance(e, SlackSprings)), proposal.effect]
     if contact_searched(current.vec):
         return fit_with(data, current, effects, s.candidate_iter)
     many, fit = fit_declared(data, s, effects=effects, values=proposal.start)

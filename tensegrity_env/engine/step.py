@@ -75,6 +75,10 @@ class Engine:
         self.substeps = int(substeps)
         self.physics_dt = self.dt / self.substeps
         self.effects = tuple(effects)
+        names = [e.name for e in self.effects]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:  # effects add their forces: one given twice acts twice
+            raise ValueError(f"effects named twice: {twice}")
         self.dtype, self.device = dtype, torch.device(device)
         kw = {"dtype": dtype, "device": self.device}
         self.end_offsets = torch.as_tensor(topology.end_offsets, **kw)  # (R, 2, 3)

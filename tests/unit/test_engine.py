@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from tensegrity_env.assemblies import Assembly, element, icosahedron
+from tensegrity_env.effects import SlackSprings
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.forces import spring_frames
 from tensegrity_env.engine.kinematics import node_kinematics
@@ -178,3 +179,13 @@ def test_substeps_are_physics_steps_between_samples() -> None:
     for a, b in zip(out.tensors(), ref.tensors(), strict=True):
         assert torch.equal(a, b)
     assert coarse.with_effects([]).substeps == 5
+
+
+def test_an_effect_given_twice_is_refused() -> None:
+    # effects add their forces: a slack cable listed in two SlackSprings effects would
+    # have its compressive push removed twice, a pull
+    topo = icosahedron().topology
+    cables = SlackSprings(topo, springs=[0, 1])
+    with pytest.raises(ValueError, match="effects named twice: \\['slack_springs'\\]"):
+        Engine(topo, 1e-3, [cables, SlackSprings(topo, springs=[0, 1, 2])])
+    Engine(topo, 1e-3, [cables])

@@ -1,5 +1,6 @@
 """Fits of the multi-step scorer on end-cap windows: the declared model, a model with
-candidate effects, and the refit of an accepted one on many windows.
+candidate effects, the refit of an accepted one on many windows, and what the scorer
+keeps of each candidate (:class:`EndCapFits`).
 
 The declared model and every accepted one are fitted on **many** windows of the
 training split (:attr:`~identification.discovery.end_cap_data.TrajectorySettings.fit_windows`;
@@ -25,7 +26,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -311,3 +312,32 @@ def touchdown_contact(
              f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     data.contact_free = ()
     return found.contact
+
+
+@dataclass
+class EndCapFits:
+    """What the multi-step scorer fitted for one candidate.
+
+    Attributes:
+        fit: the fit on the training windows that selection compares on.
+        final: the fit on the many windows (the model reported and tested); ``fit``
+            for a candidate not accepted.
+        val_sse, val_m: held-out (validation) sum of squared end-cap errors [m^2] and
+            number of residuals, only the windows' states fitted.
+        val_windows: those windows, states fitted.
+    """
+
+    fit: TrajFit
+    final: TrajFit
+    val_sse: float = float("nan")
+    val_m: int = 0
+    val_windows: Windows | None = None
+    #: the current model refitted as every candidate is (from ``fit``'s origin and
+    #: windows, with the candidates' iterations): what its held-out error and BIC are
+    #: measured on (None: ``fit``)
+    reference: TrajFit | None = None
+
+    @property
+    def scored(self) -> TrajFit:
+        """The fit the held-out error and the BIC are measured on."""
+        return self.fit if self.reference is None else self.reference

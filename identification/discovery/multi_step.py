@@ -41,7 +41,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +57,13 @@ from identification.discovery.end_cap_data import (
     heldout,
     predicted_caps,
 )
-from identification.discovery.end_cap_fits import fit_declared, fit_many, fit_with, screen_with
+from identification.discovery.end_cap_fits import (
+    EndCapFits,
+    fit_declared,
+    fit_many,
+    fit_with,
+    screen_with,
+)
 from identification.discovery.end_cap_residuals import (
     plot_window_residuals,
     summarize_window_residuals,
@@ -82,35 +88,6 @@ from tensegrity_env.params import Params
 SAMPLE_STRIDE = 4
 #: longest window of the final refit [s] (whole trajectories up to this long)
 FINAL_WINDOW_S = 1.0
-
-
-@dataclass
-class EndCapFits:
-    """What the multi-step scorer fitted for one candidate.
-
-    Attributes:
-        fit: the fit on the training windows that selection compares on.
-        final: the fit on the many windows (the model reported and tested); ``fit``
-            for a candidate not accepted.
-        val_sse, val_m: held-out (validation) sum of squared end-cap errors [m^2] and
-            number of residuals, only the windows' states fitted.
-        val_windows: those windows, states fitted.
-    """
-
-    fit: TrajFit
-    final: TrajFit
-    val_sse: float = float("nan")
-    val_m: int = 0
-    val_windows: Windows | None = None
-    #: the current model refitted as every candidate is (from ``fit``'s origin and
-    #: windows, with the candidates' iterations): what its held-out error and BIC are
-    #: measured on (None: ``fit``)
-    reference: TrajFit | None = None
-
-    @property
-    def scored(self) -> TrajFit:
-        """The fit the held-out error and the BIC are measured on."""
-        return self.fit if self.reference is None else self.reference
 
 
 class MultiStepScorer(Scorer[EndCapFits]):

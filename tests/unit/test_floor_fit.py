@@ -1,7 +1,10 @@
 """The floor fit's helpers: rods away from the floor, the floor height, the start contact,
-and the regression restricted to rods (identification.trajectory.floor_fit)."""
+the regression restricted to rods and the windows' states fitted afresh
+(identification.trajectory.floor_fit)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,15 +18,17 @@ from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     floor_contact,
     floor_height,
+    reseeded,
     rods_off_floor,
     search_floor_contact,
+    window_errors,
     with_floor,
 )
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact
-from tensegrity_env.engine import Engine
+from tensegrity_env.engine import Engine, State
 
 
 def _caps(z: np.ndarray) -> np.ndarray:
@@ -98,3 +103,22 @@ def test_contact_search_on_windows_recovers_a_moved_contact_from_clean_floor_dat
     np.testing.assert_allclose(found[: vec.n_free], theta[: vec.n_free])
     err = (found - theta)[-len(FLOOR_FREE) :].abs()
     assert err[:3].max() < 0.05, err  # stiffness, damping (log) and friction back within 5 %
+
+
+def test_a_window_stuck_in_another_state_is_fitted_afresh_from_its_seed() -> None:
+    ds, truth = generate_dataset(GenerateSpec(n_train=1, n_val=0, n_test=0, steps=300, seed=2,
+                                              ground=True))  # fmt: skip
+    split, topo = ds.split("train"), ds.topology
+    grid = {k: getattr(split, k)[:, 200:] for k in STATE_KEYS}  # after landing: on the floor
+    seeds = cut_windows(split.nodes[:, 200:], split.control[:, 200:], grid, 20)
+    vec = with_floor(ParamVector.at(topo, truth.params), [],
+                     GroundContact(topo, **truth.effects[0]["params"]), None)  # fmt: skip
+    theta, engine = vec.theta0(), Engine(topo, ds.dt)
+    shift = torch.zeros_like(seeds.state.p)
+    shift[0, :, 0] = 0.02  # window 0 is 2 cm off, the others at their true states
+    st = seeds.state
+    stuck = replace(seeds, state=State(st.p + shift, st.v, st.q, st.omega))
+    before = window_errors(engine, vec, stuck, theta)
+    after = window_errors(engine, vec, reseeded(engine, vec, theta, stuck, seeds, 3), theta)
+    assert before[0] > 1e-2 and (before[1:] < 1e-20).all()  # clean data: true states exact
+    assert after[0] < 1e-12 and (after <= before).all()

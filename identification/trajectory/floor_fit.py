@@ -23,7 +23,10 @@ through the engine, on short windows that touch the floor:
    declared parameters move along two directions, one common scale of every mass,
    inertia, stiffness and damping (the anchors held) and one of every rest length,
    with the windows' states following by their Gauss-Newton response, and the
-   contact with them (a grid over the common scale, then Nelder-Mead). Every round
+   contact with them (a grid over the common scale, then Nelder-Mead), then fits the
+   windows' **states afresh** at that model (:func:`reseeded`): each window keeps the
+   better of its fitted state and one fitted again from smoothing, since states fitted
+   at the far-off starting model stay in other basins through the impacts. Every round
    ends with **Levenberg-Marquardt** fitting everything jointly (declared parameters,
    contact, states), with a line search along rejected steps (``line_search``). From
    the first search on, the contact stays within :data:`CONTACT_RANGE` of the searched

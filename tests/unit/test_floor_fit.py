@@ -87,15 +87,22 @@ def test_rod_keep_equal_to_sample_keep_gives_the_same_regression() -> None:
     assert not np.allclose(fewer["stiffness"], by_sample["stiffness"], rtol=1e-12)
 
 
-@pytest.mark.slow
-def test_contact_search_on_windows_recovers_a_moved_contact_from_clean_floor_data() -> None:
-    ds, truth = generate_dataset(GenerateSpec(n_train=2, n_val=0, n_test=0, steps=400, seed=2,
-                                              ground=True))  # fmt: skip
+def _on_the_floor(n_train: int, steps: int, window: int):
+    """Clean floor data (seed 2) after landing, cut into windows of ``window`` steps at their
+    true states, and the true model with the contact as a floor fit holds it."""
+    ds, truth = generate_dataset(GenerateSpec(n_train=n_train, n_val=0, n_test=0, steps=steps,
+                                              seed=2, ground=True))  # fmt: skip
     split, topo = ds.split("train"), ds.topology
     grid = {k: getattr(split, k)[:, 200:] for k in STATE_KEYS}  # after landing: on the floor
-    windows = cut_windows(split.nodes[:, 200:], split.control[:, 200:], grid, 40)
+    windows = cut_windows(split.nodes[:, 200:], split.control[:, 200:], grid, window)
     contact = GroundContact(topo, **truth.effects[0]["params"])
-    vec = with_floor(ParamVector.at(topo, truth.params), [], contact, None)
+    return ds, windows, with_floor(ParamVector.at(topo, truth.params), [], contact, None)
+
+
+@pytest.mark.slow
+def test_contact_search_on_windows_recovers_a_moved_contact_from_clean_floor_data() -> None:
+    ds, windows, vec = _on_the_floor(2, 400, 40)
+    topo = ds.topology
     theta = vec.theta0()
     moved = theta.clone()
     moved[-len(FLOOR_FREE) :] += torch.tensor([0.3, -0.3, 0.2, 0.0, 0.0], dtype=moved.dtype)
@@ -106,14 +113,8 @@ def test_contact_search_on_windows_recovers_a_moved_contact_from_clean_floor_dat
 
 
 def test_a_window_stuck_in_another_state_is_fitted_afresh_from_its_seed() -> None:
-    ds, truth = generate_dataset(GenerateSpec(n_train=1, n_val=0, n_test=0, steps=300, seed=2,
-                                              ground=True))  # fmt: skip
-    split, topo = ds.split("train"), ds.topology
-    grid = {k: getattr(split, k)[:, 200:] for k in STATE_KEYS}  # after landing: on the floor
-    seeds = cut_windows(split.nodes[:, 200:], split.control[:, 200:], grid, 20)
-    vec = with_floor(ParamVector.at(topo, truth.params), [],
-                     GroundContact(topo, **truth.effects[0]["params"]), None)  # fmt: skip
-    theta, engine = vec.theta0(), Engine(topo, ds.dt)
+    ds, seeds, vec = _on_the_floor(1, 300, 20)
+    theta, engine = vec.theta0(), Engine(ds.topology, ds.dt)
     shift = torch.zeros_like(seeds.state.p)
     shift[0, :, 0] = 0.02  # window 0 is 2 cm off, the others at their true states
     st = seeds.state

@@ -42,6 +42,13 @@ UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/
          "rest_length": "m", "control_gain": "1"}  # fmt: skip
 
 
+#: what the standard errors of a fit on the floor mean (docs/discovery.md measures them)
+FLOOR_STDERR_NOTE = (
+    "on the floor they come from the error's local curvature, which impacts make "
+    "unreliable: they understate the error (read them as lower bounds)"
+)
+
+
 def parameter_rows(
     est: TrajectoryIdentifier | FloorIdentification, anchors: dict[str, float]
 ) -> list[ParameterRow]:
@@ -174,6 +181,8 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
             print(f"  {name}: {why}")
         extra["identifiability"]["not_identifiable"] = {**est.notes_, **unseen}
         extra["floor_evidence"] = evidence.as_dict()
+        print(f"  standard errors: {FLOOR_STDERR_NOTE}")
+        extra["identifiability"]["standard_errors"] = FLOOR_STDERR_NOTE
     Model(dataset.topology, est.params_, effects, dt=physics).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

@@ -85,8 +85,9 @@ from identification.trajectory.windowed_fit import (
     fit_windows,
     state_response,
     trial_sse,
+    window_errors,
 )
-from identification.trajectory.windows import Windows, local_basis, perturb, window_residual
+from identification.trajectory.windows import Windows, local_basis, perturb
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State
@@ -337,8 +338,7 @@ def fit_on_floor(
     for k in range(rounds):
         t0 = time.perf_counter()
         if k == 0:
-            states = fit_states(vec.engine(engine, theta), held_states(vec, theta), windows,
-                                state_iters, spin=True)  # fmt: skip
+            states = states_at(engine, vec, theta, windows, state_iters)
             windows = states.windows
             log(f"    states {np.sqrt(states.history[-1]) * 1e3:.3f} mm")
             theta = search_floor_contact(engine, vec, windows, theta, log)
@@ -355,15 +355,13 @@ def fit_on_floor(
     return fit
 
 
-def window_errors(
-    engine: Engine, vec: ParamVector, windows: Windows, theta: torch.Tensor
-) -> torch.Tensor:
-    """Sum of squared end-cap errors of each window at ``theta``, (B,) [m^2]."""
-    basis = local_basis(vec.axes, spin=True)
-    z0 = torch.zeros(windows.size, basis.shape[0], dtype=theta.dtype)
-    with torch.no_grad():
-        r = window_residual(engine, vec, windows, basis)(z0, theta)
-    return (r**2).sum(dim=(1, 2, 3))
+def states_at(
+    engine: Engine, vec: ParamVector, theta: torch.Tensor, windows: Windows, iters: int
+) -> WindowFit:
+    """The windows' initial states (axial spins too) fitted on growing prefixes with the
+    model held at ``theta``."""
+    return fit_states(vec.engine(engine, theta), held_states(vec, theta), windows, iters,
+                      spin=True)  # fmt: skip
 
 
 def reseeded(
@@ -386,8 +384,7 @@ def reseeded(
     (the states from smoothing) on growing prefixes at the current model; the windows are
     independent given the model, so each keeps the better of its two states.
     """
-    fixed = held_states(vec, theta)
-    fresh = fit_states(vec.engine(engine, theta), fixed, seeds, state_iters, spin=True).windows
+    fresh = states_at(engine, vec, theta, seeds, state_iters).windows
     now, new = window_errors(engine, vec, windows, theta), window_errors(engine, vec, fresh, theta)
     better = new < now
     if not bool(better.any()):

@@ -243,6 +243,16 @@ def common_axis(axes: RodAxes) -> int | None:
     return int(axes.axis[0]) if np.all(axes.axis == axes.axis[0]) else None
 
 
+def held_drag_axis(data: EndCapData) -> int | None:
+    """The rod axis whose rotational drag the fits hold (see
+    :meth:`~identification.trajectory.effect_coords.EffectCoords.of`): the common end-cap
+    axis in free flight, where the spin about it is invisible; none on the floor, where
+    friction at the end caps spins each rod about its axis, the windows' states hold
+    that spin (:mod:`identification.trajectory.floor_fit`), and a drag about the axis
+    (MuJoCo's fluid models damp it) changes how the caps roll and slip."""
+    return None if data.on_floor else common_axis(data.axes)
+
+
 def held(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
     """``vec`` at ``theta`` with nothing free and no effect coordinates (states-only fits)."""
     return replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),

@@ -37,12 +37,12 @@ from identification.discovery.end_cap_data import (
     TrajectorySettings,
     TrajFit,
     airborne_keep,
-    common_axis,
     contact_searched,
     declared_start,
     fit_trajectory,
     has_contact,
     held,
+    held_drag_axis,
     hold_declared,
 )
 from identification.discovery.floor_fits import fit_declared_on_floor
@@ -100,7 +100,7 @@ def fit_declared(
         return fit_declared_on_floor(data, s, start, effects, values, data.contact_start)
     vec = declared_start(data, s.anchors, start, values, keep=airborne_keep(data))
     if effects:
-        vec = replace(vec, coords=EffectCoords.of(list(effects), common_axis(data.axes),
+        vec = replace(vec, coords=EffectCoords.of(list(effects), held_drag_axis(data),
                                                   data.contact_free))  # fmt: skip
     theta = vec.theta0()
     data.declared_k = int(vec.free.sum())
@@ -191,7 +191,7 @@ def fit_with(
     ordered = [e for e in effects if not isinstance(e, GroundContact)]
     ordered += [e for e in effects if isinstance(e, GroundContact)]
     origin = current.theta if current.origin is None else current.origin
-    axis = common_axis(data.axes)
+    axis = held_drag_axis(data)
     vec = replace(current.vec, start=current.vec.full(origin.detach()),
                   coords=EffectCoords.of(ordered, axis, data.contact_free,
                                          data.contact_box))  # fmt: skip
@@ -243,7 +243,7 @@ def screen_with(
     """
     ordered = [e for e in effects if not isinstance(e, GroundContact)]
     contact = [e for e in effects if isinstance(e, GroundContact)]
-    axis = common_axis(data.axes)
+    axis = held_drag_axis(data)
     theta = current.theta.detach()
     n = current.vec.n_free
     joint = replace(current.vec, start=current.vec.full(theta),
@@ -281,7 +281,7 @@ def through_touchdowns(data: EndCapData, vec: ParamVector, iters: int) -> ParamV
     assert vec.coords is not None
     effects = vec.coords.effects_at(fit.theta[vec.n_free :].detach())
     moved = replace(vec, start=vec.full(fit.theta.detach()),
-                    coords=EffectCoords.of(effects, common_axis(data.axes), ()))  # fmt: skip
+                    coords=EffectCoords.of(effects, held_drag_axis(data), ()))  # fmt: skip
     return hold_declared(moved)
 
 

@@ -27,9 +27,9 @@ from identification.discovery.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     TrajFit,
-    common_axis,
     declared_start,
     fit_trajectory,
+    held_drag_axis,
 )
 from identification.discovery.library import contact_gate
 from identification.linear.smoothed import parse_anchors
@@ -87,7 +87,7 @@ def fit_declared_on_floor(
     others = [e for e in effects if not isinstance(e, GroundContact)]
     given = [e for e in effects if isinstance(e, GroundContact)]
     begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
-    vec = with_floor(vec, others, begin, common_axis(data.axes))
+    vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps)")  # fmt: skip

@@ -5,12 +5,14 @@ the regression restricted to rods and the windows' states fitted afresh
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
+from identification.discovery.end_cap_data import held_drag_axis
 from identification.linear.smoothed import smoothed_regression
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from identification.trajectory.effect_coords import CONTACT_START, EffectCoords
@@ -153,3 +155,14 @@ def test_drag_about_the_rod_axis_shows_on_the_floor_and_not_in_flight() -> None:
     in_flight = _axial_drag_rms(flight, airborne, ParamVector.at(flight.topology, truth.params), [])
     assert on_floor > 1e-3, on_floor  # above 1 mm of motion-capture noise
     assert in_flight < 1e-2 * on_floor, (in_flight, on_floor)  # 9e-6 against 1.1e-2 m
+
+
+def test_the_floor_fits_leave_the_axial_drag_free_and_flight_fits_hold_it() -> None:
+    topo = assemblies.icosahedron().topology
+    axes = RodAxes.of(topo)
+    drag = LinearDrag(topo)  # 3 translational + 3 rotational coefficients
+    floor = SimpleNamespace(on_floor=True, axes=axes)
+    flight = SimpleNamespace(on_floor=False, axes=axes)
+    assert held_drag_axis(floor) is None
+    assert EffectCoords.of([drag], held_drag_axis(floor), ()).n == 6
+    assert EffectCoords.of([drag], held_drag_axis(flight), ()).n == 5

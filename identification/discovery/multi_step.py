@@ -156,7 +156,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
                                                 self.settings.candidate_iter))  # fmt: skip
 
     def score(
-        self, name: str, fits: EndCapFits, near: EndCapFits | None = None
+        self, name: str, fits: EndCapFits, near: EndCapFits | None = None, fresh: bool = False
     ) -> Candidate[EndCapFits]:
         """Held-out (validation) end-cap errors of ``fits.scored``, states only fitted.
 
@@ -165,10 +165,12 @@ class MultiStepScorer(Scorer[EndCapFits]):
         (the impacts make the error jump), which gave a candidate whose coefficients
         stayed at 1e-6 (a copy of the current model) a held-out chi-square gain of 62 on
         floor data with nothing planted (seed 0); from the current model's states, 0.002.
+        ``fresh``: from smoothing too, each window keeping the better state (an accepted
+        model, the next candidates' ``near``; see :func:`heldout`).
         """
         warm = near.val_windows if near is not None and self.data.on_floor else None
         fits.val_sse, fits.val_m, fits.val_windows = heldout(
-            self.data, fits.scored, "val", self.settings.state_iter, warm
+            self.data, fits.scored, "val", self.settings.state_iter, warm, fresh
         )
         final, ds = fits.final, self.dataset
         return Candidate(
@@ -282,7 +284,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         if data.on_floor:
             t1 = time.perf_counter()
             final = fit_many(data, now.vec, now.theta, s, s.base_iter)
-            sse, m, windows = heldout(data, final, "train", s.state_iter)
+            sse, m, windows = heldout(data, final, "train", s.state_iter, now.windows, True)
             fit = replace(final, windows=windows, sse=sse, m=m)
         else:
             fit = fit_with(data, now, now.effects, s.base_iter)  # converge
@@ -304,7 +306,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
                                  roll=True).windows  # fmt: skip
             fit = fit_trajectory(data, fit.vec, windows, final.theta, s.base_iter)
         fit.origin = final.theta
-        scored = self.score(chosen.name, self.with_reference(EndCapFits(fit, final)))
+        near = chosen.fit if data.on_floor else None
+        scored = self.score(chosen.name, self.with_reference(EndCapFits(fit, final)), near,
+                            fresh=True)  # fmt: skip
         return replace(chosen, fit=scored.fit, model=scored.model, heldout=scored.heldout,
                        bic=scored.bic)  # fmt: skip
 

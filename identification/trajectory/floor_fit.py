@@ -82,15 +82,15 @@ from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contac
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import (
     WindowFit,
+    better_states,
     fit_windows,
     state_response,
     trial_sse,
-    window_errors,
 )
 from identification.trajectory.windows import Windows, local_basis, perturb
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
-from tensegrity_env.engine import Engine, State
+from tensegrity_env.engine import Engine
 from tensegrity_env.topology import Topology
 
 #: contact parameters fitted on the floor (the floor's height too)
@@ -385,14 +385,11 @@ def reseeded(
     independent given the model, so each keeps the better of its two states.
     """
     fresh = states_at(engine, vec, theta, seeds, state_iters).windows
-    now, new = window_errors(engine, vec, windows, theta), window_errors(engine, vec, fresh, theta)
-    better = new < now
-    if not bool(better.any()):
-        return windows
-    pick = [torch.where(better.view(-1, *[1] * (a.ndim - 1)), a, b)
-            for a, b in zip(fresh.state.tensors(), windows.state.tensors(), strict=True)]  # fmt: skip
-    m = windows.residuals
-    log(f"    states afresh: {int(better.sum())} of {windows.size} windows fit better, end-cap RMS "
-        f"{np.sqrt(float(now.sum()) / m) * 1e3:.3f} -> "
-        f"{np.sqrt(float(torch.minimum(now, new).sum()) / m) * 1e3:.3f} mm")  # fmt: skip
-    return replace(windows, state=State(*pick))
+    picked, now, best = better_states(engine, vec, theta, fresh, windows)
+    n_better = int((best < now).sum())
+    if n_better:
+        m = windows.residuals
+        log(f"    states afresh: {n_better} of {windows.size} windows fit better, end-cap RMS "
+            f"{np.sqrt(float(now.sum()) / m) * 1e3:.3f} -> "
+            f"{np.sqrt(float(best.sum()) / m) * 1e3:.3f} mm")  # fmt: skip
+    return picked

@@ -221,6 +221,24 @@ def window_errors(
     return (r**2).sum(dim=(1, 2, 3))
 
 
+def better_states(
+    engine: Engine, vec: ParamVector, theta: torch.Tensor, a: Windows, b: Windows
+) -> tuple[Windows, torch.Tensor, torch.Tensor]:
+    """The same windows with, per window, the initial state of ``a`` or ``b`` that fits
+    better at ``theta``.
+
+    A window's state is a nuisance of the fit: each of two state fits (from smoothing,
+    from a nearby model's states) can stop in another basin through an impact, and the
+    smaller error of the two is the better estimate of the model's. Returns the windows
+    and the per-window sums of squared end-cap errors (B,) [m^2] of ``b`` and of the pick.
+    """
+    ea, eb = window_errors(engine, vec, a, theta), window_errors(engine, vec, b, theta)
+    pick = ea < eb
+    states = [torch.where(pick.view(-1, *[1] * (x.ndim - 1)), x, y)
+              for x, y in zip(a.state.tensors(), b.state.tensors(), strict=True)]  # fmt: skip
+    return replace(b, state=State(*states)), eb, torch.minimum(ea, eb)
+
+
 @dataclass(frozen=True)
 class WindowFit:
     """Result of :func:`fit_windows`.

@@ -23,10 +23,10 @@ from identification.trajectory.floor_fit import (
     reseeded,
     rods_off_floor,
     search_floor_contact,
-    window_errors,
     with_floor,
 )
 from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.windowed_fit import window_errors
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag

@@ -4,7 +4,9 @@ Importing the package registers the Gymnasium environments ``IcosahedronSR-v0`` 
 identified engine) and ``IcosahedronMJ-v0`` (its MuJoCo twin), each with a natively
 batched ``vector_entry_point`` (see :mod:`tensegrity_env.envs`). On a Linux machine
 without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
-imported) so that rendering works headless; set it yourself to override.
+imported) so that rendering works headless, or to ``osmesa`` where only that library
+is found, and leaves it unset where neither is
+(:func:`~tensegrity_env.headless.headless_gl_backend`); set it yourself to override.
 
 :class:`~tensegrity_env.model.Model` (topology, params, effects, dt; ``params.json``)
 and the names in ``__all__`` are imported on first use, so that importing the package
@@ -14,12 +16,17 @@ stays fast.
 import os
 import sys
 
+from tensegrity_env.headless import headless_gl_backend
 from tensegrity_env.lazy import lazy_exports
 
-if sys.platform.startswith("linux") and not (
-    os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+if (
+    sys.platform.startswith("linux")
+    and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    and "MUJOCO_GL" not in os.environ
 ):
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    _backend = headless_gl_backend()
+    if _backend is not None:
+        os.environ["MUJOCO_GL"] = _backend
 
 
 def _register_envs() -> None:

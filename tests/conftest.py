@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import os
 
+from tensegrity_env.headless import headless_gl_backend
+
 # Headless rendering: MuJoCo picks its GL backend when first imported, and a test module may
 # import mujoco before anything of ours sets the default.
-os.environ.setdefault("MUJOCO_GL", "egl")
+if "MUJOCO_GL" not in os.environ and headless_gl_backend() is not None:
+    os.environ["MUJOCO_GL"] = str(headless_gl_backend())
 
 import dataclasses
 import hashlib

@@ -50,3 +50,26 @@ def test_identify_refuses_regression_options_on_end_caps(tmp_path, capsys) -> No
     assert cli(["identify", str(path), "--shared", "-o", str(tmp_path / "p.json")]) == 2
     assert "--shared need rod states" in capsys.readouterr().err
     assert not (tmp_path / "p.json").exists()
+
+
+def test_end_caps_on_a_floor_are_fitted_with_contact_at_any_rate(tmp_path, capsys, monkeypatch) -> None:
+    """At 1000 Hz the floor cell's drops are airborne for 50 samples and more; the declared
+    model alone, fitted through the impacts, diverged. Any data that reach a floor go to
+    the floor fit (stopped here at its start)."""
+    from identification.commands import identify_end_caps
+    from identification.data.dataset import read_dataset
+    from identification.trajectory.airborne import has_airborne_stretch
+    from tensegrity_env.io_utils import StageError
+
+    def floor_fit(*args, **kwargs):
+        raise StageError("the floor fit", "reached", "nothing")
+
+    data = write_cell(Cell("floor", 1000.0, 1e-3, 0.0, "none"), tmp_path)
+    monkeypatch.setattr(identify_end_caps, "identify_on_floor", floor_fit)
+    ds = read_dataset(data.measured)
+    assert has_airborne_stretch(ds.split("train").nodes, ds.topology)
+    assert cli(["identify", str(data.measured), "-o", str(tmp_path / "p.json")]) != 0
+    captured = capsys.readouterr()
+    assert "end caps reach a floor" in captured.out
+    assert "the floor fit failed: reached" in captured.err
+    assert not (tmp_path / "p.json").exists()

@@ -180,6 +180,15 @@ class EffectCoords:
             i += n
         return out
 
+    def mass_scaled(self) -> torch.Tensor:
+        """Which coordinates (n,) scale with a common scale of every mass (linear effects'
+        force coefficients, see :attr:`~tensegrity_env.effects.base.LinearEffect.mass_scaled`;
+        contact parameters are per unit of effective mass, and do not)."""
+        out: list[bool] = []
+        for e, s, n in zip(self.effects, self.slots, self.sizes(), strict=True):
+            out += [s is None and bool(getattr(e, "mass_scaled", False))] * n
+        return torch.tensor(out, dtype=torch.bool)
+
     def names(self) -> list[str]:
         """``effect.param`` of every coordinate."""
         out = []

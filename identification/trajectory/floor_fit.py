@@ -240,22 +240,30 @@ def _coords(contact: GroundContact) -> list[float]:
     return coords.start().tolist()
 
 
-def scale_directions(vec: ParamVector) -> torch.Tensor:
-    """The valley directions of the fitted vector, (2, n_free + n_effect): the common
-    scale (1 on the free log-parameters of :data:`SCALED`) and the common rest-length
-    scale (1 on the free log rest lengths); 0 on effect coordinates.
+def scale_directions(vec: ParamVector, theta: torch.Tensor) -> torch.Tensor:
+    """The valley directions of the fitted vector at ``theta``, (2, n_free + n_effect):
+    the common scale (1 on the free log-parameters of :data:`SCALED`, and each force
+    coefficient of a linear effect times its value) and the common rest-length scale (1
+    on the free log rest lengths); 0 on the contact's coordinates.
 
     Scaling every mass, inertia, stiffness and damping together leaves the motion
     unchanged (gravity and the contact, per unit effective mass, scale with the
-    masses); only the anchored parameters pin the scale, through the rods they act on.
-    Shorter rest lengths with softer springs keep the pretension.
+    masses) if the effects' forces scale too: a drag held at its value while the
+    masses move is no valley (on the floor's linear-drag cell, seed 0, the search stayed
+    at scale 1.000 with every free mass 10 % low). Only the anchored parameters pin the
+    scale, through the rods they act on. Shorter rest lengths with softer springs keep
+    the pretension.
     """
     rows = []
-    for groups in (SCALED, ("rest_length",)):
+    tail = torch.zeros(vec.n_effect, dtype=torch.float64)
+    if vec.coords is not None:
+        x = vec.split(theta.detach())[1]
+        tail = torch.where(vec.coords.mass_scaled(), x, torch.zeros_like(x))
+    for groups, effects in ((SCALED, tail), (("rest_length",), torch.zeros_like(tail))):
         full = torch.zeros(len(vec.free), dtype=torch.float64)
         for group in groups:
             full[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = 1.0
-        rows.append(torch.cat([full[vec.free], torch.zeros(vec.n_effect, dtype=torch.float64)]))
+        rows.append(torch.cat([full[vec.free], effects]))
     return torch.stack(rows)
 
 
@@ -264,7 +272,8 @@ def search_scale(
 ) -> tuple[torch.Tensor, Windows]:
     """``fit`` moved along the valley directions and the contact by a derivative-free search.
 
-    The fit's free parameters move by ``a`` along :func:`scale_directions` (log units),
+    The fit's free parameters move by ``a`` along :func:`scale_directions` (log units; the
+    effects' force coefficients to first order),
     the windows' states follow by their Gauss-Newton response
     (:func:`~identification.trajectory.windowed_fit.state_response`), and the contact's
     coordinates (the last of ``theta``) are searched with them: first the common scale
@@ -276,16 +285,20 @@ def search_scale(
     """
     assert fit.normal is not None and vec.coords is not None
     theta, windows = fit.theta.detach(), fit.windows
-    U = scale_directions(vec)
+    U = scale_directions(vec, theta)
     basis = local_basis(vec.axes, spin=True)
     response = torch.stack([torch.einsum("bl,lrj->brj", state_response(fit.normal, u), basis)
                             for u in U])  # fmt: skip
     n, k = len(U), len(FLOOR_FREE)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))
+    forces = torch.zeros(len(theta), dtype=torch.bool)  # effect coordinates scaled exactly
+    if vec.coords is not None:
+        forces[vec.n_free :] = vec.coords.mass_scaled()
 
     def at(x: np.ndarray) -> tuple[torch.Tensor, Windows]:
         a = torch.as_tensor(x[:n], dtype=theta.dtype)
         th = theta + a @ U
+        th[forces] = theta[forces] * torch.exp(a[0])
         th[len(th) - k :] = torch.as_tensor(x[n:], dtype=th.dtype)
         d = torch.einsum("i,ibrj->brj", a, response)
         return th, replace(windows, state=perturb(windows.state, d))

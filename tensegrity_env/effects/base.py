@@ -223,6 +223,11 @@ class LinearEffect(PhysicalEffect):
     regression's design matrix (``identification.linear.extended``).
     """
 
+    #: its parameters are forces (per velocity, per length cubed, ...): scaling every
+    #: mass, inertia, stiffness and damping by a common factor leaves the motion the same
+    #: only if they scale with it (False where a parameter is a length or a ratio)
+    mass_scaled: ClassVar[bool] = True
+
     def basis(
         self, state: State, kin: Kinematics, params: Params
     ) -> tuple[torch.Tensor, torch.Tensor]:

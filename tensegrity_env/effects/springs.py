@@ -50,6 +50,7 @@ class RestLengthOffset(SpringLawEffect):
 
     name: ClassVar[str] = "rest_length_offset"
     summary: ClassVar[str] = "a constant tension bias -K δ on a spring"
+    mass_scaled: ClassVar[bool] = False  # a length: its tension -K δ scales through K
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "offset": ParamSpec("m", 0.0, per="spring", positive=False),
     }

@@ -22,6 +22,7 @@ from identification.trajectory.floor_fit import (
     floor_height,
     reseeded,
     rods_off_floor,
+    scale_directions,
     search_floor_contact,
     with_floor,
 )
@@ -166,3 +167,33 @@ def test_the_floor_fits_leave_the_axial_drag_free_and_flight_fits_hold_it() -> N
     assert held_drag_axis(floor) is None
     assert EffectCoords.of([drag], held_drag_axis(floor), ()).n == 6
     assert EffectCoords.of([drag], held_drag_axis(flight), ()).n == 5
+
+
+def test_the_common_scale_with_the_drag_scaled_leaves_the_motion_unchanged() -> None:
+    """Every mass, inertia, stiffness and damping and the drag coefficients times one
+    factor: the same motion on the floor (gravity, springs, drag and the contact, per unit
+    of effective mass, all scale). With the drag held, the masses move against it."""
+    ds, windows, vec = _on_the_floor(1, 300, 40)
+    topo = ds.topology
+    assert vec.coords is not None
+    drag = LinearDrag(topo, translational=[1.5, 1.0, 0.5], rotational=[0.05, 0.05, 0.0])
+    contact = [e for e in vec.coords.effects if isinstance(e, GroundContact)]
+    free = torch.zeros_like(vec.free)
+    for group in ("stiffness", "damping", "mass", "inertia_perp"):
+        free[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = True
+    vec = replace(vec, free=free, coords=EffectCoords.of([drag, *contact], None, FLOOR_FREE))
+    theta, engine = vec.theta0(), Engine(topo, ds.dt)
+    U = scale_directions(vec, theta)
+    a = 0.2
+    held = theta + a * U[0]
+    scaled = held.clone()
+    forces = torch.zeros(len(theta), dtype=torch.bool)
+    forces[vec.n_free :] = vec.coords.mass_scaled()
+    assert int(forces.sum()) == 6  # the drag's coefficients, not the contact's
+    scaled[forces] = theta[forces] * np.exp(a)
+    held[forces] = theta[forces]
+    base = window_errors(engine, vec, windows, theta).sum()
+    same = window_errors(engine, vec, windows, scaled).sum()
+    moved = window_errors(engine, vec, windows, held).sum()
+    assert abs(float(same / base) - 1) < 1e-9, float(same / base)  # measured 1e-14
+    assert abs(float(moved / base) - 1) > 1e-3, float(moved / base)  # measured -33 %

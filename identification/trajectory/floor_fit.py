@@ -255,15 +255,12 @@ def scale_directions(vec: ParamVector, theta: torch.Tensor) -> torch.Tensor:
     the pretension.
     """
     rows = []
-    tail = torch.zeros(vec.n_effect, dtype=torch.float64)
-    if vec.coords is not None:
-        x = vec.split(theta.detach())[1]
-        tail = torch.where(vec.coords.mass_scaled(), x, torch.zeros_like(x))
-    for groups, effects in ((SCALED, tail), (("rest_length",), torch.zeros_like(tail))):
+    forces = torch.where(vec.mass_scaled(), theta.detach(), torch.zeros_like(theta))
+    for groups, effects in ((SCALED, forces), (("rest_length",), torch.zeros_like(forces))):
         full = torch.zeros(len(vec.free), dtype=torch.float64)
         for group in groups:
             full[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = 1.0
-        rows.append(torch.cat([full[vec.free], effects]))
+        rows.append(torch.cat([full[vec.free], torch.zeros(vec.n_effect, dtype=torch.float64)]) + effects)
     return torch.stack(rows)
 
 
@@ -291,9 +288,7 @@ def search_scale(
                             for u in U])  # fmt: skip
     n, k = len(U), len(FLOOR_FREE)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))
-    forces = torch.zeros(len(theta), dtype=torch.bool)  # effect coordinates scaled exactly
-    if vec.coords is not None:
-        forces[vec.n_free :] = vec.coords.mass_scaled()
+    forces = vec.mass_scaled()  # effect coordinates scaled exactly
 
     def at(x: np.ndarray) -> tuple[torch.Tensor, Windows]:
         a = torch.as_tensor(x[:n], dtype=theta.dtype)

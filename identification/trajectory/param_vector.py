@@ -79,6 +79,13 @@ class ParamVector:
         elo, ehi = self.coords.bounds()
         return torch.cat([lo, elo]), torch.cat([hi, ehi])
 
+    def mass_scaled(self) -> torch.Tensor:
+        """Which entries of the fitted vector (n_free + n_effect,) are effect force
+        coefficients that scale with a common scale of the masses
+        (:meth:`~identification.trajectory.effect_coords.EffectCoords.mass_scaled`)."""
+        tail = torch.zeros(0, dtype=torch.bool) if self.coords is None else self.coords.mass_scaled()
+        return torch.cat([torch.zeros(self.n_free, dtype=torch.bool), tail])
+
     def split(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``theta`` (..., n_free + n_effect) -> log-parameters and effect coordinates."""
         n = self.n_free

@@ -187,8 +187,7 @@ def test_the_common_scale_with_the_drag_scaled_leaves_the_motion_unchanged() -> 
     a = 0.2
     held = theta + a * U[0]
     scaled = held.clone()
-    forces = torch.zeros(len(theta), dtype=torch.bool)
-    forces[vec.n_free :] = vec.coords.mass_scaled()
+    forces = vec.mass_scaled()
     assert int(forces.sum()) == 6  # the drag's coefficients, not the contact's
     scaled[forces] = theta[forces] * np.exp(a)
     held[forces] = theta[forces]

@@ -6,27 +6,17 @@ batched ``vector_entry_point`` (see :mod:`tensegrity_env.envs`). On a Linux mach
 without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
 imported) so that rendering works headless, or to ``osmesa`` where only that library
 is found, and leaves it unset where neither is
-(:func:`~tensegrity_env.headless.headless_gl_backend`); set it yourself to override.
+(:func:`~tensegrity_env.headless.default_mujoco_gl`); set it yourself to override.
 
 :class:`~tensegrity_env.model.Model` (topology, params, effects, dt; ``params.json``)
 and the names in ``__all__`` are imported on first use, so that importing the package
 stays fast.
 """
 
-import os
-import sys
-
-from tensegrity_env.headless import headless_gl_backend
+from tensegrity_env.headless import default_mujoco_gl
 from tensegrity_env.lazy import lazy_exports
 
-if (
-    sys.platform.startswith("linux")
-    and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    and "MUJOCO_GL" not in os.environ
-):
-    _backend = headless_gl_backend()
-    if _backend is not None:
-        os.environ["MUJOCO_GL"] = _backend
+default_mujoco_gl()
 
 
 def _register_envs() -> None:

@@ -9,7 +9,9 @@ that MuJoCo does not catch), so a backend is only chosen where its library is fo
 from __future__ import annotations
 
 import ctypes.util
-from collections.abc import Callable
+import os
+import sys
+from collections.abc import Callable, MutableMapping
 
 #: backends tried in order, with the shared library each needs
 BACKENDS = (("egl", "EGL"), ("osmesa", "OSMesa"))
@@ -24,3 +26,20 @@ def headless_gl_backend(
         if find_library(library):
             return backend
     return None
+
+
+def default_mujoco_gl(
+    environ: MutableMapping[str, str] = os.environ,
+    platform: str = sys.platform,
+    find_library: Callable[[str], str | None] = ctypes.util.find_library,
+) -> None:
+    """Set ``MUJOCO_GL`` in ``environ`` to :func:`headless_gl_backend` on a Linux machine
+    without a display (no ``DISPLAY`` or ``WAYLAND_DISPLAY``), unless it is set already
+    or no backend's library is found."""
+    if not platform.startswith("linux") or "MUJOCO_GL" in environ:
+        return
+    if environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY"):
+        return
+    backend = headless_gl_backend(find_library)
+    if backend is not None:
+        environ["MUJOCO_GL"] = backend

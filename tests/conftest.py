@@ -10,17 +10,9 @@ a temporary folder when the cache is disabled (``-p no:cacheprovider``).
 
 from __future__ import annotations
 
-import os
-
-from tensegrity_env.headless import headless_gl_backend
-
-# Headless rendering: MuJoCo picks its GL backend when first imported, and a test module may
-# import mujoco before anything of ours sets the default.
-if "MUJOCO_GL" not in os.environ and headless_gl_backend() is not None:
-    os.environ["MUJOCO_GL"] = str(headless_gl_backend())
-
 import dataclasses
 import hashlib
+import os
 import pickle
 import tempfile
 from collections.abc import Callable, Iterator
@@ -31,6 +23,10 @@ import pytest
 import torch
 from hypothesis import HealthCheck, settings
 
+# Headless rendering: MuJoCo picks its GL backend when first imported, and a test module may
+# import mujoco before anything of ours: importing the package sets the default first
+# (tensegrity_env.headless.default_mujoco_gl).
+import tensegrity_env  # noqa: F401
 from identification.data.dataset import Dataset, GroundTruth
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from identification.simulation.planted import PlantedData, PlantSpec, planted_dataset

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
-from tensegrity_env.headless import headless_gl_backend
+from tensegrity_env.headless import default_mujoco_gl, headless_gl_backend
 
 
 def test_a_backend_is_chosen_only_where_its_library_is_found() -> None:
@@ -16,11 +12,16 @@ def test_a_backend_is_chosen_only_where_its_library_is_found() -> None:
     assert headless_gl_backend(lambda name: None) is None
 
 
-def test_importing_the_package_headless_leaves_mujoco_importable() -> None:
-    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "WAYLAND_DISPLAY")}
-    code = ("import os, tensegrity_env, mujoco; "
-            "from tensegrity_env.headless import headless_gl_backend; "
-            "print(os.environ.get('MUJOCO_GL'), headless_gl_backend())")  # fmt: skip
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
-                         check=True).stdout.split()  # fmt: skip
-    assert out[0] == str(out[1])
+def _default(environ: dict[str, str], platform: str = "linux", found: bool = True) -> dict[str, str]:
+    env = dict(environ)
+    default_mujoco_gl(env, platform, lambda name: f"lib{name}.so" if found else None)
+    return env
+
+
+def test_mujoco_gl_is_set_only_headless_on_linux_and_where_a_backend_is_found() -> None:
+    assert _default({}) == {"MUJOCO_GL": "egl"}
+    assert _default({}, found=False) == {}  # no libEGL: unset, mujoco still imports
+    assert _default({"DISPLAY": ":0"}) == {"DISPLAY": ":0"}
+    assert _default({"WAYLAND_DISPLAY": "wayland-0"}) == {"WAYLAND_DISPLAY": "wayland-0"}
+    assert _default({}, platform="darwin") == {}
+    assert _default({"MUJOCO_GL": "osmesa"}) == {"MUJOCO_GL": "osmesa"}  # the user's choice

@@ -306,8 +306,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
                                  roll=True).windows  # fmt: skip
             fit = fit_trajectory(data, fit.vec, windows, final.theta, s.base_iter)
         fit.origin = final.theta
-        near = chosen.fit if data.on_floor else None
-        scored = self.score(chosen.name, self.with_reference(EndCapFits(fit, final)), near,
+        scored = self.score(chosen.name, self.with_reference(EndCapFits(fit, final)), chosen.fit,
                             fresh=True)  # fmt: skip
         return replace(chosen, fit=scored.fit, model=scored.model, heldout=scored.heldout,
                        bic=scored.bic)  # fmt: skip

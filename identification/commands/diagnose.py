@@ -25,6 +25,7 @@ from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_unit, ratio, write_params, write_report
 from identification.discovery.scorer import Scorer
+from identification.discovery.side_by_side import usable_cores
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from identification.trajectory.floor_evidence import contact_evidence
@@ -98,6 +99,10 @@ def register(sub: Any) -> None:
                    help=f"trajectory method: longest physics step; the engine substeps between "
                    f"samples (default {PHYSICS_DT:g}s)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
+    p.add_argument("--jobs", type=int, default=usable_cores(),
+                   help="candidates fitted at once, one worker process each (default: the "
+                   f"cores this process may use, here {usable_cores()}; 1: one after the "
+                   "other); the results do not depend on it")  # fmt: skip
     add_force_option(p)
     p.set_defaults(func=run)
 
@@ -140,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--smoothing", args.smoothing, 0, strict=True)
     check_number("--seed", args.seed, 0)
+    check_number("--jobs", args.jobs, 1)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
     raw, grid = on_nominal_grid(read_dataset(args.dataset))
     if grid.changed:
@@ -159,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    loop = EffectDiscovery(scorer, args.max_effects, names, plots=out)
+    loop = EffectDiscovery(scorer, args.max_effects, names, plots=out, jobs=args.jobs)
     with np.errstate(invalid="ignore", divide="ignore"):  # candidates may fit badly: judged
         result = loop.fit(dataset).result_
     truth = read_ground_truth(args.dataset)

@@ -29,7 +29,6 @@ regressions on rod states) and :class:`~identification.discovery.multi_step.Mult
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,9 +49,9 @@ from identification.discovery.library import FittedModel, Proposal
 from identification.discovery.negligible import force_ratio, group_power
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
+from identification.discovery.side_by_side import fit_side_by_side, fitted
 from identification.linear.regression import NotFittedError
 from tensegrity_env.engine import State
-from tensegrity_env.io_utils import InputError
 
 
 @dataclass
@@ -146,6 +145,8 @@ class EffectDiscovery:
         candidates: only these effects of the library (None: all).
         plots: folder for each iteration's residual PNG (None: none written).
         log: where progress lines go.
+        jobs: candidates fitted at once, each in a worker process
+            (:mod:`~identification.discovery.side_by_side`; 1: one after the other).
 
     Attributes (after :meth:`fit`):
         result_: the :class:`DiscoveryResult`.
@@ -160,12 +161,14 @@ class EffectDiscovery:
         candidates: Sequence[str] | None = None,
         plots: Path | None = None,
         log: Callable[[str], None] = print,
+        jobs: int = 1,
     ) -> None:
         self.scorer = scorer
         self.max_effects = max_effects
         self.candidates = candidates
         self.plots = plots
         self.log = log
+        self.jobs = jobs
 
     @property
     def model_(self) -> FittedModel:
@@ -232,25 +235,23 @@ class EffectDiscovery:
         tried: list[Candidate[Any]] = []
         skipped: list[Proposal] = []
         states = scorer.sample_states()
+        to_fit: list[Proposal] = []
         for p in scorer.propose(current, self.candidates):
             why = self.settled(p.name, last)
             if why:
                 p = Proposal(p.name, None, why)
-            if p.effect is None:
-                skipped.append(p)
-                continue
-            t0 = time.perf_counter()
-            try:
-                c = scorer.fit_candidate(current, p)
-            except CandidateSkipped as e:  # e.g. its fit diverged: never judged
-                skipped.append(Proposal(p.name, None, str(e)))
-                continue
-            except (RuntimeError, ValueError, InputError) as e:  # a singular or failed fit
-                skipped.append(Proposal(p.name, None, f"fit failed: {e}"))
-                continue
-            c.gate, c.seconds = p.gate, time.perf_counter() - t0
-            self.judged(c, current, states)
-            tried.append(c)
+            (skipped if p.effect is None else to_fit).append(p)
+        fits = fit_side_by_side(lambda p: scorer.fit_candidate(current, p), to_fit, self.jobs,
+                                self.log)  # fmt: skip
+        for p, c in zip(to_fit, fits, strict=True):
+            if isinstance(c, CandidateSkipped):  # e.g. its fit diverged: never judged
+                skipped.append(Proposal(p.name, None, str(c)))
+            elif isinstance(c, Exception):  # a singular or failed fit
+                skipped.append(Proposal(p.name, None, f"fit failed: {c}"))
+            else:
+                c.gate = p.gate
+                self.judged(c, current, states)
+                tried.append(c)
         chosen, second = self.choose(current, tried)
         return Iteration(current, tried, skipped, chosen, second, residual, test_now)
 
@@ -356,16 +357,16 @@ class EffectDiscovery:
         judged against the current model like any candidate (and added to
         ``it.candidates``); if it passes and its refit stays physical it is the choice.
         """
-        scorer, t0 = self.scorer, time.perf_counter()
+        scorer = self.scorer
         effect = next(e for e in chosen.model.effects if e.name == chosen.name)
         gate = (f"in place of {', '.join(stale)}, which its refit drove out of the physical "
                 "domain")  # fmt: skip
-        try:
-            c = scorer.fit_candidate(it.before, Proposal(chosen.name, effect, gate), stale)
-        except (CandidateSkipped, RuntimeError, ValueError, InputError) as e:
-            self.log(f"  {chosen.name} {gate}: not judged ({e})")
+        proposal = Proposal(chosen.name, effect, gate)
+        c = fitted(lambda p: scorer.fit_candidate(it.before, p, stale), proposal)
+        if isinstance(c, Exception):
+            self.log(f"  {chosen.name} {gate}: not judged ({c})")
             return None
-        c.gate, c.seconds = gate, time.perf_counter() - t0
+        c.gate = gate
         self.judged(c, it.before, scorer.sample_states())
         it.candidates.append(c)
         if not c.accepted:

@@ -210,22 +210,42 @@ class EndCapData:
         return self.on_floor or self.roll
 
     def cut(
-        self, name: str, steps: int, count: int, stream: int, airborne: bool = False
+        self,
+        name: str,
+        steps: int,
+        count: int,
+        stream: int,
+        airborne: bool = False,
+        lift_off: int = 0,
     ) -> Windows:
         """``count`` random windows of ``steps`` of split ``name``, states from smoothing.
 
         ``airborne``: only windows whose measured end caps all stay :data:`~identification.trajectory.airborne.AIRBORNE`
-        above touching the floor (none if there are none).
+        above touching the floor (none if there are none). ``lift_off``: up to this many
+        of the windows are drawn from those that **start in the air** (every end cap
+        that far above the floor at the window's first sample: a throw or a drop before
+        it lands, a jump), the rest from the others (from the remaining ones in the air
+        only where the others are too few).
         """
         split = self.dataset.split(name if name in self.dataset.splits else "test")
         if name not in self.smooth:
             self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
         win = cut_windows(split.nodes, split.control, grid, steps)
+        radii = torch.as_tensor(cap_radii(self.topology))
         if airborne:
-            gap = win.obs[..., 2] - torch.as_tensor(cap_radii(self.topology))
+            gap = win.obs[..., 2] - radii
             win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))
         rng = np.random.default_rng([self.seed, stream])
+        if lift_off and win.size > count:  # (unseen end caps read 0: not in the air)
+            in_air = ((win.obs[:, 0, :, 2] - radii).amin(dim=1) > AIRBORNE).numpy()
+            air, ground = (
+                rng.permutation(np.flatnonzero(in_air)),
+                rng.permutation(np.flatnonzero(~in_air)),
+            )
+            rest = np.concatenate([ground, air[lift_off:]])  # in the air only if too few others
+            pick = np.concatenate([air[:lift_off], rest[: count - min(lift_off, len(air))]])
+            return win.take(np.sort(pick))
         if win.size > count:
             win = win.take(np.sort(rng.choice(win.size, count, replace=False)))
         return win

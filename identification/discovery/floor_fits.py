@@ -91,8 +91,9 @@ def fit_declared_on_floor(
     data.contact_free = FLOOR_FREE
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps)")  # fmt: skip
-    many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window),
-                            min(s.fit_windows, FLOOR_WINDOWS), 3)  # fmt: skip
+    count = min(s.fit_windows, FLOOR_WINDOWS)
+    many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window), count, 3,
+                            lift_off=count // 2)  # fmt: skip
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
     assert vec.coords is not None

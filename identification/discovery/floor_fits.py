@@ -78,7 +78,8 @@ def fit_declared_on_floor(
     parameters start from ``values`` (a regression), else ``start`` (a params file),
     else the regression on the rods away from the floor; the contact from the one in
     ``effects``, else ``contact`` (a params file's), else the default start. Windows are at most
-    :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long.
+    :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long, :data:`FLOOR_WINDOWS`
+    at most, half of them starting in the air where the data has such windows.
     """
     t0 = time.perf_counter()
     data.on_floor = True

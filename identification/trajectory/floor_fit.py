@@ -45,6 +45,11 @@ through the engine, on short windows that touch the floor:
    effective mass, scale with the masses); the valley search steps along it over the
    jumps.
 
+Where some windows start in the air (a throw or drop before it lands), half the floor
+windows are drawn from those (:meth:`~identification.discovery.end_cap_data.EndCapData.cut`,
+``lift_off``): in that flight nothing but the declared model, gravity and a drag acts,
+so they pin the masses and a drag that the contact would otherwise take up.
+
 What the data pins: masses, inertias, stiffnesses, damping and rest lengths from the
 rods' motion away from and against the floor; the contact's stiffness, impedance and
 height together from how deep resting and landing caps sink (the three trade off

@@ -196,3 +196,35 @@ def test_the_common_scale_with_the_drag_scaled_leaves_the_motion_unchanged() -> 
     moved = window_errors(engine, vec, windows, held).sum()
     assert abs(float(same / base) - 1) < 1e-9, float(same / base)  # measured 1e-14
     assert abs(float(moved / base) - 1) > 1e-3, float(moved / base)  # measured -33 %
+
+
+def test_floor_windows_take_the_flight_before_touchdown_first() -> None:
+    """Half the floor windows start in the air where some do: a drop's flight before it lands
+    pins drag and masses apart from the contact."""
+    from identification.data.dataset import Dataset
+    from identification.discovery.end_cap_data import EndCapData, TrajectorySettings
+    from identification.trajectory.airborne import AIRBORNE, cap_radii
+
+    flight, _ = generate_dataset(GenerateSpec(n_train=2, n_val=1, n_test=1, steps=300, seed=3))
+    train = flight.split("train")
+    radii = cap_radii(flight.topology)
+    nodes = train.nodes.copy()
+    lift = np.where(np.arange(nodes.shape[1]) < 40, 0.3, 0.0)  # flies 40 samples, then rests
+    nodes[..., 2] += ((radii - nodes[..., 2]).max(axis=-1) + lift)[..., None]
+    splits = {**flight.splits, "train": replace(train, nodes=nodes)}
+    data = EndCapData(Dataset(flight.topology, flight.dt, splits, flight.attrs),
+                      TrajectorySettings(window=30))  # fmt: skip
+
+    def in_air(w) -> np.ndarray:
+        return (w.obs[:, 0, :, 2].numpy() - radii).min(axis=1) > AIRBORNE
+
+    # tiles of 30 steps: those at samples 0 and 30 of each trajectory start in the air
+    for lift_off, expect in ((4, 4), (2, 2), (0, None)):
+        w = data.cut("train", 30, 8, 3, lift_off=lift_off)
+        assert w.size == 8
+        if expect is not None:
+            assert int(in_air(w).sum()) == expect
+            assert set(w.start[in_air(w)]) <= {0, 30}
+    # in flight only (every window in the air): still 8 windows
+    only_air = EndCapData(flight, TrajectorySettings(window=30)).cut("train", 30, 8, 3, lift_off=4)
+    assert only_air.size == 8

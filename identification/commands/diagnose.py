@@ -99,9 +99,10 @@ def register(sub: Any) -> None:
                    help=f"trajectory method: longest physics step; the engine substeps between "
                    f"samples (default {PHYSICS_DT:g}s)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
-    p.add_argument("--jobs", type=int, default=usable_cores(),
+    cores = usable_cores()
+    p.add_argument("--jobs", type=int, default=cores,
                    help="candidates fitted at once, one worker process each (default: the "
-                   f"cores this process may use, here {usable_cores()}; 1: one after the "
+                   f"cores this process may use, here {cores}; 1: one after the "
                    "other); the results do not depend on it")  # fmt: skip
     add_force_option(p)
     p.set_defaults(func=run)

@@ -60,28 +60,38 @@ def floor_steps(data: EndCapData, s: TrajectorySettings, steps: int) -> int:
     return max(2, min(steps, round(FLOOR_WINDOW_S / data.dt)))
 
 
-def fit_declared_on_floor(
+@dataclass(frozen=True)
+class FloorFit:
+    """The declared model and ground contact fitted together on the floor windows.
+
+    ``fit`` is the fit on the windows of the training split; ``box`` the range each
+    contact parameter may move in later joint fits
+    (:func:`~identification.trajectory.floor_fit.contact_box` of the fitted values).
+    """
+
+    fit: TrajFit
+    box: dict[str, tuple[float, float]]
+
+
+def floor_fit(
     data: EndCapData,
     s: TrajectorySettings,
     start: Params | None = None,
     effects: Sequence[PhysicalEffect] = (),
     values: dict[str, np.ndarray] | None = None,
     contact: GroundContact | None = None,
-    selection: bool = True,
-) -> tuple[TrajFit, TrajFit]:
-    """The declared model and ground contact (and ``effects``) fitted together.
+) -> FloorFit:
+    """The declared model and ground contact (and ``effects``) fitted together on at most
+    :data:`FLOOR_WINDOWS` windows of the training split, each at most
+    :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long, half of them
+    starting in the air where the data has such windows.
 
-    Returns the fit on the many windows of the training split and the fit on the
-    training windows selection compares on (as
-    :func:`~identification.discovery.end_cap_fits.fit_declared`; without ``selection``
-    the second is the first, not refitted). The declared
-    parameters start from ``values`` (a regression), else ``start`` (a params file),
-    else the regression on the rods away from the floor; the contact from the one in
-    ``effects``, else ``contact`` (a params file's), else the default start. Windows are at most
-    :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long, :data:`FLOOR_WINDOWS`
-    at most, half of them starting in the air where the data has such windows.
+    The declared parameters start from ``values`` (a regression), else ``start`` (a
+    params file), else the regression on the rods away from the floor; the contact from
+    the one in ``effects``, else ``contact`` (a params file's), else the default start.
+    The fit's windows and contact range are returned, not kept in ``data``
+    (:func:`adopt_floor_fit` does that).
     """
-    t0 = time.perf_counter()
     data.on_floor = True
     vec = declared_start(data, s.anchors, start, values, rod_keep=floor_rows(data))
     data.declared_k = int(vec.free.sum())
@@ -98,14 +108,41 @@ def fit_declared_on_floor(
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
     assert vec.coords is not None
-    data.contact_box = {k: (lo, hi) for k, lo, hi in vec.coords.box}
     m = w.windows.residuals
-    many = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
-    many.origin = many.theta
-    data.windows["fit"] = many.windows
-    fit = many
+    fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
+    fit.origin = fit.theta
+    return FloorFit(fit, {k: (lo, hi) for k, lo, hi in vec.coords.box})
+
+
+def adopt_floor_fit(data: EndCapData, floor: FloorFit) -> None:
+    """Later fits use ``floor``'s windows (as the many training windows) and contact range."""
+    data.windows["fit"] = floor.fit.windows
+    data.contact_box = floor.box
+
+
+def fit_declared_on_floor(
+    data: EndCapData,
+    s: TrajectorySettings,
+    start: Params | None = None,
+    effects: Sequence[PhysicalEffect] = (),
+    values: dict[str, np.ndarray] | None = None,
+    contact: GroundContact | None = None,
+    selection: bool = True,
+) -> tuple[TrajFit, TrajFit]:
+    """The declared model and ground contact (and ``effects``) fitted together
+    (:func:`floor_fit`, starts as there), adopted for the later fits.
+
+    Returns the fit on the many windows of the training split and the fit on the
+    training windows selection compares on (as
+    :func:`~identification.discovery.end_cap_fits.fit_declared`; without ``selection``
+    the second is the first, not refitted).
+    """
+    t0 = time.perf_counter()
+    floor = floor_fit(data, s, start, effects, values, contact)
+    adopt_floor_fit(data, floor)
+    many = fit = floor.fit
     if selection:
-        fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)
+        fit = fit_trajectory(data, many.vec, data.windows["train"], many.theta, s.base_iter)
         fit.origin = many.theta
     data.log(f"    declared model and contact on {many.windows.size} floor windows: end-cap "
              f"RMS {many.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)")  # fmt: skip

@@ -69,7 +69,7 @@ from identification.discovery.end_cap_residuals import (
     summarize_window_residuals,
     window_residuals,
 )
-from identification.discovery.floor_fits import fit_declared_on_floor
+from identification.discovery.floor_fits import adopt_floor_fit, floor_fit
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.residual_network import ResidualFit
@@ -319,7 +319,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         One starts from the candidate as screened (the declared parameters and the
         contact at the current model's fit). The other is the floor fit of the declared
         model done afresh with the candidate's effects in it, from the same start as the
-        first one (:func:`~identification.discovery.floor_fits.fit_declared_on_floor`:
+        first one (:func:`~identification.discovery.floor_fits.floor_fit`:
         the regression, a contact search, the valley search). Where the current model's
         contact has taken up what the candidate explains (a dissipation it lacked, on an
         overdamped floor), the first stays there: on the bench's linear-drag floor cell
@@ -327,16 +327,14 @@ class MultiStepScorer(Scorer[EndCapFits]):
         plant's and the contact stiffness 95 % off, worse than the declared fit.
         """
         data, s = self.data, self.settings
-        kept = (data.windows["fit"], data.contact_box)
         near = fit_many(data, screened.vec, screened.theta, s, s.base_iter)
         effects = [e for e in screened.effects if not isinstance(e, GroundContact)]
-        afresh, _ = fit_declared_on_floor(data, s, self.start, effects, contact=self.contact,
-                                          selection=False)  # fmt: skip
+        afresh = floor_fit(data, s, self.start, effects, contact=self.contact)
         self.log(f"    floor refit from the screened candidate {near.rms * 1e3:.3f} mm, afresh "
-                 f"{afresh.rms * 1e3:.3f} mm")  # fmt: skip
-        if afresh.sse < near.sse:
-            return afresh
-        data.windows["fit"], data.contact_box = kept
+                 f"{afresh.fit.rms * 1e3:.3f} mm")  # fmt: skip
+        if afresh.fit.sse < near.sse:
+            adopt_floor_fit(data, afresh)
+            return afresh.fit
         return near
 
     def sample_states(self) -> State | None:

@@ -45,7 +45,7 @@ from identification.discovery.end_cap_data import (
     held_drag_axis,
     hold_declared,
 )
-from identification.discovery.floor_fits import fit_declared_on_floor
+from identification.discovery.floor_fits import FloorFit, fit_declared_on_floor
 from identification.discovery.library import contact_gate
 from identification.trajectory.airborne import (
     airborne_stretches,
@@ -336,6 +336,10 @@ class EndCapFits:
     #: windows, with the candidates' iterations): what its held-out error and BIC are
     #: measured on (None: ``fit``)
     reference: TrajFit | None = None
+    #: on the floor, the floor fit done afresh with the candidate's effects that ``fit``
+    #: started from (a candidate fitted jointly, see ``MultiStepScorer.second_look``;
+    #: None: screened with the rest held)
+    floor: FloorFit | None = None
 
     @property
     def scored(self) -> TrajFit:

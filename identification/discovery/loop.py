@@ -252,6 +252,19 @@ class EffectDiscovery:
                 c.gate = p.gate
                 self.judged(c, current, states)
                 tried.append(c)
+        looks = scorer.second_look(current, tried)
+        again = [p for p in to_fit if p.name in looks]
+        if again:
+            self.log(f"  fitted again with everything free: {', '.join(p.name for p in again)}")
+            fits = fit_side_by_side(lambda p: scorer.fit_jointly(current, p), again, self.jobs,
+                                    self.log)  # fmt: skip
+            for p, c in zip(again, fits, strict=True):
+                if isinstance(c, Exception):  # the screened candidate stays
+                    self.log(f"  candidate {p.name} fitted again: not used ({c})")
+                    continue
+                c.gate = p.gate
+                self.judged(c, current, states)
+                tried = [t for t in tried if t.name != p.name] + [c]
         chosen, second = self.choose(current, tried)
         return Iteration(current, tried, skipped, chosen, second, residual, test_now)
 

@@ -78,6 +78,16 @@ class Scorer(ABC, Generic[F]):
         Raises :class:`CandidateSkipped` when the fit cannot be judged (it diverged).
         """
 
+    def second_look(self, current: Candidate[F], tried: Sequence[Candidate[F]]) -> list[str]:
+        """Names of candidates of ``tried`` (judged against ``current``) to fit again with
+        :meth:`fit_jointly` before one is chosen (default: none)."""
+        return []
+
+    def fit_jointly(self, current: Candidate[F], proposal: Proposal) -> Candidate[F]:
+        """``current`` plus the proposed effect fitted with everything free, where
+        :meth:`fit_candidate` holds part of the model (default: :meth:`fit_candidate`)."""
+        return self.fit_candidate(current, proposal)
+
     @abstractmethod
     def gain(self, candidate: Candidate[F], current: Candidate[F]) -> float:
         """How much ``candidate`` lowers the held-out error (:attr:`criteria` unit)."""

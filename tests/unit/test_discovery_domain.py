@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from identification.discovery import EffectDiscovery, FittedModel
-from identification.discovery.judge import MULTI_STEP, Candidate
+from identification.discovery.judge import MIN_CHI2_GAIN, MULTI_STEP, Candidate
 from identification.discovery.library import Proposal
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.scorer import Residual, Scorer
 from tensegrity_env import assemblies
-from tensegrity_env.effects import LinearDrag, QuadraticDrag
+from tensegrity_env.effects import ForceField, LinearDrag, QuadraticDrag
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.model import Model
 
@@ -178,3 +178,70 @@ def test_an_earlier_effect_driven_out_of_its_domain_is_replaced(gain_alone):
     else:  # quadratic drag alone does not beat linear drag: the current model stays
         assert not alone.accepted and "drops only 1" in alone.verdict
         assert it.chosen is None and loop.model_.names == ["linear_drag"]
+
+
+# A second look: a scorer may fit the most promising screened candidates again with
+# everything free (Scorer.second_look, Scorer.fit_jointly); they are judged on that fit.
+
+FORCE_FIELD = model_with(ForceField(ICO.topology, force=[0.0, 0.0, 0.1]))
+
+
+class LookingScorer(StubScorer):
+    """Screened gains below the threshold; fitted jointly, ``joint`` gains."""
+
+    def __init__(self, screened: dict[str, float], joint: dict[str, float], looks: list[str]):
+        models = {
+            "linear_drag": LINEAR_OK,
+            "quadratic_drag": QUADRATIC_OK,
+            "force_field": FORCE_FIELD,
+        }
+        super().__init__({n: (models[n], g, models[n]) for n, g in screened.items()})
+        self.joint, self.looks = joint, looks
+        self.looked: list[str] = []
+        self.seen: list[list[tuple[str, float]]] = []
+
+    def second_look(self, current: Candidate[None], tried: Sequence[Candidate[None]]) -> list[str]:
+        self.seen.append([(c.name, c.gain) for c in tried])
+        return self.looks
+
+    def fit_jointly(self, current: Candidate[None], proposal: Proposal) -> Candidate[None]:
+        self.looked.append(proposal.name)
+        c = self.fit_candidate(current, proposal)
+        c.heldout = {"jointly": 1.0}
+        return c
+
+    def gain(self, candidate: Candidate[None], current: Candidate[None]) -> float:
+        if "jointly" in candidate.heldout:
+            return self.joint[candidate.name]
+        return super().gain(candidate, current)
+
+
+def run_looking(scorer: LookingScorer) -> tuple[EffectDiscovery, list[str]]:
+    lines: list[str] = []
+    loop = EffectDiscovery(scorer, max_effects=1, log=lines.append, jobs=1)
+    loop.fit(None)  # type: ignore[arg-type]
+    return loop, lines
+
+
+def test_a_candidate_fitted_again_jointly_is_judged_on_that_fit_and_named():
+    low = MIN_CHI2_GAIN / 2
+    scorer = LookingScorer({"linear_drag": low, "quadratic_drag": low / 2, "force_field": -1.0},
+                           {"linear_drag": 40 * MIN_CHI2_GAIN}, ["linear_drag"])  # fmt: skip
+    loop, lines = run_looking(scorer)
+    assert scorer.seen[0] == [("linear_drag", low), ("quadratic_drag", low / 2),
+                              ("force_field", -1.0)]  # fmt: skip
+    assert scorer.looked == ["linear_drag"]
+    assert "  fitted again with everything free: linear_drag" in lines
+    assert loop.result_.added == ["linear_drag"]
+    judged = {c.name: c for c in loop.iterations_[0].candidates}
+    assert judged["linear_drag"].gain == 40 * MIN_CHI2_GAIN  # the joint fit replaced the screen
+    assert judged["quadratic_drag"].gain == low / 2 and not judged["quadratic_drag"].accepted
+
+
+def test_without_a_second_look_the_screens_decide():
+    low = MIN_CHI2_GAIN / 2
+    scorer = LookingScorer({"linear_drag": low, "quadratic_drag": low / 2},
+                           {"linear_drag": 40 * MIN_CHI2_GAIN}, [])  # fmt: skip
+    loop, lines = run_looking(scorer)
+    assert scorer.looked == [] and loop.result_.added == []
+    assert not any("fitted again" in line for line in lines)

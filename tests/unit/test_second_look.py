@@ -1,0 +1,40 @@
+"""Which candidates the multi-step scorer looks at again: on the floor, where no screened
+candidate passes and the current model misfits, the most promising ones are fitted
+again with everything free (``MultiStepScorer.second_look``; the loop's side is tested
+in ``test_discovery_domain.py``)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+from identification.discovery.multi_step import MISFIT, SECOND_LOOKS, MultiStepScorer
+
+
+def looks(rms: float, gains: dict[str, float], on_floor: bool = True,
+          accepted: str = "") -> list[str]:  # fmt: skip
+    """``MultiStepScorer.second_look`` with a current model fitting to ``rms`` [m] at a
+    noise level of 1 mm, and candidates with ``gains``."""
+    scorer = MultiStepScorer.__new__(MultiStepScorer)
+    scorer.data = SimpleNamespace(on_floor=on_floor)  # type: ignore[assignment]
+    scorer.noise = 1e-3
+    current: Any = SimpleNamespace(fit=SimpleNamespace(final=SimpleNamespace(rms=rms)))
+    tried: Any = [SimpleNamespace(name=n, gain=g, accepted=n == accepted) for n, g in gains.items()]
+    return scorer.second_look(current, tried)
+
+
+def test_the_second_look_takes_the_largest_positive_gains_of_a_misfitting_floor_model():
+    gains = {"linear_drag": 6.4, "quadratic_drag": 8.2, "force_field": 0.8, "cubic": -3.0}
+    assert SECOND_LOOKS == 2
+    assert looks(2.7e-3, gains) == ["quadratic_drag", "linear_drag"]
+    assert looks(2.7e-3, {"force_field": 0.8, "cubic": -3.0}) == ["force_field"]
+    assert looks(2.7e-3, {"cubic": -3.0}) == []
+
+
+def test_no_second_look_at_the_noise_level_in_flight_or_once_a_screen_passes():
+    gains = {"linear_drag": 6.4, "quadratic_drag": 8.2}
+    assert looks(1.07e-3, gains) == []  # a floor-only control's fit
+    assert looks(MISFIT * 1e-3 * 0.999, gains) == []
+    assert looks(MISFIT * 1e-3 * 1.001, gains) == ["quadratic_drag", "linear_drag"]
+    assert looks(2.7e-3, gains, on_floor=False) == []
+    assert looks(2.7e-3, gains, accepted="linear_drag") == []

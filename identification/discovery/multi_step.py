@@ -72,6 +72,7 @@ from identification.discovery.end_cap_residuals import (
 from identification.discovery.floor_fits import FloorFit, adopt_floor_fit, floor_fit
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import Proposal, contact_gate, propose
+from identification.discovery.negligible import NEGLIGIBLE
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
@@ -254,8 +255,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
     ) -> list[str]:
         """On the floor, where no screened candidate passes and the current model fits the
         training windows worse than :data:`MISFIT` times the noise level: the
-        :data:`SECOND_LOOKS` candidates with the largest positive held-out gains, to be
-        fitted with the declared model and the contact free (:meth:`fit_jointly`).
+        :data:`SECOND_LOOKS` candidates with the largest positive held-out gains and a
+        force that is not negligible, to be fitted with the declared model and the contact
+        free (:meth:`fit_jointly`).
 
         A screen holds the declared parameters and the contact where the current model's
         fit left them; where that fit made up for a missing effect they stay there, and the
@@ -268,7 +270,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
             return []
         if not current.fit.final.rms > MISFIT * self.noise:
             return []
-        hopeful = sorted((c for c in tried if c.gain > 0), key=lambda c: -c.gain)
+        # (a negligible force cannot be what the model misses: its gain is the states')
+        hopeful = sorted((c for c in tried if c.gain > 0 and not c.size < NEGLIGIBLE),
+                         key=lambda c: -c.gain)  # fmt: skip
         return [c.name for c in hopeful[:SECOND_LOOKS]]
 
     def fit_jointly(

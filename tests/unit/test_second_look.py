@@ -12,14 +12,16 @@ from identification.discovery.multi_step import MISFIT, SECOND_LOOKS, MultiStepS
 
 
 def looks(rms: float, gains: dict[str, float], on_floor: bool = True,
-          accepted: str = "") -> list[str]:  # fmt: skip
+          accepted: str = "", sizes: dict[str, float] | None = None) -> list[str]:  # fmt: skip
     """``MultiStepScorer.second_look`` with a current model fitting to ``rms`` [m] at a
     noise level of 1 mm, and candidates with ``gains``."""
     scorer = MultiStepScorer.__new__(MultiStepScorer)
     scorer.data = SimpleNamespace(on_floor=on_floor)  # type: ignore[assignment]
     scorer.noise = 1e-3
     current: Any = SimpleNamespace(fit=SimpleNamespace(final=SimpleNamespace(rms=rms)))
-    tried: Any = [SimpleNamespace(name=n, gain=g, accepted=n == accepted) for n, g in gains.items()]
+    size = sizes or {}
+    tried: Any = [SimpleNamespace(name=n, gain=g, accepted=n == accepted, size=size.get(n, 0.01))
+                  for n, g in gains.items()]  # fmt: skip
     return scorer.second_look(current, tried)
 
 
@@ -38,3 +40,11 @@ def test_no_second_look_at_the_noise_level_in_flight_or_once_a_screen_passes():
     assert looks(MISFIT * 1e-3 * 1.001, gains) == ["quadratic_drag", "linear_drag"]
     assert looks(2.7e-3, gains, on_floor=False) == []
     assert looks(2.7e-3, gains, accepted="linear_drag") == []
+
+
+def test_no_second_look_at_a_candidate_whose_force_is_negligible():
+    """After linear drag on the joint-damping floor cell, force field and cubic stiffness
+    gained about 104 with forces of 0.00 % of the rods' weight: the states' gain."""
+    gains = {"quadratic_drag": 72.1, "force_field": 104.7, "cubic_stiffness": 104.2}
+    sizes = {"force_field": 1e-6, "cubic_stiffness": 2e-6, "quadratic_drag": float("nan")}
+    assert looks(1.37e-3, gains, sizes=sizes) == ["quadratic_drag"]

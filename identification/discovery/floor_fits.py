@@ -62,15 +62,18 @@ def floor_steps(data: EndCapData, s: TrajectorySettings, steps: int) -> int:
 
 @dataclass(frozen=True)
 class FloorFit:
-    """The declared model and ground contact fitted together on the floor windows.
-
-    ``fit`` is the fit on the windows of the training split; ``box`` the range each
-    contact parameter may move in later joint fits
-    (:func:`~identification.trajectory.floor_fit.contact_box` of the fitted values).
-    """
+    """The declared model and ground contact fitted together on the floor windows of the
+    training split (``fit``, its vector bounded around the fitted contact)."""
 
     fit: TrajFit
-    box: dict[str, tuple[float, float]]
+
+    @property
+    def box(self) -> dict[str, tuple[float, float]]:
+        """The range each contact parameter may move in later joint fits
+        (:func:`~identification.trajectory.floor_fit.contact_box` of the fitted values)."""
+        coords = self.fit.vec.coords
+        assert coords is not None
+        return {k: (lo, hi) for k, lo, hi in coords.box}
 
 
 def floor_fit(
@@ -107,11 +110,10 @@ def floor_fit(
                             lift_off=count // 2)  # fmt: skip
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
-    assert vec.coords is not None
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
     fit.origin = fit.theta
-    return FloorFit(fit, {k: (lo, hi) for k, lo, hi in vec.coords.box})
+    return FloorFit(fit)
 
 
 def adopt_floor_fit(data: EndCapData, floor: FloorFit) -> None:

@@ -232,7 +232,6 @@ class EffectDiscovery:
         """One pass: every candidate fitted, scored and judged; the best passing one chosen
         (``last``: the pass before, see :meth:`settled`)."""
         scorer = self.scorer
-        tried: list[Candidate[Any]] = []
         skipped: list[Proposal] = []
         states = scorer.sample_states()
         to_fit: list[Proposal] = []
@@ -241,32 +240,42 @@ class EffectDiscovery:
             if why:
                 p = Proposal(p.name, None, why)
             (skipped if p.effect is None else to_fit).append(p)
-        fits = fit_side_by_side(lambda p: scorer.fit_candidate(current, p), to_fit, self.jobs,
-                                self.log)  # fmt: skip
-        for p, c in zip(to_fit, fits, strict=True):
-            if isinstance(c, CandidateSkipped):  # e.g. its fit diverged: never judged
-                skipped.append(Proposal(p.name, None, str(c)))
-            elif isinstance(c, Exception):  # a singular or failed fit
-                skipped.append(Proposal(p.name, None, f"fit failed: {c}"))
-            else:
-                c.gate = p.gate
-                self.judged(c, current, states)
-                tried.append(c)
+        tried, refused = self.fit_and_judge(scorer.fit_candidate, to_fit, current, states)
+        skipped += refused
         looks = scorer.second_look(current, tried)
         again = [p for p in to_fit if p.name in looks]
         if again:
             self.log(f"  fitted again with everything free: {', '.join(p.name for p in again)}")
-            fits = fit_side_by_side(lambda p: scorer.fit_jointly(current, p), again, self.jobs,
-                                    self.log)  # fmt: skip
-            for p, c in zip(again, fits, strict=True):
-                if isinstance(c, Exception):  # the screened candidate stays
-                    self.log(f"  candidate {p.name} fitted again: not used ({c})")
-                    continue
-                c.gate = p.gate
-                self.judged(c, current, states)
-                tried = [t for t in tried if t.name != p.name] + [c]
+            joint, refused = self.fit_and_judge(scorer.fit_jointly, again, current, states)
+            for p in refused:  # the screened candidate stays
+                self.log(f"  candidate {p.name} fitted again: not used ({p.gate})")
+            names = {c.name for c in joint}
+            tried = [t for t in tried if t.name not in names] + joint
         chosen, second = self.choose(current, tried)
         return Iteration(current, tried, skipped, chosen, second, residual, test_now)
+
+    def fit_and_judge(
+        self,
+        fit: Callable[[Candidate[Any], Proposal], Candidate[Any]],
+        proposals: Sequence[Proposal],
+        current: Candidate[Any],
+        states: State | None,
+    ) -> tuple[list[Candidate[Any]], list[Proposal]]:
+        """``fit(current, p)`` for each proposal, side by side, each fitted candidate judged
+        against ``current``; returns them and the refused proposals (the reason as gate)."""
+        fits = fit_side_by_side(lambda p: fit(current, p), proposals, self.jobs, self.log)
+        judged: list[Candidate[Any]] = []
+        refused: list[Proposal] = []
+        for p, c in zip(proposals, fits, strict=True):
+            if isinstance(c, CandidateSkipped):  # e.g. its fit diverged: never judged
+                refused.append(Proposal(p.name, None, str(c)))
+            elif isinstance(c, Exception):  # a singular or failed fit
+                refused.append(Proposal(p.name, None, f"fit failed: {c}"))
+            else:
+                c.gate = p.gate
+                self.judged(c, current, states)
+                judged.append(c)
+        return judged, refused
 
     def settled(self, name: str, last: Iteration | None) -> str:
         """Why candidate ``name`` is not fitted again after ``last`` added an effect ("": it is).

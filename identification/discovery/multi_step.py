@@ -246,9 +246,16 @@ class MultiStepScorer(Scorer[EndCapFits]):
             fit = screen_with(self.data, now, [*held, proposal.effect], s.candidate_iter)
         else:
             fit = fit_with(self.data, now, [*keep, proposal.effect], s.candidate_iter)
+        return self.score_candidate(proposal.name, fit, current)
+
+    def score_candidate(
+        self, name: str, fit: TrajFit, current: Candidate[EndCapFits], floor: FloorFit | None = None
+    ) -> Candidate[EndCapFits]:
+        """Candidate ``name`` fitted as ``fit`` (from ``floor``, if fitted afresh), scored
+        against ``current``; :class:`CandidateSkipped` if the fit diverged."""
         if fit_diverged(fit.rms, self.noise):
             raise CandidateSkipped(f"its fit diverged (end-cap RMS {fit.rms * 1e3:.3g} mm)")
-        return self.score(proposal.name, EndCapFits(fit, fit), current.fit)
+        return self.score(name, EndCapFits(fit, fit, floor=floor), current.fit)
 
     def second_look(
         self, current: Candidate[EndCapFits], tried: Sequence[Candidate[EndCapFits]]
@@ -291,9 +298,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         floor = floor_fit(data, s, self.start, [*others, proposal.effect], contact=self.contact)
         fit = fit_trajectory(data, floor.fit.vec, now.windows, floor.fit.theta, s.candidate_iter)
         fit.origin = floor.fit.theta
-        if fit_diverged(fit.rms, self.noise):
-            raise CandidateSkipped(f"its fit diverged (end-cap RMS {fit.rms * 1e3:.3g} mm)")
-        return self.score(proposal.name, EndCapFits(fit, fit, floor=floor), current.fit)
+        return self.score_candidate(proposal.name, fit, current, floor)
 
     def gain(self, candidate: Candidate[EndCapFits], current: Candidate[EndCapFits]) -> float:
         """Held-out chi-square removed: ``(SSE_val(current) - SSE_val) / σ̂²``."""

@@ -159,6 +159,10 @@ class TrajFit:
         return float(np.sqrt(self.sse / self.m))
 
 
+#: the window sets of :class:`EndCapData`, in the order of their random streams
+SPLIT_WINDOWS = ("train", "val", "test", "fit")
+
+
 class EndCapData:
     """Windows of every split, their smoothed starting states, and the fixed context."""
 
@@ -170,12 +174,13 @@ class EndCapData:
         self.dataset, self.seed = dataset, s.seed
         self.smooth: dict[str, Any] = {}
         self.windows: dict[str, Windows] = {}
-        counts = {"train": s.train_windows, "val": s.val_windows, "test": s.test_windows,
-                  "fit": s.fit_windows}  # fmt: skip
-        for k, name in enumerate(("train", "val", "test", "fit")):
+        self.counts = {"train": s.train_windows, "val": s.val_windows, "test": s.test_windows,
+                       "fit": s.fit_windows}  # fmt: skip
+        self.window = s.window
+        for k, name in enumerate(SPLIT_WINDOWS):
             steps = s.fit_window if name == "fit" and s.fit_window > 0 else s.window
             self.windows[name] = self.cut("train" if name == "fit" else name, steps,
-                                          counts[name], k)  # fmt: skip
+                                          self.counts[name], k)  # fmt: skip
         self.smooth["fit"] = self.smooth["train"]
         self.train: Split = dataset.split("train")
         #: contact parameters fitted by Levenberg-Marquardt; () once they come from the
@@ -208,6 +213,20 @@ class EndCapData:
         by 49 mm).
         """
         return self.on_floor or self.roll
+
+    def lift_off_selection(self) -> None:
+        """On the floor: half of the selection (training) and validation windows drawn
+        from those that start in the air (``cut``'s ``lift_off``), as the floor fit's.
+
+        Drawn at random, nearly all of them lie on the floor, where friction holds a
+        horizontal force and the contact's fitted stiffness and damping take up a
+        vertical one or a drag: the force-field floor cell (seed 0) screened the planted
+        field with a held-out chi-square gain of 0.34 on such windows.
+        """
+        for name in ("train", "val"):
+            count = self.counts[name]
+            self.windows[name] = self.cut(name, self.window, count,
+                                          SPLIT_WINDOWS.index(name), lift_off=count // 2)  # fmt: skip
 
     def cut(
         self,

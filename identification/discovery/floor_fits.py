@@ -144,6 +144,7 @@ def fit_declared_on_floor(
     adopt_floor_fit(data, floor)
     many = fit = floor.fit
     if selection:
+        data.lift_off_selection()
         fit = fit_trajectory(data, many.vec, data.windows["train"], many.theta, s.base_iter)
         fit.origin = many.theta
     data.log(f"    declared model and contact on {many.windows.size} floor windows: end-cap "

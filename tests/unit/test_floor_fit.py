@@ -228,3 +228,9 @@ def test_floor_windows_take_the_flight_before_touchdown_first() -> None:
     # in flight only (every window in the air): still 8 windows
     only_air = EndCapData(flight, TrajectorySettings(window=30)).cut("train", 30, 8, 3, lift_off=4)
     assert only_air.size == 8
+    # the selection windows on the floor: half from those starting in the air, same length
+    before = data.windows["train"]
+    data.lift_off_selection()
+    chosen = data.windows["train"]
+    assert chosen.size == before.size == 8 and chosen.steps == before.steps
+    assert int(in_air(chosen).sum()) == 4

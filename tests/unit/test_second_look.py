@@ -8,7 +8,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from identification.discovery.multi_step import MISFIT, SECOND_LOOKS, MultiStepScorer
+from identification.discovery.multi_step import MISFIT, RIVALS, SECOND_LOOKS, MultiStepScorer
 
 
 def looks(rms: float, gains: dict[str, float], on_floor: bool = True,
@@ -31,6 +31,21 @@ def test_the_second_look_takes_the_largest_positive_gains_of_a_misfitting_floor_
     assert looks(2.7e-3, gains) == ["quadratic_drag", "linear_drag"]
     assert looks(2.7e-3, {"force_field": 0.8, "cubic": -3.0}) == ["force_field"]
     assert looks(2.7e-3, {"cubic": -3.0}) == []
+
+
+def test_a_drag_looked_at_again_brings_its_rival_whatever_its_screened_gain():
+    """The quadratic-drag floor cell's screens put quadratic drag third, behind linear drag
+    and cubic stiffness: fitted again alone, linear drag passed."""
+    assert RIVALS["linear_drag"] == "quadratic_drag" and RIVALS["quadratic_drag"] == "linear_drag"
+    gains = {"linear_drag": 30.0, "cubic": 12.0, "quadratic_drag": 9.0, "force_field": 1.0}
+    assert looks(1.4e-3, gains) == ["linear_drag", "cubic", "quadratic_drag"]
+    gains["quadratic_drag"] = -5.0  # a screen that made held-out prediction worse: still
+    assert looks(1.4e-3, gains) == ["linear_drag", "cubic", "quadratic_drag"]
+    # not a rival whose force is negligible, nor one never screened
+    sizes = {"quadratic_drag": 1e-6}
+    assert looks(1.4e-3, gains, sizes=sizes) == ["linear_drag", "cubic"]
+    del gains["quadratic_drag"]
+    assert looks(1.4e-3, gains) == ["linear_drag", "cubic"]
 
 
 def test_no_second_look_at_the_noise_level_in_flight_or_once_a_screen_passes():

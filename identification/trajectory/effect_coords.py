@@ -4,8 +4,9 @@ The windowed trajectory fit minimises end-cap errors over a vector ``theta`` of 
 coordinates. :class:`EffectCoords` appends the parameters of a list of effects to it:
 
 * a :class:`~tensegrity_env.effects.base.LinearEffect` (drag, force field, cubic or
-  compression stiffness) contributes every entry of its ``theta()`` as is (signed,
-  linear: its wrench is linear in them; physical signs are checked afterwards);
+  compression stiffness) contributes every entry of its ``theta()`` as is (linear: its
+  wrench is linear in them), bounded below by its physical domain (drag coefficients
+  >= 0: the fit's steps are projected onto the bound, see :meth:`EffectCoords.bounds`);
 * a :class:`~tensegrity_env.effects.GroundContact` contributes
   :data:`CONTACT_FREE` in the unconstrained coordinates of
   :func:`~identification.trajectory.effect_fit.to_free` (log, logit);
@@ -122,16 +123,20 @@ class EffectCoords:
         return torch.tensor(out, dtype=DTYPE)
 
     def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Box on the coordinates: none for linear ones, for contact :attr:`box` where it
-        names the parameter, else ±:data:`CONTACT_BOX` around the start."""
+        """Box on the coordinates: for linear ones their physical lower bound
+        (:meth:`~tensegrity_env.effects.base.LinearEffect.theta_lower`: drag coefficients
+        stay >= 0, signed ones are free), for contact :attr:`box` where it names the
+        parameter, else ±:data:`CONTACT_BOX` around the start."""
         lo, hi = [], []
         x0 = self.start()
         limits = {k: (a, b) for k, a, b in self.box}
         i = 0
-        for s, n in zip(self.slots, self.sizes(), strict=True):
+        for j, (s, n) in enumerate(zip(self.slots, self.sizes(), strict=True)):
+            if s is None:
+                floor = self.effects[j].theta_lower()[self._free_idx(j)]  # type: ignore[attr-defined]
             for k in range(n):
                 if s is None:
-                    lo.append(-np.inf)
+                    lo.append(float(floor[k]))
                     hi.append(np.inf)
                 elif s[k] in limits:
                     lo.append(limits[s[k]][0])

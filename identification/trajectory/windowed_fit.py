@@ -174,12 +174,16 @@ def _damped(H: torch.Tensor, lam: float) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def schur_step(
-    ne: NormalEquations, lam: float
+    ne: NormalEquations, lam: float, held: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor, float, torch.Tensor]:
     """Solve ``(H + lam D) δ = -g`` by eliminating the window states.
 
+    ``held`` (n_g,) bool: global coordinates that do not move (``δθ = 0`` there; the
+    others and the states solve the system without them).
+
     Returns δz (B, n_l), δθ (n_g,), the predicted decrease of the sum of squares
-    ``δᵀ(lam D δ - g)`` [m^2] and the reduced matrix ``S = A_gg - Σ H_gl A_ll⁻¹ H_lg``.
+    ``δᵀ(lam D δ - g)`` [m^2] and the reduced matrix ``S = A_gg - Σ H_gl A_ll⁻¹ H_lg``
+    (of every coordinate, held ones included).
     """
     n_g = ne.H_gg.shape[0]
     A_ll, D_l = _damped(ne.H_ll, lam)
@@ -188,11 +192,37 @@ def schur_step(
     S = A_gg - torch.einsum("bli,blj->ij", ne.H_lg, Y[..., :n_g])
     b = -ne.g_g + torch.einsum("bli,bl->i", ne.H_lg, Y[..., n_g])
     S = 0.5 * (S + S.T)
-    d_theta = torch.linalg.solve(S, b)
+    if held is not None and bool(held.any()):
+        idx = held.nonzero().squeeze(-1)
+        S_free, b = S.clone(), b.clone()
+        S_free[idx, :], S_free[:, idx], b[idx] = 0.0, 0.0, 0.0
+        S_free[idx, idx] = 1.0
+        d_theta = torch.linalg.solve(S_free, b)
+    else:
+        d_theta = torch.linalg.solve(S, b)
     d_z = -(Y[..., n_g] + torch.einsum("blj,j->bl", Y[..., :n_g], d_theta))
     pred = lam * ((D_l * d_z**2).sum() + (D_g * d_theta**2).sum())
     pred -= (ne.g_l * d_z).sum() + (ne.g_g * d_theta).sum()
     return d_z, d_theta, float(pred), S
+
+
+def bounded_step(
+    ne: NormalEquations, lam: float, theta: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, float, torch.Tensor]:
+    """:func:`schur_step` inside the box ``lo <= θ <= hi`` (n_g,) (an active set).
+
+    A coordinate on a bound whose step would leave the box is held there and the
+    step solved again without it (a drag coefficient at 0 that the data would make
+    negative); a coordinate that would cross a bound from inside is stopped on it.
+    """
+    held = torch.zeros_like(theta, dtype=torch.bool)
+    for _ in range(theta.numel() + 1):
+        d_z, d_theta, pred, S = schur_step(ne, lam, held)
+        out = ((theta <= lo) & (d_theta < 0)) | ((theta >= hi) & (d_theta > 0))
+        if not bool((out & ~held).any()):
+            break
+        held = held | out
+    return d_z, (theta + d_theta).clamp(lo, hi) - theta, pred, S
 
 
 @torch.no_grad()
@@ -298,13 +328,14 @@ def fit_windows(
     """
     basis = local_basis(vec.axes, spin, roll)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # batch of the FD Jacobian
+    lo, hi = vec.bounds()
+    theta = theta.clamp(lo, hi)  # a start outside the physical domain (a screen's drag < 0)
     ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
     dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
     history = [ne.sse / ne.m]
     exact = (1e-12 * max(1.0, float(windows.obs.abs().max()))) ** 2  # round-off [m^2]
-    _, _, newton, S = schur_step(ne, 0.0)
+    _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi)
     score = newton / max(ne.sse / dof, 1e-300)
-    lo, hi = vec.bounds()
     done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
     lam, nu, converged = 1e-7, 2.0, done
 
@@ -320,8 +351,7 @@ def fit_windows(
     for _ in range(max_iter if not done else 0):
         while True:
             try:
-                d_z, d_theta, pred, _ = schur_step(ne, lam)
-                d_theta = (theta + d_theta).clamp(lo, hi) - theta
+                d_z, d_theta, pred, _ = bounded_step(ne, lam, theta, lo, hi)
                 if not (bool(torch.isfinite(d_theta).all()) and bool(torch.isfinite(d_z).all())):
                     raise FloatingPointError("non-finite step")
             except (torch.linalg.LinAlgError, FloatingPointError):
@@ -346,7 +376,7 @@ def fit_windows(
             break
         windows, theta = trial, theta + d_theta
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
-        _, _, newton, S = schur_step(ne, 0.0)
+        _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi)
         history.append(ne.sse / ne.m)
         if progress is not None:
             progress(history[-1])

@@ -248,6 +248,15 @@ class LinearEffect(PhysicalEffect):
         """All fitted parameter entries, flattened in :attr:`PARAMS` order, (P,)."""
         return torch.cat([self.values[k].reshape(-1) for k in self.fitted_params()])
 
+    def theta_lower(self) -> torch.Tensor:
+        """The physical lower bound of each entry of :meth:`theta`, (P,): 0 where its
+        parameter is ``positive`` (a drag coefficient), ``-inf`` where it is signed."""
+        return torch.cat([
+            torch.full((self.values[k].numel(),), 0.0 if self.PARAMS[k].positive else -np.inf,
+                       dtype=torch.float64)
+            for k in self.fitted_params()
+        ] or [torch.zeros(0, dtype=torch.float64)])  # fmt: skip
+
     def theta_names(self) -> list[str]:
         """A name per entry of :meth:`theta`, e.g. ``translational[x]``."""
         names = []

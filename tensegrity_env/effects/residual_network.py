@@ -209,6 +209,10 @@ class ResidualNetwork(LinearEffect):
         lin = self.network.readout
         return torch.cat([lin.weight, lin.bias[:, None]], dim=1).reshape(-1).detach()
 
+    def theta_lower(self) -> torch.Tensor:
+        """No bound on the readout, (6 (H + 1),)."""
+        return torch.full_like(self.theta(), -np.inf, dtype=torch.float64)
+
     def theta_names(self) -> list[str]:
         K = self.network.readout.in_features + 1
         return [f"{o}[{'bias' if j == K - 1 else j}]" for o in OUTPUTS for j in range(K)]

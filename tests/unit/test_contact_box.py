@@ -30,7 +30,7 @@ def test_box_spans_the_contact_range_around_its_values() -> None:
         assert lo < v < hi and 0 < lo and hi < 1
 
 
-def test_effect_coords_take_the_box_for_the_contact_and_leave_linear_effects_free() -> None:
+def test_effect_coords_take_the_box_for_the_contact_and_only_bound_drag_at_zero() -> None:
     topo = assemblies.icosahedron().topology
     contact = GroundContact(topo, stiffness=1200.0, damping=80.0, friction=0.6,
                             impedance=0.9, height=0.002)  # fmt: skip
@@ -38,7 +38,7 @@ def test_effect_coords_take_the_box_for_the_contact_and_leave_linear_effects_fre
     boxed = EffectCoords.of([drag, contact], None, FLOOR_FREE, contact_box(contact))
     lo, hi = boxed.bounds()
     n_drag = boxed.sizes()[0]
-    assert np.all(np.isinf(lo[:n_drag].numpy())) and np.all(np.isinf(hi[:n_drag].numpy()))
+    assert np.all(lo[:n_drag].numpy() == 0.0) and np.all(np.isinf(hi[:n_drag].numpy()))
     k = FLOOR_FREE.index("height")
     assert float(hi[n_drag + k] - lo[n_drag + k]) == pytest.approx(2 * CONTACT_RANGE["height"])
     # without a box: ±CONTACT_BOX around the start (5 m on the floor height)

@@ -147,6 +147,19 @@ class EffectCoords:
             i += n
         return torch.tensor(lo, dtype=DTYPE), torch.tensor(hi, dtype=DTYPE)
 
+    def hard_bounds(self) -> torch.Tensor:
+        """Which coordinates (n,) bool have a physical bound in :meth:`bounds` (a drag
+        coefficient's 0) rather than a search box (contact): the fit holds those on
+        their bound (:func:`~identification.trajectory.windowed_fit.bounded_step`)."""
+        out: list[bool] = []
+        for j, (s, n) in enumerate(zip(self.slots, self.sizes(), strict=True)):
+            if s is None:
+                floor = self.effects[j].theta_lower()[self._free_idx(j)]  # type: ignore[attr-defined]
+                out += [bool(np.isfinite(float(f))) for f in floor]
+            else:
+                out += [False] * n
+        return torch.tensor(out, dtype=torch.bool)
+
     def effects_at(self, x: torch.Tensor, stderr: np.ndarray | None = None) -> list[PhysicalEffect]:
         """The effects with coordinates ``x`` (n,) (unvalidated: check ``physical()``).
 

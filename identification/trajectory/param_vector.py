@@ -79,6 +79,13 @@ class ParamVector:
         elo, ehi = self.coords.bounds()
         return torch.cat([lo, elo]), torch.cat([hi, ehi])
 
+    def hard_bounds(self) -> torch.Tensor:
+        """Which entries of the fitted vector (n_free + n_effect,) bool have a physical
+        bound (:meth:`EffectCoords.hard_bounds`); the log-parameters' :data:`LOG_BOX` is a
+        search range."""
+        tail = torch.zeros(0, dtype=torch.bool) if self.coords is None else self.coords.hard_bounds()
+        return torch.cat([torch.zeros(self.n_free, dtype=torch.bool), tail])
+
     def mass_scaled(self) -> torch.Tensor:
         """Which entries of the fitted vector (n_free + n_effect,) are effect force
         coefficients that scale with a common scale of the masses

@@ -207,18 +207,25 @@ def schur_step(
 
 
 def bounded_step(
-    ne: NormalEquations, lam: float, theta: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor
+    ne: NormalEquations,
+    lam: float,
+    theta: torch.Tensor,
+    lo: torch.Tensor,
+    hi: torch.Tensor,
+    hard: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, float, torch.Tensor]:
-    """:func:`schur_step` inside the box ``lo <= θ <= hi`` (n_g,) (an active set).
+    """:func:`schur_step` inside the box ``lo <= θ <= hi`` (n_g,).
 
-    A coordinate on a bound whose step would leave the box is held there and the
-    step solved again without it (a drag coefficient at 0 that the data would make
-    negative); a coordinate that would cross a bound from inside is stopped on it.
+    ``hard`` (n_g,) bool: coordinates whose bound is physical (a drag coefficient's 0;
+    default all). One of those on its bound whose step would leave the box is held
+    there and the step solved again without it (an active set); the others (search
+    ranges) take the free step. Any coordinate that would cross a bound is stopped on it.
     """
     held = torch.zeros_like(theta, dtype=torch.bool)
+    hard = torch.ones_like(held) if hard is None else hard
     for _ in range(theta.numel() + 1):
         d_z, d_theta, pred, S = schur_step(ne, lam, held)
-        out = ((theta <= lo) & (d_theta < 0)) | ((theta >= hi) & (d_theta > 0))
+        out = hard & (((theta <= lo) & (d_theta < 0)) | ((theta >= hi) & (d_theta > 0)))
         if not bool((out & ~held).any()):
             break
         held = held | out
@@ -329,12 +336,13 @@ def fit_windows(
     basis = local_basis(vec.axes, spin, roll)
     chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # batch of the FD Jacobian
     lo, hi = vec.bounds()
+    hard = vec.hard_bounds()
     theta = theta.clamp(lo, hi)  # a start outside the physical domain (a screen's drag < 0)
     ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
     dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
     history = [ne.sse / ne.m]
     exact = (1e-12 * max(1.0, float(windows.obs.abs().max()))) ** 2  # round-off [m^2]
-    _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi)
+    _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard)
     score = newton / max(ne.sse / dof, 1e-300)
     done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
     lam, nu, converged = 1e-7, 2.0, done
@@ -351,7 +359,7 @@ def fit_windows(
     for _ in range(max_iter if not done else 0):
         while True:
             try:
-                d_z, d_theta, pred, _ = bounded_step(ne, lam, theta, lo, hi)
+                d_z, d_theta, pred, _ = bounded_step(ne, lam, theta, lo, hi, hard)
                 if not (bool(torch.isfinite(d_theta).all()) and bool(torch.isfinite(d_z).all())):
                     raise FloatingPointError("non-finite step")
             except (torch.linalg.LinAlgError, FloatingPointError):
@@ -376,7 +384,7 @@ def fit_windows(
             break
         windows, theta = trial, theta + d_theta
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
-        _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi)
+        _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard)
         history.append(ne.sse / ne.m)
         if progress is not None:
             progress(history[-1])

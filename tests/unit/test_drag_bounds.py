@@ -56,6 +56,22 @@ def test_a_step_out_of_the_bound_holds_that_coordinate_and_solves_for_the_rest()
     # a coordinate inside the box that the step would carry past it stops on the bound
     _, d_theta, _, _ = bounded_step(_normal(H, g), 0.0, torch.tensor([0.5, 0.0]), lo, hi)
     assert float(d_theta[0]) == -0.5
+    # a search range (not a physical bound) is not held: the free step, stopped on it
+    soft = torch.tensor([False, False])
+    _, d_theta, _, _ = bounded_step(_normal(H, g), 0.0, theta, lo, hi, soft)
+    free = -np.linalg.solve(H, g)
+    assert float(d_theta[0]) == 0.0 and abs(float(d_theta[1]) - free[1]) < 1e-12
+
+
+def test_only_drag_coordinates_have_hard_bounds() -> None:
+    """The log-parameters' box and the contact's search box are ranges, not physics."""
+    a = icosahedron()
+    coords = EffectCoords.of([LinearDrag(a.topology), ForceField(a.topology)], axial=2)
+    vec = replace(ParamVector.at(a.topology, a.params), coords=coords)
+    hard = vec.hard_bounds()
+    assert hard.shape == (vec.n_free + 5 + 3,)
+    assert not bool(hard[: vec.n_free].any())
+    assert hard[vec.n_free :].tolist() == [True] * 5 + [False] * 3
 
 
 def test_the_fit_keeps_a_drag_at_zero_where_the_data_asks_for_a_negative_one() -> None:

@@ -27,6 +27,8 @@ it. Default: the 120 Hz / 1 mm / no-dropout cells of both settings, seed 0.
     python benchmarks/bench_measured.py --settings flight --effects none,linear_drag
     python benchmarks/bench_measured.py --all                                   # whole matrix
     python benchmarks/bench_measured.py --settings flight --effects none --seeds 10 --identify-only
+    python benchmarks/bench_measured.py --all --sample 8 --shard 0/2 --identify-only \
+        --json sweep0.json          # crash sweep: 8 random cells not yet run, half of them
     python benchmarks/bench_measured.py --report-only                           # rewrite the .md
     python benchmarks/bench_measured.py --settings floor --seeds 2 --effects none --reference-only
     python benchmarks/bench_measured.py --settings floor --rescore --workdir DIR   # kept cells
@@ -45,6 +47,8 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -149,11 +153,30 @@ def matrix(args: argparse.Namespace) -> list[Cell]:
             itertools.product(settings, rates, noises, drops, effects, seeds)]  # fmt: skip
 
 
+def sample_cells(cells: list[Cell], done: set[str], n: int, seed: int, shard: str) -> list[Cell]:
+    """``n`` cells drawn at random (``seed``) from ``cells`` whose labels are not in
+    ``done`` (a crash sweep over the matrix), then every ``N``-th from ``K`` for
+    ``shard`` ``"K/N"`` (parallel runs with their own ``--json``, merged afterwards)."""
+    try:
+        k, of = (int(x) for x in shard.split("/"))
+    except ValueError:
+        raise SystemExit(f"error: --shard {shard!r}: expected K/N, e.g. 0/2") from None
+    if not 0 <= k < of:
+        raise SystemExit(f"error: --shard {shard}: K must be in 0..N-1")
+    todo = [c for c in cells if c.label not in done]
+    order = np.random.default_rng(seed).permutation(len(todo))
+    return [todo[i] for i in order[:n]][k::of]
+
+
 def add_references(args: argparse.Namespace, results: dict[str, Any]) -> None:
     """Add the tolerance reference (:func:`tolerance_reference`) to the selected floor
     cells already recorded in ``results``, rewriting ``--json`` after each."""
     with tempfile.TemporaryDirectory(prefix="bench_measured_") as work:
-        for cell in matrix(args):
+        cells = matrix(args)
+        if args.sample:
+            cells = sample_cells(cells, set(results["cells"]), args.sample, args.sample_seed,
+                                 args.shard)  # fmt: skip
+        for cell in cells:
             rec = results["cells"].get(cell.label)
             if cell.setting != "floor" or rec is None:
                 continue
@@ -192,6 +215,12 @@ def main() -> int:
     ap.add_argument("--all", action="store_true", help="every value of unspecified axes")
     ap.add_argument("--timeout", type=float, default=3600, help="seconds per command")
     ap.add_argument("--diagnose-args", default="", help="extra diagnose options, one string")
+    ap.add_argument("--sample", type=int, default=0,
+                    help="run this many cells drawn at random from the selection, skipping "
+                         "those already in --json (a crash sweep; with --all: the matrix)")
+    ap.add_argument("--sample-seed", type=int, default=0, help="seed of --sample (default 0)")
+    ap.add_argument("--shard", default="0/1",
+                    help="K/N: run every N-th sampled cell from K (default 0/1)")  # fmt: skip
     ap.add_argument("--identify-only", action="store_true",
                     help="run identify alone (standard-error coverage over many seeds)")  # fmt: skip
     ap.add_argument("--workdir", type=Path, help="where cell data and logs go (default: temp)")
@@ -219,7 +248,11 @@ def main() -> int:
     elif not args.report_only:
         work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_measured_"))
         extra = None if args.identify_only else shlex.split(args.diagnose_args)
-        for cell in matrix(args):
+        cells = matrix(args)
+        if args.sample:
+            cells = sample_cells(cells, set(results["cells"]), args.sample, args.sample_seed,
+                                 args.shard)  # fmt: skip
+        for cell in cells:
             print(f"{cell.label} ...", flush=True)
             rec = run_cell(cell, work, args.timeout, extra)
             rec["diagnose_args"] = args.diagnose_args

@@ -388,7 +388,12 @@ def matrix_section(cells: dict[str, Any]) -> list[str]:
         f"{len(plant.SETTINGS)} settings x {len(plant.RATES)} rates x {len(plant.NOISES)} noise levels x "
         f"{len(plant.DROPOUTS)} dropout rates x {len(plant.PLANTED)} planted effects = {total} "
         f"combinations; **{done} run** (any seed), with a crash in "
-        f"{sum(crashed.values())} runs.", "",
+        f"{sum(crashed.values())} runs. More of it, drawn at random among the combinations "
+        "not yet run, in two processes (each `--json` starts as a copy of `measured.json`, "
+        "so cells already run are skipped; the new cells are copied back):", "",
+        "    OMP_NUM_THREADS=1 python benchmarks/bench_measured.py --all --identify-only \\",
+        "        --sample 24 --sample-seed 28 --shard K/2 --json sweepK.json   # K = 0, 1",
+        "",
         "| setting | planted | combinations run | with diagnose | crashes |",
         "| --- | --- | --- | --- | --- |",
     ]  # fmt: skip

@@ -250,12 +250,14 @@ def window_errors(
     engine: Engine, vec: ParamVector, windows: Windows, theta: torch.Tensor
 ) -> torch.Tensor:
     """Sum of squared end-cap errors of each window at ``theta``, (B,) [m^2] (per window,
-    where :func:`window_sse` sums them), its initial state as it is."""
+    where :func:`window_sse` sums them), its initial state as it is; ``inf`` where a
+    window's rollout is not finite."""
     basis = local_basis(vec.axes, spin=True)
     z0 = torch.zeros(windows.size, basis.shape[0], dtype=theta.dtype)
     with torch.no_grad():
         r = window_residual(engine, vec, windows, basis)(z0, theta)
-    return (r**2).sum(dim=(1, 2, 3))
+    e = (r**2).sum(dim=(1, 2, 3))
+    return torch.where(torch.isfinite(e), e, torch.full_like(e, float("inf")))
 
 
 def better_states(

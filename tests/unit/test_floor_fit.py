@@ -20,6 +20,7 @@ from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     floor_contact,
     floor_height,
+    held_states,
     reseeded,
     rods_off_floor,
     scale_directions,
@@ -27,7 +28,7 @@ from identification.trajectory.floor_fit import (
     with_floor,
 )
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import window_errors
+from identification.trajectory.windowed_fit import better_states, window_errors
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag
@@ -234,3 +235,43 @@ def test_floor_windows_take_the_flight_before_touchdown_first() -> None:
     chosen = data.windows["train"]
     assert chosen.size == before.size == 8 and chosen.steps == before.steps
     assert int(in_air(chosen).sum()) == 4
+
+
+def test_a_prefix_state_that_flies_off_over_the_window_is_not_kept(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The states fitted on the windows' prefixes are kept only where they fit the whole
+    window better than the state the fit started from: a prefix state whose rollout
+    diverges over the rest of the window (NaN) leaves the final fit nothing to descend
+    from."""
+    from identification.trajectory import window_states
+
+    ds, seeds, vec = _on_the_floor(1, 300, 60)
+    theta, engine = vec.theta0(), Engine(ds.topology, ds.dt)
+    real = window_states.fit_windows
+
+    def flying_prefixes(engine_, vec_, windows, *args, **kwargs):
+        fit = real(engine_, vec_, windows, *args, **kwargs)
+        if windows.steps < seeds.steps:  # a prefix: its state blows up further on
+            st = fit.windows.state
+            nan = torch.full_like(st.v, float("nan"))
+            fit = replace(fit, windows=replace(fit.windows, state=State(st.p, nan, st.q, st.omega)))
+        return fit
+
+    monkeypatch.setattr(window_states, "fit_windows", flying_prefixes)
+    fitted = window_states.fit_states(vec.engine(engine, theta), held_states(vec, theta), seeds, 2)
+    after = window_errors(engine, vec, fitted.windows, theta)
+    assert torch.isfinite(after).all()
+    assert (after < 1e-12).all()  # clean data from the true states: they stay exact
+    assert np.isfinite(fitted.history[-1])
+
+
+def test_a_window_whose_rollout_is_not_finite_has_an_infinite_error() -> None:
+    ds, seeds, vec = _on_the_floor(1, 300, 60)
+    theta, engine = vec.theta0(), Engine(ds.topology, ds.dt)
+    st = seeds.state
+    broken = replace(seeds, state=State(st.p, torch.full_like(st.v, float("nan")), st.q, st.omega))
+    assert torch.isinf(window_errors(engine, vec, broken, theta)).all()
+    picked, _, best = better_states(engine, vec, theta, seeds, broken)
+    assert (best < 1e-12).all()
+    assert torch.isfinite(picked.state.v).all()

@@ -49,7 +49,8 @@ def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> tor
     MuJoCo's ``mju_quatIntegrate``: ``q ⊗ quat(axis=ω/|ω|, angle=|ω| dt)``, then
     normalised. Shapes (..., 4), (..., 3).
     """
-    norm_sq = (omega_local * omega_local).sum(-1, keepdim=True)
+    w_x, w_y, w_z = omega_local[..., 0:1], omega_local[..., 1:2], omega_local[..., 2:3]
+    norm_sq = w_x * w_x + w_y * w_y + w_z * w_z
     safe = norm_sq > 0
     norm = torch.sqrt(torch.where(safe, norm_sq, torch.ones_like(norm_sq)))
     half = 0.5 * dt * norm

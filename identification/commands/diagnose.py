@@ -18,7 +18,7 @@ from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.data.end_caps import with_measured_states
 from identification.data.sample_grid import on_nominal_grid
-from identification.discovery.end_cap_data import TrajectorySettings
+from identification.discovery.end_cap_data import FLOOR_WINDOWS, TrajectorySettings
 from identification.discovery.library import FitSettings
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
@@ -91,6 +91,11 @@ def register(sub: Any) -> None:
     p.add_argument("--fit-windows", type=int, default=32,
                    help="trajectory method: training windows of the declared and every accepted "
                    "model's final fit (default 32)")  # fmt: skip
+    p.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS,
+                   help=f"trajectory method on data that never leaves the floor: training windows "
+                   f"of the joint fit of the declared model and ground contact (default "
+                   f"{FLOOR_WINDOWS}); more take proportionally longer and pin spring damping "
+                   "better")  # fmt: skip
     p.add_argument("--fit-window", type=seconds, default=FIT_WINDOW_S,
                    help=f"trajectory method: length of each window of that final fit (default "
                    f"{FIT_WINDOW_S:g}s; 0: --window); longer windows carry more information per "
@@ -147,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     check_number("--smoothing", args.smoothing, 0, strict=True)
     check_number("--seed", args.seed, 0)
     check_number("--jobs", args.jobs, 1)
+    check_number("--floor-windows", args.floor_windows, 1)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
     raw, grid = on_nominal_grid(read_dataset(args.dataset))
     if grid.changed:
@@ -237,5 +243,6 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     settings = TrajectorySettings(anchors=anchors, window=window, train_windows=args.windows,
                                   val_windows=args.windows, test_windows=args.windows,
                                   fit_windows=args.fit_windows, fit_window=fit_window,
+                                  floor_windows=args.floor_windows,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     return MultiStepScorer(settings, args.horizon, start, contact=contact)

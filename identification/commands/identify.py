@@ -13,6 +13,7 @@ from identification.commands.durations import samples_of, seconds
 from identification.commands.identify_end_caps import run_end_caps
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.data.sample_grid import on_nominal_grid
+from identification.discovery.end_cap_data import FLOOR_WINDOWS
 from identification.linear.regression import SpringRodIdentifier, parse_anchor
 from identification.report.tables import (
     error_text,
@@ -81,6 +82,10 @@ def register(sub: Any) -> None:
     q.add_argument("--physics-dt", type=seconds, default=PHYSICS_DT,
                    help=f"longest physics step; the engine substeps between samples (default "
                    f"{PHYSICS_DT:g}s)")  # fmt: skip
+    q.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS,
+                   help=f"on data that never leaves the floor: windows of the joint fit of the "
+                   f"declared model and ground contact (default {FLOOR_WINDOWS}); more take "
+                   "proportionally longer and pin spring damping better")  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -88,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force)
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
+    check_number("--floor-windows", args.floor_windows, 1)
     dataset, grid = on_nominal_grid(read_dataset(args.dataset))
     if grid.changed:
         print(grid.text(dataset.dt))

@@ -28,11 +28,7 @@ import numpy as np
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.discovery.end_cap_data import TrajectorySettings
-from identification.discovery.floor_fits import (
-    FLOOR_WINDOWS,
-    FloorIdentification,
-    identify_on_floor,
-)
+from identification.discovery.floor_fits import FloorIdentification, identify_on_floor
 from identification.discovery.library import contact_gate
 from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
@@ -125,7 +121,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         settings = TrajectorySettings(
             anchors=anchors, smoothing=args.smoothing, seed=args.seed,
             physics_dt=args.physics_dt, fit_window=samples_of(window, dt, 2),
-            fit_windows=FLOOR_WINDOWS,
+            floor_windows=args.floor_windows,
         )  # fmt: skip
         est = identify_on_floor(dataset, settings, args.split)
         effects = [est.contact_]
@@ -169,6 +165,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
             "dataset": str(args.dataset), "split": args.split, "method": "trajectory",
             "window_s": window, "first_window_s": args.first_window,
             "smoothing_s": args.smoothing, "physics_dt_s": args.physics_dt,
+            "floor_windows": args.floor_windows if floor else None,
             "end_cap_rms_m": est.rms_, "noise_level_m": noise, "converged": est.converged_,
             "stages": est.stages_, "fit_seconds": fit_time,
         },

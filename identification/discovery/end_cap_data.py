@@ -45,6 +45,10 @@ from tensegrity_env.topology import Topology
 #: where 100-step windows gave 42x and 258x; selection still compares on ``window``
 FIT_WINDOW = 300
 
+#: default windows of the floor fit of the declared model and contact (each window's
+#: initial state is fitted through every contact, which costs)
+FLOOR_WINDOWS = 8
+
 
 @dataclass(frozen=True)
 class TrajectorySettings:
@@ -63,6 +67,10 @@ class TrajectorySettings:
         fit_window: steps per window of that fit (0: ``window``; default
             :data:`FIT_WINDOW`); longer windows carry more information per sample once
             the model holds the effect.
+        floor_windows: windows of the training split for the joint fit of the declared
+            model and ground contact on data that never leaves the floor (default
+            :data:`FLOOR_WINDOWS`); its cost grows in proportion, and the spread of the
+            fitted spring damping shrinks as its inverse square root.
         physics_dt: the longest physics step [s]; the engine substeps between samples
             (:func:`tensegrity_env.engine.substeps_for`) and is compared with the data at
             the sample times.
@@ -80,6 +88,7 @@ class TrajectorySettings:
     seed: int = 0
     fit_windows: int = 32
     fit_window: int = FIT_WINDOW
+    floor_windows: int = FLOOR_WINDOWS
     physics_dt: float = PHYSICS_DT
 
 

@@ -50,10 +50,6 @@ from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
-#: most windows of the floor fit of the declared model and contact (each window's
-#: initial state is fitted through every contact, which costs)
-FLOOR_WINDOWS = 8
-
 
 def floor_steps(data: EndCapData, s: TrajectorySettings, steps: int) -> int:
     """``steps`` capped at :data:`FLOOR_WINDOW_S` of samples (at least 2)."""
@@ -84,8 +80,8 @@ def floor_fit(
     values: dict[str, np.ndarray] | None = None,
     contact: GroundContact | None = None,
 ) -> FloorFit:
-    """The declared model and ground contact (and ``effects``) fitted together on at most
-    :data:`FLOOR_WINDOWS` windows of the training split, each at most
+    """The declared model and ground contact (and ``effects``) fitted together on
+    ``s.floor_windows`` windows of the training split, each at most
     :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long, half of them
     starting in the air where the data has such windows.
 
@@ -105,7 +101,7 @@ def floor_fit(
     data.contact_free = FLOOR_FREE
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps)")  # fmt: skip
-    count = min(s.fit_windows, FLOOR_WINDOWS)
+    count = s.floor_windows
     many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window), count, 3,
                             lift_off=count // 2)  # fmt: skip
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)

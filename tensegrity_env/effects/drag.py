@@ -35,6 +35,7 @@ import torch
 from tensegrity_env.effects.base import LinearEffect, ParamSpec
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.vec3 import rotate_t
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import quat_to_matrix
@@ -58,8 +59,8 @@ class _Drag(LinearEffect):
         self, state: State, kin: Kinematics, params: Params
     ) -> tuple[torch.Tensor, torch.Tensor]:
         rot = kin.rot
-        v_l = torch.einsum("brji,brj->bri", rot, state.v)
-        w_l = torch.einsum("brji,brj->bri", rot, state.omega)
+        v_l = rotate_t(rot, state.v)
+        w_l = rotate_t(rot, state.omega)
         zero = torch.zeros_like(rot)
         f_t = _axis_basis(rot, v_l, self.quadratic)
         t_r = _axis_basis(rot, w_l, self.quadratic)
@@ -134,8 +135,8 @@ class ImplicitLinearDrag(LinearDrag):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The basis at the velocities after the step: ``v_l' = R_0ᵀ v_1``, ``ω_l' = R_1ᵀ ω_1``."""
         rot0, rot1 = kin.rot, quat_to_matrix(s1.q)
-        v_l = torch.einsum("brji,brj->bri", rot0, s1.v)
-        w_l = torch.einsum("brji,brj->bri", rot1, s1.omega)
+        v_l = rotate_t(rot0, s1.v)
+        w_l = rotate_t(rot1, s1.omega)
         zero = torch.zeros_like(rot0)
         f_t = _axis_basis(rot0, v_l, False)
         t_r = _axis_basis(rot0, w_l, False)

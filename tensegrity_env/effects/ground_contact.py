@@ -53,6 +53,7 @@ from tensegrity_env.engine.forces import (
 )
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.vec3 import dot, rotate, rotate_t, sum_small
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -156,7 +157,7 @@ class GroundContact(PhysicalEffect):
         constraint; None: the springs' pull alone (gravity is always included).
         """
         force, arm = self.contact_forces(state, kin, params, applied)
-        return force.sum(2), torch.cross(arm, force, dim=-1).sum(2)
+        return sum_small(force, 2), sum_small(torch.cross(arm, force, dim=-1), 2)
 
     # ------------------------------------------------------------------ physics
     def _spring_wrench(self, kin: Kinematics, params: Params) -> tuple[torch.Tensor, torch.Tensor]:
@@ -212,15 +213,59 @@ class GroundContact(PhysicalEffect):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Contact force on every end cap (B, R, 2, 3) [N] and its arm (B, R, 2, 3) [m].
 
-        ``applied``: see :meth:`wrench`.
+        ``applied``: see :meth:`wrench`. Only the rods with a cap in contact are solved
+        (gathered into one batch of rows); the others get no force.
         """
         g = self.contact_geometry(state, kin)
         dist = g["dist"]
         B, R = dist.shape[:2]
-        like = dist
         active = dist < 0  # the gate, (B, R, 2)
-        if not bool(active.any()):
+        touching = active.any(-1).reshape(-1)
+        if not bool(touching.any()):
             return torch.zeros_like(g["arm"]), g["arm"]
+        rows = torch.nonzero(touching).squeeze(-1)  # touching (assembly, rod) pairs, (N,)
+
+        def take(x: torch.Tensor, trailing: int) -> torch.Tensor:
+            """The touching rows of a per-rod tensor (B or 1, R, *trailing dims)."""
+            x = x.expand(B, R, *x.shape[2:]) if x.dim() == 2 + trailing else x.expand(B, *x.shape)
+            return x.reshape(B * R, *x.shape[2:]).index_select(0, rows)
+
+        # mass (1 or B, R) and inertia (1 or B, R, 3): params may carry a batch dimension
+        m_b = params.mass if params.mass.dim() == 2 else params.mass[None]
+        i_b = params.inertia if params.inertia.dim() == 3 else params.inertia[None]
+        f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
+        origins = None if self._origins is None else take(self._origins.to(dist), 1)
+        force = self._row_forces(
+            {k: take(v, 2 if v.dim() == 4 else 1) for k, v in g.items()},
+            take(kin.rot, 2), take(state.omega, 1), take(m_b, 0), take(i_b, 1),
+            take(f_s, 1), take(t_s, 1), params.gravity, take(active, 1), origins,
+        )  # fmt: skip
+        out = torch.zeros(B * R, 2, 3, dtype=force.dtype, device=force.device)
+        return out.index_copy(0, rows, force).reshape(B, R, 2, 3), g["arm"]
+
+    def _row_forces(
+        self,
+        g: dict[str, torch.Tensor],
+        rot: torch.Tensor,
+        omega: torch.Tensor,
+        mass: torch.Tensor,
+        inertia: torch.Tensor,
+        f_s: torch.Tensor,
+        t_s: torch.Tensor,
+        gravity: torch.Tensor,
+        active: torch.Tensor,
+        origins: torch.Tensor | None,
+    ) -> torch.Tensor:
+        """Contact forces on the end caps (N, 2, 3) [N] of N rods, each row one rod.
+
+        ``g``: :meth:`contact_geometry`'s entries for these rows ((N, 2) and (N, 2, 3));
+        ``rot`` (N, 3, 3); ``omega``, ``f_s``, ``t_s`` (N, 3) the angular velocity and the
+        applied force and torque; ``mass`` (N,) [kg]; ``inertia`` (N, 3) [kg m^2];
+        ``active`` (N, 2) the gate; ``origins`` (N, 3) the body-frame origins or None.
+        """
+        dist = g["dist"]
+        N = dist.shape[0]
+        like = dist
         K, Bd = self.value("stiffness", like), self.value("damping", like)
         mu = self.value("friction", like)
         imp = impedance_curve(
@@ -229,7 +274,7 @@ class GroundContact(PhysicalEffect):
             self.value("impedance", like),
             self.value("width", like),
         )
-        # the four pyramid edges of each cap: n ± μ t1, n ± μ t2, (B, R, 2, 4, 3)
+        # the four pyramid edges of each cap: n ± μ t1, n ± μ t2, (N, 2, 4, 3)
         n = torch.zeros_like(g["tangent"])
         n[..., 2] = 1.0
         t1 = g["tangent"]
@@ -238,41 +283,38 @@ class GroundContact(PhysicalEffect):
         tk = torch.stack([t1, t1, t2, t2], dim=-2) * torch.cat([signs, signs])[:, None]
         edges = n.unsqueeze(-2) + mu * tk
         arm = g["arm"].unsqueeze(-2).expand_as(edges)
-        rot = kin.rot  # (B, R, 3, 3)
-        # mass (1 or B, R) and inertia (1 or B, R, 3): params may carry a batch dimension
-        m_b = params.mass if params.mass.dim() == 2 else params.mass[None]
-        i_b = params.inertia if params.inertia.dim() == 3 else params.inertia[None]
-        # J M^-1 J^T from the rod's mass and inertia: (B, R, 8, 8)
-        lin = edges.reshape(B, R, 8, 3)
-        ang_w = torch.cross(arm, edges, dim=-1).reshape(B, R, 8, 3)
-        ang_l = torch.einsum("brji,brej->brei", rot, ang_w) / i_b.sqrt()[:, :, None]
-        mass = m_b[:, :, None, None]
-        A = lin @ lin.transpose(-1, -2) / mass + ang_l @ ang_l.transpose(-1, -2)
+        # J M^-1 J^T from the rod's mass and inertia: (N, 8, 8)
+        lin = edges.reshape(N, 8, 3)
+        ang_w = torch.cross(arm, edges, dim=-1).reshape(N, 8, 3)
+        root_i = inertia.sqrt()
+        ang_l = rotate_t(rot[:, None], ang_w) / root_i[:, None]
+        m = mass[:, None, None]
+        jac = torch.cat([lin / m.sqrt(), ang_l], -1)  # (N, 8, 6), scaled by M^-1/2
+        A = jac @ jac.transpose(-1, -2)
         # free accelerations a0 of the edges: gravity, applied forces, gyroscopic terms
-        f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
-        acc = f_s / m_b[:, :, None] + params.gravity
-        if self._origins is not None:
+        acc = f_s / mass[:, None] + gravity
+        if origins is not None:
             # MuJoCo's constraint acceleration is J qacc: it carries the centripetal
             # acceleration of the body origin a free joint integrates
-            r_o = torch.einsum("brij,rj->bri", rot, self._origins.to(acc))
-            acc = acc + torch.cross(state.omega, torch.cross(state.omega, r_o, dim=-1), dim=-1)
-        omega_l = torch.einsum("brji,brj->bri", rot, state.omega)
-        torque_l = torch.einsum("brji,brj->bri", rot, t_s)
-        gyro = torch.cross(omega_l, i_b * omega_l, dim=-1)
-        alpha_l = (torque_l - gyro) / i_b
-        ang_acc_l = torch.einsum("brei,bri->bre", ang_l, alpha_l * i_b.sqrt())
-        a0 = torch.einsum("brei,bri->bre", lin, acc) + ang_acc_l
-        # reference accelerations and softness per edge, (B, R, 8)
-        v_e = (edges * g["vel"].unsqueeze(-2)).sum(-1).reshape(B, R, 8)
-        rep = (B, R, 8)
-        d8 = imp.unsqueeze(-1).expand(B, R, 2, 4).reshape(rep)
-        dist8 = dist.unsqueeze(-1).expand(B, R, 2, 4).reshape(rep)
+            r_o = rotate(rot, origins)
+            acc = acc + torch.cross(omega, torch.cross(omega, r_o, dim=-1), dim=-1)
+        omega_l = rotate_t(rot, omega)
+        torque_l = rotate_t(rot, t_s)
+        gyro = torch.cross(omega_l, inertia * omega_l, dim=-1)
+        alpha_l = (torque_l - gyro) / inertia
+        a0 = torch.einsum("nei,ni->ne", lin, acc) + torch.einsum(
+            "nei,ni->ne", ang_l, alpha_l * root_i
+        )
+        # reference accelerations and softness per edge, (N, 8)
+        v_e = dot(edges, g["vel"].unsqueeze(-2)).reshape(N, 8)
+        d8 = imp.unsqueeze(-1).expand(N, 2, 4).reshape(N, 8)
+        dist8 = dist.unsqueeze(-1).expand(N, 2, 4).reshape(N, 8)
         aref = -Bd * v_e - K * d8 * dist8
-        soft = (1.0 - d8) / d8 * 2.0 * mu**2 * (1.0 + mu**2) / mass[..., 0]
-        mask = active.unsqueeze(-1).expand(B, R, 2, 4).reshape(rep)
-        f = solve_soft_contacts(A + torch.diag_embed(soft), a0 - aref, mask)
-        force = (f.reshape(B, R, 2, 4).unsqueeze(-1) * edges).sum(-2)
-        return force, g["arm"]
+        soft = (1.0 - d8) / d8 * 2.0 * mu**2 * (1.0 + mu**2) / m[..., 0]
+        mask = active.unsqueeze(-1).expand(N, 2, 4).reshape(N, 8)
+        A.diagonal(dim1=-2, dim2=-1).add_(soft)  # A is this function's own tensor
+        f = solve_soft_contacts(A, a0 - aref, mask)
+        return sum_small(f.reshape(N, 2, 4).unsqueeze(-1) * edges, -2)
 
 
 def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -288,7 +330,6 @@ def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) ->
     n = H.shape[-1]
     batch = b.shape[:-1]
     H, b, mask = H.reshape(-1, n, n), b.reshape(-1, n), mask.reshape(-1, n)
-    eye = torch.eye(n, dtype=H.dtype, device=H.device)
     S = mask & (b < 0)
     f = torch.zeros_like(b)
     todo = torch.nonzero(mask.any(-1)).squeeze(-1)  # problems still unsettled
@@ -296,8 +337,10 @@ def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) ->
         if todo.numel() == 0:
             break
         H_t, b_t, S_t = H[todo], b[todo], S[todo]
-        both = (S_t.unsqueeze(-1) & S_t.unsqueeze(-2)).to(H.dtype)
-        H_S = H_t * both + eye * (1.0 - S_t.to(H.dtype)).unsqueeze(-1)
+        # H on the active rows and columns, the identity elsewhere
+        on = S_t.to(H.dtype)
+        H_S = H_t * (on.unsqueeze(-1) * on.unsqueeze(-2))
+        H_S.diagonal(dim1=-2, dim2=-1).add_(1.0 - on)
         f_t, info = torch.linalg.solve_ex(H_S, torch.where(S_t, -b_t, torch.zeros_like(b_t)))
         # singular only for a state that has blown up (caps 1e9 m away): no force there
         f_t = torch.where((info > 0).unsqueeze(-1), torch.zeros_like(f_t), f_t)

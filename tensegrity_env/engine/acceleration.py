@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+from tensegrity_env.engine.vec3 import rotate_t
+
 
 def linear_acceleration(
     force: torch.Tensor, mass: torch.Tensor, gravity: torch.Tensor
@@ -29,7 +31,7 @@ def angular_acceleration_local(
     Returns:
         α_l (B, R, 3) [rad/s^2] and ω_l (B, R, 3) [rad/s], both in the rod frame.
     """
-    omega_l = torch.einsum("brji,brj->bri", rot, omega)
-    torque_l = torch.einsum("brji,brj->bri", rot, torque)
+    omega_l = rotate_t(rot, omega)
+    torque_l = rotate_t(rot, torque)
     gyro = torch.cross(omega_l, inertia * omega_l, dim=-1)
     return (torque_l - gyro) / inertia, omega_l

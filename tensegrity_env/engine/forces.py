@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from tensegrity_env.engine.kinematics import Kinematics
+from tensegrity_env.engine.vec3 import dot, sum_small
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,7 @@ def spring_frames(kin: Kinematics, node_a: torch.Tensor, node_b: torch.Tensor) -
     d = kin.x[:, node_b] - kin.x[:, node_a]
     length = torch.linalg.vector_norm(d, dim=-1)
     axis = d / length.unsqueeze(-1)
-    rate = ((kin.xd[:, node_b] - kin.xd[:, node_a]) * axis).sum(-1)
+    rate = dot(kin.xd[:, node_b] - kin.xd[:, node_a], axis)
     return SpringFrame(length=length, axis=axis, rate=rate)
 
 
@@ -73,7 +74,7 @@ def node_forces_to_wrench(
     """
     B, R = arms.shape[:2]
     f_end = node_forces[:, : 2 * R].reshape(B, R, 2, 3)
-    force, torque = f_end.sum(2), torch.cross(arms, f_end, dim=-1).sum(2)
+    force, torque = sum_small(f_end, 2), sum_small(torch.cross(arms, f_end, dim=-1), 2)
     if point_arms is not None and point_rod is not None:
         f_pt = node_forces[:, node_forces.shape[1] - point_arms.shape[1] :]
         force = force.index_add(1, point_rod, f_pt)

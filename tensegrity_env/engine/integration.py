@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.vec3 import rotate, rotate_t
 from tensegrity_env.rotations import quat_integrate, quat_to_matrix
 
 
@@ -34,13 +35,13 @@ def semi_implicit_euler(
     omega_l = omega_local + dt * alpha_local
     q = quat_integrate(state.q, omega_l, dt)
     rot1 = quat_to_matrix(q)
-    omega = torch.einsum("brij,brj->bri", rot1, omega_l)
+    omega = rotate(rot1, omega_l)
     if frame_origin is None:
         v = state.v + dt * accel
         return State(p=state.p + dt * v, v=v, q=q, omega=omega)
     rot0 = quat_to_matrix(state.q)
-    r0 = torch.einsum("brij,rj->bri", rot0, frame_origin)
-    alpha = torch.einsum("brij,brj->bri", rot0, alpha_local)
+    r0 = rotate(rot0, frame_origin)
+    alpha = rotate(rot0, alpha_local)
     w0 = state.omega
     a_o = (
         accel
@@ -49,7 +50,7 @@ def semi_implicit_euler(
     )
     v_o = state.v + torch.cross(w0, r0, dim=-1) + dt * a_o
     p_o = state.p + r0 + dt * v_o
-    r1 = torch.einsum("brij,rj->bri", rot1, frame_origin)
+    r1 = rotate(rot1, frame_origin)
     return State(p=p_o - r1, v=v_o - torch.cross(omega, r1, dim=-1), q=q, omega=omega)
 
 
@@ -71,16 +72,16 @@ def step_accelerations(
         (n, R, 3) [rad/s] rod frame, and R(q_0) (n, R, 3, 3).
     """
     rot0, rot1 = quat_to_matrix(s0.q), quat_to_matrix(s1.q)
-    omega_l0 = torch.einsum("brji,brj->bri", rot0, s0.omega)
-    omega_l1 = torch.einsum("brji,brj->bri", rot1, s1.omega)
+    omega_l0 = rotate_t(rot0, s0.omega)
+    omega_l1 = rotate_t(rot1, s1.omega)
     alpha_l = (omega_l1 - omega_l0) / dt
     if frame_origin is None:
         return (s1.v - s0.v) / dt, alpha_l, omega_l0, rot0
-    r0 = torch.einsum("brij,rj->bri", rot0, frame_origin.to(s0.p))
-    r1 = torch.einsum("brij,rj->bri", rot1, frame_origin.to(s0.p))
+    r0 = rotate(rot0, frame_origin.to(s0.p))
+    r1 = rotate(rot1, frame_origin.to(s0.p))
     v_o0 = s0.v + torch.cross(s0.omega, r0, dim=-1)
     v_o1 = s1.v + torch.cross(s1.omega, r1, dim=-1)
-    alpha = torch.einsum("brij,brj->bri", rot0, alpha_l)
+    alpha = rotate(rot0, alpha_l)
     w0 = s0.omega
     accel = (
         (v_o1 - v_o0) / dt

@@ -8,6 +8,7 @@ from typing import NamedTuple
 import torch
 
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.vec3 import rotate
 from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
 
@@ -99,7 +100,7 @@ def node_kinematics(
     xds = [xd_end.reshape(B, n_end, 3), torch.zeros_like(anc)]
     point_arms = None
     if points is not None:
-        point_arms = torch.einsum("bpij,pj->bpi", rot[:, points.rod], points.offset)
+        point_arms = rotate(rot[:, points.rod], points.offset)
         xs.append(state.p[:, points.rod] + point_arms)
         xds.append(
             state.v[:, points.rod] + torch.cross(state.omega[:, points.rod], point_arms, dim=-1)

@@ -25,6 +25,7 @@ from tensegrity_env.engine.forces import (
 from tensegrity_env.engine.integration import semi_implicit_euler
 from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics, node_kinematics
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.vec3 import rotate, rotate_t
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
@@ -139,10 +140,12 @@ class Engine:
             tension = effect.tension(frame, tension, kin)
         if cables is not None and self.cable_springs.numel():
             tension = tension.index_add(1, self.cable_springs, -params.cable_gain * cables)
-        force, torque = kinematics_wrench(tension_to_node_forces(tension, frame, self.incidence), kin)
+        force, torque = kinematics_wrench(
+            tension_to_node_forces(tension, frame, self.incidence), kin
+        )
         # control forces h * f_u at the arm r_u
         if control is not None:
-            arm = torch.einsum("brij,rj->bri", kin.rot, self.control_arms)
+            arm = rotate(kin.rot, self.control_arms)
             f_u, t_u = point_force_wrench(params.control_gain * control, arm)
             force, torque = force + f_u, torque + t_u
         constraints = [e for e in self.effects if getattr(e, "constraint", False)]
@@ -183,8 +186,8 @@ class Engine:
         b = sum(d[0] for d in damped)
         beta = sum(d[1] for d in damped)
         mass = params.mass.unsqueeze(-1)  # (R, 1)
-        a_l = torch.einsum("brji,brj->bri", rot, accel) * (mass / (mass + h * b))
-        accel = torch.einsum("brij,brj->bri", rot, a_l)
+        a_l = rotate_t(rot, accel) * (mass / (mass + h * b))
+        accel = rotate(rot, a_l)
         inertia = params.inertia
         return accel, alpha_l * (inertia / (inertia + h * beta))
 

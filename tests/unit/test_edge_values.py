@@ -120,6 +120,8 @@ def test_bad_effect_parameters_are_refused(doc: dict, words: tuple[str, ...]) ->
         (["diagnose", "DATA", "--horizon", "0"], "--horizon"),
         (["diagnose", "DATA", "--smoothing", "nan"], "--smoothing"),
         (["diagnose", "DATA", "--max-effects", "-1"], "--max-effects"),
+        (["diagnose", "DATA", "--floor-windows", "0"], "--floor-windows"),
+        (["identify", "DATA", "--floor-windows", "0"], "--floor-windows"),
         (["identify", "DATA", "--horizon", "0"], "--horizon"),
         (["identify", "DATA", "--fraction", "nan"], "--fraction"),
         (["efficiency", "DATA", "--fractions", "inf"], "--fractions"),

@@ -287,7 +287,7 @@ class GroundContact(PhysicalEffect):
         lin = edges.reshape(N, 8, 3)
         ang_w = torch.cross(arm, edges, dim=-1).reshape(N, 8, 3)
         root_i = inertia.sqrt()
-        ang_l = rotate_t(rot[:, None], ang_w) / root_i[:, None]
+        ang_l = (ang_w @ rot) / root_i[:, None]  # each edge's Rᵀ (arm × e), row by row
         m = mass[:, None, None]
         jac = torch.cat([lin / m.sqrt(), ang_l], -1)  # (N, 8, 6), scaled by M^-1/2
         A = jac @ jac.transpose(-1, -2)

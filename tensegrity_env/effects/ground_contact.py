@@ -226,9 +226,11 @@ class GroundContact(PhysicalEffect):
         rows = torch.nonzero(touching).squeeze(-1)  # touching (assembly, rod) pairs, (N,)
 
         def take(x: torch.Tensor, trailing: int) -> torch.Tensor:
-            """The touching rows of a per-rod tensor (B or 1, R, *trailing dims)."""
-            x = x.expand(B, R, *x.shape[2:]) if x.dim() == 2 + trailing else x.expand(B, *x.shape)
-            return x.reshape(B * R, *x.shape[2:]).index_select(0, rows)
+            """The touching rows of a per-rod tensor ((B or 1, R) or (R,), then ``trailing``
+            dims); one shared by the batch is indexed by rod."""
+            if x.dim() == 2 + trailing and x.shape[0] == B:
+                return x.reshape(B * R, *x.shape[2:]).index_select(0, rows)
+            return x.reshape(R, *x.shape[x.dim() - trailing :]).index_select(0, rows % R)
 
         # mass (1 or B, R) and inertia (1 or B, R, 3): params may carry a batch dimension
         m_b = params.mass if params.mass.dim() == 2 else params.mass[None]

@@ -1,4 +1,5 @@
-"""The per-rod contact problem: a batch solved only where its active set still changes."""
+"""The per-rod contact problem: a batch solved only where its active set still changes,
+and only for the rods that touch the floor."""
 
 from __future__ import annotations
 
@@ -45,3 +46,43 @@ def test_gradients_flow_through_the_subset_solves():
     assert b.grad is not None and bool(torch.isfinite(b.grad).all())
     assert float(b.grad[~mask].abs().max()) == 0.0  # off the mask nothing depends on b
     assert float(b.grad[mask & (f.detach() > 0)].abs().max()) > 0
+
+
+def test_contact_forces_of_a_batch_equal_each_assembly_alone():
+    """Only touching rods are gathered and solved: a batch mixing touching and airborne
+    assemblies, with per-assembly masses, gets each one's forces as if stepped alone."""
+    from tensegrity_env.assemblies import icosahedron
+    from tensegrity_env.effects import GroundContact
+    from tensegrity_env.engine import Engine, State
+    from tensegrity_env.rotations import quat_mul
+
+    asm = icosahedron()
+    topo, params = asm.topology, asm.params
+    g = torch.Generator().manual_seed(3)
+    B = 12
+    p = torch.as_tensor(asm.pose_p, dtype=torch.float64).expand(B, -1, -1)
+    turn = torch.nn.functional.normalize(
+        torch.tensor([1.0, 0, 0, 0], dtype=torch.float64)
+        + 0.1 * torch.randn(B, 1, 4, generator=g, dtype=torch.float64), dim=-1)  # fmt: skip
+    q = quat_mul(turn.expand(B, topo.n_rods, 4), torch.as_tensor(asm.pose_q).expand(B, -1, -1))
+    v = 0.5 * torch.randn(B, topo.n_rods, 3, generator=g, dtype=torch.float64)
+    w = 2.0 * torch.randn(B, topo.n_rods, 3, generator=g, dtype=torch.float64)
+    engine = Engine(topo, dt=1e-3)
+    caps = engine.kinematics(State(p=p, v=v, q=q, omega=w)).x[:, : 2 * topo.n_rods, 2]
+    # the lowest cap from 5 mm into the floor to 10 cm above it
+    height = torch.linspace(-0.005, 0.1, B, dtype=torch.float64) + topo.rods[0].radius
+    p = p + torch.nn.functional.pad((height - caps.min(-1).values)[:, None, None], (2, 0))
+    state = State(p=p, v=v, q=q, omega=w)
+    mass = params.mass * (1 + 0.05 * torch.rand(B, topo.n_rods, generator=g, dtype=torch.float64))
+    batched = params.replace(mass=mass)
+    contact = GroundContact(topo, friction=0.7)
+    engine = Engine(topo, dt=1e-3, effects=[contact])
+    kin = engine.kinematics(state)
+    force, _ = contact.contact_forces(state, kin, batched)
+    touching = force.abs().sum((-1, -2)) > 0  # (B, R)
+    assert 0 < int(touching.any(-1).sum()) < B  # some assemblies touch, some do not
+    for b in range(B):
+        one = State(*(x[b : b + 1] for x in state.tensors()))
+        alone, _ = contact.contact_forces(one, engine.kinematics(one),
+                                          params.replace(mass=mass[b : b + 1]))  # fmt: skip
+        assert torch.allclose(force[b : b + 1], alone, rtol=0, atol=1e-12)

@@ -65,9 +65,10 @@ from measured_plant import (
     true_model,
     write_cell,
 )
-from measured_report import evaluate_cell, selection, write_markdown
+from measured_report import evaluate_cell, floor_windows, selection, write_markdown
 from measured_tolerance import tolerance_reference
 
+from identification.discovery.end_cap_data import FLOOR_WINDOWS
 from tensegrity_env.io_utils import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -257,6 +258,9 @@ def main() -> int:
             rec = run_cell(cell, work, args.timeout, extra)
             rec["diagnose_args"] = args.diagnose_args
             rec["selection"] = selection(args.diagnose_args)
+            if cell.setting == "floor":
+                rec["floor_windows"] = {"identify": FLOOR_WINDOWS,
+                                        "diagnose": floor_windows(args.diagnose_args)}  # fmt: skip
             results["cells"][cell.label] = rec
             atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
             print(f"  identify {rec['identify']['status']}, diagnose {rec['diagnose']['status']} "

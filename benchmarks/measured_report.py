@@ -24,6 +24,7 @@ from measured_plant import PLANT_VERSION, CellData, drop_states, simulate
 from identification.commands.diagnose import WINDOW_S, WINDOWS
 from identification.commands.durations import seconds
 from identification.data.dataset import read_dataset
+from identification.discovery.end_cap_data import FLOOR_WINDOWS
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import effects_from_document
 from tensegrity_env.engine.state import State
@@ -39,6 +40,8 @@ GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
 CONTACT_KEYS = ("stiffness", "damping", "impedance", "friction")
 #: the selection windows of cells that did not record theirs (``diagnose``'s default then)
 OLD_SELECTION = {"window_s": 0.1, "windows": 8}
+#: the floor fit's windows of floor cells that did not record theirs (fixed then)
+OLD_FLOOR_WINDOWS = 8
 HORIZON = 1.0
 #: the floor cells' drop check: drops from rest, seconds each, passing within 2 cm
 N_DROPS, DROP_SECONDS, DROP_TOLERANCE = 3, 2.0, 0.02
@@ -316,6 +319,25 @@ def selection(diagnose_args: str) -> dict[str, float]:
     return {"window_s": known.window, "windows": known.windows}
 
 
+def floor_windows(diagnose_args: str) -> int:
+    """The windows of ``diagnose``'s floor fit given extra options ``diagnose_args``."""
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS)
+    return ap.parse_known_args(shlex.split(diagnose_args))[0].floor_windows
+
+
+def floor_windows_text(r: dict[str, Any]) -> str:
+    """A floor cell's floor-fit windows in ``identify`` / ``diagnose`` (``"24 / 24"``;
+    :data:`OLD_FLOOR_WINDOWS` where unrecorded), ``"-"`` in free flight."""
+    if r["cell"]["setting"] != "floor":
+        return "-"
+    fw = r.get("floor_windows") or {}
+    ident = fw.get("identify", OLD_FLOOR_WINDOWS)
+    if r["diagnose"]["status"] == "skipped":
+        return str(ident)
+    return f"{ident} / {fw.get('diagnose', OLD_FLOOR_WINDOWS)}"
+
+
 def selection_text(r: dict[str, Any]) -> str:
     """``"8 x 0.2 s"``: a cell's selection windows (:data:`OLD_SELECTION` if unrecorded)."""
     sel = r.get("selection") or OLD_SELECTION
@@ -427,7 +449,7 @@ def diagnosis_rows(cells: dict[str, Any], default: bool) -> list[str]:
         expected = ", ".join(r["expected"]) or "-"
         if default:
             head = (f"| {c['setting']}{marks(r)} | {c['effect']} | {c['seed']} | {expected} "
-                    f"| {named} | {selection_text(r)} ")  # fmt: skip
+                    f"| {named} | {selection_text(r)} | {floor_windows_text(r)} ")  # fmt: skip
         else:
             head = f"| {c['label']}{marks(r)} | {expected} | {named} "
         lines.append(
@@ -457,10 +479,13 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         "",
         "## 120 Hz, 1 mm noise, no dropouts",
         "",
-        "| setting | planted | seed | expected | named | selection | identify | diagnose | M | I "
-        "| K | c | rollout before | rollout after | unphysical written |",
+        "`floor fit`: the windows of the joint fit of the declared model and contact on floor",
+        "data, in `identify` / `diagnose` (`--floor-windows`).",
+        "",
+        "| setting | planted | seed | expected | named | selection | floor fit | identify "
+        "| diagnose | M | I | K | c | rollout before | rollout after | unphysical written |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
-        "| --- |",
+        "| --- | --- |",
     ]
     lines += diagnosis_rows(cells, default=True)
     lines += [

@@ -35,7 +35,7 @@ def floor_fit(tmp_path_factory):
     truth = read_ground_truth(data.measured)
     assert truth is not None
     anchors = {"mass[rod0]": float(truth.params.mass[0])}
-    settings = TrajectorySettings(anchors=anchors, fit_window=25, fit_windows=8)
+    settings = TrajectorySettings(anchors=anchors, fit_window=25, floor_windows=8)
     return ds, truth, identify_on_floor(ds, settings, log=lambda line: None)
 
 

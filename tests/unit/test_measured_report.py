@@ -109,3 +109,22 @@ def test_contact_is_scored_against_the_plants_mujoco_contact(tmp_path):
     rec["after"] = {"contact": errors}
     row = next(ln for ln in contact_section({"floor/x": rec}) if ln.startswith("| floor/x "))
     assert row.endswith("| diagnose | 10 | 0 | 0 | 20 | 2 |")
+
+
+def test_floor_cells_show_their_floor_fit_windows(tmp_path):
+    from measured_report import OLD_FLOOR_WINDOWS, floor_windows, floor_windows_text
+
+    from identification.discovery.end_cap_data import FLOOR_WINDOWS
+
+    assert floor_windows("") == FLOOR_WINDOWS
+    assert floor_windows("--max-effects 1 --floor-windows 12") == 12
+    flight = _record("none", "")
+    floor, old = _record("none", "--floor-windows 12"), _record("none", "")
+    for r in (floor, old):
+        r["cell"] = {**r["cell"], "setting": "floor", "label": "floor/120Hz/1mm/drop0%/none/seed0"}
+    floor["floor_windows"] = {"identify": FLOOR_WINDOWS, "diagnose": 12}
+    assert floor_windows_text(flight) == "-"
+    assert floor_windows_text(floor) == f"{FLOOR_WINDOWS} / 12"
+    assert floor_windows_text(old) == f"{OLD_FLOOR_WINDOWS} / {OLD_FLOOR_WINDOWS}"
+    text = write_markdown({"cells": {"a": floor}}, tmp_path / "m.md").read_text()
+    assert f"| {WINDOWS} x {WINDOW_S:g} s | {FLOOR_WINDOWS} / 12 |" in text

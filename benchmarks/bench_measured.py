@@ -45,6 +45,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -68,7 +69,6 @@ from measured_plant import (
 from measured_report import evaluate_cell, floor_windows, selection, write_markdown
 from measured_tolerance import tolerance_reference
 
-from identification.discovery.end_cap_data import FLOOR_WINDOWS
 from tensegrity_env.io_utils import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -102,9 +102,14 @@ def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str
 
 
 def run_cell(
-    cell: Cell, work: Path, timeout: float, diagnose_args: list[str] | None
+    cell: Cell,
+    work: Path,
+    timeout: float,
+    diagnose_args: list[str] | None,
+    identify_args: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Write the cell's data, run identify and diagnose (None: skipped) on it, evaluate both."""
+    """Write the cell's data, run identify (with ``identify_args``) and diagnose (None:
+    skipped) on it, evaluate both."""
     folder = work / cell.label.replace("/", "_")
     t0 = time.perf_counter()
     data = write_cell(cell, folder)
@@ -117,7 +122,7 @@ def run_cell(
     for f in (ident, diag / "params.json"):
         f.unlink(missing_ok=True)
     record["identify"] = run_cli(
-        ["identify", "measured.h5", "--anchor", anchor, "-o", ident.name],
+        ["identify", "measured.h5", "--anchor", anchor, "-o", ident.name, *identify_args],
         folder, "identify.log", timeout,
     )  # fmt: skip
     if diagnose_args is None:
@@ -216,6 +221,7 @@ def main() -> int:
     ap.add_argument("--all", action="store_true", help="every value of unspecified axes")
     ap.add_argument("--timeout", type=float, default=3600, help="seconds per command")
     ap.add_argument("--diagnose-args", default="", help="extra diagnose options, one string")
+    ap.add_argument("--identify-args", default="", help="extra identify options, one string")
     ap.add_argument("--sample", type=int, default=0,
                     help="run this many cells drawn at random from the selection, skipping "
                          "those already in --json (a crash sweep; with --all: the matrix)")
@@ -255,11 +261,13 @@ def main() -> int:
                                  args.shard)  # fmt: skip
         for cell in cells:
             print(f"{cell.label} ...", flush=True)
-            rec = run_cell(cell, work, args.timeout, extra)
+            rec = run_cell(cell, work, args.timeout, extra, shlex.split(args.identify_args))
             rec["diagnose_args"] = args.diagnose_args
+            if args.identify_args:
+                rec["identify_args"] = args.identify_args
             rec["selection"] = selection(args.diagnose_args)
             if cell.setting == "floor":
-                rec["floor_windows"] = {"identify": FLOOR_WINDOWS,
+                rec["floor_windows"] = {"identify": floor_windows(args.identify_args),
                                         "diagnose": floor_windows(args.diagnose_args)}  # fmt: skip
             results["cells"][cell.label] = rec
             atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")

@@ -319,11 +319,12 @@ def selection(diagnose_args: str) -> dict[str, float]:
     return {"window_s": known.window, "windows": known.windows}
 
 
-def floor_windows(diagnose_args: str) -> int:
-    """The windows of ``diagnose``'s floor fit given extra options ``diagnose_args``."""
+def floor_windows(extra_args: str) -> int:
+    """The windows of the floor fit of ``identify`` or ``diagnose`` given its extra
+    options ``extra_args``."""
     ap = argparse.ArgumentParser(add_help=False)
     ap.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS)
-    return ap.parse_known_args(shlex.split(diagnose_args))[0].floor_windows
+    return ap.parse_known_args(shlex.split(extra_args))[0].floor_windows
 
 
 def floor_windows_text(r: dict[str, Any]) -> str:

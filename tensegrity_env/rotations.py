@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from tensegrity_env.vec3 import dot
+
 
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Hamilton product ``a ⊗ b``, shapes (..., 4)."""
@@ -49,8 +51,7 @@ def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> tor
     MuJoCo's ``mju_quatIntegrate``: ``q ⊗ quat(axis=ω/|ω|, angle=|ω| dt)``, then
     normalised. Shapes (..., 4), (..., 3).
     """
-    w_x, w_y, w_z = omega_local[..., 0:1], omega_local[..., 1:2], omega_local[..., 2:3]
-    norm_sq = w_x * w_x + w_y * w_y + w_z * w_z
+    norm_sq = dot(omega_local, omega_local).unsqueeze(-1)
     safe = norm_sq > 0
     norm = torch.sqrt(torch.where(safe, norm_sq, torch.ones_like(norm_sq)))
     half = 0.5 * dt * norm

@@ -507,4 +507,5 @@ class MultiStepScorer(Scorer[EndCapFits]):
     def settings_summary(self) -> dict[str, Any]:
         s = self.settings
         return {"anchors": dict(s.anchors), "window": s.window, "fit_windows": s.fit_windows,
-                "floor_windows": s.floor_windows, "min_bic_drop": MIN_BIC_DROP, "min_chi2_gain": self.criteria.min_gain}  # fmt: skip
+                "floor_windows": s.floor_windows, "min_bic_drop": MIN_BIC_DROP,
+                "min_chi2_gain": self.criteria.min_gain}  # fmt: skip

@@ -35,11 +35,11 @@ import torch
 from tensegrity_env.effects.base import LinearEffect, ParamSpec
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
-from tensegrity_env.engine.vec3 import rotate_t
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
+from tensegrity_env.vec3 import rotate_t
 
 #: the forms of linear drag (the params file's ``"form"``)
 LINEAR_DRAG_FORMS = ("explicit", "implicit")

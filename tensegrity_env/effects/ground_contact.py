@@ -53,10 +53,10 @@ from tensegrity_env.engine.forces import (
 )
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
-from tensegrity_env.engine.vec3 import dot, rotate, rotate_t, sum_small
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
+from tensegrity_env.vec3 import dot, rotate, rotate_t, sum_small
 
 #: MuJoCo's default contact: K = 1/(dmax² tc² ζ²), B = 2/(dmax tc) with tc = 0.02 s, ζ = 1.
 MUJOCO_DEFAULT: dict[str, float] = {
@@ -68,6 +68,9 @@ MUJOCO_DEFAULT: dict[str, float] = {
     "friction": 1.0,
     "height": 0.0,
 }
+
+#: the :meth:`GroundContact.contact_geometry` entries the contact law reads per touching rod
+ROW_GEOMETRY = ("dist", "arm", "vel", "tangent")
 
 #: Most active-set iterations of the per-rod contact problem (8 unknowns: usually a few;
 #: near-parallel pyramid edges at small friction take more).
@@ -238,7 +241,7 @@ class GroundContact(PhysicalEffect):
         f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
         origins = None if self._origins is None else take(self._origins.to(dist), 1)
         force = self._row_forces(
-            {k: take(v, 2 if v.dim() == 4 else 1) for k, v in g.items()},
+            {k: take(g[k], 2 if g[k].dim() == 4 else 1) for k in ROW_GEOMETRY},
             take(kin.rot, 2), take(state.omega, 1), take(m_b, 0), take(i_b, 1),
             take(f_s, 1), take(t_s, 1), params.gravity, take(active, 1), origins,
         )  # fmt: skip

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from tensegrity_env.engine.vec3 import rotate_t
+from tensegrity_env.vec3 import rotate_t
 
 
 def linear_acceleration(

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import torch
 
 from tensegrity_env.engine.kinematics import Kinematics
-from tensegrity_env.engine.vec3 import dot, sum_small
+from tensegrity_env.vec3 import dot, sum_small
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ from __future__ import annotations
 import torch
 
 from tensegrity_env.engine.state import State
-from tensegrity_env.engine.vec3 import rotate, rotate_t
 from tensegrity_env.rotations import quat_integrate, quat_to_matrix
+from tensegrity_env.vec3 import rotate, rotate_t
 
 
 def semi_implicit_euler(

@@ -8,9 +8,9 @@ from typing import NamedTuple
 import torch
 
 from tensegrity_env.engine.state import State
-from tensegrity_env.engine.vec3 import rotate
 from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
+from tensegrity_env.vec3 import rotate
 
 
 class AttachmentPoints(NamedTuple):

@@ -25,9 +25,9 @@ from tensegrity_env.engine.forces import (
 from tensegrity_env.engine.integration import semi_implicit_euler
 from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics, node_kinematics
 from tensegrity_env.engine.state import State
-from tensegrity_env.engine.vec3 import rotate, rotate_t
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
+from tensegrity_env.vec3 import rotate, rotate_t
 
 #: default physics step [s]: MuJoCo's usual timestep; the longest step the engine takes
 PHYSICS_DT = 1e-3
@@ -140,9 +140,7 @@ class Engine:
             tension = effect.tension(frame, tension, kin)
         if cables is not None and self.cable_springs.numel():
             tension = tension.index_add(1, self.cable_springs, -params.cable_gain * cables)
-        force, torque = kinematics_wrench(
-            tension_to_node_forces(tension, frame, self.incidence), kin
-        )
+        force, torque = kinematics_wrench(tension_to_node_forces(tension, frame, self.incidence), kin)
         # control forces h * f_u at the arm r_u
         if control is not None:
             arm = rotate(kin.rot, self.control_arms)

@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import torch
 
+from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.ground_contact import solve_soft_contacts
+from tensegrity_env.engine import Engine, State
+from tensegrity_env.rotations import quat_mul
 
 
 def _problems(seed: int, batch: tuple[int, ...], n: int = 8):
@@ -51,11 +55,6 @@ def test_gradients_flow_through_the_subset_solves():
 def test_contact_forces_of_a_batch_equal_each_assembly_alone():
     """Only touching rods are gathered and solved: a batch mixing touching and airborne
     assemblies, with per-assembly masses, gets each one's forces as if stepped alone."""
-    from tensegrity_env.assemblies import icosahedron
-    from tensegrity_env.effects import GroundContact
-    from tensegrity_env.engine import Engine, State
-    from tensegrity_env.rotations import quat_mul
-
     asm = icosahedron()
     topo, params = asm.topology, asm.params
     g = torch.Generator().manual_seed(3)

@@ -1,7 +1,7 @@
 """Batched 3-vector algebra written out component by component.
 
-The engine works on many small vectors and 3x3 matrices at once ((B, R, 3),
-(B, R, 3, 3)). PyTorch's reductions over a trailing dimension of 2 or 3
+The engine and :mod:`tensegrity_env.rotations` work on many small vectors and 3x3
+matrices at once ((B, R, 3), (B, R, 3, 3)). PyTorch's reductions over a trailing dimension of 2 or 3
 (``x.sum(-1)``, ``einsum``) cost several times more on the CPU than the same sum
 spelled out as slices (float64, one thread: about 20x for ``sum`` over a
 dimension of 2, 6x for a dot product, 1.5x for a rotation), and the physics step

@@ -267,8 +267,7 @@ def main() -> int:
                 rec["identify_args"] = args.identify_args
             rec["selection"] = selection(args.diagnose_args)
             if cell.setting == "floor":
-                rec["floor_windows"] = {"identify": floor_windows(args.identify_args),
-                                        "diagnose": floor_windows(args.diagnose_args)}  # fmt: skip
+                rec["floor_windows"] = floor_windows(args.identify_args, args.diagnose_args)
             results["cells"][cell.label] = rec
             atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
             print(f"  identify {rec['identify']['status']}, diagnose {rec['diagnose']['status']} "

@@ -18,7 +18,11 @@ from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.data.end_caps import with_measured_states
 from identification.data.sample_grid import on_nominal_grid
-from identification.discovery.end_cap_data import FLOOR_WINDOWS, TrajectorySettings
+from identification.discovery.end_cap_data import (
+    FINAL_FLOOR_WINDOWS,
+    FLOOR_WINDOWS,
+    TrajectorySettings,
+)
 from identification.discovery.library import FitSettings
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
@@ -96,6 +100,10 @@ def register(sub: Any) -> None:
                    f"of the joint fit of the declared model and ground contact (default "
                    f"{FLOOR_WINDOWS}); more take proportionally longer and pin spring damping "
                    "better")  # fmt: skip
+    p.add_argument("--final-floor-windows", type=int, default=FINAL_FLOOR_WINDOWS,
+                   help=f"trajectory method on such data: training windows of the final refit "
+                   f"of the selected model (default {FINAL_FLOOR_WINDOWS}; none at or below "
+                   "--floor-windows)")  # fmt: skip
     p.add_argument("--fit-window", type=seconds, default=FIT_WINDOW_S,
                    help=f"trajectory method: length of each window of that final fit (default "
                    f"{FIT_WINDOW_S:g}s; 0: --window); longer windows carry more information per "
@@ -153,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
     check_number("--seed", args.seed, 0)
     check_number("--jobs", args.jobs, 1)
     check_number("--floor-windows", args.floor_windows, 1)
+    check_number("--final-floor-windows", args.final_floor_windows, 0)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
     raw, grid = on_nominal_grid(read_dataset(args.dataset))
     if grid.changed:
@@ -244,5 +253,6 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   val_windows=args.windows, test_windows=args.windows,
                                   fit_windows=args.fit_windows, fit_window=fit_window,
                                   floor_windows=args.floor_windows,
+                                  final_floor_windows=args.final_floor_windows,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     return MultiStepScorer(settings, args.horizon, start, contact=contact)

@@ -52,6 +52,10 @@ FIT_WINDOW = 300
 #: within 7.6 % (max) where 8 left 14 %, but the declared fit on 24 windows absorbed the
 #: force-field cell's field, which was then missed (named with 8)
 FLOOR_WINDOWS = 8
+#: windows of the training split for the final refit of the selected model on the floor:
+#: once selection is done, more windows only sharpen the parameters (spring damping
+#: above all), with nothing left for the declared fit to absorb
+FINAL_FLOOR_WINDOWS = 24
 
 
 @dataclass(frozen=True)
@@ -75,6 +79,9 @@ class TrajectorySettings:
             model and ground contact on data that never leaves the floor (default
             :data:`FLOOR_WINDOWS`); its cost grows in proportion, and the spread of the
             fitted spring damping shrinks as its inverse square root.
+        final_floor_windows: windows of the training split for the final refit of the
+            selected model on such data (default :data:`FINAL_FLOOR_WINDOWS`; none at
+            or below ``floor_windows``).
         physics_dt: the longest physics step [s]; the engine substeps between samples
             (:func:`tensegrity_env.engine.substeps_for`) and is compared with the data at
             the sample times.
@@ -93,6 +100,7 @@ class TrajectorySettings:
     fit_windows: int = 32
     fit_window: int = FIT_WINDOW
     floor_windows: int = FLOOR_WINDOWS
+    final_floor_windows: int = FINAL_FLOOR_WINDOWS
     physics_dt: float = PHYSICS_DT
 
 

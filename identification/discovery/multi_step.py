@@ -69,7 +69,7 @@ from identification.discovery.end_cap_residuals import (
     summarize_window_residuals,
     window_residuals,
 )
-from identification.discovery.floor_fits import FloorFit, adopt_floor_fit, floor_fit
+from identification.discovery.floor_fits import FloorFit, adopt_floor_fit, floor_fit, floor_steps
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
 from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.negligible import NEGLIGIBLE
@@ -431,29 +431,43 @@ class MultiStepScorer(Scorer[EndCapFits]):
         return State.from_numpy(*(a[ok] for a in arrays))
 
     def finish(self, current: Candidate[EndCapFits]) -> Candidate[EndCapFits]:
-        """The final model refitted on the whole training split in its longest windows.
+        """The final model refitted on more of the training split.
 
         Selection fits on short windows (a model missing an effect drifts on long ones),
         and the accepted models on :attr:`~TrajectorySettings.fit_windows` random ones;
         the model written out is refitted from there on every training trajectory, cut
         into windows of up to :data:`FINAL_WINDOW_S`: the spring damping, the weakest
         group, is pinned by long windows (see :mod:`identification.trajectory.identifier`).
-        On data with a floor the fits stay on the airborne stretches and touchdowns.
-        A refit that diverges or leaves the physical domain is not used.
+        On data that never leaves the floor it is refitted on
+        :attr:`~TrajectorySettings.final_floor_windows` floor windows (selection used
+        :attr:`~TrajectorySettings.floor_windows`); on drops the fits stay on the
+        airborne stretches and touchdowns. A refit that diverges or leaves the physical
+        domain is not used.
         """
         data, s = self.data, self.settings
+        if data.on_floor:
+            count = s.final_floor_windows
+            if count <= s.floor_windows:
+                return current
+            steps = floor_steps(data, s, s.fit_window or s.window)
+            return self.refit(current, data.cut("train", steps, count, 5, lift_off=count // 2))
         if contact_gate(data.train, data.topology)[0]:
             return current
+        steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
+        return self.refit(current, data.cut("train", steps, sys.maxsize, 4))
+
+    def refit(self, current: Candidate[EndCapFits], windows: Windows) -> Candidate[EndCapFits]:
+        """``current`` refitted on the training ``windows``, kept unless it diverges or
+        leaves the physical domain."""
         t0 = time.perf_counter()
         last = current.fit.final
-        steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
-        windows = data.cut("train", steps, sys.maxsize, 4)
-        final = fit_many(data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
+        s = self.settings
+        final = fit_many(self.data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
         ds = self.dataset
         model = final.fitted_model(ds.topology, ds.dt)
         why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)
-        self.log(f"final refit on {final.windows.size} training windows of {steps} steps: "
-                 f"end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
+        self.log(f"final refit on {final.windows.size} training windows of {windows.steps} "
+                 f"steps: end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
                  + (f"; not used ({why})" if why else ""))  # fmt: skip
         if why:
             return current
@@ -507,5 +521,6 @@ class MultiStepScorer(Scorer[EndCapFits]):
     def settings_summary(self) -> dict[str, Any]:
         s = self.settings
         return {"anchors": dict(s.anchors), "window": s.window, "fit_windows": s.fit_windows,
-                "floor_windows": s.floor_windows, "min_bic_drop": MIN_BIC_DROP,
+                "floor_windows": s.floor_windows,
+                "final_floor_windows": s.final_floor_windows, "min_bic_drop": MIN_BIC_DROP,
                 "min_chi2_gain": self.criteria.min_gain}  # fmt: skip

@@ -114,15 +114,21 @@ def test_contact_is_scored_against_the_plants_mujoco_contact(tmp_path):
 def test_floor_cells_show_their_floor_fit_windows(tmp_path):
     from measured_report import OLD_FLOOR_WINDOWS, floor_windows, floor_windows_text
 
-    from identification.discovery.end_cap_data import FLOOR_WINDOWS
+    from identification.discovery.end_cap_data import FINAL_FLOOR_WINDOWS, FLOOR_WINDOWS
 
-    assert floor_windows("") == FLOOR_WINDOWS
-    assert floor_windows("--max-effects 1 --floor-windows 12") == 12
+    assert floor_windows("", "") == {"identify": FLOOR_WINDOWS, "diagnose": FLOOR_WINDOWS,
+                                     "diagnose_final": FINAL_FLOOR_WINDOWS}  # fmt: skip
+    given = floor_windows("--floor-windows 24", "--max-effects 1 --floor-windows 12 "
+                          "--final-floor-windows 0")  # fmt: skip
+    assert given == {"identify": 24, "diagnose": 12, "diagnose_final": 0}
     flight = _record("none", "")
     floor, old = _record("none", "--floor-windows 12"), _record("none", "")
-    for r in (floor, old):
+    refit = _record("none", "")
+    for r in (floor, old, refit):
         r["cell"] = {**r["cell"], "setting": "floor", "label": "floor/120Hz/1mm/drop0%/none/seed0"}
-    floor["floor_windows"] = {"identify": FLOOR_WINDOWS, "diagnose": 12}
+    floor["floor_windows"] = {"identify": FLOOR_WINDOWS, "diagnose": 12, "diagnose_final": 12}
+    refit["floor_windows"] = {"identify": 8, "diagnose": 8, "diagnose_final": 24}
+    assert floor_windows_text(refit) == "8 / 8 → 24"
     assert floor_windows_text(flight) == "-"
     assert floor_windows_text(floor) == f"{FLOOR_WINDOWS} / 12"
     assert floor_windows_text(old) == f"{OLD_FLOOR_WINDOWS} / {OLD_FLOOR_WINDOWS}"

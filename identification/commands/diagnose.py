@@ -255,4 +255,4 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   floor_windows=args.floor_windows,
                                   final_floor_windows=args.final_floor_windows,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
-    return MultiStepScorer(settings, args.horizon, start, contact=contact)
+    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs)

@@ -76,6 +76,7 @@ from identification.discovery.negligible import NEGLIGIBLE
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
+from identification.discovery.side_by_side import side_by_side
 from identification.discovery.slack_hypothesis import fit_slack, slack_hypothesis
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
@@ -113,6 +114,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
             for the test errors against the truth; never used for fitting or selection.
         contact: where a floor fit starts the ground contact (a params file's; None:
             the default start, see :mod:`identification.discovery.floor_fits`).
+        jobs: fits run at once, each in a worker process (the two floor refits of an
+            accepted candidate; :mod:`~identification.discovery.side_by_side`).
     """
 
     criteria = MULTI_STEP
@@ -125,8 +128,10 @@ class MultiStepScorer(Scorer[EndCapFits]):
         start: Params | None = None,
         clean: Dataset | None = None,
         contact: GroundContact | None = None,
+        jobs: int = 1,
     ) -> None:
         self.settings = settings
+        self.jobs = jobs
         self.horizon_s = horizon_s
         self.start = start
         self.clean = clean
@@ -407,12 +412,18 @@ class MultiStepScorer(Scorer[EndCapFits]):
         overdamped floor), the first stays there: on the bench's linear-drag floor cell
         (seed 0) it ended at 2.15 mm (1 mm noise) with the drag at a quarter of the
         plant's and the contact stiffness 95 % off, worse than the declared fit.
+        With :attr:`jobs` above 1 the two fits run side by side.
         """
         data, s = self.data, self.settings
-        near = fit_many(data, screened.vec, screened.theta, s, s.base_iter)
         effects = [e for e in screened.effects if not isinstance(e, GroundContact)]
+        tasks: list[Callable[[], Any]] = [
+            lambda: fit_many(data, screened.vec, screened.theta, s, s.base_iter)
+        ]
         if afresh is None:  # (a candidate fitted jointly comes with it)
-            afresh = floor_fit(data, s, self.start, effects, contact=self.contact)
+            tasks.append(lambda: floor_fit(data, s, self.start, effects, contact=self.contact))
+        near, *fresh = side_by_side(tasks, self.jobs, self.log)
+        afresh = fresh[0] if fresh else afresh
+        assert afresh is not None
         self.log(f"    floor refit from the screened candidate {near.rms * 1e3:.3f} mm, afresh "
                  f"{afresh.fit.rms * 1e3:.3f} mm")  # fmt: skip
         if afresh.fit.sse < near.sse:

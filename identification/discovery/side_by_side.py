@@ -1,4 +1,5 @@
-"""The residual loop's candidates fitted side by side, one worker process each.
+"""The residual loop's candidates (or other independent fits) side by side, one worker
+process each.
 
 Every candidate of a pass is fitted from the same current model and independently of
 the others, so the fits can run at once. Workers are **forked** from the running
@@ -10,6 +11,9 @@ as fitted one after the other (``tests/unit/test_side_by_side.py``).
 
 Where forking is unavailable (not Linux or macOS), or a worker dies (out of memory),
 the candidates are fitted one after the other in the loop's own process.
+
+:func:`side_by_side` does the same for any independent tasks (the two floor refits of
+an accepted candidate).
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any
+from functools import partial
+from typing import Any, TypeVar
 
 from identification.discovery.judge import Candidate
 from identification.discovery.library import Proposal
@@ -30,10 +35,11 @@ from tensegrity_env.io_utils import InputError
 #: what stops one candidate's fit without stopping the loop (the candidate is skipped)
 REFUSALS = (CandidateSkipped, RuntimeError, ValueError, InputError)
 
-#: the fit and its proposals, set before the workers fork (read only in the workers)
-_job: tuple[Callable[[Proposal], Candidate[Any]], Sequence[Proposal]] | None = None
+#: the tasks, set before the workers fork (read only in the workers)
+_tasks: Sequence[Callable[[], Any]] | None = None
 
 Outcome = Candidate[Any] | Exception
+T = TypeVar("T")
 
 
 def usable_cores() -> int:
@@ -42,6 +48,32 @@ def usable_cores() -> int:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # macOS, Windows
         return os.cpu_count() or 1
+
+
+def side_by_side(
+    tasks: Sequence[Callable[[], T]], jobs: int, log: Callable[[str], None] = print
+) -> list[T]:
+    """``task()`` for every task, in ``jobs`` forked worker processes at most; the
+    results in order (an exception a task raises is raised here)."""
+    global _tasks
+    workers = min(jobs, len(tasks))
+    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
+        _tasks = tasks
+        try:
+            context = multiprocessing.get_context("fork")
+            with ProcessPoolExecutor(workers, mp_context=context) as pool:
+                return list(pool.map(_run_one, range(len(tasks))))
+        except BrokenProcessPool:
+            log("    a worker process died: the fits run one after the other")
+        finally:
+            _tasks = None
+    return [task() for task in tasks]
+
+
+def _run_one(index: int) -> Any:
+    """The worker's task: the ``index``-th of the forked tasks."""
+    assert _tasks is not None, "side_by_side sets the tasks before forking"
+    return _tasks[index]()
 
 
 def fit_side_by_side(
@@ -55,26 +87,7 @@ def fit_side_by_side(
     Returns, per proposal in order, the candidate (its ``seconds`` set to its fit's wall
     time) or the refusal (:data:`REFUSALS`) that stopped its fit.
     """
-    global _job
-    workers = min(jobs, len(proposals))
-    if workers > 1 and "fork" in multiprocessing.get_all_start_methods():
-        _job = (fit, proposals)
-        try:
-            context = multiprocessing.get_context("fork")
-            with ProcessPoolExecutor(workers, mp_context=context) as pool:
-                return list(pool.map(_fit_one, range(len(proposals))))
-        except BrokenProcessPool:
-            log("    a worker process died: the candidates are fitted one after the other")
-        finally:
-            _job = None
-    return [fitted(fit, p) for p in proposals]
-
-
-def _fit_one(index: int) -> Outcome:
-    """The worker's task: the ``index``-th proposal of the forked job."""
-    assert _job is not None, "fit_side_by_side sets the job before forking"
-    fit, proposals = _job
-    return fitted(fit, proposals[index])
+    return side_by_side([partial(fitted, fit, p) for p in proposals], jobs, log)
 
 
 def fitted(fit: Callable[[Proposal], Candidate[Any]], proposal: Proposal) -> Outcome:

@@ -121,6 +121,7 @@ def test_bad_effect_parameters_are_refused(doc: dict, words: tuple[str, ...]) ->
         (["diagnose", "DATA", "--smoothing", "nan"], "--smoothing"),
         (["diagnose", "DATA", "--max-effects", "-1"], "--max-effects"),
         (["diagnose", "DATA", "--floor-windows", "0"], "--floor-windows"),
+        (["diagnose", "DATA", "--final-floor-windows", "-1"], "--final-floor-windows"),
         (["identify", "DATA", "--floor-windows", "0"], "--floor-windows"),
         (["identify", "DATA", "--horizon", "0"], "--horizon"),
         (["identify", "DATA", "--fraction", "nan"], "--fraction"),

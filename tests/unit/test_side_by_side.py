@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from functools import partial
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from identification.discovery.library import Proposal
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.scorer import CandidateSkipped
-from identification.discovery.side_by_side import fit_side_by_side
+from identification.discovery.side_by_side import fit_side_by_side, side_by_side
 from identification.simulation.planted import PlantSpec, planted_dataset
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -71,3 +72,18 @@ def test_cli_rejects_jobs_below_one(tmp_path, capsys) -> None:
     err = capsys.readouterr().err
     assert "--jobs" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()  # refused before any work
+
+
+def _square_in(i: int) -> tuple[int, int]:
+    if i < 0:
+        raise ValueError(f"negative {i}")
+    return i * i, os.getpid()
+
+
+def test_tasks_come_back_in_order_from_the_workers_and_their_errors_are_raised() -> None:
+    out = side_by_side([partial(_square_in, i) for i in range(3)], jobs=2)
+    assert [v for v, _ in out] == [0, 1, 4]
+    assert os.getpid() not in {pid for _, pid in out}
+    assert [v for v, _ in side_by_side([partial(_square_in, 3)], jobs=2)] == [9]  # one: here
+    with pytest.raises(ValueError, match="negative -1"):
+        side_by_side([partial(_square_in, 1), partial(_square_in, -1)], jobs=2)

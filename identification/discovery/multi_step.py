@@ -452,8 +452,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         On data that never leaves the floor it is refitted on
         :attr:`~TrajectorySettings.final_floor_windows` floor windows (selection used
         :attr:`~TrajectorySettings.floor_windows`); on drops the fits stay on the
-        airborne stretches and touchdowns. A refit that diverges or leaves the physical
-        domain is not used.
+        airborne stretches and touchdowns. A refit that diverges, leaves the physical
+        domain or loses a standard error is not used.
         """
         data, s = self.data, self.settings
         if data.on_floor:
@@ -468,8 +468,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
         return self.refit(current, data.cut("train", steps, sys.maxsize, 4))
 
     def refit(self, current: Candidate[EndCapFits], windows: Windows) -> Candidate[EndCapFits]:
-        """``current`` refitted on the training ``windows``, kept unless it diverges or
-        leaves the physical domain."""
+        """``current`` refitted on the training ``windows``, kept unless it diverges,
+        leaves the physical domain or loses a direction the last fit saw (a standard
+        error that was finite turns infinite: its curvature matrix is singular there)."""
         t0 = time.perf_counter()
         last = current.fit.final
         s = self.settings
@@ -477,6 +478,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
         ds = self.dataset
         model = final.fitted_model(ds.topology, ds.dt)
         why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)
+        lost = int((np.isinf(final.stderr) & np.isfinite(last.stderr)).sum())
+        if not why and lost:
+            why = f"{lost} standard errors the last fit pinned are infinite"
         self.log(f"final refit on {final.windows.size} training windows of {windows.steps} "
                  f"steps: end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
                  + (f"; not used ({why})" if why else ""))  # fmt: skip

@@ -1,0 +1,46 @@
+"""The final refit replaces the model only where it stays as well pinned as the last fit."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from identification.discovery import multi_step
+from identification.discovery.end_cap_data import TrajectorySettings
+from identification.discovery.end_cap_fits import EndCapFits
+from identification.discovery.judge import Candidate
+from identification.discovery.multi_step import MultiStepScorer
+
+
+def _scorer(refit_stderr: np.ndarray, monkeypatch: pytest.MonkeyPatch, lines: list[str]):
+    refitted = SimpleNamespace(
+        rms=1.0e-3, stderr=refit_stderr, windows=SimpleNamespace(size=24),
+        fitted_model=lambda topology, dt: "refitted model",
+    )  # fmt: skip
+    monkeypatch.setattr(multi_step, "fit_many", lambda *a, **k: refitted)
+    monkeypatch.setattr(multi_step, "unphysical", lambda model: "")
+    scorer = MultiStepScorer(TrajectorySettings())
+    scorer.data, scorer.noise, scorer.log = None, 1.0e-3, lines.append
+    scorer.dataset = SimpleNamespace(topology=None, dt=1 / 120)
+    last = SimpleNamespace(vec=None, theta=None, stderr=np.array([0.01, 0.02, np.inf]))
+    current = Candidate("nothing", EndCapFits(last, last), "model")
+    return scorer, current
+
+
+@pytest.mark.parametrize(
+    ("stderr", "kept"),
+    [
+        (np.array([0.01, 0.02, np.inf]), True),  # the same directions pinned
+        (np.array([0.01, np.inf, np.inf]), False),  # one the last fit pinned is lost
+    ],
+)
+def test_a_refit_that_loses_a_standard_error_is_not_used(stderr, kept, monkeypatch) -> None:
+    lines: list[str] = []
+    scorer, current = _scorer(stderr, monkeypatch, lines)
+    windows = SimpleNamespace(steps=30)
+    out = scorer.refit(current, windows)
+    assert (out.model == "refitted model") is kept
+    assert (out is current) is not kept
+    assert ("1 standard errors the last fit pinned are infinite" in lines[-1]) is not kept

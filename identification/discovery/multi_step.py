@@ -422,8 +422,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         if afresh is None:  # (a candidate fitted jointly comes with it)
             tasks.append(lambda: floor_fit(data, s, self.start, effects, contact=self.contact))
         near, *fresh = side_by_side(tasks, self.jobs, self.log)
-        afresh = fresh[0] if fresh else afresh
-        assert afresh is not None
+        afresh = afresh or fresh[0]
         self.log(f"    floor refit from the screened candidate {near.rms * 1e3:.3f} mm, afresh "
                  f"{afresh.fit.rms * 1e3:.3f} mm")  # fmt: skip
         if afresh.fit.sse < near.sse:

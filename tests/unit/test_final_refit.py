@@ -44,3 +44,23 @@ def test_a_refit_that_loses_a_standard_error_is_not_used(stderr, kept, monkeypat
     assert (out.model == "refitted model") is kept
     assert (out is current) is not kept
     assert ("1 standard errors the last fit pinned are infinite" in lines[-1]) is not kept
+
+
+@pytest.mark.parametrize(("final_windows", "refits"), [(24, True), (8, False)])
+def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
+    final_windows, refits, monkeypatch
+) -> None:
+    scorer = MultiStepScorer(TrajectorySettings(floor_windows=8, final_floor_windows=final_windows))
+    cuts: list[tuple] = []
+    scorer.data = SimpleNamespace(
+        on_floor=True, dt=1 / 120,
+        cut=lambda *a, **k: cuts.append((a, k)) or SimpleNamespace(steps=a[1]),
+    )  # fmt: skip
+    monkeypatch.setattr(scorer, "refit", lambda current, windows: ("refitted", windows.steps))
+    out = scorer.finish("current")
+    if refits:
+        (name, steps, count, _), kw = cuts[0]
+        assert (name, count, kw["lift_off"]) == ("train", 24, 12)
+        assert out == ("refitted", steps) and steps == 30  # at most 0.25 s at 120 Hz
+    else:
+        assert out == "current" and not cuts

@@ -56,6 +56,10 @@ FLOOR_WINDOWS = 8
 #: once selection is done, more windows only sharpen the parameters (spring damping
 #: above all), with nothing left for the declared fit to absorb
 FINAL_FLOOR_WINDOWS = 24
+#: a window whose states, fitted at the selected model, stay above this multiple of the
+#: noise level is left out of the final floor refit (stuck in another basin through an
+#: impact; :func:`~identification.trajectory.windowed_fit.windows_within`)
+STUCK_WINDOW = 1.5
 
 
 @dataclass(frozen=True)

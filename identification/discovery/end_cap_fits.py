@@ -57,6 +57,7 @@ from identification.trajectory.effect_coords import EffectCoords
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.touchdown import find_touchdowns, search_contact
 from identification.trajectory.window_states import GROW, fit_states, prefix
+from identification.trajectory.windowed_fit import windows_within
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
@@ -142,13 +143,14 @@ def fit_declared_model(dataset: Dataset, settings: TrajectorySettings) -> TrajFi
 
 def fit_many(
     data: EndCapData, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
-    windows: Windows | None = None,
+    windows: Windows | None = None, within: float | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` refitted jointly on the many windows of the training split, from ``theta``.
 
     The windows' states are fitted first with the model at ``theta``
     (:func:`fit_states`), so a fit on windows whose smoothed states are poor (impacts)
-    starts in the right basin. With an effect that depends on the rods' roll about their
+    starts in the right basin. ``within`` [m]: the windows whose states stay above this
+    end-cap RMS are left out (:func:`~identification.trajectory.windowed_fit.windows_within`). With an effect that depends on the rods' roll about their
     axes (``sees_roll``: quadratic drag), each window's rolls are fitted too: on noisy
     quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to
     1.13 mm (1 mm noise), and the drag coefficients from 8 % to 1 % off. The rolls are
@@ -164,7 +166,13 @@ def fit_many(
     fixed = held(vec, theta)
     many = data.windows["fit"] if windows is None else windows
     states = fit_states(engine, fixed, many, s.state_iter, spin=data.spin, roll=data.roll)
-    fit = fit_trajectory(data, vec, states.windows, theta, iters)
+    many = states.windows
+    if within is not None:
+        many, err = windows_within(engine, fixed, many, fixed.theta0(), within)
+        data.log(f"    {many.size} of {err.size} windows kept: states within {within * 1e3:.3g} "
+                 f"mm at the model (median {np.median(err) * 1e3:.3f}, worst "
+                 f"{err.max() * 1e3:.3f} mm)")  # fmt: skip
+    fit = fit_trajectory(data, vec, many, theta, iters)
     if sees_roll(engine) and not data.roll:
         # the rolls only matter once the effect is near its size: fitted from there
         t0 = time.perf_counter()

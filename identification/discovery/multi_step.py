@@ -49,6 +49,7 @@ import numpy as np
 
 from identification.data.dataset import Dataset
 from identification.discovery.end_cap_data import (
+    STUCK_WINDOW,
     EndCapData,
     TrajectorySettings,
     TrajFit,
@@ -450,9 +451,10 @@ class MultiStepScorer(Scorer[EndCapFits]):
         group, is pinned by long windows (see :mod:`identification.trajectory.identifier`).
         On data that never leaves the floor it is refitted on
         :attr:`~TrajectorySettings.final_floor_windows` floor windows (selection used
-        :attr:`~TrajectorySettings.floor_windows`); on drops the fits stay on the
-        airborne stretches and touchdowns. A refit that diverges, leaves the physical
-        domain or loses a standard error is not used.
+        :attr:`~TrajectorySettings.floor_windows`), less those whose states stay above
+        :data:`STUCK_WINDOW` times the noise level at the selected model; on drops the
+        fits stay on the airborne stretches and touchdowns. A refit that diverges, leaves
+        the physical domain or loses a standard error is not used.
         """
         data, s = self.data, self.settings
         if data.on_floor:
@@ -460,20 +462,25 @@ class MultiStepScorer(Scorer[EndCapFits]):
             if count <= s.floor_windows:
                 return current
             steps = floor_steps(data, s, s.fit_window or s.window)
-            return self.refit(current, data.cut("train", steps, count, 5, lift_off=count // 2))
+            windows = data.cut("train", steps, count, 5, lift_off=count // 2)
+            return self.refit(current, windows, within=STUCK_WINDOW * self.noise)
         if contact_gate(data.train, data.topology)[0]:
             return current
         steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
         return self.refit(current, data.cut("train", steps, sys.maxsize, 4))
 
-    def refit(self, current: Candidate[EndCapFits], windows: Windows) -> Candidate[EndCapFits]:
-        """``current`` refitted on the training ``windows``, kept unless it diverges,
+    def refit(
+        self, current: Candidate[EndCapFits], windows: Windows, within: float | None = None
+    ) -> Candidate[EndCapFits]:
+        """``current`` refitted on the training ``windows`` (those whose states fit to
+        ``within`` [m] end-cap RMS, if given: :func:`fit_many`), kept unless it diverges,
         leaves the physical domain or loses a direction the last fit saw (a standard
         error that was finite turns infinite: its curvature matrix is singular there)."""
         t0 = time.perf_counter()
         last = current.fit.final
         s = self.settings
-        final = fit_many(self.data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows)
+        final = fit_many(self.data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows,
+                         within=within)  # fmt: skip
         ds = self.dataset
         model = final.fitted_model(ds.topology, ds.dt)
         why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)

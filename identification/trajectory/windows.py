@@ -60,6 +60,13 @@ class Windows:
             return int(self.valid.sum()) * int(self.obs.shape[-1])
         return int(self.valid.sum()) * int(self.obs[0, 0].numel())
 
+    def window_residuals(self) -> np.ndarray:
+        """Number of end-cap coordinates that count in each window, (B,)."""
+        if self.valid is None:
+            return np.full(self.size, self.obs[0].numel())
+        per = self.valid.reshape(self.size, -1).sum(dim=1).numpy()
+        return per * (int(self.obs.shape[-1]) if self.valid.ndim == 3 else int(self.obs[0, 0].numel()))
+
     def weights(self, t0: int = 0, t1: int | None = None) -> torch.Tensor | None:
         """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1 or 2R, 1), or None.
 

@@ -56,11 +56,14 @@ def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
         on_floor=True, dt=1 / 120,
         cut=lambda *a, **k: cuts.append((a, k)) or SimpleNamespace(steps=a[1]),
     )  # fmt: skip
-    monkeypatch.setattr(scorer, "refit", lambda current, windows: ("refitted", windows.steps))
+    scorer.noise = 1.0e-3
+    monkeypatch.setattr(scorer, "refit",
+                        lambda current, windows, within: ("refitted", windows.steps, within))  # fmt: skip
     out = scorer.finish("current")
     if refits:
         (name, steps, count, _), kw = cuts[0]
         assert (name, count, kw["lift_off"]) == ("train", 24, 12)
-        assert out == ("refitted", steps) and steps == 30  # at most 0.25 s at 120 Hz
+        assert out[:2] == ("refitted", steps) and steps == 30  # at most 0.25 s at 120 Hz
+        assert out[2] == pytest.approx(1.5e-3)  # windows stuck above 1.5x the noise left out
     else:
         assert out == "current" and not cuts

@@ -28,7 +28,7 @@ from identification.trajectory.floor_fit import (
     with_floor,
 )
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import better_states, window_errors
+from identification.trajectory.windowed_fit import better_states, window_errors, windows_within
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag
@@ -127,6 +127,29 @@ def test_a_window_stuck_in_another_state_is_fitted_afresh_from_its_seed() -> Non
     after = window_errors(engine, vec, reseeded(engine, vec, theta, stuck, seeds, 3), theta)
     assert before[0] > 1e-2 and (before[1:] < 1e-20).all()  # clean data: true states exact
     assert after[0] < 1e-12 and (after <= before).all()
+
+
+def test_windows_whose_states_stay_off_by_more_than_the_noise_are_left_out() -> None:
+    """Noisy end caps (1 mm) at the true model: the windows at their true states fit to
+    about the noise and are kept; a window stuck 2 cm off is left out. Where most windows
+    are off, the better half is kept."""
+    ds, seeds, vec = _on_the_floor(1, 300, 20)
+    theta, engine = vec.theta0(), Engine(ds.topology, ds.dt)
+    gen = torch.Generator().manual_seed(0)
+    noisy = replace(seeds, obs=seeds.obs + 1e-3 * torch.randn(seeds.obs.shape, generator=gen,
+                                                              dtype=seeds.obs.dtype))  # fmt: skip
+    shift = torch.zeros_like(seeds.state.p)
+    shift[1, :, 0] = 0.02
+    st = seeds.state
+    stuck = replace(noisy, state=State(st.p + shift, st.v, st.q, st.omega))
+    kept, rms = windows_within(engine, vec, stuck, theta, 1.5e-3)
+    others = np.delete(rms, 1)
+    assert np.allclose(others, 1e-3, rtol=0.1) and rms[1] > 1e-2
+    assert list(kept.start) == list(np.delete(stuck.start, 1))
+    shift[2:, :, 0] = 0.02  # most windows off: the better half stays
+    most = replace(noisy, state=State(st.p + shift, st.v, st.q, st.omega))
+    kept, rms = windows_within(engine, vec, most, theta, 1.5e-3)
+    assert kept.size == (stuck.size + 1) // 2 and stuck.start[0] in kept.start
 
 
 def _axial_drag_rms(ds, windows, vec: ParamVector, contact: list[GroundContact]) -> float:

@@ -150,8 +150,9 @@ def fit_many(
     The windows' states are fitted first with the model at ``theta``
     (:func:`fit_states`), so a fit on windows whose smoothed states are poor (impacts)
     starts in the right basin. ``within`` [m]: the windows whose states stay above this
-    end-cap RMS are left out (:func:`~identification.trajectory.windowed_fit.windows_within`). With an effect that depends on the rods' roll about their
-    axes (``sees_roll``: quadratic drag), each window's rolls are fitted too: on noisy
+    end-cap RMS are left out
+    (:func:`~identification.trajectory.windowed_fit.windows_within`). With an effect
+    that depends on the rods' roll about their axes (``sees_roll``: quadratic drag), each window's rolls are fitted too: on noisy
     quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to
     1.13 mm (1 mm noise), and the drag coefficients from 8 % to 1 % off. The rolls are
     fitted in a second pass, from the fit without them: from a small drag (0.058 of

@@ -54,18 +54,15 @@ class Windows:
     @property
     def residuals(self) -> int:
         """Number of end-cap coordinates that count (see ``valid``)."""
-        if self.valid is None:
-            return int(self.obs.numel())
-        if self.valid.ndim == 3:  # per end cap
-            return int(self.valid.sum()) * int(self.obs.shape[-1])
-        return int(self.valid.sum()) * int(self.obs[0, 0].numel())
+        return int(self.window_residuals().sum())
 
     def window_residuals(self) -> np.ndarray:
-        """Number of end-cap coordinates that count in each window, (B,)."""
+        """Number of end-cap coordinates that count in each window (see ``valid``), (B,)."""
         if self.valid is None:
-            return np.full(self.size, self.obs[0].numel())
+            return np.full(self.size, int(self.obs[0].numel()))
         per = self.valid.reshape(self.size, -1).sum(dim=1).numpy()
-        return per * (int(self.obs.shape[-1]) if self.valid.ndim == 3 else int(self.obs[0, 0].numel()))
+        coords = int(self.obs.shape[-1]) if self.valid.ndim == 3 else int(self.obs[0, 0].numel())
+        return per * coords
 
     def weights(self, t0: int = 0, t1: int | None = None) -> torch.Tensor | None:
         """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1 or 2R, 1), or None.

@@ -67,3 +67,28 @@ def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
         assert out[2] == pytest.approx(1.5e-3)  # windows stuck above 1.5x the noise left out
     else:
         assert out == "current" and not cuts
+
+
+def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch) -> None:
+    """``fit_many(within=...)`` fits the states, then hands the joint fit only the windows
+    ``windows_within`` kept; without ``within`` every window."""
+    from identification.discovery import end_cap_fits
+
+    passed: list = []
+    fitted = SimpleNamespace(theta="theta", origin=None)
+    monkeypatch.setattr(end_cap_fits, "held", lambda vec, theta: SimpleNamespace(theta0=lambda: 0))
+    monkeypatch.setattr(end_cap_fits, "fit_states",
+                        lambda *a, **k: SimpleNamespace(windows="states fitted"))  # fmt: skip
+    monkeypatch.setattr(end_cap_fits, "windows_within",
+                        lambda eng, vec, w, theta, rms: (SimpleNamespace(size=20, of=(w, rms)),
+                                                         np.ones(24)))  # fmt: skip
+    monkeypatch.setattr(end_cap_fits, "fit_trajectory",
+                        lambda data, vec, w, theta, iters: passed.append(w) or fitted)  # fmt: skip
+    monkeypatch.setattr(end_cap_fits, "sees_roll", lambda engine: False)
+    data = SimpleNamespace(engine=None, spin=True, roll=False, log=lambda line: None)
+    vec = SimpleNamespace(engine=lambda engine, theta: "engine")
+    theta = SimpleNamespace(detach=lambda: theta)
+    s = TrajectorySettings()
+    end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows", within=1.5e-3)
+    end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows")
+    assert passed[0].of == ("states fitted", 1.5e-3) and passed[1] == "states fitted"

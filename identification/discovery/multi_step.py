@@ -262,6 +262,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         s, now = self.settings, current.fit.fit
         assert proposal.effect is not None
         keep = [e for e in now.start_effects if e.name not in drop]
+        if proposal.start is not None and self.data.on_floor:
+            return self.fit_jointly(current, proposal, drop)
         if proposal.start is not None:
             fit = fit_slack(self.data, s, now, proposal, keep)
         elif self.data.on_floor:
@@ -314,19 +316,31 @@ class MultiStepScorer(Scorer[EndCapFits]):
         return names + rivals
 
     def fit_jointly(
-        self, current: Candidate[EndCapFits], proposal: Proposal
+        self, current: Candidate[EndCapFits], proposal: Proposal, drop: Sequence[str] = ()
     ) -> Candidate[EndCapFits]:
         """The floor fit done afresh with the current model's effects and the proposed one
         (:func:`~identification.discovery.floor_fits.floor_fit`: the regression, a contact
         search, the valley search), then fitted on the training windows selection
-        compares on, from the current model's window states. Slack cables (fitted from
-        their own hypothesis) as :meth:`fit_candidate`."""
-        if proposal.start is not None or not self.data.on_floor:
-            return self.fit_candidate(current, proposal)
+        compares on, from the current model's window states; ``drop`` as in
+        :meth:`fit_candidate`.
+
+        Slack cables start from their own segmented regression (``proposal.start``) and
+        replace the current model's cables. Like every candidate's, their floor fit is
+        not adopted (the data's window sets and contact range stay the current model's,
+        whichever candidates are fitted before them in the same process), and their
+        training windows start from the current model's states: fitted from smoothing
+        instead, the cables' fit on the bench's slack-cable floor cell (seed 0) lowered
+        the held-out chi-square by 960 and raised the BIC by 2062.
+        """
+        if not self.data.on_floor:
+            return self.fit_candidate(current, proposal, drop)
         data, s, now = self.data, self.settings, current.fit.fit
         assert proposal.effect is not None
-        others = [e for e in now.effects if not isinstance(e, GroundContact)]
-        floor = floor_fit(data, s, self.start, [*others, proposal.effect], contact=self.contact)
+        left_out = {proposal.name, *drop}
+        others = [e for e in now.effects
+                  if not isinstance(e, GroundContact) and e.name not in left_out]  # fmt: skip
+        floor = floor_fit(data, s, self.start, [*others, proposal.effect], values=proposal.start,
+                          contact=self.contact)  # fmt: skip
         fit = fit_trajectory(data, floor.fit.vec, now.windows, floor.fit.theta, s.candidate_iter)
         fit.origin = floor.fit.theta
         return self.score_candidate(proposal.name, fit, current, floor)

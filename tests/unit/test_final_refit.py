@@ -11,7 +11,13 @@ from identification.discovery import multi_step
 from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.end_cap_fits import EndCapFits
 from identification.discovery.judge import Candidate
+from identification.discovery.library import Proposal
 from identification.discovery.multi_step import MultiStepScorer
+from tensegrity_env.effects import GroundContact
+
+
+def _effect(name: str) -> SimpleNamespace:
+    return SimpleNamespace(name=name)
 
 
 def _scorer(refit_stderr: np.ndarray, monkeypatch: pytest.MonkeyPatch, lines: list[str]):
@@ -92,3 +98,39 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
     end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows", within=1.5e-3)
     end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows")
     assert passed[0].of == ("states fitted", 1.5e-3) and passed[1] == "states fitted"
+
+
+def test_on_the_floor_slack_cables_are_fitted_afresh_from_their_regression(monkeypatch) -> None:
+    """A cable hypothesis on the floor: one floor fit from the segmented regression's
+    values, the current cables (and dropped effects) replaced, not adopted by the data;
+    then the selection windows from the current model's fitted states."""
+    calls: dict = {}
+
+    def fake_floor_fit(data, s, start, effects, values=None, contact=None):
+        calls["floor"] = ([e.name for e in effects], values)
+        return SimpleNamespace(fit=SimpleNamespace(vec="floor vec", theta="floor theta"))
+
+    def fake_fit_trajectory(data, vec, windows, theta, iters):
+        calls["trajectory"] = (vec, windows, theta)
+        return SimpleNamespace(origin=None)
+
+    monkeypatch.setattr(multi_step, "floor_fit", fake_floor_fit)
+    monkeypatch.setattr(multi_step, "fit_trajectory", fake_fit_trajectory)
+    monkeypatch.setattr(multi_step, "adopt_floor_fit",
+                        lambda *a: pytest.fail("a candidate's floor fit was adopted"))  # fmt: skip
+    scorer = MultiStepScorer(TrajectorySettings())
+    scorer.data = SimpleNamespace(on_floor=True)
+    scorer.start = scorer.contact = None
+    monkeypatch.setattr(scorer, "score_candidate",
+                        lambda name, fit, current, floor: (name, fit, floor))  # fmt: skip
+    contact = GroundContact.__new__(GroundContact)  # (only its type is looked at)
+    now = SimpleNamespace(
+        effects=[contact, *map(_effect, ("slack_springs", "linear_drag", "force_field"))],
+        start_effects=[], windows="current states",
+    )  # fmt: skip
+    current = Candidate("nothing", EndCapFits(now, now), "model")
+    proposal = Proposal("slack_springs", _effect("slack_springs"), "gate", start={"k": "regressed"})
+    name, fit, floor = scorer.fit_candidate(current, proposal, drop=("force_field",))
+    assert calls["floor"] == (["linear_drag", "slack_springs"], {"k": "regressed"})
+    assert calls["trajectory"] == ("floor vec", "current states", "floor theta")
+    assert name == "slack_springs" and fit.origin == "floor theta" and floor is not None

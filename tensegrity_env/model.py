@@ -85,12 +85,25 @@ class Model:
         return dataclasses.replace(self, **changes)
 
     def engine(
-        self, dtype: torch.dtype = torch.float64, device: str | torch.device = "cpu"
+        self,
+        dtype: torch.dtype = torch.float64,
+        device: str | torch.device = "cpu",
+        physics_dt: float | None = None,
     ) -> Engine:
-        """The differentiable engine of this model (parameters are passed per step)."""
-        from tensegrity_env.engine import Engine
+        """The differentiable engine of this model (parameters are passed per step).
 
-        return Engine(self.topology, self.dt, self.effects, dtype=dtype, device=device)
+        Each :meth:`~tensegrity_env.engine.Engine.step` advances :attr:`dt` [s] in
+        substeps of at most ``physics_dt`` [s] (default
+        :data:`~tensegrity_env.engine.PHYSICS_DT`, 1 ms;
+        :func:`~tensegrity_env.engine.substeps_for`): a model loaded at a motion-capture
+        rate (``dt=1/120``) steps at the physics step it was identified with, not at the
+        sample interval.
+        """
+        from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
+
+        substeps = substeps_for(self.dt, PHYSICS_DT if physics_dt is None else physics_dt)
+        return Engine(self.topology, self.dt, self.effects, dtype=dtype, device=device,
+                      substeps=substeps)  # fmt: skip
 
     def violation(self) -> str:
         """What lies outside the physical domain, in one line, or ``""`` when nothing does.

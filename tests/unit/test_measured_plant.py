@@ -16,6 +16,7 @@ from measured_plant import Cell, initial_states, measure, simulate, true_model
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import ForceField, GroundContact, SlackSprings
 from tensegrity_env.engine import Engine, State, substeps_for
+from tensegrity_env.model import Model
 from tensegrity_env.rotations import quat_to_matrix
 
 
@@ -53,6 +54,23 @@ def test_true_model_at_120_hz_sample_spacing_reproduces_one_second_of_flight():
     with torch.no_grad():
         roll = coarse.rollout(state, truth.params, clean.n_transitions)
     assert np.abs(roll.p.numpy() - clean.p).max() > 1e-3
+
+
+def test_a_model_at_the_sample_interval_steps_at_its_physics_step():
+    """``Model.engine`` substeps a 120 Hz model at <= 1 ms: it reproduces the plant as the
+    engine built with :func:`substeps_for` does; asked for one step per sample, it does not."""
+    cell = Cell("flight", 120.0, 0.0, 0.0, "none")
+    truth, init = true_model(cell), initial_states(cell, 2, np.random.default_rng(0))
+    clean = simulate(cell, truth, init, 1.0)
+    model = Model(icosahedron().topology, truth.params, [], 1 / 120)
+    state = State(*(torch.as_tensor(init[k]) for k in ("p", "v", "q", "omega")))
+    errors = []
+    for engine in (model.engine(), model.engine(physics_dt=1 / 120)):
+        with torch.no_grad():
+            roll = engine.rollout(state, truth.params, clean.n_transitions)
+        errors.append(np.abs(roll.p.numpy() - clean.p).max())
+    assert model.engine().substeps == 9
+    assert errors[0] <= 1e-6 < 1e-3 < errors[1]
 
 
 def test_slack_cables_go_slack_in_flight_and_the_true_model_follows_them():

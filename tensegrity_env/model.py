@@ -96,8 +96,8 @@ class Model:
         substeps of at most ``physics_dt`` [s] (default
         :data:`~tensegrity_env.engine.PHYSICS_DT`, 1 ms;
         :func:`~tensegrity_env.engine.substeps_for`): a model loaded at a motion-capture
-        rate (``dt=1/120``) steps at the physics step it was identified with, not at the
-        sample interval.
+        rate (``dt=1/120``) steps at 0.93 ms, as ``identify`` and ``diagnose`` integrate
+        it by default (``--physics-dt``), not once per sample interval.
         """
         from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
 

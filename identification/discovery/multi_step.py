@@ -309,7 +309,9 @@ class MultiStepScorer(Scorer[EndCapFits]):
             return []
         # (a negligible force cannot be what the model misses: its gain is the states')
         forceful = [c for c in tried if not c.size < NEGLIGIBLE]
-        hopeful = sorted((c for c in forceful if c.gain > 0), key=lambda c: -c.gain)
+        # (slack cables were fitted with everything free already: a floor fit of their own)
+        hopeful = sorted((c for c in forceful if c.gain > 0 and c.fit.floor is None),
+                         key=lambda c: -c.gain)  # fmt: skip
         names = [c.name for c in hopeful[:SECOND_LOOKS]]
         screened = {c.name for c in forceful}
         rivals = [RIVALS[n] for n in names if RIVALS.get(n) in screened - set(names)]

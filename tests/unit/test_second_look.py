@@ -11,16 +11,18 @@ from typing import Any
 from identification.discovery.multi_step import MISFIT, RIVALS, SECOND_LOOKS, MultiStepScorer
 
 
-def looks(rms: float, gains: dict[str, float], on_floor: bool = True,
-          accepted: str = "", sizes: dict[str, float] | None = None) -> list[str]:  # fmt: skip
+def looks(rms: float, gains: dict[str, float], on_floor: bool = True, accepted: str = "",
+          sizes: dict[str, float] | None = None, joint: tuple[str, ...] = ()) -> list[str]:  # fmt: skip
     """``MultiStepScorer.second_look`` with a current model fitting to ``rms`` [m] at a
-    noise level of 1 mm, and candidates with ``gains``."""
+    noise level of 1 mm, and candidates with ``gains`` (those in ``joint`` fitted with a
+    floor fit of their own already)."""
     scorer = MultiStepScorer.__new__(MultiStepScorer)
     scorer.data = SimpleNamespace(on_floor=on_floor)  # type: ignore[assignment]
     scorer.noise = 1e-3
     current: Any = SimpleNamespace(fit=SimpleNamespace(final=SimpleNamespace(rms=rms)))
     size = sizes or {}
-    tried: Any = [SimpleNamespace(name=n, gain=g, accepted=n == accepted, size=size.get(n, 0.01))
+    tried: Any = [SimpleNamespace(name=n, gain=g, accepted=n == accepted, size=size.get(n, 0.01),
+                                  fit=SimpleNamespace(floor="floor fit" if n in joint else None))
                   for n, g in gains.items()]  # fmt: skip
     return scorer.second_look(current, tried)
 
@@ -63,3 +65,11 @@ def test_no_second_look_at_a_candidate_whose_force_is_negligible():
     gains = {"quadratic_drag": 72.1, "force_field": 104.7, "cubic_stiffness": 104.2}
     sizes = {"force_field": 1e-6, "cubic_stiffness": 2e-6, "quadratic_drag": float("nan")}
     assert looks(1.37e-3, gains, sizes=sizes) == ["quadratic_drag"]
+
+
+def test_no_second_look_at_a_candidate_fitted_with_everything_free_already():
+    """Slack cables on the floor come with a floor fit of their own: fitted again, the
+    same fit would come out."""
+    gains = {"slack_springs": 960.0, "linear_drag": 97.6, "quadratic_drag": 141.0}
+    assert looks(6.0e-3, gains) == ["slack_springs", "quadratic_drag", "linear_drag"]
+    assert looks(6.0e-3, gains, joint=("slack_springs",)) == ["quadratic_drag", "linear_drag"]

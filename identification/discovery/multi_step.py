@@ -327,12 +327,10 @@ class MultiStepScorer(Scorer[EndCapFits]):
         :meth:`fit_candidate`.
 
         Slack cables start from their own segmented regression (``proposal.start``) and
-        replace the current model's cables. Like every candidate's, their floor fit is
-        not adopted (the data's window sets and contact range stay the current model's,
-        whichever candidates are fitted before them in the same process), and their
-        training windows start from the current model's states: fitted from smoothing
-        instead, the cables' fit on the bench's slack-cable floor cell (seed 0) lowered
-        the held-out chi-square by 960 and raised the BIC by 2062.
+        the current model's contact (cables do not stand in for a dissipation the contact
+        took up), and replace the current model's cables. Like every candidate's, their
+        floor fit is not adopted: the data's window sets and contact range stay the
+        current model's, whichever candidates were fitted before in the same process.
         """
         if not self.data.on_floor:
             return self.fit_candidate(current, proposal, drop)
@@ -341,8 +339,11 @@ class MultiStepScorer(Scorer[EndCapFits]):
         left_out = {proposal.name, *drop}
         others = [e for e in now.effects
                   if not isinstance(e, GroundContact) and e.name not in left_out]  # fmt: skip
+        contact = self.contact
+        if proposal.start is not None:
+            contact = next((e for e in now.effects if isinstance(e, GroundContact)), contact)
         floor = floor_fit(data, s, self.start, [*others, proposal.effect], values=proposal.start,
-                          contact=self.contact)  # fmt: skip
+                          contact=contact)  # fmt: skip
         fit = fit_trajectory(data, floor.fit.vec, now.windows, floor.fit.theta, s.candidate_iter)
         fit.origin = floor.fit.theta
         return self.score_candidate(proposal.name, fit, current, floor)

@@ -102,12 +102,13 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
 
 def test_on_the_floor_slack_cables_are_fitted_afresh_from_their_regression(monkeypatch) -> None:
     """A cable hypothesis on the floor: one floor fit from the segmented regression's
-    values, the current cables (and dropped effects) replaced, not adopted by the data;
-    then the selection windows from the current model's fitted states."""
+    values and the current contact, the current cables (and dropped effects) replaced,
+    not adopted by the data; then the selection windows from the current model's fitted
+    states."""
     calls: dict = {}
 
     def fake_floor_fit(data, s, start, effects, values=None, contact=None):
-        calls["floor"] = ([e.name for e in effects], values)
+        calls["floor"] = ([e.name for e in effects], values, contact)
         return SimpleNamespace(fit=SimpleNamespace(vec="floor vec", theta="floor theta"))
 
     def fake_fit_trajectory(data, vec, windows, theta, iters):
@@ -131,6 +132,6 @@ def test_on_the_floor_slack_cables_are_fitted_afresh_from_their_regression(monke
     current = Candidate("nothing", EndCapFits(now, now), "model")
     proposal = Proposal("slack_springs", _effect("slack_springs"), "gate", start={"k": "regressed"})
     name, fit, floor = scorer.fit_candidate(current, proposal, drop=("force_field",))
-    assert calls["floor"] == (["linear_drag", "slack_springs"], {"k": "regressed"})
+    assert calls["floor"] == (["linear_drag", "slack_springs"], {"k": "regressed"}, contact)
     assert calls["trajectory"] == ("floor vec", "current states", "floor theta")
     assert name == "slack_springs" and fit.origin == "floor theta" and floor is not None

@@ -29,10 +29,10 @@ from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_unit, ratio, write_params, write_report
 from identification.discovery.scorer import Scorer
-from identification.discovery.side_by_side import usable_cores
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from identification.trajectory.floor_evidence import contact_evidence
+from identification.trajectory.forked import usable_cores, window_workers
 from tensegrity_env.effects import EFFECTS, GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT
@@ -114,9 +114,9 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the window draws (default 0)")
     cores = usable_cores()
     p.add_argument("--jobs", type=int, default=cores,
-                   help="candidates fitted at once, one worker process each (default: the "
-                   f"cores this process may use, here {cores}; 1: one after the "
-                   "other); the results do not depend on it")  # fmt: skip
+                   help="worker processes: candidates fitted at once, and the window groups of "
+                   f"a large fit (default: the cores this process may use, here {cores}; 1: one "
+                   "after the other); the results do not depend on it")  # fmt: skip
     add_force_option(p)
     p.set_defaults(func=run)
 
@@ -182,7 +182,8 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     loop = EffectDiscovery(scorer, args.max_effects, names, plots=out, jobs=args.jobs)
-    with np.errstate(invalid="ignore", divide="ignore"):  # candidates may fit badly: judged
+    # candidates may fit badly (judged); a large fit's window groups use the --jobs workers
+    with np.errstate(invalid="ignore", divide="ignore"), window_workers(args.jobs):
         result = loop.fit(dataset).result_
     truth = read_ground_truth(args.dataset)
     contacts = [e for e in result.model.effects if isinstance(e, GroundContact)]

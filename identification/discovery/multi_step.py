@@ -77,10 +77,10 @@ from identification.discovery.negligible import NEGLIGIBLE
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
-from identification.discovery.side_by_side import side_by_side
 from identification.discovery.slack_hypothesis import fit_slack, slack_hypothesis
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
+from identification.trajectory.forked import side_by_side
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll

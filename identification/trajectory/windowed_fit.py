@@ -10,10 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 import torch
 
+from identification.trajectory.forked import side_by_side, window_groups, window_jobs
 from identification.trajectory.param_vector import DTYPE, ParamVector
 from identification.trajectory.windows import (
     Windows,
@@ -57,22 +59,21 @@ def linearize(
     and every free log-parameter (:func:`gauss_newton_fd`). Its ~1e-7 relative error
     barely moves the optimum (the shift is ~1e-7 of a standard error; none on clean
     data, where the residual vanishes). ``exact_gradient`` replaces ``Jᵀr`` by the
-    exact gradient (reverse mode through the engine), about twice the cost.
+    exact gradient (reverse mode through the engine), about twice the cost. The windows
+    are linearized in groups of at most ``chunk`` (:func:`window_groups`), in worker
+    processes where :func:`~identification.trajectory.forked.window_workers` allows.
     """
     H_ll, H_lg, g_l, g_gb = [], [], [], []
     n_g = len(theta)
     H_gg = torch.zeros(n_g, n_g, dtype=DTYPE)
     g_g = torch.zeros(n_g, dtype=DTYPE)
     sse, m = 0.0, 0
-    for start in range(0, win.size, chunk):
-        part = win.take(slice(start, start + chunk))
-        ll, lg, gg, gl, gb, part_sse = gauss_newton_fd(engine, vec, part, basis, theta, step)
-        gt = gb.sum(0)
-        if exact_gradient:
-            z = torch.zeros(part.size, basis.shape[0], dtype=DTYPE, requires_grad=True)
-            th = theta.clone().requires_grad_(True)
-            r = window_residual(engine, vec, part, basis)(z, th)
-            gl, gt = torch.autograd.grad(0.5 * (r * r).sum(), (z, th))
+    groups = [win.take(g) for g in window_groups(win.size, chunk)]
+    tasks = [partial(group_equations, engine, vec, part, basis, theta, step, exact_gradient)
+             for part in groups]  # fmt: skip
+    for part, (ll, lg, gg, gl, gb, gt, part_sse) in zip(
+        groups, side_by_side(tasks, window_jobs()), strict=True
+    ):
         H_ll.append(ll)
         H_lg.append(lg)
         g_l.append(gl)
@@ -84,6 +85,23 @@ def linearize(
     return NormalEquations(
         torch.cat(H_ll), torch.cat(H_lg), torch.cat(g_l), H_gg, g_g, sse, m, torch.cat(g_gb)
     )
+
+
+def group_equations(
+    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
+    step: float, exact_gradient: bool,
+) -> tuple[torch.Tensor, ...]:  # fmt: skip
+    """One group of windows' share of :func:`linearize`: :func:`gauss_newton_fd`'s
+    ``H_ll``, ``H_lg``, ``H_gg``, ``g_l`` and per-window ``g_g``, then the group's ``g_g``
+    (exact where asked) and its ``rᵀr`` [m^2]."""
+    ll, lg, gg, gl, gb, sse = gauss_newton_fd(engine, vec, win, basis, theta, step)
+    gt = gb.sum(0)
+    if exact_gradient:
+        z = torch.zeros(win.size, basis.shape[0], dtype=DTYPE, requires_grad=True)
+        th = theta.clone().requires_grad_(True)
+        r = window_residual(engine, vec, win, basis)(z, th)
+        gl, gt = torch.autograd.grad(0.5 * (r * r).sum(), (z, th))
+    return ll, lg, gg, gl, gb, gt, sse
 
 
 @torch.no_grad()
@@ -237,13 +255,20 @@ def window_sse(
     engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
     chunk: int,
 ) -> float:  # fmt: skip
-    """Sum of squared end-cap errors of all windows [m^2]."""
-    total = 0.0
-    for start in range(0, win.size, chunk):
-        part = win.take(slice(start, start + chunk))
-        z0 = torch.zeros(part.size, basis.shape[0], dtype=DTYPE)
-        total += float((window_residual(engine, vec, part, basis)(z0, theta) ** 2).sum())
-    return total
+    """Sum of squared end-cap errors of all windows [m^2], in the groups of
+    :func:`linearize`."""
+    tasks = [partial(group_sse, engine, vec, win.take(g), basis, theta)
+             for g in window_groups(win.size, chunk)]  # fmt: skip
+    return float(sum(side_by_side(tasks, window_jobs())))
+
+
+def group_sse(
+    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor
+) -> float:
+    """One group of windows' share of :func:`window_sse` [m^2]."""
+    z0 = torch.zeros(win.size, basis.shape[0], dtype=DTYPE)
+    with torch.no_grad():
+        return float((window_residual(engine, vec, win, basis)(z0, theta) ** 2).sum())
 
 
 def window_errors(

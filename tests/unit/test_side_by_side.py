@@ -13,8 +13,9 @@ from identification.discovery.library import Proposal
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.scorer import CandidateSkipped
-from identification.discovery.side_by_side import fit_side_by_side, side_by_side
+from identification.discovery.side_by_side import fit_side_by_side
 from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.forked import side_by_side
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -1,0 +1,97 @@
+"""Speed of a large windowed fit's linearization with its window groups in worker
+processes, against the same groups one after the other.
+
+``diagnose``'s final refit on the floor linearizes many windows at once (forward-
+difference Jacobians through the engine, :func:`~identification.trajectory.windowed_fit.linearize`).
+Above one group's worth of windows the windows are split into groups of equal size;
+with ``--jobs`` (the CLI's, default the usable cores) the groups run in forked workers.
+This script times one linearization of ``--windows`` floor windows of 0.3 s of the
+measured benchmark's floor plant (``measured_plant.py``, 120 Hz, 1 mm noise, the true
+model with its contact, every parameter and the contact free), float64, one thread per process. The reference is the same
+linearization with the groups one after the other, timed in the same run and in
+alternation (best of ``--repeats`` per side); the ratio is printed, never asserted, and
+the two results are checked to be identical::
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_window_groups.py
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_window_groups.py --windows 96 --jobs 4
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import torch
+from measured_plant import Cell, initial_states, simulate, true_model
+
+from identification.trajectory.floor_fit import with_floor
+from identification.trajectory.forked import usable_cores, window_groups, window_workers
+from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.windowed_fit import linearize
+from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.engine import Engine
+from tensegrity_env.mjcf import from_mjcf
+from tensegrity_env.mjcf_checks import IgnoredFeatureWarning
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--windows", type=int, default=48, help="floor windows (default 48)")
+    ap.add_argument("--jobs", type=int, default=usable_cores(),
+                    help="worker processes (default: the usable cores)")  # fmt: skip
+    ap.add_argument("--repeats", type=int, default=2, help="timings per side (best kept)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the plant's trajectories")
+    args = ap.parse_args(argv)
+    if args.windows < 1 or args.jobs < 1 or args.repeats < 1:
+        ap.error("--windows, --jobs and --repeats must be >= 1")
+    torch.set_num_threads(1)
+    cell = Cell("floor", 120.0, 1e-3, 0.0, "none", seed=args.seed)
+    truth = true_model(cell)
+    rng = np.random.default_rng([args.seed, 5])
+    clean = simulate(cell, truth, initial_states(cell, 8, rng), 3.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IgnoredFeatureWarning)
+        asm = from_mjcf("<plant>", xml=truth.xml)
+    contact = next(e for e in asm.declared_effects() if isinstance(e, GroundContact))
+    steps = round(0.3 * cell.rate)
+    noisy = clean.nodes + rng.normal(0.0, cell.noise, clean.nodes.shape)
+    grid = {k: getattr(clean, k) for k in STATE_KEYS}
+    control = np.zeros((*clean.nodes.shape[:2], asm.topology.n_rods, 3))
+    windows = cut_windows(noisy, control, grid, steps)
+    windows = windows.take(np.resize(np.arange(windows.size), args.windows))
+    declared = ParamVector.at(asm.topology, asm.params)
+    declared = replace(declared, free=torch.ones_like(declared.free))  # every parameter fitted
+    vec = with_floor(declared, [], contact, None)
+    engine = Engine(asm.topology, 1 / cell.rate, substeps=cell.substeps)
+    basis = local_basis(vec.axes, True)
+    theta = vec.theta0()
+    chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # as the fits choose it
+    groups = len(window_groups(windows.size, chunk))
+
+    def timed(jobs: int) -> tuple[float, torch.Tensor]:
+        t0 = time.perf_counter()
+        with window_workers(jobs):
+            ne = linearize(engine, vec, windows, basis, theta, chunk)
+        return time.perf_counter() - t0, ne.H_gg
+
+    serial, parallel = [], []
+    for _ in range(args.repeats):  # alternate, so background load hits both sides alike
+        t, h_serial = timed(1)
+        serial.append(t)
+        t, h_parallel = timed(args.jobs)
+        parallel.append(t)
+    same = bool(torch.equal(h_serial, h_parallel))
+    print(f"floor plant, {windows.size} windows of {steps} samples at {cell.rate:g} Hz "
+          f"({cell.substeps} physics steps each), {groups} groups of at most {chunk}")  # fmt: skip
+    print(f"  groups one after the other (reference) {min(serial):7.2f} s")
+    print(f"  groups in {args.jobs} workers              {min(parallel):7.2f} s  ratio "
+          f"{min(parallel) / min(serial):5.2f}  identical normal equations: {same}")  # fmt: skip
+    return 0 if same else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

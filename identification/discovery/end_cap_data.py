@@ -57,8 +57,9 @@ FLOOR_WINDOWS = 8
 #: above all), with nothing left for the declared fit to absorb. The spread of the
 #: fitted damping shrinks as the inverse square root of the windows kept: on the
 #: measured benchmark's floor-only control (seed 0) 48 (41 kept) put it within 6.7 %
-#: (max over 24 springs) where 24 (20 kept) left 14.5 %. Above one group's worth the
-#: windows run in the ``--jobs`` workers (:mod:`identification.trajectory.forked`)
+#: (max over 24 springs; median 1.6 %) where 24 (20 kept) left 14.5 %. Above one
+#: group's worth the windows run in the ``--jobs`` workers
+#: (:mod:`identification.trajectory.forked`)
 FINAL_FLOOR_WINDOWS = 48
 #: a window whose states, fitted at the selected model, stay above this multiple of the
 #: noise level is left out of the final floor refit (stuck in another basin through an

@@ -53,6 +53,8 @@ def slack_hypothesis(data: EndCapData, current: TrajFit, anchors: dict[str, floa
     """
     old = [e for e in current.effects if isinstance(e, SlackSprings)]
     known = {int(i) for e in old for i in e.values["springs"].tolist()}
+    if len(known) == data.topology.n_springs:
+        return Proposal("slack_springs", None, f"all {len(known)} springs are cables already")
     rows = {"rod_keep": floor_rows(data)} if data.on_floor else {"keep": airborne_keep(data)}
     reg = slack_regression(data.topology, data.smooth["train"], data.train.control, anchors,
                            **rows)  # fmt: skip

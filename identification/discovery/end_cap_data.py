@@ -57,7 +57,8 @@ FLOOR_WINDOWS = 8
 #: above all), with nothing left for the declared fit to absorb. The spread of the
 #: fitted damping shrinks as the inverse square root of the windows kept: on the
 #: measured benchmark's floor-only control (seed 0) 48 (41 kept) put it within 6.7 %
-#: (max over 24 springs; median 1.6 %) where 24 (20 kept) left 14.5 %. Above one
+#: (max over 24 springs; median 1.6 %) where the refit on 24 (20 kept) stalled at the
+#: 8-window fit's 14.5 %; on the damaged-cable cell 8.8 % where 24 gave 12.9 %. Above one
 #: group's worth the windows run in the ``--jobs`` workers
 #: (:mod:`identification.trajectory.forked`)
 FINAL_FLOOR_WINDOWS = 48

@@ -90,6 +90,10 @@ from tensegrity_env.params import Params
 
 #: smoothed training samples per sample where candidates' forces are measured
 SAMPLE_STRIDE = 4
+#: a final refit whose fitted coordinates (log-parameters, effect coordinates) all moved
+#: less than this is reported as having stayed at the last fit: on the floor its
+#: Levenberg-Marquardt steps can all be rejected where impacts make the error jump
+STILL = 1e-6
 #: longest window of the final refit [s] (whole trajectories up to this long)
 FINAL_WINDOW_S = 1.0
 #: on the floor, a current model whose training end-cap RMS is above this many times
@@ -504,9 +508,13 @@ class MultiStepScorer(Scorer[EndCapFits]):
         lost = int((np.isinf(final.stderr) & np.isfinite(last.stderr)).sum())
         if not why and lost:
             why = f"{lost} standard errors the last fit pinned are infinite"
+        moved = float((final.theta - last.theta).abs().max()) if len(last.theta) else 0.0
+        still = "" if moved > STILL else (
+            f"; its parameters stayed at the last fit's (largest change {moved:.2g}: no step "
+            "lowered the error on these windows)")  # fmt: skip
         self.log(f"final refit on {final.windows.size} training windows of {windows.steps} "
                  f"steps: end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
-                 + (f"; not used ({why})" if why else ""))  # fmt: skip
+                 + (f"; not used ({why})" if why else still))  # fmt: skip
         if why:
             return current
         fits = replace(current.fit, final=final)

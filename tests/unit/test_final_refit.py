@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
 from identification.discovery import multi_step
 from identification.discovery.end_cap_data import TrajectorySettings
@@ -20,17 +21,21 @@ def _effect(name: str) -> SimpleNamespace:
     return SimpleNamespace(name=name)
 
 
-def _scorer(refit_stderr: np.ndarray, monkeypatch: pytest.MonkeyPatch, lines: list[str]):
+def _scorer(
+    refit_stderr: np.ndarray, monkeypatch: pytest.MonkeyPatch, lines: list[str], step: float = 0.1
+):
     refitted = SimpleNamespace(
         rms=1.0e-3, stderr=refit_stderr, windows=SimpleNamespace(size=24),
         fitted_model=lambda topology, dt: "refitted model",
+        theta=torch.tensor([0.5, -0.2 + step, 1.0], dtype=torch.float64),
     )  # fmt: skip
     monkeypatch.setattr(multi_step, "fit_many", lambda *a, **k: refitted)
     monkeypatch.setattr(multi_step, "unphysical", lambda model: "")
     scorer = MultiStepScorer(TrajectorySettings())
     scorer.data, scorer.noise, scorer.log = None, 1.0e-3, lines.append
     scorer.dataset = SimpleNamespace(topology=None, dt=1 / 120)
-    last = SimpleNamespace(vec=None, theta=None, stderr=np.array([0.01, 0.02, np.inf]))
+    last = SimpleNamespace(vec=None, theta=torch.tensor([0.5, -0.2, 1.0], dtype=torch.float64),
+                           stderr=np.array([0.01, 0.02, np.inf]))  # fmt: skip
     current = Candidate("nothing", EndCapFits(last, last), "model")
     return scorer, current
 
@@ -50,6 +55,15 @@ def test_a_refit_that_loses_a_standard_error_is_not_used(stderr, kept, monkeypat
     assert (out.model == "refitted model") is kept
     assert (out is current) is not kept
     assert ("1 standard errors the last fit pinned are infinite" in lines[-1]) is not kept
+
+
+@pytest.mark.parametrize(("step", "stayed"), [(0.1, False), (1e-12, True)])
+def test_a_refit_whose_parameters_did_not_move_says_so(step, stayed, monkeypatch) -> None:
+    lines: list[str] = []
+    scorer, current = _scorer(np.array([0.01, 0.02, np.inf]), monkeypatch, lines, step)
+    out = scorer.refit(current, SimpleNamespace(steps=30))
+    assert out.model == "refitted model"  # kept either way: the same model, more windows
+    assert ("its parameters stayed at the last fit's" in lines[-1]) is stayed
 
 
 @pytest.mark.parametrize(("final_windows", "refits"), [(24, True), (8, False)])

@@ -30,7 +30,7 @@ from measured_plant import Cell, initial_states, simulate, true_model
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.forked import usable_cores, window_groups, window_workers
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import linearize
+from identification.trajectory.windowed_fit import group_size, linearize
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     engine = Engine(asm.topology, 1 / cell.rate, substeps=cell.substeps)
     basis = local_basis(vec.axes, True)
     theta = vec.theta0()
-    chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # as the fits choose it
+    chunk = group_size(basis, theta)  # as the fits choose it
     groups = len(window_groups(windows.size, chunk))
 
     def timed(jobs: int) -> tuple[float, torch.Tensor]:

@@ -89,6 +89,7 @@ from identification.trajectory.windowed_fit import (
     WindowFit,
     better_states,
     fit_windows,
+    group_size,
     state_response,
     trial_sse,
 )
@@ -292,7 +293,7 @@ def search_scale(
     response = torch.stack([torch.einsum("bl,lrj->brj", state_response(fit.normal, u), basis)
                             for u in U])  # fmt: skip
     n, k = len(U), len(FLOOR_FREE)
-    chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))
+    chunk = group_size(basis, theta)
     forces = vec.mass_scaled()  # effect coordinates scaled exactly
 
     def at(x: np.ndarray) -> tuple[torch.Tensor, Windows]:

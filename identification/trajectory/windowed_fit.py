@@ -87,6 +87,17 @@ def linearize(
     )
 
 
+#: assemblies stepped at once by a forward-difference Jacobian (windows times perturbed
+#: copies): the most windows a group of :func:`linearize` holds follows from it
+FD_BATCH = 6000
+
+
+def group_size(basis: torch.Tensor, theta: torch.Tensor) -> int:
+    """The most windows in one group: each is stepped with one perturbed copy per local
+    coordinate (``basis`` (n_l, ...)) and per fitted coordinate (``theta`` (n_g,))."""
+    return max(1, FD_BATCH // (basis.shape[0] + len(theta) + 1))
+
+
 def group_equations(
     engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
     step: float, exact_gradient: bool,
@@ -385,7 +396,7 @@ def fit_windows(
     still descends).
     """
     basis = local_basis(vec.axes, spin, roll)
-    chunk = max(1, 6000 // (basis.shape[0] + len(theta) + 1))  # batch of the FD Jacobian
+    chunk = group_size(basis, theta)
     lo, hi = vec.bounds()
     hard = vec.hard_bounds()
     theta = theta.clamp(lo, hi)  # a start outside the physical domain (a screen's drag < 0)

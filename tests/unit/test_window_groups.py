@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import os
+from functools import partial
 
 import numpy as np
 import pytest
@@ -70,8 +71,6 @@ def _pid_and_nested(_: int) -> tuple[int, list[int]]:
 
 
 def test_a_worker_runs_its_own_tasks_itself() -> None:
-    from functools import partial
-
     out = side_by_side([partial(_pid_and_nested, i) for i in range(2)], jobs=2)
     for pid, nested in out:
         assert pid != os.getpid() and nested == [pid, pid]

@@ -10,9 +10,11 @@ measured benchmark's floor plant (``measured_plant.py``, 120 Hz, 1 mm noise, the
 model with its contact, every parameter and the contact free), float64, one thread per process. The reference is the same
 linearization with the groups one after the other, timed in the same run and in
 alternation (best of ``--repeats`` per side); the ratio is printed, never asserted, and
-the two results are checked to be identical::
+the two results are checked to be identical. ``--states-only``: every parameter held,
+as in the fit of the windows' initial states that starts the final refit::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_window_groups.py
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_window_groups.py --states-only
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_window_groups.py --windows 96 --jobs 4
 """
 
@@ -45,6 +47,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="worker processes (default: the usable cores)")  # fmt: skip
     ap.add_argument("--repeats", type=int, default=2, help="timings per side (best kept)")
     ap.add_argument("--seed", type=int, default=0, help="seed of the plant's trajectories")
+    ap.add_argument("--states-only", action="store_true",
+                    help="every parameter held: only the windows' initial states")  # fmt: skip
     args = ap.parse_args(argv)
     if args.windows < 1 or args.jobs < 1 or args.repeats < 1:
         ap.error("--windows, --jobs and --repeats must be >= 1")
@@ -67,9 +71,12 @@ def main(argv: list[str] | None = None) -> int:
     declared = replace(declared, free=torch.ones_like(declared.free))  # every parameter fitted
     vec = with_floor(declared, [], contact, None)
     engine = Engine(asm.topology, 1 / cell.rate, substeps=cell.substeps)
+    if args.states_only:  # the contact in the engine, nothing fitted
+        vec = replace(declared, free=torch.zeros_like(declared.free))
+        engine = engine.with_effects([contact])
     basis = local_basis(vec.axes, True)
     theta = vec.theta0()
-    chunk = group_size(basis, theta)  # as the fits choose it
+    chunk = group_size(basis, theta, windows.size)  # as the fits choose it
     groups = len(window_groups(windows.size, chunk))
 
     def timed(jobs: int) -> tuple[float, torch.Tensor]:
@@ -85,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
         t, h_parallel = timed(args.jobs)
         parallel.append(t)
     same = bool(torch.equal(h_serial, h_parallel))
-    print(f"floor plant, {windows.size} windows of {steps} samples at {cell.rate:g} Hz "
+    what = "states only" if args.states_only else f"{len(theta)} fitted coordinates"
+    print(f"floor plant, {what}, {windows.size} windows of {steps} samples at {cell.rate:g} Hz "
           f"({cell.substeps} physics steps each), {groups} groups of at most {chunk}")  # fmt: skip
     print(f"  groups one after the other (reference) {min(serial):7.2f} s")
     print(f"  groups in {args.jobs} workers              {min(parallel):7.2f} s  ratio "

@@ -293,7 +293,7 @@ def search_scale(
     response = torch.stack([torch.einsum("bl,lrj->brj", state_response(fit.normal, u), basis)
                             for u in U])  # fmt: skip
     n, k = len(U), len(FLOOR_FREE)
-    chunk = group_size(basis, theta)
+    chunk = group_size(basis, theta, windows.size)
     forces = vec.mass_scaled()  # effect coordinates scaled exactly
 
     def at(x: np.ndarray) -> tuple[torch.Tensor, Windows]:

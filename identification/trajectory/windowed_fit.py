@@ -90,12 +90,22 @@ def linearize(
 #: assemblies stepped at once by a forward-difference Jacobian (windows times perturbed
 #: copies): the most windows a group of :func:`linearize` holds follows from it
 FD_BATCH = 6000
+#: a fit on at least this many windows runs in at least two groups, so a second core
+#: has a share of it (``bench_window_groups.py --states-only``: a states-only fit of 48
+#: floor windows linearizes in 0.51 of the time in two workers)
+SPLIT_WINDOWS = 16
 
 
-def group_size(basis: torch.Tensor, theta: torch.Tensor) -> int:
-    """The most windows in one group: each is stepped with one perturbed copy per local
-    coordinate (``basis`` (n_l, ...)) and per fitted coordinate (``theta`` (n_g,))."""
-    return max(1, FD_BATCH // (basis.shape[0] + len(theta) + 1))
+def group_size(basis: torch.Tensor, theta: torch.Tensor, windows: int) -> int:
+    """The most windows in one group of a fit on ``windows`` windows: each is stepped
+    with one perturbed copy per local coordinate (``basis`` (n_l, ...)) and per fitted
+    coordinate (``theta`` (n_g,)), at most :data:`FD_BATCH` copies in a group, and from
+    :data:`SPLIT_WINDOWS` windows on at most half of them. Depends on the fit's sizes
+    only (never on the workers), so the arithmetic is the same for any ``--jobs``."""
+    most = max(1, FD_BATCH // (basis.shape[0] + len(theta) + 1))
+    if windows >= SPLIT_WINDOWS:
+        most = min(most, -(-windows // 2))
+    return most
 
 
 def group_equations(
@@ -396,7 +406,7 @@ def fit_windows(
     still descends).
     """
     basis = local_basis(vec.axes, spin, roll)
-    chunk = group_size(basis, theta)
+    chunk = group_size(basis, theta, windows.size)
     lo, hi = vec.bounds()
     hard = vec.hard_bounds()
     theta = theta.clamp(lo, hi)  # a start outside the physical domain (a screen's drag < 0)

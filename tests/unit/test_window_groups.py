@@ -16,7 +16,13 @@ from identification.trajectory import forked
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.forked import side_by_side, window_groups, window_workers
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import linearize, window_sse
+from identification.trajectory.windowed_fit import (
+    FD_BATCH,
+    SPLIT_WINDOWS,
+    group_size,
+    linearize,
+    window_sse,
+)
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine
@@ -31,6 +37,18 @@ def test_groups_are_the_fewest_of_at_most_the_chunk_and_of_equal_sizes() -> None
     groups = window_groups(10, 3)
     assert groups[0].start == 0 and groups[-1].stop == 10
     assert all(a.stop == b.start for a, b in itertools.pairwise(groups))
+
+
+def test_a_group_holds_at_most_the_batch_and_from_split_windows_on_half_the_windows() -> None:
+    basis, states_only = torch.zeros(66, 6, 2, 3), torch.zeros(0)
+    joint = torch.zeros(90)
+    assert group_size(basis, joint, 8) == FD_BATCH // 157 == 38  # 8 windows: one group
+    assert group_size(basis, states_only, 8) == FD_BATCH // 67
+    assert group_size(basis, states_only, SPLIT_WINDOWS - 1) == FD_BATCH // 67
+    assert group_size(basis, states_only, 48) == 24  # two groups of 24, not one of 48
+    assert group_size(basis, joint, 48) == 24
+    assert group_size(basis, joint, 100) == 38  # the batch binds: three groups
+    assert len(window_groups(100, group_size(basis, joint, 100))) == 3
 
 
 def _floor_fit_parts():

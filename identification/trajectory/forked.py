@@ -10,8 +10,9 @@ dies (out of memory), the tasks run one after the other in the calling process.
 
 How many workers the window groups of one fit get is set for a block of work with
 :func:`window_workers` (the CLI's ``--jobs``); the groups themselves depend only on the
-number of windows (:func:`window_groups`), so a fit's arithmetic, and its result, is
-the same whatever the number of workers.
+fit's sizes (:func:`~identification.trajectory.windowed_fit.group_size`,
+:func:`window_groups`), so a fit's arithmetic, and its result, is the same whatever the
+number of workers.
 """
 
 from __future__ import annotations

@@ -341,10 +341,10 @@ def fixed_engine(data: EndCapData, fit: TrajFit) -> tuple[Engine, ParamVector]:
 
 def fit_trajectory(
     data: EndCapData, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int,
-    roll: bool | None = None,
+    roll: bool | None = None, progress: Callable[[float], None] | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
-    (None: ``data.roll``). The BIC counts the rolls. On the floor the states include
+    (None: ``data.roll``); ``progress``: see ``fit_windows``. The BIC counts the rolls. On the floor the states include
     each rod's axial spin (:mod:`identification.trajectory.floor_fit`), and a rejected
     step is tried shorter before more damping (``fit_windows``' line search): the error
     jumps where an impact crosses a physics step, and the damped steps turn towards
@@ -356,7 +356,7 @@ def fit_trajectory(
     roll = data.roll if roll is None else roll
     fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1,
                       spin=data.on_floor or roll, roll=roll,
-                      line_search=data.on_floor)  # fmt: skip
+                      line_search=data.on_floor, progress=progress)  # fmt: skip
     m = fit.windows.residuals
     # state unknowns, not common: the rolls and (in flight) the spins that turn them
     rolls = windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0

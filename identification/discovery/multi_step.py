@@ -501,7 +501,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         last = current.fit.final
         s = self.settings
         final = fit_many(self.data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows,
-                         within=within)  # fmt: skip
+                         within=within, bar="final refit")  # fmt: skip
         ds = self.dataset
         model = final.fitted_model(ds.topology, ds.dt)
         why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)

@@ -83,6 +83,7 @@ from identification.trajectory.airborne import AIRBORNE, cap_radii
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
 from identification.trajectory.effect_fit import to_free
 from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windowed_fit import (
@@ -361,7 +362,9 @@ def fit_on_floor(
             assert fit is not None
             theta, windows = search_scale(engine, vec, fit, log)
             windows = reseeded(engine, vec, theta, windows, seeds, state_iters, log)
-        fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True, line_search=True)
+        with iteration_bar(f"floor round {k + 1}: joint fit", iters) as tick:
+            fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True,
+                              line_search=True, progress=tick)  # fmt: skip
         theta, windows = fit.theta, fit.windows
         log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip

@@ -88,6 +88,11 @@ def window_jobs() -> int:
     return 1 if _in_worker else _window_jobs
 
 
+def in_worker() -> bool:
+    """Whether this process is a forked worker (its siblings share the terminal)."""
+    return _in_worker
+
+
 def window_groups(size: int, most: int) -> list[slice]:
     """``size`` windows in the fewest groups of at most ``most``, of equal sizes (the
     first ones one larger); 48 windows at most 38 per group: two of 24."""

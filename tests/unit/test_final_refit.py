@@ -103,7 +103,7 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
                         lambda eng, vec, w, theta, rms: (SimpleNamespace(size=20, of=(w, rms)),
                                                          np.ones(24)))  # fmt: skip
     monkeypatch.setattr(end_cap_fits, "fit_trajectory",
-                        lambda data, vec, w, theta, iters: passed.append(w) or fitted)  # fmt: skip
+                        lambda data, vec, w, theta, iters, progress=None: passed.append(w) or fitted)  # fmt: skip
     monkeypatch.setattr(end_cap_fits, "sees_roll", lambda engine: False)
     data = SimpleNamespace(engine=None, spin=True, roll=False, log=lambda line: None)
     vec = SimpleNamespace(engine=lambda engine, theta: "engine")

@@ -161,8 +161,15 @@ class MultiStepScorer(Scorer[EndCapFits]):
         fits = EndCapFits(base, final)
         if not self.data.on_floor:
             return self.score("nothing", self.with_reference(fits))
-        first = self.score("nothing", fits)  # its held-out states start the reference's
-        return self.score("nothing", self.with_reference(fits), first.fit)
+        # Independent of each other, so side by side (with --jobs): the screened reference,
+        # the model's held-out score (its states start the reference's) and its test score.
+        referenced, first, tested = side_by_side([
+            lambda: self.with_reference(fits),
+            lambda: self.score("nothing", fits),
+            lambda: heldout(self.data, final, "test", self.settings.state_iter),
+        ], self.jobs, self.log)  # fmt: skip
+        self._tested[id(referenced.final)] = (referenced.final, tested)
+        return self.score("nothing", referenced, first.fit)
 
     def with_reference(self, fits: EndCapFits) -> EndCapFits:
         """``fits`` of the current model with its reference: the model refitted as every

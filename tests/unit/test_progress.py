@@ -4,6 +4,7 @@ the fit's own error, and none drawn in a forked worker."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -23,7 +24,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 class Recorder:
     """Stands in for tqdm: keeps what the bar was told."""
 
-    made: list[Recorder] = []
+    made: ClassVar[list[Recorder]] = []
 
     def __init__(self, **kwargs: object) -> None:
         self.kwargs, self.n, self.postfix, self.closed = kwargs, 0, [], False

@@ -26,6 +26,7 @@ from identification.discovery.judge import Candidate
 from identification.discovery.library import Proposal
 from identification.discovery.scorer import CandidateSkipped
 from identification.trajectory.forked import side_by_side
+from tensegrity_env.effects.base import LinearEffect
 from tensegrity_env.io_utils import InputError
 
 #: what stops one candidate's fit without stopping the loop (the candidate is skipped)
@@ -40,12 +41,27 @@ def fit_side_by_side(
     jobs: int,
     log: Callable[[str], None] = print,
 ) -> list[Outcome]:
-    """``fit(p)`` for every proposal, in ``jobs`` worker processes at most.
+    """``fit(p)`` for every proposal, in ``jobs`` worker processes at most, the dearest
+    first (:func:`expected_cost`: a worker freed by a cheap fit then takes the next
+    one while a dear one runs, instead of a dear one starting last).
 
     Returns, per proposal in order, the candidate (its ``seconds`` set to its fit's wall
     time) or the refusal (:data:`REFUSALS`) that stopped its fit.
     """
-    return side_by_side([partial(fitted, fit, p) for p in proposals], jobs, log)
+    order = sorted(range(len(proposals)), key=lambda i: expected_cost(proposals[i]), reverse=True)
+    done = side_by_side([partial(fitted, fit, proposals[i]) for i in order], jobs, log)
+    by_index = dict(zip(order, done, strict=True))
+    return [by_index[i] for i in range(len(proposals))]
+
+
+def expected_cost(proposal: Proposal) -> tuple[bool, int]:
+    """How dear a proposal's fit is expected to be, for ordering: one started from its
+    own values (slack cables from their regression: on the floor, a floor fit afresh)
+    above the rest, then more fitted coordinates above fewer (cubic stiffness, one per
+    spring, took the longest of a floor pass)."""
+    effect = proposal.effect
+    coordinates = len(effect.theta_names()) if isinstance(effect, LinearEffect) else 0
+    return proposal.start is not None, coordinates
 
 
 def fitted(fit: Callable[[Proposal], Candidate[Any]], proposal: Proposal) -> Outcome:

@@ -16,6 +16,8 @@ from identification.discovery.scorer import CandidateSkipped
 from identification.discovery.side_by_side import fit_side_by_side
 from identification.simulation.planted import PlantSpec, planted_dataset
 from identification.trajectory.forked import side_by_side
+from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.effects import CubicStiffness, ForceField, LinearDrag
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -88,3 +90,21 @@ def test_tasks_come_back_in_order_from_the_workers_and_their_errors_are_raised()
     assert [v for v, _ in side_by_side([partial(_square_in, 3)], jobs=2)] == [9]  # one: here
     with pytest.raises(ValueError, match="negative -1"):
         side_by_side([partial(_square_in, 1), partial(_square_in, -1)], jobs=2)
+
+
+def test_the_dearest_candidates_are_fitted_first_and_come_back_in_order() -> None:
+    topo = icosahedron().topology
+    proposals = [Proposal("force_field", ForceField(topo), ""),
+                 Proposal("cubic_stiffness", CubicStiffness(topo), ""),
+                 Proposal("skipped", None, "gate not passed"),
+                 Proposal("linear_drag", LinearDrag(topo), ""),
+                 Proposal("slack_springs", None, "", start={"springs": np.array([3])})]  # fmt: skip
+    ran: list[str] = []
+
+    def fit(p: Proposal):
+        ran.append(p.name)
+        raise CandidateSkipped(p.name)
+
+    out = fit_side_by_side(fit, proposals, jobs=1)
+    assert ran == ["slack_springs", "cubic_stiffness", "linear_drag", "force_field", "skipped"]
+    assert [str(e) for e in out] == [p.name for p in proposals]

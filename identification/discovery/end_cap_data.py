@@ -344,11 +344,11 @@ def fit_trajectory(
     roll: bool | None = None, progress: Callable[[float], None] | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
-    (None: ``data.roll``); ``progress``: see ``fit_windows``. The BIC counts the rolls. On the floor the states include
-    each rod's axial spin (:mod:`identification.trajectory.floor_fit`), and a rejected
-    step is tried shorter before more damping (``fit_windows``' line search): the error
-    jumps where an impact crosses a physics step, and the damped steps turn towards
-    the jumps. A force field screened so on the bench's force-field floor cell (seed 0,
+    (None: ``data.roll``); ``progress``: see ``fit_windows``. The BIC counts the rolls.
+    On the floor the states include each rod's axial spin
+    (:mod:`identification.trajectory.floor_fit`), and a rejected step is tried shorter
+    before more damping (``fit_windows``' line search): the error jumps where an impact
+    crosses a physics step, and the damped steps turn towards the jumps. A force field screened so on the bench's force-field floor cell (seed 0,
     declared parameters and contact held at ``identify``'s) moved to (0.13, -0.10,
     0.08) N and lowered the training chi-square by 363; without the line search it
     stayed at 1e-5 N (plant: (0.4, -0.3, 0.5) N).

@@ -90,20 +90,25 @@ def linearize(
 #: assemblies stepped at once by a forward-difference Jacobian (windows times perturbed
 #: copies): the most windows a group of :func:`linearize` holds follows from it
 FD_BATCH = 6000
-#: a fit on at least this many windows runs in at least two groups, so a second core
-#: has a share of it (``bench_window_groups.py --states-only``: a states-only fit of 48
-#: floor windows linearizes in 0.51 of the time in two workers)
+#: a states-only fit on at least this many windows runs in at least two groups, so a
+#: second core has a share of it (``bench_window_groups.py --states-only``: 48 floor
+#: windows linearize in 0.51 of the time in two workers)
 SPLIT_WINDOWS = 16
 
 
 def group_size(basis: torch.Tensor, theta: torch.Tensor, windows: int) -> int:
     """The most windows in one group of a fit on ``windows`` windows: each is stepped
     with one perturbed copy per local coordinate (``basis`` (n_l, ...)) and per fitted
-    coordinate (``theta`` (n_g,)), at most :data:`FD_BATCH` copies in a group, and from
-    :data:`SPLIT_WINDOWS` windows on at most half of them. Depends on the fit's sizes
-    only (never on the workers), so the arithmetic is the same for any ``--jobs``."""
+    coordinate (``theta`` (n_g,)), at most :data:`FD_BATCH` copies in a group. A fit of
+    the windows' states only (``theta`` empty) takes at most half of them from
+    :data:`SPLIT_WINDOWS` windows on: its windows are independent, each one's equations
+    the same in any group. A joint fit's shared blocks sum over its groups, and the
+    order of that sum moves a fit through round-off (a free-flight slack-cable fit ended
+    at 1.20 mm instead of 1.09 mm), so its grouping is left to the batch. Depends on the
+    fit's sizes only (never on the workers), so the arithmetic is the same for any
+    ``--jobs``."""
     most = max(1, FD_BATCH // (basis.shape[0] + len(theta) + 1))
-    if windows >= SPLIT_WINDOWS:
+    if windows >= SPLIT_WINDOWS and len(theta) == 0:
         most = min(most, -(-windows // 2))
     return most
 

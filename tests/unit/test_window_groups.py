@@ -39,16 +39,16 @@ def test_groups_are_the_fewest_of_at_most_the_chunk_and_of_equal_sizes() -> None
     assert all(a.stop == b.start for a, b in itertools.pairwise(groups))
 
 
-def test_a_group_holds_at_most_the_batch_and_from_split_windows_on_half_the_windows() -> None:
+def test_a_group_holds_at_most_the_batch_and_a_states_fit_from_split_windows_on_half() -> None:
     basis, states_only = torch.zeros(66, 6, 2, 3), torch.zeros(0)
-    joint = torch.zeros(90)
+    joint, few = torch.zeros(90), torch.zeros(5)
     assert group_size(basis, joint, 8) == FD_BATCH // 157 == 38  # 8 windows: one group
     assert group_size(basis, states_only, 8) == FD_BATCH // 67
     assert group_size(basis, states_only, SPLIT_WINDOWS - 1) == FD_BATCH // 67
     assert group_size(basis, states_only, 48) == 24  # two groups of 24, not one of 48
-    assert group_size(basis, joint, 48) == 24
-    assert group_size(basis, joint, 100) == 38  # the batch binds: three groups
-    assert len(window_groups(100, group_size(basis, joint, 100))) == 3
+    assert group_size(basis, few, 48) == FD_BATCH // 72  # a joint fit: one group of 48
+    assert [g.stop - g.start for g in window_groups(48, group_size(basis, joint, 48))] == [24, 24]
+    assert len(window_groups(100, group_size(basis, joint, 100))) == 3  # the batch binds
 
 
 def _floor_fit_parts():

@@ -8,7 +8,9 @@ measured benchmark's floor plant (``measured_plant.py``, MuJoCo's default contac
 float64, one thread. The reference, timed in the same run and in alternation (best of
 ``--repeats`` per side), is MuJoCo stepping the same plant from the same states one
 after the other (``mj_step`` with ``nstep`` = 9); the engine without its ground
-contact shows what the contact costs. Ratios are printed, never asserted::
+contact shows what the contact costs, and the engine with the contact law in PyTorch
+(where a gradient is wanted; ``tensegrity_env.effects.ground_contact.USE_NATIVE``)
+what its C kernel saves. Ratios are printed, never asserted::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_engine.py
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_engine.py --batch 4000 --repeats 5
@@ -26,6 +28,7 @@ import numpy as np
 import torch
 from measured_plant import Cell, initial_states, simulate, true_model
 
+from tensegrity_env.effects import ground_contact
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.mjcf import from_mjcf
 from tensegrity_env.mjcf_checks import IgnoredFeatureWarning
@@ -67,10 +70,13 @@ def main(argv: list[str] | None = None) -> int:
     radius = asm.topology.rods[0].radius
     touching = np.mean(np.any(clean.nodes[..., 2] < radius, axis=-1))
     state = State.from_numpy(states["p"], states["v"], states["q"], states["omega"])
-    engines = {
-        "engine with contact": Engine(asm.topology, 1 / cell.rate, contact, substeps=cell.substeps),
-        "engine without contact": Engine(asm.topology, 1 / cell.rate, [], substeps=cell.substeps),
-    }
+    with_contact = Engine(asm.topology, 1 / cell.rate, contact, substeps=cell.substeps)
+    engines = {  # name: (engine, contact law in C)
+        "engine with contact": (with_contact, True),
+        "  contact in PyTorch": (with_contact, False),
+        "engine without contact": (Engine(asm.topology, 1 / cell.rate, [], substeps=cell.substeps),
+                                   True),
+    }  # fmt: skip
     model = mujoco.MjModel.from_xml_string(truth.xml)
     data = mujoco.MjData(model)
     R = asm.topology.n_rods
@@ -83,10 +89,14 @@ def main(argv: list[str] | None = None) -> int:
             data.qpos[:], data.qvel[:] = qpos[b], qvel[b]
             mujoco.mj_step(model, data, nstep=cell.substeps)
 
-    def engine_batch(engine: Engine) -> Callable[[], None]:
+    def engine_batch(engine: Engine, native: bool) -> Callable[[], None]:
         def run() -> None:
-            with torch.no_grad():
-                engine.step(state, asm.params)
+            ground_contact.USE_NATIVE = native
+            try:
+                with torch.no_grad():
+                    engine.step(state, asm.params)
+            finally:
+                ground_contact.USE_NATIVE = True
 
         return run
 
@@ -94,8 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     times = {name: [] for name in ("mujoco", *engines)}
     for _ in range(args.repeats):  # alternate, so background load hits every side alike
         times["mujoco"].append(best_of(mujoco_batch, 1))
-        for name, engine in engines.items():
-            times[name].append(best_of(engine_batch(engine), 1))
+        for name, (engine, native) in engines.items():
+            times[name].append(best_of(engine_batch(engine, native), 1))
     ref = min(times["mujoco"]) / steps
     print(f"floor plant, {args.batch} assemblies ({touching:.0%} of the plant's samples have a "
           f"cap on the floor), {cell.substeps} physics steps of {1e3 / cell.rate / cell.substeps:.3g}"
@@ -105,8 +115,9 @@ def main(argv: list[str] | None = None) -> int:
         per = min(times[name]) / steps
         print(f"  {name:24s} {per * 1e6:8.2f} us per assembly-step  ratio to MuJoCo "
               f"{per / ref:6.2f}")  # fmt: skip
-    with_c, without = (min(times[n]) for n in engines)
-    print(f"  contact share of the engine's step: {1 - without / with_c:.0%}")
+    with_c, in_torch, without = (min(times[n]) for n in engines)
+    print(f"  contact share of the engine's step: {1 - without / with_c:.0%}; the step with the "
+          f"contact law in C against PyTorch: ratio {with_c / in_torch:.2f}")  # fmt: skip
     return 0
 
 

@@ -39,6 +39,7 @@ passive and actuator forces. Called directly without that wrench, it uses the sp
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any, ClassVar
 
 import torch
@@ -71,6 +72,9 @@ MUJOCO_DEFAULT: dict[str, float] = {
 
 #: the :meth:`GroundContact.contact_geometry` entries the contact law reads per touching rod
 ROW_GEOMETRY = ("dist", "arm", "vel", "tangent")
+
+#: the contact law's parameters in the order the C kernel's ``tsr_contact_rows`` reads them
+NATIVE_LAW = ("stiffness", "damping", "friction", "impedance_min", "impedance", "width")
 
 #: Most active-set iterations of the per-rod contact problem (8 unknowns: usually a few;
 #: near-parallel pyramid edges at small friction take more).
@@ -268,6 +272,10 @@ class GroundContact(PhysicalEffect):
         applied force and torque; ``mass`` (N,) [kg]; ``inertia`` (N, 3) [kg m^2];
         ``active`` (N, 2) the gate; ``origins`` (N, 3) the body-frame origins or None.
         """
+        native = self._native_rows(g, rot, omega, mass, inertia, f_s, t_s, gravity, active,
+                                   origins)  # fmt: skip
+        if native is not None:
+            return native
         dist = g["dist"]
         N = dist.shape[0]
         like = dist
@@ -321,16 +329,100 @@ class GroundContact(PhysicalEffect):
         f = solve_soft_contacts(A, a0 - aref, mask)
         return sum_small(f.reshape(N, 2, 4).unsqueeze(-1) * edges, -2)
 
+    def _native_rows(
+        self,
+        g: dict[str, torch.Tensor],
+        rot: torch.Tensor,
+        omega: torch.Tensor,
+        mass: torch.Tensor,
+        inertia: torch.Tensor,
+        f_s: torch.Tensor,
+        t_s: torch.Tensor,
+        gravity: torch.Tensor,
+        active: torch.Tensor,
+        origins: torch.Tensor | None,
+    ) -> torch.Tensor | None:
+        """:meth:`_row_forces` by the C kernel (``tsr_contact_rows``, the same law row by
+        row), where :func:`native_kernel` takes the inputs and the law's parameters are
+        shared by every row; else None."""
+        law = [self.value(k, g["dist"]) for k in NATIVE_LAW]
+        rows = [g[k] for k in ROW_GEOMETRY] + [rot, omega, mass, inertia, f_s, t_s]
+        every = [*rows, gravity, *law, *([] if origins is None else [origins])]
+        kernel = native_kernel(*every) if all(v.numel() == 1 for v in law) else None
+        if kernel is None:
+            return None
+        rows = [x.detach().contiguous() for x in rows]
+        flags = active.to(torch.uint8).contiguous()
+        held = None if origins is None else origins.detach().contiguous()
+        g_c = gravity.detach().reshape(3).contiguous()
+        law_c = torch.cat([v.detach().reshape(1) for v in law])
+        force = torch.empty(flags.shape[0], 2, 3, dtype=torch.float64)
+        kernel.tsr_contact_rows(flags.shape[0], *(x.data_ptr() for x in rows), flags.data_ptr(),
+                                None if held is None else held.data_ptr(), g_c.data_ptr(),
+                                law_c.data_ptr(), ACTIVE_SET_ITERATIONS, force.data_ptr())  # fmt: skip
+        return force
+
 
 def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """``argmin_{f >= 0, f = 0 off mask} ½ fᵀ H f + fᵀ b`` for a batch of small problems.
 
     ``H`` (..., n, n) symmetric positive definite, ``b`` and ``mask`` (..., n). A
     primal-dual active-set iteration (exact once the active set settles, a few
-    iterations for n = 8); if it has not settled, one projected Gauss-Seidel sweep.
+    iterations for n = 8), then one projected Gauss-Seidel sweep; a problem with
+    nothing on ``mask`` gets no force. Double-precision CPU tensors without gradients
+    are solved by the C kernel (``tensegrity_env/envs/native_step.c``, one problem
+    after the other: the batches of a fit are small and the torch version's cost is
+    per operation), others by :func:`solve_soft_contacts_torch`; the two agree to
+    round-off (``tests/unit/test_soft_contact_solve.py``).
+    """
+    kernel = native_kernel(H, b) if H.shape[-1] <= 8 else None
+    if kernel is None:
+        return solve_soft_contacts_torch(H, b, mask)
+    n = H.shape[-1]
+    H_c = H.detach().reshape(-1, n, n).contiguous()
+    b_c = b.detach().reshape(-1, n).contiguous()
+    m_c = mask.reshape(-1, n).to(torch.uint8).contiguous()
+    f = torch.empty_like(b_c)
+    kernel.tsr_solve_soft_contacts(H_c.shape[0], n, H_c.data_ptr(), b_c.data_ptr(),
+                                   m_c.data_ptr(), ACTIVE_SET_ITERATIONS, f.data_ptr())  # fmt: skip
+    return f.reshape(b.shape)
+
+
+#: whether the contact law may use the C kernel (where one builds; tests switch it off
+#: to compare)
+USE_NATIVE = True
+
+
+def native_kernel(*tensors: torch.Tensor) -> Any | None:
+    """The C kernel (``tensegrity_env/envs/native_step.c``, loaded) where it may take
+    ``tensors``: double precision on the CPU, no gradient wanted through them; else
+    None (also where no C compiler works)."""
+    if not USE_NATIVE:
+        return None
+    grad = torch.is_grad_enabled()
+    for t in tensors:
+        if t.device.type != "cpu" or t.dtype != torch.float64 or (grad and t.requires_grad):
+            return None
+    return _loaded_kernel()
+
+
+@lru_cache(maxsize=1)
+def _loaded_kernel() -> Any | None:
+    """The loaded library, or None where no C compiler works."""
+    from tensegrity_env.envs.native import NativeUnavailable, load_kernel  # built on first use
+
+    try:
+        return load_kernel()[0]
+    except NativeUnavailable:
+        return None
+
+
+def solve_soft_contacts_torch(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """:func:`solve_soft_contacts` in PyTorch (differentiable, any device and dtype).
+
     Each iteration solves only the problems whose active set is still changing (a
-    settled one would give the same forces again); a problem with nothing on ``mask``
-    gets no force.
+    settled one would give the same forces again); the Gauss-Seidel sweep runs where
+    some problem has not settled (it leaves a settled one where it is).
     """
     n = H.shape[-1]
     batch = b.shape[:-1]

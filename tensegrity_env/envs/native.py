@@ -1,5 +1,8 @@
 """Load the C kernel of the identified model's control step (``native_step.c``).
 
+The same library computes the ground contact's forces for the PyTorch engine where no
+gradient is wanted (:func:`~tensegrity_env.effects.ground_contact.native_kernel`).
+
 Built once per machine by :mod:`tensegrity_env.native_build` (about a second); when
 no compiler works, :func:`load_kernel` raises :class:`NativeUnavailable` and the
 environments step the PyTorch engine instead.
@@ -28,6 +31,11 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
         c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, i32, c_int
     ]  # fmt: skip
     lib.tsr_step.restype = c_int
+    ptr = ctypes.c_void_p
+    lib.tsr_solve_soft_contacts.argtypes = [ctypes.c_long, c_int, ptr, ptr, ptr, c_int, ptr]
+    lib.tsr_solve_soft_contacts.restype = c_int
+    lib.tsr_contact_rows.argtypes = [ctypes.c_long, *[ptr] * 11, ptr, ptr, ptr, c_int, ptr]
+    lib.tsr_contact_rows.restype = c_int
     lib.tsr_max_rods.restype = c_int
     lib.tsr_max_nodes.restype = c_int
     lib.tsr_max_points.restype = c_int

@@ -161,6 +161,32 @@ static void solve_contacts(int n, const double *H, const double *b, int iteratio
     }
 }
 
+/* GroundContact.solve_soft_contacts for M independent problems of n <= TSR_MAX_EDGES
+ * unknowns (the identification engine's batches): H (M, n, n), b (M, n), mask (M, n)
+ * (1: the edge may push) -> f (M, n), 0 off the mask. Each problem is solved on its
+ * masked edges alone (off the mask the PyTorch version holds f = 0 by an identity row). */
+int tsr_solve_soft_contacts(long M, int n, const double *H, const double *b,
+                            const unsigned char *mask, int iterations, double *f) {
+    if (n > TSR_MAX_EDGES) return -1;
+    for (long p = 0; p < M; p++) {
+        const double *Hp = H + p * n * n, *bp = b + p * n;
+        double Hs[TSR_MAX_EDGES * TSR_MAX_EDGES], bs[TSR_MAX_EDGES], fs[TSR_MAX_EDGES];
+        int idx[TSR_MAX_EDGES], k = 0;
+        for (int i = 0; i < n; i++) {
+            f[p * n + i] = 0.0;
+            if (mask[p * n + i]) idx[k++] = i;
+        }
+        if (k == 0) continue;
+        for (int i = 0; i < k; i++) {
+            bs[i] = bp[idx[i]];
+            for (int j = 0; j < k; j++) Hs[i * k + j] = Hp[idx[i] * n + idx[j]];
+        }
+        solve_contacts(k, Hs, bs, iterations, fs);
+        for (int i = 0; i < k; i++) f[p * n + idx[i]] = fs[i];
+    }
+    return 0;
+}
+
 static double impedance(const Model *m, double dist) {
     double x = fabs(dist) / m->width;
     x = x < 0 ? 0 : (x > 1 ? 1 : x);
@@ -248,6 +274,88 @@ static void contact_wrench(const Model *m, int r, const double *p, const double 
         cross(carm[k], fk, tk);
         for (int c = 0; c < 3; c++) { F[c] += fk[c]; T[c] += tk[c]; }
     }
+}
+
+/* GroundContact._row_forces for the PyTorch engine: the contact forces on the end caps
+ * of N touching rods, one row each (the rows of a batch of any assemblies).
+ * Per row: dist[2], arm[2][3] (contact point - centre of mass), vel[2][3] (contact
+ * point velocity), tangent[2][3] (t_1), rot[3][3] (R, body to world, row-major),
+ * omega[3], mass, inertia[3], f_s[3], t_s[3] (the applied wrench), active[2] (bytes),
+ * origin[3] (body-frame origin, NULL: none); gravity[3]; law[6] = {stiffness, damping,
+ * friction, impedance_min, impedance, width}. Out: force (N, 2, 3) [N]. */
+int tsr_contact_rows(long N, const double *dist, const double *arm, const double *vel,
+                     const double *tangent, const double *rot, const double *omega,
+                     const double *mass, const double *inertia, const double *f_s,
+                     const double *t_s, const unsigned char *active, const double *origin,
+                     const double *gravity, const double *law, int iterations,
+                     double *force) {
+    Model m;
+    memset(&m, 0, sizeof(m));
+    m.k_c = law[0]; m.b_c = law[1]; m.mu = law[2];
+    m.d_min = law[3]; m.d_max = law[4]; m.width = law[5];
+    const double soft = 2.0 * m.mu * m.mu * (1.0 + m.mu * m.mu);
+    for (long r = 0; r < N; r++) {
+        const double *M = rot + 9 * r, *I = inertia + 3 * r, *w = omega + 3 * r;
+        const double inv_m = 1.0 / mass[r];
+        double sI[3] = {sqrt(I[0]), sqrt(I[1]), sqrt(I[2])};
+        double acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
+        for (int i = 0; i < 3; i++) acc[i] = f_s[3 * r + i] * inv_m + gravity[i];
+        if (origin) { /* the centripetal acceleration of the body origin */
+            const double *o = origin + 3 * r;
+            double ro[3], wr[3], wwr[3];
+            for (int i = 0; i < 3; i++) ro[i] = M[3 * i] * o[0] + M[3 * i + 1] * o[1] + M[3 * i + 2] * o[2];
+            cross(w, ro, wr);
+            cross(w, wr, wwr);
+            for (int i = 0; i < 3; i++) acc[i] += wwr[i];
+        }
+        rot_t(M, w, wl);
+        rot_t(M, t_s + 3 * r, tl);
+        for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
+        cross(wl, Iw, gyro);
+        for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
+        double E[TSR_MAX_EDGES][3], Ang[TSR_MAX_EDGES][3], b[TSR_MAX_EDGES], sft[TSR_MAX_EDGES];
+        int cap_of[TSR_MAX_EDGES], n = 0;
+        for (int k = 0; k < 2; k++) {
+            if (!active[2 * r + k]) continue;
+            const double d_k = dist[2 * r + k], *a = arm + 6 * r + 3 * k;
+            const double *ve = vel + 6 * r + 3 * k, *t1 = tangent + 6 * r + 3 * k;
+            const double d = impedance(&m, d_k), kd = m.k_c * d * d_k;
+            const double t2[3] = {-t1[1], t1[0], 0.0}; /* z x t_1 */
+            for (int t = 0; t < 2; t++) {
+                const double *tk = t == 0 ? t1 : t2;
+                for (int s = 0; s < 2; s++) {
+                    double sign = s == 0 ? 1.0 : -1.0, aw[3], al[3], *e = E[n];
+                    for (int i = 0; i < 3; i++) e[i] = m.mu * sign * tk[i];
+                    e[2] += 1.0;
+                    cross(a, e, aw);
+                    rot_t(M, aw, al);
+                    for (int i = 0; i < 3; i++) Ang[n][i] = al[i] / sI[i];
+                    double a0 = dot(e, acc);
+                    for (int i = 0; i < 3; i++) a0 += Ang[n][i] * alpha[i] * sI[i];
+                    b[n] = a0 - (-m.b_c * dot(e, ve) - kd);
+                    sft[n] = (1.0 - d) / d * soft * inv_m;
+                    cap_of[n] = k;
+                    n++;
+                }
+            }
+        }
+        double H[TSR_MAX_EDGES * TSR_MAX_EDGES], f[TSR_MAX_EDGES];
+        for (int i = 0; i < n; i++)
+            for (int j = i; j < n; j++) {
+                double h = dot(E[i], E[j]) * inv_m + dot(Ang[i], Ang[j]);
+                if (i == j) h += sft[i];
+                H[i * n + j] = H[j * n + i] = h;
+            }
+        if (n) solve_contacts(n, H, b, iterations, f);
+        for (int k = 0; k < 2; k++) {
+            double *out = force + 6 * r + 3 * k;
+            out[0] = out[1] = out[2] = 0.0;
+            for (int i = 0; i < n; i++)
+                if (cap_of[i] == k)
+                    for (int c = 0; c < 3; c++) out[c] += f[i] * E[i][c];
+        }
+    }
+    return 0;
 }
 
 /* ------------------------------------------------------------------ W assemblies at once

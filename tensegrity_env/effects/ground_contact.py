@@ -74,7 +74,8 @@ MUJOCO_DEFAULT: dict[str, float] = {
 ROW_GEOMETRY = ("dist", "arm", "vel", "tangent")
 
 #: the contact law's parameters in the order the C kernel's ``tsr_contact_rows`` reads them
-NATIVE_LAW = ("stiffness", "damping", "friction", "impedance_min", "impedance", "width")
+NATIVE_LAW = ("stiffness", "damping", "friction", "impedance_min", "impedance", "width",
+              "height")  # fmt: skip
 
 #: Most active-set iterations of the per-rod contact problem (8 unknowns: usually a few;
 #: near-parallel pyramid edges at small friction take more).
@@ -221,8 +222,12 @@ class GroundContact(PhysicalEffect):
         """Contact force on every end cap (B, R, 2, 3) [N] and its arm (B, R, 2, 3) [m].
 
         ``applied``: see :meth:`wrench`. Only the rods with a cap in contact are solved
-        (gathered into one batch of rows); the others get no force.
+        (gathered into one batch of rows); the others get no force. Where no gradient is
+        wanted, the C kernel computes the same (:meth:`_native_forces`).
         """
+        native = self._native_forces(state, kin, params, applied)
+        if native is not None:
+            return native
         g = self.contact_geometry(state, kin)
         dist = g["dist"]
         B, R = dist.shape[:2]
@@ -252,6 +257,49 @@ class GroundContact(PhysicalEffect):
         out = torch.zeros(B * R, 2, 3, dtype=force.dtype, device=force.device)
         return out.index_copy(0, rows, force).reshape(B, R, 2, 3), g["arm"]
 
+    def _native_forces(
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None,
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """:meth:`contact_forces` by the C kernel (``tsr_contact_forces``: the geometry
+        and the law, rod by rod), where :func:`native_kernel` takes the inputs and the
+        contact's parameters are shared by every end cap; else None."""
+        B, R = state.p.shape[:2]
+        law = [self.value(k, state.p) for k in NATIVE_LAW]
+        mass, inertia = params.mass, params.inertia
+        per_assembly = mass.dim() == 2 and mass.shape[0] == B and B > 1
+        if not per_assembly and (mass.numel() != R or inertia.numel() != 3 * R):
+            return None
+        if per_assembly and inertia.shape != (B, R, 3):
+            return None
+        f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
+        rows = [state.p, state.v, state.omega, kin.rot, kin.arms]
+        every = [*rows, mass, inertia, f_s, t_s, params.gravity, *law]
+        kernel = native_kernel(*every) if all(v.numel() == 1 for v in law) else None
+        if kernel is None:
+            return None
+        rows = [x.detach().contiguous() for x in rows]
+        wrench = [x.detach().expand(B, R, 3).contiguous() for x in (f_s, t_s)]
+        mass, inertia = mass.detach().contiguous(), inertia.detach().contiguous()
+        radius = self.radius.to(state.p).contiguous()
+        sphere = self._sphere.to(torch.uint8).contiguous()
+        origins = None if self._origins is None else self._origins.to(state.p).contiguous()
+        gravity = params.gravity.detach().reshape(3).contiguous()
+        law_c = torch.cat([v.detach().reshape(1) for v in law])
+        force = torch.empty(B, R, 2, 3, dtype=torch.float64)
+        arm = torch.empty(B, R, 2, 3, dtype=torch.float64)
+        kernel.tsr_contact_forces(
+            B, R, *(x.data_ptr() for x in rows), mass.data_ptr(), inertia.data_ptr(),
+            int(per_assembly), *(x.data_ptr() for x in wrench), radius.data_ptr(),
+            sphere.data_ptr(), None if origins is None else origins.data_ptr(),
+            gravity.data_ptr(), law_c.data_ptr(), ACTIVE_SET_ITERATIONS, force.data_ptr(),
+            arm.data_ptr(),
+        )  # fmt: skip
+        return force, arm
+
     def _row_forces(
         self,
         g: dict[str, torch.Tensor],
@@ -272,10 +320,6 @@ class GroundContact(PhysicalEffect):
         applied force and torque; ``mass`` (N,) [kg]; ``inertia`` (N, 3) [kg m^2];
         ``active`` (N, 2) the gate; ``origins`` (N, 3) the body-frame origins or None.
         """
-        native = self._native_rows(g, rot, omega, mass, inertia, f_s, t_s, gravity, active,
-                                   origins)  # fmt: skip
-        if native is not None:
-            return native
         dist = g["dist"]
         N = dist.shape[0]
         like = dist
@@ -328,39 +372,6 @@ class GroundContact(PhysicalEffect):
         A.diagonal(dim1=-2, dim2=-1).add_(soft)  # A is this function's own tensor
         f = solve_soft_contacts(A, a0 - aref, mask)
         return sum_small(f.reshape(N, 2, 4).unsqueeze(-1) * edges, -2)
-
-    def _native_rows(
-        self,
-        g: dict[str, torch.Tensor],
-        rot: torch.Tensor,
-        omega: torch.Tensor,
-        mass: torch.Tensor,
-        inertia: torch.Tensor,
-        f_s: torch.Tensor,
-        t_s: torch.Tensor,
-        gravity: torch.Tensor,
-        active: torch.Tensor,
-        origins: torch.Tensor | None,
-    ) -> torch.Tensor | None:
-        """:meth:`_row_forces` by the C kernel (``tsr_contact_rows``, the same law row by
-        row), where :func:`native_kernel` takes the inputs and the law's parameters are
-        shared by every row; else None."""
-        law = [self.value(k, g["dist"]) for k in NATIVE_LAW]
-        rows = [g[k] for k in ROW_GEOMETRY] + [rot, omega, mass, inertia, f_s, t_s]
-        every = [*rows, gravity, *law, *([] if origins is None else [origins])]
-        kernel = native_kernel(*every) if all(v.numel() == 1 for v in law) else None
-        if kernel is None:
-            return None
-        rows = [x.detach().contiguous() for x in rows]
-        flags = active.to(torch.uint8).contiguous()
-        held = None if origins is None else origins.detach().contiguous()
-        g_c = gravity.detach().reshape(3).contiguous()
-        law_c = torch.cat([v.detach().reshape(1) for v in law])
-        force = torch.empty(flags.shape[0], 2, 3, dtype=torch.float64)
-        kernel.tsr_contact_rows(flags.shape[0], *(x.data_ptr() for x in rows), flags.data_ptr(),
-                                None if held is None else held.data_ptr(), g_c.data_ptr(),
-                                law_c.data_ptr(), ACTIVE_SET_ITERATIONS, force.data_ptr())  # fmt: skip
-        return force
 
 
 def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

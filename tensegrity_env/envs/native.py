@@ -34,8 +34,10 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
     ptr = ctypes.c_void_p
     lib.tsr_solve_soft_contacts.argtypes = [ctypes.c_long, c_int, ptr, ptr, ptr, c_int, ptr]
     lib.tsr_solve_soft_contacts.restype = c_int
-    lib.tsr_contact_rows.argtypes = [ctypes.c_long, *[ptr] * 11, ptr, ptr, ptr, c_int, ptr]
-    lib.tsr_contact_rows.restype = c_int
+    lib.tsr_contact_forces.argtypes = [
+        ctypes.c_long, c_int, *[ptr] * 7, c_int, *[ptr] * 7, c_int, ptr, ptr
+    ]  # fmt: skip
+    lib.tsr_contact_forces.restype = c_int
     lib.tsr_max_rods.restype = c_int
     lib.tsr_max_nodes.restype = c_int
     lib.tsr_max_points.restype = c_int

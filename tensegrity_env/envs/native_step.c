@@ -276,30 +276,56 @@ static void contact_wrench(const Model *m, int r, const double *p, const double 
     }
 }
 
-/* GroundContact._row_forces for the PyTorch engine: the contact forces on the end caps
- * of N touching rods, one row each (the rows of a batch of any assemblies).
- * Per row: dist[2], arm[2][3] (contact point - centre of mass), vel[2][3] (contact
- * point velocity), tangent[2][3] (t_1), rot[3][3] (R, body to world, row-major),
- * omega[3], mass, inertia[3], f_s[3], t_s[3] (the applied wrench), active[2] (bytes),
- * origin[3] (body-frame origin, NULL: none); gravity[3]; law[6] = {stiffness, damping,
- * friction, impedance_min, impedance, width}. Out: force (N, 2, 3) [N]. */
-int tsr_contact_rows(long N, const double *dist, const double *arm, const double *vel,
-                     const double *tangent, const double *rot, const double *omega,
-                     const double *mass, const double *inertia, const double *f_s,
-                     const double *t_s, const unsigned char *active, const double *origin,
-                     const double *gravity, const double *law, int iterations,
-                     double *force) {
+/* GroundContact.contact_forces for the PyTorch engine: the contact force on every end
+ * cap of B assemblies of R rods, and its arm (contact point - centre of mass).
+ * In: p, v, omega (B, R, 3) world frame; rot (B, R, 3, 3) body to world, row-major;
+ * arms (B, R, 2, 3) the end caps' offsets from the rods' centres; mass (B, R) and
+ * inertia (B, R, 3) or, with per_assembly = 0, (R) and (R, 3); f_s, t_s (B, R, 3) the
+ * applied wrench; radius (R); sphere (R) bytes (1: sphere end caps, contact frame t_1 =
+ * y); origin (R, 3) body-frame origins or NULL; gravity[3]; law[7] = {stiffness,
+ * damping, friction, impedance_min, impedance, width, height}.
+ * Out: force and arm (B, R, 2, 3). The same operations as the PyTorch law, row by row. */
+int tsr_contact_forces(long B, int R, const double *p, const double *v, const double *omega,
+                       const double *rot, const double *arms, const double *mass,
+                       const double *inertia, int per_assembly, const double *f_s,
+                       const double *t_s, const double *radius, const unsigned char *sphere,
+                       const double *origin, const double *gravity, const double *law,
+                       int iterations, double *force, double *arm_out) {
     Model m;
     memset(&m, 0, sizeof(m));
     m.k_c = law[0]; m.b_c = law[1]; m.mu = law[2];
     m.d_min = law[3]; m.d_max = law[4]; m.width = law[5];
-    const double soft = 2.0 * m.mu * m.mu * (1.0 + m.mu * m.mu);
-    for (long r = 0; r < N; r++) {
-        const double *M = rot + 9 * r, *I = inertia + 3 * r, *w = omega + 3 * r;
-        const double inv_m = 1.0 / mass[r];
+    const double height = law[6], soft = 2.0 * m.mu * m.mu * (1.0 + m.mu * m.mu);
+    for (long row = 0; row < B * R; row++) {
+        const int r = (int)(row % R);
+        const double *P = p + 3 * row, *V = v + 3 * row, *w = omega + 3 * row;
+        const double *M = rot + 9 * row, *A = arms + 6 * row;
+        double dist[2], arm[2][3], vel[2][3], t1[2][3];
+        int n_touch = 0;
+        for (int k = 0; k < 2; k++) {
+            double cap[3] = {P[0] + A[3 * k], P[1] + A[3 * k + 1], P[2] + A[3 * k + 2]};
+            dist[k] = cap[2] - radius[r] - height;
+            arm[k][0] = cap[0] - P[0];
+            arm[k][1] = cap[1] - P[1];
+            arm[k][2] = (height + dist[k] / 2) - P[2];
+            double wxa[3];
+            cross(w, arm[k], wxa);
+            for (int i = 0; i < 3; i++) vel[k][i] = V[i] + wxa[i];
+            double nrm = sqrt(A[3 * k] * A[3 * k] + A[3 * k + 1] * A[3 * k + 1]);
+            t1[k][0] = 1.0; t1[k][1] = 0.0; t1[k][2] = 0.0;
+            if (nrm > 1e-12) { t1[k][0] = A[3 * k] / nrm; t1[k][1] = A[3 * k + 1] / nrm; }
+            if (sphere[r]) { t1[k][0] = 0.0; t1[k][1] = 1.0; }
+            n_touch += dist[k] < 0;
+        }
+        double *out = force + 6 * row;
+        memcpy(arm_out + 6 * row, arm, sizeof(arm));
+        for (int i = 0; i < 6; i++) out[i] = 0.0;
+        if (!n_touch) continue;
+        const long at = per_assembly ? row : r;
+        const double *I = inertia + 3 * at, inv_m = 1.0 / mass[at];
         double sI[3] = {sqrt(I[0]), sqrt(I[1]), sqrt(I[2])};
         double acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
-        for (int i = 0; i < 3; i++) acc[i] = f_s[3 * r + i] * inv_m + gravity[i];
+        for (int i = 0; i < 3; i++) acc[i] = f_s[3 * row + i] * inv_m + gravity[i];
         if (origin) { /* the centripetal acceleration of the body origin */
             const double *o = origin + 3 * r;
             double ro[3], wr[3], wwr[3];
@@ -309,30 +335,28 @@ int tsr_contact_rows(long N, const double *dist, const double *arm, const double
             for (int i = 0; i < 3; i++) acc[i] += wwr[i];
         }
         rot_t(M, w, wl);
-        rot_t(M, t_s + 3 * r, tl);
+        rot_t(M, t_s + 3 * row, tl);
         for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
         cross(wl, Iw, gyro);
         for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
         double E[TSR_MAX_EDGES][3], Ang[TSR_MAX_EDGES][3], b[TSR_MAX_EDGES], sft[TSR_MAX_EDGES];
         int cap_of[TSR_MAX_EDGES], n = 0;
         for (int k = 0; k < 2; k++) {
-            if (!active[2 * r + k]) continue;
-            const double d_k = dist[2 * r + k], *a = arm + 6 * r + 3 * k;
-            const double *ve = vel + 6 * r + 3 * k, *t1 = tangent + 6 * r + 3 * k;
-            const double d = impedance(&m, d_k), kd = m.k_c * d * d_k;
-            const double t2[3] = {-t1[1], t1[0], 0.0}; /* z x t_1 */
+            if (!(dist[k] < 0)) continue;
+            const double d = impedance(&m, dist[k]), kd = m.k_c * d * dist[k];
+            const double t2[3] = {-t1[k][1], t1[k][0], 0.0}; /* z x t_1 */
             for (int t = 0; t < 2; t++) {
-                const double *tk = t == 0 ? t1 : t2;
+                const double *tk = t == 0 ? t1[k] : t2;
                 for (int s = 0; s < 2; s++) {
                     double sign = s == 0 ? 1.0 : -1.0, aw[3], al[3], *e = E[n];
                     for (int i = 0; i < 3; i++) e[i] = m.mu * sign * tk[i];
                     e[2] += 1.0;
-                    cross(a, e, aw);
+                    cross(arm[k], e, aw);
                     rot_t(M, aw, al);
                     for (int i = 0; i < 3; i++) Ang[n][i] = al[i] / sI[i];
                     double a0 = dot(e, acc);
                     for (int i = 0; i < 3; i++) a0 += Ang[n][i] * alpha[i] * sI[i];
-                    b[n] = a0 - (-m.b_c * dot(e, ve) - kd);
+                    b[n] = a0 - (-m.b_c * dot(e, vel[k]) - kd);
                     sft[n] = (1.0 - d) / d * soft * inv_m;
                     cap_of[n] = k;
                     n++;
@@ -346,14 +370,9 @@ int tsr_contact_rows(long N, const double *dist, const double *arm, const double
                 if (i == j) h += sft[i];
                 H[i * n + j] = H[j * n + i] = h;
             }
-        if (n) solve_contacts(n, H, b, iterations, f);
-        for (int k = 0; k < 2; k++) {
-            double *out = force + 6 * r + 3 * k;
-            out[0] = out[1] = out[2] = 0.0;
-            for (int i = 0; i < n; i++)
-                if (cap_of[i] == k)
-                    for (int c = 0; c < 3; c++) out[c] += f[i] * E[i][c];
-        }
+        solve_contacts(n, H, b, iterations, f);
+        for (int i = 0; i < n; i++)
+            for (int c = 0; c < 3; c++) out[3 * cap_of[i] + c] += f[i] * E[i][c];
     }
     return 0;
 }

@@ -53,9 +53,10 @@ def test_gradients_flow_through_the_subset_solves():
     assert float(b.grad[mask & (f.detach() > 0)].abs().max()) > 0
 
 
-def test_contact_forces_of_a_batch_equal_each_assembly_alone():
+def test_contact_forces_of_a_batch_equal_each_assembly_alone(monkeypatch):
     """Only touching rods are gathered and solved: a batch mixing touching and airborne
-    assemblies, with per-assembly masses, gets each one's forces as if stepped alone."""
+    assemblies, with per-assembly masses, gets each one's forces as if stepped alone,
+    and the C kernel's forces are PyTorch's."""
     asm = icosahedron()
     topo, params = asm.topology, asm.params
     g = torch.Generator().manual_seed(3)
@@ -81,6 +82,12 @@ def test_contact_forces_of_a_batch_equal_each_assembly_alone():
     force, _ = contact.contact_forces(state, kin, batched)
     touching = force.abs().sum((-1, -2)) > 0  # (B, R)
     assert 0 < int(touching.any(-1).sum()) < B  # some assemblies touch, some do not
+    monkeypatch.setattr(ground_contact, "USE_NATIVE", False)
+    in_torch, arm_torch = contact.contact_forces(state, kin, batched)
+    monkeypatch.setattr(ground_contact, "USE_NATIVE", True)
+    _, arm = contact.contact_forces(state, kin, batched)
+    assert torch.allclose(force, in_torch, rtol=0, atol=1e-12)
+    assert torch.allclose(arm, arm_torch, rtol=0, atol=1e-15)
     for b in range(B):
         one = State(*(x[b : b + 1] for x in state.tensors()))
         alone, _ = contact.contact_forces(one, engine.kinematics(one),

@@ -38,8 +38,8 @@ def semi_implicit_euler(
     omega = rotate(rot1, omega_l)
     if frame_origin is None:
         v = state.v + dt * accel
-        return State(p=state.p + dt * v, v=v, q=q, omega=omega)
-    rot0 = quat_to_matrix(state.q)
+        return State(p=state.p + dt * v, v=v, q=q, omega=omega).remember_rotation(rot1)
+    rot0 = state.rotation()
     r0 = rotate(rot0, frame_origin)
     alpha = rotate(rot0, alpha_local)
     w0 = state.omega
@@ -51,7 +51,8 @@ def semi_implicit_euler(
     v_o = state.v + torch.cross(w0, r0, dim=-1) + dt * a_o
     p_o = state.p + r0 + dt * v_o
     r1 = rotate(rot1, frame_origin)
-    return State(p=p_o - r1, v=v_o - torch.cross(omega, r1, dim=-1), q=q, omega=omega)
+    out = State(p=p_o - r1, v=v_o - torch.cross(omega, r1, dim=-1), q=q, omega=omega)
+    return out.remember_rotation(rot1)
 
 
 def step_accelerations(

@@ -8,7 +8,6 @@ from typing import NamedTuple
 import torch
 
 from tensegrity_env.engine.state import State
-from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
 from tensegrity_env.vec3 import rotate
 
@@ -88,7 +87,7 @@ def node_kinematics(
         points: attachment points on rods besides the end caps (nodes after the anchors).
     """
     B = state.p.shape[0]
-    rot = quat_to_matrix(state.q)  # (B, R, 3, 3)
+    rot = state.rotation()  # (B, R, 3, 3)
     arms = torch.einsum("brij,rkj->brki", rot, end_offsets)  # (B, R, 2, 3)
     x_end = state.p.unsqueeze(2) + arms
     xd_end = state.v.unsqueeze(2) + torch.cross(

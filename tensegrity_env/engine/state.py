@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from tensegrity_env.rotations import quat_to_matrix
+
 
 @dataclass(frozen=True)
 class State:
@@ -51,6 +53,18 @@ class State:
         self, dtype: torch.dtype | None = None, device: str | torch.device | None = None
     ) -> State:
         return State(*(x.to(dtype=dtype, device=device) for x in self.tensors()))
+
+    def rotation(self) -> torch.Tensor:
+        """``R(q)``, (B, R, 3, 3): the matrix the integrator computed for this state
+        (:meth:`remember_rotation`) if it did, else computed here."""
+        rot = self.__dict__.get("_rotation")
+        return quat_to_matrix(self.q) if rot is None else rot
+
+    def remember_rotation(self, rot: torch.Tensor) -> State:
+        """This state, keeping ``rot`` = ``R(q)`` (B, R, 3, 3) for :meth:`rotation` (the
+        next step's kinematics need the matrix the integration step just computed)."""
+        object.__setattr__(self, "_rotation", rot)
+        return self
 
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         return (self.p, self.v, self.q, self.omega)

@@ -35,6 +35,13 @@ It needs every other force on each rod. Contact is a constraint
 springs, control forces and every other effect, as MuJoCo's constraint solver sees all
 passive and actuator forces. Called directly without that wrench, it uses the springs
 (from the tensions seen in its ``tension`` hook) and gravity.
+
+Where no gradient is wanted (double precision on the CPU, as the trajectory fits'
+forward differences step it), the C kernel's ``tsr_contact_forces``
+(``tensegrity_env/envs/native_step.c``) computes the same geometry and law rod by rod
+(``benchmarks/bench_engine.py`` times both); the two agree to round-off
+(``tests/unit/test_soft_contact_solve.py``). Otherwise, and where no C compiler works,
+PyTorch does (:data:`USE_NATIVE` switches the kernel off).
 """
 
 from __future__ import annotations

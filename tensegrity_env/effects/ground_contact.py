@@ -80,7 +80,7 @@ MUJOCO_DEFAULT: dict[str, float] = {
 #: the :meth:`GroundContact.contact_geometry` entries the contact law reads per touching rod
 ROW_GEOMETRY = ("dist", "arm", "vel", "tangent")
 
-#: the contact law's parameters in the order the C kernel's ``tsr_contact_rows`` reads them
+#: the contact's parameters in the order the C kernel's ``tsr_contact_forces`` reads them
 NATIVE_LAW = ("stiffness", "damping", "friction", "impedance_min", "impedance", "width",
               "height")  # fmt: skip
 
@@ -381,31 +381,6 @@ class GroundContact(PhysicalEffect):
         return sum_small(f.reshape(N, 2, 4).unsqueeze(-1) * edges, -2)
 
 
-def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """``argmin_{f >= 0, f = 0 off mask} ½ fᵀ H f + fᵀ b`` for a batch of small problems.
-
-    ``H`` (..., n, n) symmetric positive definite, ``b`` and ``mask`` (..., n). A
-    primal-dual active-set iteration (exact once the active set settles, a few
-    iterations for n = 8), then one projected Gauss-Seidel sweep; a problem with
-    nothing on ``mask`` gets no force. Double-precision CPU tensors without gradients
-    are solved by the C kernel (``tensegrity_env/envs/native_step.c``, one problem
-    after the other: the batches of a fit are small and the torch version's cost is
-    per operation), others by :func:`solve_soft_contacts_torch`; the two agree to
-    round-off (``tests/unit/test_soft_contact_solve.py``).
-    """
-    kernel = native_kernel(H, b) if H.shape[-1] <= 8 else None
-    if kernel is None:
-        return solve_soft_contacts_torch(H, b, mask)
-    n = H.shape[-1]
-    H_c = H.detach().reshape(-1, n, n).contiguous()
-    b_c = b.detach().reshape(-1, n).contiguous()
-    m_c = mask.reshape(-1, n).to(torch.uint8).contiguous()
-    f = torch.empty_like(b_c)
-    kernel.tsr_solve_soft_contacts(H_c.shape[0], n, H_c.data_ptr(), b_c.data_ptr(),
-                                   m_c.data_ptr(), ACTIVE_SET_ITERATIONS, f.data_ptr())  # fmt: skip
-    return f.reshape(b.shape)
-
-
 #: whether the contact law may use the C kernel (where one builds; tests switch it off
 #: to compare)
 USE_NATIVE = True
@@ -435,12 +410,16 @@ def _loaded_kernel() -> Any | None:
         return None
 
 
-def solve_soft_contacts_torch(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """:func:`solve_soft_contacts` in PyTorch (differentiable, any device and dtype).
+def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``argmin_{f >= 0, f = 0 off mask} ½ fᵀ H f + fᵀ b`` for a batch of small problems.
 
+    ``H`` (..., n, n) symmetric positive definite, ``b`` and ``mask`` (..., n). A
+    primal-dual active-set iteration (exact once the active set settles, a few
+    iterations for n = 8); if it has not settled, one projected Gauss-Seidel sweep.
     Each iteration solves only the problems whose active set is still changing (a
-    settled one would give the same forces again); the Gauss-Seidel sweep runs where
-    some problem has not settled (it leaves a settled one where it is).
+    settled one would give the same forces again); a problem with nothing on ``mask``
+    gets no force. The C kernel's ``solve_contacts`` is the same iteration, one problem
+    at a time.
     """
     n = H.shape[-1]
     batch = b.shape[:-1]

@@ -32,8 +32,6 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
     ]  # fmt: skip
     lib.tsr_step.restype = c_int
     ptr = ctypes.c_void_p
-    lib.tsr_solve_soft_contacts.argtypes = [ctypes.c_long, c_int, ptr, ptr, ptr, c_int, ptr]
-    lib.tsr_solve_soft_contacts.restype = c_int
     lib.tsr_contact_forces.argtypes = [
         ctypes.c_long, c_int, *[ptr] * 7, c_int, *[ptr] * 7, c_int, ptr, ptr
     ]  # fmt: skip

@@ -161,32 +161,6 @@ static void solve_contacts(int n, const double *H, const double *b, int iteratio
     }
 }
 
-/* GroundContact.solve_soft_contacts for M independent problems of n <= TSR_MAX_EDGES
- * unknowns (the identification engine's batches): H (M, n, n), b (M, n), mask (M, n)
- * (1: the edge may push) -> f (M, n), 0 off the mask. Each problem is solved on its
- * masked edges alone (off the mask the PyTorch version holds f = 0 by an identity row). */
-int tsr_solve_soft_contacts(long M, int n, const double *H, const double *b,
-                            const unsigned char *mask, int iterations, double *f) {
-    if (n > TSR_MAX_EDGES) return -1;
-    for (long p = 0; p < M; p++) {
-        const double *Hp = H + p * n * n, *bp = b + p * n;
-        double Hs[TSR_MAX_EDGES * TSR_MAX_EDGES], bs[TSR_MAX_EDGES], fs[TSR_MAX_EDGES];
-        int idx[TSR_MAX_EDGES], k = 0;
-        for (int i = 0; i < n; i++) {
-            f[p * n + i] = 0.0;
-            if (mask[p * n + i]) idx[k++] = i;
-        }
-        if (k == 0) continue;
-        for (int i = 0; i < k; i++) {
-            bs[i] = bp[idx[i]];
-            for (int j = 0; j < k; j++) Hs[i * k + j] = Hp[idx[i] * n + idx[j]];
-        }
-        solve_contacts(k, Hs, bs, iterations, fs);
-        for (int i = 0; i < k; i++) f[p * n + idx[i]] = fs[i];
-    }
-    return 0;
-}
-
 static double impedance(const Model *m, double dist) {
     double x = fabs(dist) / m->width;
     x = x < 0 ? 0 : (x > 1 ? 1 : x);

@@ -175,6 +175,8 @@ class TrajFit:
     #: global parameters fitted elsewhere and held here (the searched contact's, and the
     #: declared ones fitted on airborne windows)
     extra_k: int = 0
+    #: the joint fit met its stopping rule (not just its iteration count)
+    converged: bool = True
 
     @property
     def k(self) -> int:
@@ -361,7 +363,7 @@ def fit_trajectory(
     # state unknowns, not common: the rolls and (in flight) the spins that turn them
     rolls = windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
-                   extra_k=extra_k(data, vec) + rolls)  # fmt: skip
+                   extra_k=extra_k(data, vec) + rolls, converged=fit.converged)  # fmt: skip
 
 
 def extra_k(data: EndCapData, vec: ParamVector) -> int:

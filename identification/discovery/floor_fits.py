@@ -107,7 +107,7 @@ def floor_fit(
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
     m = w.windows.residuals
-    fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr)
+    fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
     fit.origin = fit.theta
     return FloorFit(fit)
 

@@ -149,3 +149,39 @@ def test_on_the_floor_slack_cables_are_fitted_afresh_from_their_regression(monke
     assert calls["floor"] == (["linear_drag", "slack_springs"], {"k": "regressed"}, contact)
     assert calls["trajectory"] == ("floor vec", "current states", "floor theta")
     assert name == "slack_springs" and fit.origin == "floor theta" and floor is not None
+
+
+def _trajfit(rms: float, converged: bool) -> SimpleNamespace:
+    m = 1000
+    return SimpleNamespace(vec="vec", theta=rms, windows="windows", sse=rms**2 * m, m=m,
+                           rms=rms, converged=converged, origin=None)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("rms", "converged", "rounds", "expected"),
+    [
+        ([1.34e-3, 1.20e-3, 1.12e-3], False, 2, 1.12e-3),  # two more rounds, both paying
+        ([1.34e-3, 1.20e-3, 1.05e-3, 1.0e-3], False, 2, 1.05e-3),  # at most MORE_ROUNDS
+        ([1.34e-3, 1.338e-3], False, 1, 1.338e-3),  # < 1 % of the SSE: stops, keeps the lower
+        ([1.34e-3, 1.35e-3], False, 1, 1.34e-3),  # a round that rose is not used
+        ([1.34e-3], True, 0, 1.34e-3),  # the last fit met its stopping rule
+        ([1.08e-3], False, 0, 1.08e-3),  # within FIT_WELL times the noise
+    ],
+)
+def test_an_accepted_floor_refit_goes_on_only_while_it_is_short_of_the_data(
+    rms, converged, rounds, expected, monkeypatch
+) -> None:
+    fits = iter([_trajfit(r, False) for r in rms[1:]])
+    calls: list = []
+
+    def fake_fit_trajectory(data, vec, windows, theta, iters):
+        calls.append((vec, windows, theta, iters))
+        return next(fits)
+
+    monkeypatch.setattr(multi_step, "fit_trajectory", fake_fit_trajectory)
+    scorer = MultiStepScorer(TrajectorySettings(base_iter=10))
+    scorer.data, scorer.noise, scorer.log = None, 1.0e-3, lambda line: None
+    out = scorer.fitted_on(_trajfit(rms[0], converged))
+    assert len(calls) == rounds
+    assert out.rms == pytest.approx(expected)
+    assert all(c[3] == 10 for c in calls) and (not calls or calls[0][2] == rms[0])

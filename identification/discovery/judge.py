@@ -177,9 +177,9 @@ def unphysical(model: FittedModel, current: FittedModel | None = None) -> str:
 
 def overrule(candidate: Candidate[F], reason: str) -> None:
     """Reject an accepted ``candidate`` after all: its refit (as the next current model)
-    is unphysical for ``reason``."""
+    ``reason`` (a clause: "is unphysical (...)", "fits ... worse ...")."""
     candidate.accepted = False
-    candidate.verdict = f"rejected: its refit as the model is unphysical ({reason})"
+    candidate.verdict = f"rejected: its refit as the model {reason}"
 
 
 @dataclass

@@ -360,11 +360,14 @@ class EffectDiscovery:
 
     def refit(self, c: Candidate[Any], before: Candidate[Any]) -> Candidate[Any]:
         """``c`` as the next current model (the scorer's refit); a refit outside the
-        physical domain overrules ``c`` (``c.accepted`` turns False, logged)."""
+        physical domain, or one the scorer refuses (:meth:`Scorer.refusal`), overrules
+        ``c`` (``c.accepted`` turns False, logged, the scorer's data as before)."""
         added = self.scorer.accept(c)
         reason = unphysical(added.model, before.model)
+        reason = f"is unphysical ({reason})" if reason else self.scorer.refusal(added, before)
         if reason:
             overrule(c, reason)
+            self.scorer.undo_accept()
             self.log(f"  candidate {c.name}: {c.verdict}")
         return added
 

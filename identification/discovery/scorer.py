@@ -112,6 +112,15 @@ class Scorer(ABC, Generic[F]):
     def accept(self, chosen: Candidate[F]) -> Candidate[F]:
         """The chosen candidate as the next current model (refitted where the scorer does)."""
 
+    def refusal(self, added: Candidate[F], before: Candidate[F]) -> str:
+        """Why ``added`` (:meth:`accept`'s refit of a chosen candidate) cannot replace
+        ``before``, as a clause after "its refit as the model"; "" if it can (default)."""
+        return ""
+
+    def undo_accept(self) -> None:
+        """Forget what the last :meth:`accept` changed in the scorer's own state (its
+        result was overruled); default: nothing to forget."""
+
     def sample_states(self) -> State | None:
         """Rod states sampled from the training data, where candidates' forces are
         measured (:func:`~identification.discovery.negligible.force_ratio`); None: not

@@ -245,3 +245,33 @@ def test_without_a_second_look_the_screens_decide():
     loop, lines = run_looking(scorer)
     assert scorer.looked == [] and loop.result_.added == []
     assert not any("fitted again" in line for line in lines)
+
+
+class RefusingScorer(StubScorer):
+    """A stub whose refits of ``refused`` are refused (they fit worse than the current
+    model)."""
+
+    def __init__(self, fits: dict[str, tuple[FittedModel, float, FittedModel]], refused: set[str]):
+        super().__init__(fits)
+        self.refused, self.undone = refused, 0
+
+    def refusal(self, added: Candidate[None], before: Candidate[None]) -> str:
+        return "fits the floor windows worse" if added.name in self.refused else ""
+
+    def undo_accept(self) -> None:
+        self.undone += 1
+
+
+@pytest.mark.parametrize("refused", [{"linear_drag"}, {"linear_drag", "quadratic_drag"}])
+def test_a_refit_the_scorer_refuses_overrules_the_choice_and_is_undone(refused):
+    """Linear drag, chosen first, is refused after its refit: the scorer forgets that
+    refit and the next passing candidate is refitted the same way."""
+    scorer = RefusingScorer({"linear_drag": (LINEAR_OK, 1e4, LINEAR_OK),
+                             "quadratic_drag": (QUADRATIC_OK, 50.0, QUADRATIC_OK)}, refused)  # fmt: skip
+    loop = EffectDiscovery(scorer, max_effects=1, log=lambda line: None)
+    loop.fit(None)  # type: ignore[arg-type]
+    verdicts = {c.name: c.verdict for c in loop.iterations_[0].candidates}
+    for name in refused:
+        assert verdicts[name] == "rejected: its refit as the model fits the floor windows worse"
+    assert scorer.undone == len(refused)
+    assert loop.result_.added == ([] if len(refused) == 2 else ["quadratic_drag"])

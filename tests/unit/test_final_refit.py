@@ -185,3 +185,44 @@ def test_an_accepted_floor_refit_goes_on_only_while_it_is_short_of_the_data(
     assert len(calls) == rounds
     assert out.rms == pytest.approx(expected)
     assert all(c[3] == 10 for c in calls) and (not calls or calls[0][2] == rms[0])
+
+
+@pytest.mark.parametrize(
+    ("on_floor", "m_added", "rms_added", "refused"),
+    [
+        (True, 1000, 1.074e-3, True),  # worse than the current model on the same windows
+        (True, 1000, 1.030e-3, False),
+        (True, 900, 1.074e-3, False),  # other windows: not comparable
+        (False, 1000, 1.074e-3, False),  # in flight the check is not made
+    ],
+)
+def test_an_accepted_floor_refit_worse_than_the_current_model_is_refused(
+    on_floor, m_added, rms_added, refused
+) -> None:
+    scorer = MultiStepScorer(TrajectorySettings())
+    scorer.data = SimpleNamespace(on_floor=on_floor, windows={"fit": "before"},
+                                  contact_box=None, roll=False)  # fmt: skip
+    before = _trajfit(1.039e-3, True)
+    added = replace_rms(_trajfit(rms_added, True), m_added)
+    reason = scorer.refusal(Candidate("quadratic_drag", EndCapFits(added, added), "model"),
+                            Candidate("nothing", EndCapFits(before, before), "model"))  # fmt: skip
+    assert bool(reason) is refused
+    if refused:
+        assert "worse than the current model (end-cap RMS 1.074 mm against 1.039 mm)" in reason
+
+
+def replace_rms(fit: SimpleNamespace, m: int) -> SimpleNamespace:
+    fit.sse, fit.m = fit.rms**2 * m, m
+    return fit
+
+
+def test_an_overruled_accept_leaves_the_data_as_before() -> None:
+    scorer = MultiStepScorer(TrajectorySettings())
+    data = SimpleNamespace(windows={"fit": "before", "train": "train"}, contact_box=None,
+                           roll=False)  # fmt: skip
+    scorer.data = data
+    scorer._before_accept = (dict(data.windows), data.contact_box, data.roll)
+    data.windows["fit"], data.contact_box, data.roll = "afresh", {"stiffness": (1, 2)}, True
+    scorer.undo_accept()
+    assert data.windows == {"fit": "before", "train": "train"}
+    assert data.contact_box is None and data.roll is False

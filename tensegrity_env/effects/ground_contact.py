@@ -282,10 +282,12 @@ class GroundContact(PhysicalEffect):
             return None
         if per_assembly and inertia.shape != (B, R, 3):
             return None
-        f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
         rows = [state.p, state.v, state.omega, kin.rot, kin.arms]
-        every = [*rows, mass, inertia, f_s, t_s, params.gravity, *law]
-        kernel = native_kernel(*every) if all(v.numel() == 1 for v in law) else None
+        others = [*rows, mass, inertia, params.gravity, *law]
+        if not all(v.numel() == 1 for v in law) or native_kernel(*others) is None:
+            return None  # (before the spring wrench: the PyTorch law computes its own)
+        f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
+        kernel = native_kernel(f_s, t_s)
         if kernel is None:
             return None
         rows = [x.detach().contiguous() for x in rows]

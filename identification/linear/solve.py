@@ -22,6 +22,9 @@ NULL_EIG_RTOL = 1e-14
 #: a parameter whose contribution ‖A_i θ_i‖ is below this fraction of the largest
 #: contribution only explains round-off: it was never excited.
 EXCITATION_RTOL = 1e-9
+#: an unknown whose squared share in the null directions exceeds this is not
+#: identifiable (a component of 1e-3 of a direction the data does not see)
+NULL_SHARE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -51,6 +54,59 @@ class Solution:
     n_rows: int
 
 
+@dataclass(frozen=True)
+class Equilibrated:
+    """The eigen-decomposition of a symmetric positive semi-definite matrix ``N`` (P, P)
+    after equilibration, ``N_s = D⁻¹ N D⁻¹`` with ``D = diag(N)^½`` (unit diagonal):
+    units and scales of the unknowns drop out, so the eigenvalues measure how far the
+    unknowns are from collinear, not how large their columns are.
+
+    Attributes:
+        scale: ``diag(N)^½`` (P,), 1 where the diagonal is 0.
+        vectors: eigenvectors of ``N_s`` kept (seen), (P, k).
+        values: their eigenvalues, (k,).
+        unseen: bool (P,): unknowns with a share above :data:`NULL_SHARE` in a null
+            direction (eigenvalue below ``rtol`` of the largest) or a zero diagonal.
+        null_dims: number of null directions.
+    """
+
+    scale: torch.Tensor
+    vectors: torch.Tensor
+    values: torch.Tensor
+    unseen: torch.Tensor
+    null_dims: int
+
+    @classmethod
+    def of(cls, N: torch.Tensor, rtol: float = NULL_EIG_RTOL) -> Equilibrated:
+        diag = torch.diagonal(N).clamp_min(0)
+        excited = diag > 0
+        d = torch.where(excited, diag.sqrt(), torch.ones_like(diag))
+        Ns = N / (d[:, None] * d[None, :])
+        lam, V = torch.linalg.eigh(0.5 * (Ns + Ns.T))
+        lam_max = float(lam.max()) if lam.numel() else 1.0
+        keep = lam > rtol * lam_max
+        Vn = V[:, ~keep]
+        unseen = ((Vn * Vn).sum(1) > NULL_SHARE) | ~excited
+        return cls(d, V[:, keep], lam[keep], unseen, int((~keep).sum()))
+
+    def solve(self, b: torch.Tensor) -> torch.Tensor:
+        """``N⁺ b`` (P,) on the seen subspace, for ``b`` (P,)."""
+        V, d = self.vectors, self.scale
+        return (V @ ((V.T @ (b / d)) / self.values)) / d
+
+    def inverse(self) -> torch.Tensor:
+        """``N⁺`` (P, P) on the seen subspace (the covariance up to the noise variance)."""
+        V, d = self.vectors, self.scale
+        return (V / self.values) @ V.T / (d[:, None] * d[None, :])
+
+    @property
+    def condition_number(self) -> float:
+        """Of the equilibrated design (square root of the eigenvalues' ratio) on the
+        seen subspace; inf when nothing is seen."""
+        lam = self.values
+        return float(np.sqrt(float(lam.max()) / float(lam.min()))) if lam.numel() else float("inf")
+
+
 def solve_constrained(normal: torch.Tensor, fixed: dict[int, float], n_rows: int) -> Solution:
     """Solve ``min ‖A θ‖²`` subject to ``θ_i = fixed[i]``, given ``N = AᵀA`` (P, P)."""
     N = normal.double()
@@ -65,22 +121,10 @@ def solve_constrained(normal: torch.Tensor, fixed: dict[int, float], n_rows: int
     Nff = N[f_idx][:, f_idx]
     b = -(N[f_idx][:, x_idx] @ theta_x[x_idx])
 
-    diag = torch.diagonal(Nff).clamp_min(0)
-    excited = diag > 0
-    d = torch.where(excited, diag.sqrt(), torch.ones_like(diag))
-    Ns = Nff / (d[:, None] * d[None, :])
-    Ns = 0.5 * (Ns + Ns.T)
-    bs = b / d
-    lam, V = torch.linalg.eigh(Ns)
-    lam_max = float(lam.max()) if lam.numel() else 1.0
-    keep = lam > NULL_EIG_RTOL * lam_max
-    Vk, lk = V[:, keep], lam[keep]
-    theta_s = Vk @ ((Vk.T @ bs) / lk)
-    theta_f = theta_s / d
+    eq = Equilibrated.of(Nff)
+    theta_f = eq.solve(b)
     # parameters with a component along a null direction are not identifiable
-    Vn = V[:, ~keep]
-    in_null = (Vn * Vn).sum(1) > 1e-6
-    unknown = in_null | ~excited
+    unknown = eq.unseen
 
     theta = theta_x.clone()
     theta[f_idx] = theta_f
@@ -94,8 +138,7 @@ def solve_constrained(normal: torch.Tensor, fixed: dict[int, float], n_rows: int
     # out negative): floor it there, so an exact fit states round-off errors, not 0
     floor = float(np.finfo(np.float64).eps * torch.diagonal(N).clamp_min(0).max())
     sigma2 = max(rss, floor) / dof
-    cov_s = Vk @ torch.diag(1.0 / lk) @ Vk.T
-    stderr_f = torch.sqrt(sigma2 * torch.diagonal(cov_s).clamp_min(0)) / d
+    stderr_f = torch.sqrt(sigma2 * torch.diagonal(eq.inverse()).clamp_min(0))
 
     theta_np = theta.numpy().copy()
     stderr = np.zeros(P)
@@ -104,14 +147,13 @@ def solve_constrained(normal: torch.Tensor, fixed: dict[int, float], n_rows: int
     ident[f_idx.numpy()[unknown.numpy()]] = False
     theta_np[~ident] = np.nan
     stderr[~ident] = np.nan
-    cond = float(np.sqrt(lam_max / float(lk.min()))) if lk.numel() else float("inf")
     return Solution(
         theta=theta_np,
         stderr=stderr,
         identifiable=ident,
         fixed=is_fixed,
-        condition_number=cond,
-        null_dims=int((~keep).sum()),
+        condition_number=eq.condition_number,
+        null_dims=eq.null_dims,
         rss=rss,
         n_rows=n_rows,
     )

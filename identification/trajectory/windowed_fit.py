@@ -15,6 +15,7 @@ from functools import partial
 import numpy as np
 import torch
 
+from identification.linear.solve import Equilibrated
 from identification.trajectory.forked import side_by_side, window_groups, window_jobs
 from identification.trajectory.param_vector import DTYPE, ParamVector
 from identification.trajectory.windows import (
@@ -507,8 +508,9 @@ def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor
 #: fractions of a rejected step tried along its direction (``line_search``)
 LINE_FRACTIONS = (0.5, 0.3, 0.1, 0.03)
 
-#: eigenvalues of ``S`` below this fraction of its largest are directions the data does
-#: not see: a parameter with a share in them has an infinite standard error
+#: eigenvalues of the equilibrated ``S`` below this fraction of its largest are
+#: directions the data does not see: a parameter with a share in them has an infinite
+#: standard error
 UNSEEN = 1e-13
 
 
@@ -521,17 +523,18 @@ def window_stderr(ne: NormalEquations, S: torch.Tensor, sigma2: float) -> np.nda
     eliminated), centred: the end-cap errors along one window are far from independent
     (a model error or a poor initial state shifts them together), which the
     Gauss-Newton value ignores. The same form as the contact search's standard errors,
-    clustered per touchdown (:mod:`identification.trajectory.touchdown`). A coordinate
-    with a share in a direction the data does not see (eigenvalue of ``S`` below
-    :data:`UNSEEN` of the largest) gets inf.
+    clustered per touchdown (:mod:`identification.trajectory.touchdown`). ``S`` is
+    equilibrated first (:class:`~identification.linear.solve.Equilibrated`: the
+    coordinates' curvatures span ten orders of magnitude, a log-stiffness against an
+    effect coefficient in its own units); a coordinate with a share in a direction the
+    data does not see (eigenvalue of the equilibrated ``S`` below :data:`UNSEEN` of the
+    largest) gets inf.
     """
     n_g = S.shape[0]
     if n_g == 0:
         return np.zeros(0)
-    w, V = torch.linalg.eigh(0.5 * (S + S.T))
-    seen = w > UNSEEN * w.abs().max().clamp_min(1e-300)
-    inv = (V[:, seen] / w[seen]) @ V[:, seen].T
-    blind = (V[:, ~seen] ** 2).sum(-1) > 1e-12
+    eq = Equilibrated.of(0.5 * (S + S.T), UNSEEN)
+    inv = eq.inverse()
     gauss = sigma2 * torch.diagonal(inv)
     var = gauss
     B = ne.g_gb.shape[0]
@@ -543,5 +546,5 @@ def window_stderr(ne: NormalEquations, S: torch.Tensor, sigma2: float) -> np.nda
         sandwich = inv @ (scores.T @ scores) @ inv * (B / (B - 1))
         var = torch.maximum(gauss, torch.diagonal(sandwich))
     se = torch.sqrt(var.clamp_min(0)).numpy().copy()
-    se[blind.numpy() | ~(se > 0)] = np.inf
+    se[eq.unseen.numpy() | ~(se > 0)] = np.inf
     return se

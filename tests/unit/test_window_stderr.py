@@ -73,3 +73,23 @@ def test_a_direction_the_data_does_not_see_is_infinite_not_zero() -> None:
     se = window_stderr(ne2, S2, sigma2)
     assert np.isfinite(se[0]) and se[0] > 0
     assert se[1] == np.inf
+
+
+def test_coordinates_on_scales_ten_orders_apart_are_both_seen() -> None:
+    # a log-stiffness barely seen beside an effect coefficient in its own units:
+    # curvatures 1e-6 and 1e8, correlated 0.5; nothing here is collinear
+    c = 0.5 * np.sqrt(1e8 * 1e-6)
+    S = torch.tensor([[1e8, c], [c, 1e-6]], dtype=torch.float64)
+    ne = NormalEquations(
+        H_ll=torch.ones(1, 1, 1, dtype=torch.float64),
+        H_lg=torch.zeros(1, 1, 2, dtype=torch.float64),
+        g_l=torch.zeros(1, 1, dtype=torch.float64),
+        H_gg=S,
+        g_g=torch.zeros(2, dtype=torch.float64),
+        sse=1.0,
+        m=10,
+        g_gb=torch.zeros(1, 2, dtype=torch.float64),
+    )
+    se = window_stderr(ne, S, 1.0)
+    exact = np.sqrt(np.diag(np.linalg.inv(S.numpy())))
+    np.testing.assert_allclose(se, exact, rtol=1e-9)

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Split
+from identification.linear.solve import Equilibrated
 from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
@@ -102,7 +103,8 @@ class EffectFit:
         names: ``"effect.param"`` of each fitted parameter.
         values: fitted values, (n,).
         stderr: standard errors of the values (delta method from the Gauss-Newton
-            covariance; optimistic where window errors are correlated), (n,).
+            covariance on the equilibrated curvature; optimistic where window errors are
+            correlated; inf along a direction the data does not see), (n,).
         history: mean squared end-cap error [m^2], start and after each iteration.
     """
 
@@ -203,8 +205,9 @@ def fit_effect_params(
         if not improved or rel < tol:
             break
     sigma2 = sse / max(r.numel() - len(free), 1)
-    cov = sigma2 * torch.linalg.pinv(J.T @ J)
-    se_theta = torch.sqrt(torch.diagonal(cov).clamp_min(0)).numpy()
+    eq = Equilibrated.of(J.T @ J)
+    se_theta = torch.sqrt(sigma2 * torch.diagonal(eq.inverse()).clamp_min(0)).numpy()
+    se_theta[eq.unseen.numpy()] = np.inf  # a direction the data does not see
     fitted = _apply(effects, free, theta.detach())
     values, stderr = [], []
     for k, (i, key) in enumerate(free):

@@ -27,6 +27,9 @@ from tensegrity_env.topology import Topology
 
 #: an effect whose forces on the rods are below this fraction of their weight is negligible
 NEGLIGIBLE = 1e-3
+#: a drag part's mean power below this fraction of the rods' weight times their speed
+#: [W] is round-off (a part at 0 comes out at ~1e-17 of it beside other effects)
+ROUND_OFF_POWER = 1e-12
 
 
 def force_change(
@@ -89,14 +92,19 @@ def group_power(effect: PhysicalEffect, params: Params, states: State) -> dict[s
     energy through its translational and its rotational part alike: a fitted one whose
     part adds energy compensates for something else (a declared model or contact a
     little too dissipative), even when each coefficient is within its standard errors of
-    zero and the other part removes more.
+    zero and the other part removes more. A mean power within :data:`ROUND_OFF_POWER` of
+    the rods' weight times their speed (``Σ M |g| |v|``, mean over the states) is
+    round-off, and 0 (a part at exactly zero computed beside other effects).
     """
     out = {}
+    weight = params.mass.to(states.v) * float(params.gravity.norm())  # (R,) [N]
+    scale = float((weight * states.v.norm(dim=-1)).sum(-1).mean())  # [W]
     for key in effect.PARAMS:
         alone = type(effect)(effect.topology, validate=False, **{
             k: v if k == key else torch.zeros_like(v) for k, v in effect.values.items()})  # fmt: skip
         d_force, d_torque, omega_l = force_change(effect.topology, params, [alone], [], states)
         power = (d_force * states.v).sum((-1, -2)) + (d_torque * omega_l).sum((-1, -2))
         power = power[torch.isfinite(power)]
-        out[key] = float(power.mean()) if power.numel() else math.nan
+        mean = float(power.mean()) if power.numel() else math.nan
+        out[key] = 0.0 if abs(mean) <= ROUND_OFF_POWER * scale else mean
     return out

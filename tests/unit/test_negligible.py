@@ -94,3 +94,17 @@ def test_judge_rejects_a_drag_part_that_adds_energy_even_within_its_standard_err
     judge(ok, current, 30.0, ONE_STEP, size=0.02,
           power=group_power(resisting, ICO.params, states))  # fmt: skip
     assert ok.accepted
+
+
+def test_a_drag_part_at_round_off_adds_no_energy() -> None:
+    """A part at round-off of zero (a coefficient of -1e-14 N*s/m) puts in ~1e-15 W:
+    no energy the data could tell, and no reason to call the drag unphysical."""
+    states, current = _states(), Candidate("nothing", None, _model(), bic=0.0)
+    se = {"translational": [0.05, 0.05, 0.05], "rotational": [0.05, 0.05, 0.05]}
+    drag = LinearDrag(ICO.topology, uncertainty=se, translational=[-1e-14, 0.0, 0.0],
+                      rotational=[0.1, 0.1, 0.0])  # fmt: skip
+    power = group_power(drag, ICO.params, states)
+    assert power["translational"] == 0.0 and power["rotational"] < 0
+    c = Candidate("linear_drag", None, _model([drag]), bic=-100.0)
+    judge(c, current, 30.0, ONE_STEP, size=0.02, power=power)
+    assert c.accepted, c.verdict

@@ -14,11 +14,15 @@ The rules every command that writes follows:
   their final path and renamed only when complete (:func:`atomic_path`); SIGTERM
   raises :class:`Terminated` in the main thread (:func:`sigterm_raises`) so that, as
   for Ctrl-C, every temporary file is removed on the way out.
+* **JSON documents are standard JSON** (:func:`atomic_write_json`): a value that is
+  not finite (an infinite standard error, a diverged error) is written as ``null``,
+  never as the ``NaN`` / ``Infinity`` that other JSON readers refuse.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import signal
@@ -29,6 +33,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 #: exit status of a run ended by SIGTERM (128 + 15, as a shell reports it)
 TERMINATED_EXIT = 128 + signal.SIGTERM
@@ -226,3 +231,21 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with every float that is not finite replaced by ``None`` (JSON ``null``),
+    through dicts, lists and tuples (tuples become lists)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    return value
+
+
+def atomic_write_json(path: str | Path, doc: Any, indent: int = 2) -> Path:
+    """Write ``doc`` as standard JSON (:func:`strict_json`) to ``path`` atomically."""
+    text = json.dumps(strict_json(doc), indent=indent, allow_nan=False)
+    return atomic_write_text(path, text + "\n")

@@ -20,7 +20,6 @@ twin's 1 ms).
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 
 from tensegrity_env.effects import effects_from_document, effects_to_document
-from tensegrity_env.io_utils import InputError, atomic_write_text
+from tensegrity_env.io_utils import InputError, atomic_write_json
 from tensegrity_env.params import (
     PARAMS_FORMAT,
     PARAMS_VERSION,
@@ -190,7 +189,9 @@ class Model:
     def save(self, path: str | Path, extra: Mapping[str, Any] | None = None) -> Path:
         """Write ``params.json`` atomically (temporary file, then rename); returns the path.
 
-        ``extra`` as in :meth:`to_document`. A residual network's sidecar weights are
-        not written here (``ResidualNetwork.save``).
+        ``extra`` as in :meth:`to_document`; values that are not finite (an infinite
+        standard error) are written as ``null``
+        (:func:`~tensegrity_env.io_utils.atomic_write_json`). A residual network's
+        sidecar weights are not written here (``ResidualNetwork.save``).
         """
-        return atomic_write_text(path, json.dumps(self.to_document(extra), indent=2) + "\n")
+        return atomic_write_json(path, self.to_document(extra))

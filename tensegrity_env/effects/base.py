@@ -200,7 +200,9 @@ class PhysicalEffect(EffectBase):
         uncertainty = doc.get("uncertainty") or {}
         if not isinstance(uncertainty, Mapping):
             raise InputError(f"effect '{cls.name}': 'uncertainty' must be a mapping")
-        return cls(topology, uncertainty=uncertainty, **dict(params))
+        # an infinite standard error (the data does not see the parameter) is stored as null
+        unseen = {k: inf_for_null(v) for k, v in uncertainty.items()}
+        return cls(topology, uncertainty=unseen, **dict(params))
 
     def describe(self) -> str:
         """One line: name and parameter values with units."""
@@ -376,3 +378,13 @@ def spring_unit_wrench(
     lever = kin.node_arms.unsqueeze(-1).expand_as(node_f)
     torque = torch.einsum("nr,bnks->brks", member, torch.cross(lever, node_f, dim=-2))
     return force, torque, length
+
+
+def inf_for_null(value: Any) -> Any:
+    """A standard error read from JSON: ``null`` (an infinite one, as
+    :func:`~tensegrity_env.io_utils.strict_json` writes it) back to ``inf``, in lists too."""
+    if value is None:
+        return float("inf")
+    if isinstance(value, list):
+        return [inf_for_null(v) for v in value]
+    return value

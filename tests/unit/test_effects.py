@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -88,6 +90,28 @@ def test_params_file_round_trips_into_the_engine(ico, tmp_path):
     for x, y in zip(a.tensors(), b.tensors(), strict=True):
         torch.testing.assert_close(x, y, rtol=1e-12, atol=1e-12)
     assert not torch.allclose(a.v, Engine(ico.topology, 1e-3).step(state, ico.params).v)
+
+
+def test_params_file_is_standard_json_with_unseen_errors_read_back_as_infinite(ico, tmp_path):
+    """An effect coordinate the data does not see has an infinite standard error: the
+    file holds null there (standard JSON, which refuses NaN and Infinity), and loading
+    it gives inf back."""
+    drag = LinearDrag(
+        ico.topology, translational=[0.5, 0.5, 0.1], rotational=[0.01, 0.01, 0.0],
+        uncertainty={"translational": [0.01, 0.02, float("inf")], "rotational": float("nan")},
+    )  # fmt: skip
+    extra = {"diagnose": {"test_errors_before": {"rollout": float("inf")}}}
+    path = Model(ico.topology, ico.params, [drag]).save(tmp_path / "p.json", extra)
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    doc = json.loads(path.read_text(), parse_constant=refuse)
+    assert doc["effects"][0]["uncertainty"]["translational"] == [0.01, 0.02, None]
+    assert doc["diagnose"]["test_errors_before"]["rollout"] is None
+    loaded = Model.load(path).effects[0]
+    assert loaded.uncertainty["translational"] == [0.01, 0.02, float("inf")]
+    assert loaded.uncertainty["rotational"] == float("inf")
 
 
 def test_unknown_effect_is_a_clear_error(ico):

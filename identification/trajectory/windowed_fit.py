@@ -533,7 +533,7 @@ def window_stderr(ne: NormalEquations, S: torch.Tensor, sigma2: float) -> np.nda
     n_g = S.shape[0]
     if n_g == 0:
         return np.zeros(0)
-    eq = Equilibrated.of(0.5 * (S + S.T), UNSEEN)
+    eq = Equilibrated.of(S, UNSEEN)  # (symmetrised there)
     inv = eq.inverse()
     gauss = sigma2 * torch.diagonal(inv)
     var = gauss

@@ -276,3 +276,24 @@ def test_identified_contact_free_fall_and_bounce_within_2cm():
     drop = drop_check(train.ground_truth.params, [contact], n=3, seed=21)
     assert drop.lowest < 0.0  # it did reach the floor and bounce
     assert drop.worst < DROP_TOLERANCE
+
+
+def test_effect_coordinate_the_data_does_not_see_has_an_infinite_standard_error():
+    """Contact parameters on tumbling data are seen (finite, positive standard errors,
+    friction to its true 1.0); a control lag on data without control acts on nothing (a
+    zero column of the Jacobian beside contact coordinates whose curvatures differ by
+    orders of magnitude), so its standard error is infinite, not 0 and not round-off."""
+    train = planted_dataset(PlantSpec("ground_contact", "moderate", n_train=4, n_val=0, n_test=0,
+                                      steps=500, seed=11))  # fmt: skip
+    topo = train.dataset.topology
+    start = GroundContact(topo, stiffness=1000.0, damping=50.0, friction=0.5, impedance=0.9)
+    lag = ControlLag(topo, time_constant=0.02)
+    free = [(0, k) for k in ("stiffness", "damping", "friction", "impedance")]
+    windows = sample_windows(train.dataset.split("train"), 1, 600, seed=0)
+    fit = fit_effect_params(topo, train.dataset.dt, train.ground_truth.params, [start, lag],
+                            [*free, (1, "time_constant")], windows, max_iter=20)  # fmt: skip
+    assert fit.names[-1] == "control_lag.time_constant"
+    assert abs(fit.values[2] - 1.0) < 1e-3
+    assert np.all(np.isfinite(fit.stderr[:4])) and np.all(fit.stderr[:4] > 0)
+    assert fit.stderr[2] < 1e-2
+    assert fit.stderr[4] == np.inf and fit.values[4] == pytest.approx(0.02)

@@ -15,6 +15,7 @@ from measured_report import (
     OLD_SELECTION,
     contact_errors,
     contact_section,
+    coverage_by_model,
     marks,
     matrix_section,
     selection,
@@ -134,3 +135,20 @@ def test_floor_cells_show_their_floor_fit_windows(tmp_path):
     assert floor_windows_text(old) == f"{OLD_FLOOR_WINDOWS} / {OLD_FLOOR_WINDOWS}"
     text = write_markdown({"cells": {"a": floor}}, tmp_path / "m.md").read_text()
     assert f"| {WINDOWS} x {WINDOW_S:g} s | {FLOOR_WINDOWS} / 12 |" in text
+
+
+def test_coverage_is_split_by_whether_the_fitted_model_holds_the_plant():
+    """identify on a plant the declared model holds, identify on one it lacks an effect
+    of, and diagnose where it named the effect: three rows, each its own fraction."""
+    held, lacking = _record("none", ""), _record("linear_drag", "")
+    lacking["expected"] = ["linear_drag"]
+    held["before"]["coverage"] = [True, True, True, False]
+    lacking["before"]["coverage"] = [True, False, False, False]
+    lacking["named"], lacking["named_right"] = ["linear_drag"], True
+    lacking["after"]["coverage"] = [True, True]
+    lines = coverage_by_model({"a": held, "b": lacking})
+    assert "| flight | `identify` | the declared model holds the plant | 4 | 75.0 % |" in lines
+    assert ("| flight | `identify` | the declared model lacks the planted effect | 4 | 25.0 % |"
+            in lines)  # fmt: skip
+    assert "| flight | `diagnose` | the effects named right | 2 | 100.0 % |" in lines
+    assert not any("an effect missed" in ln for ln in lines)

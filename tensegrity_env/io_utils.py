@@ -14,9 +14,10 @@ The rules every command that writes follows:
   their final path and renamed only when complete (:func:`atomic_path`); SIGTERM
   raises :class:`Terminated` in the main thread (:func:`sigterm_raises`) so that, as
   for Ctrl-C, every temporary file is removed on the way out.
-* **JSON documents are standard JSON** (:func:`atomic_write_json`): a value that is
-  not finite (an infinite standard error, a diverged error) is written as ``null``,
-  never as the ``NaN`` / ``Infinity`` that other JSON readers refuse.
+* **Params files are standard JSON** (:func:`atomic_write_json`, used by
+  ``Model.save``): a value that is not finite (an infinite standard error, a diverged
+  error) is written as ``null``, never as the ``NaN`` / ``Infinity`` that other JSON
+  readers refuse.
 """
 
 from __future__ import annotations

@@ -1,5 +1,11 @@
 """What a measured dataset's samples are like: rate, jitter, gaps and marker noise.
 
+A sample interval is a whole number of nominal steps plus jitter: an interval of ``k``
+steps (``k = round(interval / dt)``) with ``k > 1`` is a pause in which ``k - 1``
+frames were dropped (a paused recording, a frame the system lost), and its offset from
+``k dt`` is jitter. Reported apart, a recording paused for seconds does not read as
+seconds of jitter.
+
 The noise of each end cap is estimated from the high-frequency residual of a smooth
 fit: the third difference of three consecutive sample steps,
 ``x[t+3] - 3 x[t+2] + 3 x[t+1] - x[t]``, is the residual of a local quadratic; for
@@ -26,8 +32,12 @@ class SampleQuality:
 
     Attributes:
         rate: nominal sample rate [Hz] (1 / dt).
-        jitter: std of the sample intervals about dt [s] (0 without stored times).
-        max_jitter: largest deviation of one interval from dt [s].
+        jitter: std of the sample intervals about the nearest whole number of steps
+            ``k dt`` [s] (0 without stored times).
+        max_jitter: largest deviation of one interval from its ``k dt`` [s].
+        dropped_frames: frames missing from the sample times (``k - 1`` per interval of
+            ``k`` steps).
+        longest_pause: longest sample interval [s].
         duration: total recorded time [s].
         dropout: (2R,) fraction of samples each end cap was not seen.
         longest_gap: (2R,) longest run of unseen samples of each end cap [s].
@@ -37,6 +47,8 @@ class SampleQuality:
     rate: float
     jitter: float
     max_jitter: float
+    dropped_frames: int
+    longest_pause: float
     duration: float
     dropout: np.ndarray
     longest_gap: np.ndarray
@@ -74,7 +86,9 @@ def sample_quality(ds: Dataset) -> SampleQuality:
                 x = nodes[:, c]
                 diff3 = x[3:] - 3 * x[2:-1] + 3 * x[1:-2] - x[:-3]
                 d3[c].append(diff3[np.isfinite(diff3).all(-1)].ravel())
-    dt_dev = np.concatenate(steps) - ds.dt
+    intervals = np.concatenate(steps)
+    whole = np.maximum(np.rint(intervals / ds.dt), 1.0)
+    dt_dev = intervals - whole * ds.dt
     noise = np.full(n_caps, np.nan)
     for c in range(n_caps):
         v = np.concatenate(d3[c])
@@ -82,8 +96,10 @@ def sample_quality(ds: Dataset) -> SampleQuality:
             noise[c] = MAD_TO_STD * np.median(np.abs(v - np.median(v))) / np.sqrt(20.0)
     return SampleQuality(
         rate=1.0 / ds.dt,
-        jitter=float(np.sqrt(np.mean(dt_dev**2))),
-        max_jitter=float(np.abs(dt_dev).max()),
+        jitter=float(np.sqrt(np.mean(dt_dev**2))) if dt_dev.size else 0.0,
+        max_jitter=float(np.abs(dt_dev).max(initial=0.0)),
+        dropped_frames=int((whole - 1).sum()),
+        longest_pause=float(intervals.max(initial=ds.dt)),
         duration=duration,
         dropout=missing / np.maximum(seen + missing, 1),
         longest_gap=longest * ds.dt,
@@ -98,9 +114,11 @@ def _us(seconds: float) -> str:
 
 def quality_text(q: SampleQuality, cap_names: list[str]) -> str:
     """The lines ``inspect`` prints."""
+    dropped = (f", {q.dropped_frames} dropped frames (longest pause {q.longest_pause:.3g} s)"
+               if q.dropped_frames else "")  # fmt: skip
     lines = [
         f"sampling: {q.rate:g} Hz nominal, jitter {_us(q.jitter)} µs rms "
-        f"(max {_us(q.max_jitter)} µs), {q.duration:.3g} s recorded",
+        f"(max {_us(q.max_jitter)} µs){dropped}, {q.duration:.3g} s recorded",
         "end cap        dropout  longest gap   noise",
     ]
     for name, d, g, n in zip(cap_names, q.dropout, q.longest_gap, q.noise, strict=True):

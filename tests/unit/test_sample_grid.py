@@ -10,6 +10,7 @@ import pytest
 from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import dataset_from_end_caps, with_measured_states
 from identification.data.mocap.importer import read_robot
+from identification.data.quality import quality_text, sample_quality
 from identification.data.sample_grid import on_nominal_grid
 from identification.linear.regression import SpringRodIdentifier
 from identification.simulation.mocap_takes import simulate_caps
@@ -93,3 +94,14 @@ def test_the_regression_leaves_a_gap_out_rather_than_fitting_made_up_samples(
     assert np.isfinite(with_gap).all()
     # a gap read as zeros would have pulled the fit far away
     assert np.max(np.abs(filled / full - 1)) > 10 * np.max(np.abs(with_gap / full - 1))
+
+
+def test_a_paused_recording_counts_dropped_frames_not_jitter() -> None:
+    """Intervals of 1 step +- 0.3 ms and one of 100 s: 9999 frames dropped in a
+    100-s pause, and the jitter is the 0.3 ms about whole steps, not seconds."""
+    t = np.array([[0.0, 0.0103, 0.0200, 100.0200, 100.0300]])
+    q = sample_quality(one_split(t))
+    assert q.dropped_frames == 9999 and q.longest_pause == pytest.approx(100.0)
+    assert q.max_jitter == pytest.approx(3e-4) and q.jitter < 3e-4
+    line = quality_text(q, [f"c{i}" for i in range(12)]).splitlines()[0]
+    assert "9999 dropped frames (longest pause 100 s)" in line

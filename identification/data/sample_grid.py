@@ -7,6 +7,8 @@ to within ``max_offset`` of a step:
 
 * a frame the system dropped leaves its grid time without a sample: a gap (NaN end
   caps), never an interpolated one;
+* a trajectory whose samples would fill less than 1/:data:`MAX_STEPS_PER_SAMPLE` of
+  its grid (a timestamp glitch, a pause of minutes) is refused, naming the pause;
 * a sample further than ``max_offset * dt`` from every grid time, or a second sample
   at one grid time, is left out (the error of comparing it at the grid time, its
   offset times the marker's speed, is then bounded by ``max_offset * dt`` times the
@@ -29,6 +31,10 @@ from tensegrity_env.io_utils import InputError
 
 #: largest distance of a kept sample from its grid time, as a fraction of dt
 MAX_OFFSET = 0.1
+#: a trajectory's grid may hold at most this many steps per sample: beyond, most of it
+#: would be gaps (a timestamp glitch, a take paused for minutes) and is refused before
+#: it is allocated
+MAX_STEPS_PER_SAMPLE = 10
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,24 @@ def on_nominal_grid(ds: Dataset, max_offset: float = MAX_OFFSET) -> tuple[Datase
     return Dataset(ds.topology, ds.dt, splits, attrs=dict(ds.attrs), path=ds.path), total
 
 
+def check_span(time: np.ndarray, k: np.ndarray, finite: np.ndarray, dt: float, where: str) -> None:
+    """Refuse a trajectory whose grid steps ``k`` (T,) would outnumber its samples more
+    than :data:`MAX_STEPS_PER_SAMPLE` times; the error names the longest pause."""
+    idx = np.flatnonzero(finite)
+    if idx.size < 2:
+        return
+    span = int(k[idx].max() - k[idx].min()) + 1
+    if span <= MAX_STEPS_PER_SAMPLE * idx.size:
+        return
+    pauses = np.diff(time[idx])
+    i = int(np.argmax(pauses))
+    raise InputError(
+        f"{where}: {idx.size} samples span {span} steps of {dt:g} s; the longest pause is "
+        f"{pauses[i]:.4g} s (between samples {idx[i]} and {idx[i + 1]}): check the sample "
+        "times, or cut the take at the pause"
+    )
+
+
 def split_on_grid(s: Split, dt: float, max_offset: float, where: str) -> tuple[Split, GridReport]:
     """One split on the grid; ``where`` names it in errors."""
     if s.time is None:
@@ -98,6 +122,8 @@ def split_on_grid(s: Split, dt: float, max_offset: float, where: str) -> tuple[S
             f"{where}: rod states at sample times off the {1 / dt:g} Hz grid; store end caps only"
         )
     N = s.n_trajectories
+    for n in range(N):
+        check_span(s.time[n], k[n], finite[n], dt, f"{where}, trajectory {n}")
     T1 = int(k[finite].max()) + 1
     nodes = np.full((N, T1, *s.nodes.shape[2:]), np.nan)
     control = np.zeros((N, T1 - 1, *s.control.shape[2:]))

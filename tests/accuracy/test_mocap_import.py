@@ -56,6 +56,24 @@ def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None
     np.testing.assert_allclose(nodes[~gap], caps[~gap], atol=precision)
 
 
+def test_a_timestamp_glitch_is_refused_at_import(tmp_path: Path, clean) -> None:
+    """A frame stamped 1e6 s late (its grid would be 1e8 steps): one line naming the
+    file and the pause, exit 2, nothing written, before any labelling."""
+    time, caps, names = clean
+    time = time.copy()
+    time[100:] += 1e6
+    path, out = tmp_path / "take.csv", tmp_path / "data.h5"
+    write_plain_csv(path, time, caps, names, units="m")
+    r = cli("import-mocap", path, "--robot", ROBOT, "--units", "m", "-o", out)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip().splitlines() == [
+        f"error: {path}: {len(time)} samples span {len(time) + 120_000_000} steps of "
+        f"{1 / 120:g} s; the longest pause is 1e+06 s (between samples 99 and 100): check the "
+        "sample times, or cut the take at the pause"
+    ]
+    assert not out.exists()
+
+
 def test_millimetres_and_metres_give_the_same_end_caps(tmp_path: Path, clean) -> None:
     time, caps, names = clean
     for units in ("mm", "m"):

@@ -15,6 +15,7 @@ from identification.data.sample_grid import on_nominal_grid
 from identification.linear.regression import SpringRodIdentifier
 from identification.simulation.mocap_takes import simulate_caps
 from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.io_utils import InputError
 
 ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env/assets/icosahedron_rolling.xml"
 
@@ -105,3 +106,16 @@ def test_a_paused_recording_counts_dropped_frames_not_jitter() -> None:
     assert q.max_jitter == pytest.approx(3e-4) and q.jitter < 3e-4
     line = quality_text(q, [f"c{i}" for i in range(12)]).splitlines()[0]
     assert "9999 dropped frames (longest pause 100 s)" in line
+
+
+def test_a_timestamp_glitch_is_refused_before_its_grid_is_allocated() -> None:
+    """One sample stamped 1e6 s late would need a grid of 1e8 steps (27 GB of end caps):
+    refused with the split, the trajectory and the pause named."""
+    t = np.arange(40)[None] * 0.01
+    t[0, 25:] += 1e6
+    with pytest.raises(InputError, match=r"split 'train', trajectory 0: 40 samples span "
+                       r"100000040 steps .* longest pause is 1e\+06 s \(between samples 24 "
+                       r"and 25\)"):  # fmt: skip
+        on_nominal_grid(one_split(t))
+    t = np.array([[0.0, 0.01, 0.05, 0.06]])  # 3 frames dropped: a grid of 7 steps is fine
+    assert on_nominal_grid(one_split(t))[1].empty == 3

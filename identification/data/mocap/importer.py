@@ -11,6 +11,7 @@ from identification.data.dataset import Dataset, Split
 from identification.data.mocap.labelling import initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
+from identification.data.sample_grid import check_span
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
@@ -83,7 +84,14 @@ def _apply_map(rec: MarkerRecording, mmap: MarkerMap, n_caps: int) -> np.ndarray
 
 def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> MarkerMap | None:
     """What :func:`take_end_caps` needs, checked before any work: the map to use
-    (labelled takes) or the first frame's start (unlabelled). One-line errors."""
+    (labelled takes) or the first frame's start (unlabelled). One-line errors; a take
+    whose frame times leave most of its grid empty (a timestamp glitch, a long pause) is
+    refused here, as ``identify`` would (:func:`~identification.data.sample_grid.check_span`)."""
+    finite = np.isfinite(rec.time)
+    if finite.any():
+        dt = 1.0 / rec.rate
+        k = np.rint((np.where(finite, rec.time, 0.0) - rec.time[finite][0]) / dt).astype(np.int64)
+        check_span(rec.time, k, finite, dt, str(rec.source))
     n_caps = 2 * robot.topology.n_rods
     if not rec.unlabelled:
         mmap = mmap or default_map(rec.names, robot.topology)

@@ -16,7 +16,7 @@ import torch
 
 from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
-from identification.data.end_caps import with_measured_states
+from identification.data.end_caps import check_caps_seen, with_measured_states
 from identification.data.sample_grid import on_nominal_grid
 from identification.discovery.end_cap_data import (
     FINAL_FLOOR_WINDOWS,
@@ -166,6 +166,8 @@ def run(args: argparse.Namespace) -> int:
     raw, grid = on_nominal_grid(read_dataset(args.dataset))
     if grid.changed:
         print(grid.text(raw.dt))
+    for name, split in raw.splits.items():
+        check_caps_seen(split.nodes, raw.topology, f"{args.dataset}: split '{name}'")
     end_caps_only = not all(s.has_states for s in raw.splits.values())
     multi_step = args.method == "trajectory" or (args.method == "auto" and end_caps_only)
     names = [n for n in args.candidates.split(",") if n] or None

@@ -27,6 +27,7 @@ import numpy as np
 
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
+from identification.data.end_caps import check_caps_seen
 from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.floor_fits import FloorIdentification, identify_on_floor
 from identification.discovery.library import contact_gate
@@ -100,6 +101,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
                          "(the trajectory identification fits end caps directly)")  # fmt: skip
     dt = dataset.dt
     split = dataset.split(args.split)
+    check_caps_seen(split.nodes, dataset.topology, f"{args.dataset}: split '{args.split}'")
     span = split.n_transitions * dt
     if not (0 < args.physics_dt and args.first_window >= 2 * dt and args.smoothing > 0):
         raise InputError(f"--first-window must span >= 2 samples ({2 * dt:.4g} s), "

@@ -15,6 +15,7 @@ from identification.data.dataset import (
     read_dataset,
     read_ground_truth,
 )
+from identification.data.end_caps import cap_names
 from identification.data.quality import plot_quality, quality_text, sample_quality
 from tensegrity_env.io_utils import add_force_option, check_output_file
 from tensegrity_env.params import UNITS
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     ds = read_dataset(args.dataset)
     truth = read_ground_truth(args.dataset)
     text = summary(ds, truth)
-    names = [f"{r.name}.{k}" for r in ds.topology.rods for k in (0, 1)]
+    names = cap_names(ds.topology)
     quality = sample_quality(ds)
     text += "\n" + quality_text(quality, names)
     if args.plot is not None:

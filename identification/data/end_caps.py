@@ -86,6 +86,22 @@ class RodAxes:
 
 
 # ---------------------------------------------------------------------- end caps -> rod states
+def cap_names(topology: Topology) -> list[str]:
+    """End-cap names in node order, ``<rod>.0`` and ``<rod>.1`` per rod, (2R,)."""
+    return [f"{rod.name}.{k}" for rod in topology.rods for k in (0, 1)]
+
+
+def check_caps_seen(nodes: np.ndarray, topology: Topology, where: str) -> None:
+    """Refuse end caps ``nodes`` (N, T+1, 2R, 3) [m] in which an end cap is never seen:
+    a rod's pose needs both of its end caps."""
+    seen = np.isfinite(nodes).all(-1).any((0, 1))
+    if not seen.all():
+        never = [name for name, s in zip(cap_names(topology), seen, strict=True) if not s]
+        raise InputError(f"{where}: end cap{'s' if len(never) > 1 else ''} {', '.join(never)} "
+                         "never seen (a rod's pose needs both of its end caps); check the "
+                         "marker map")  # fmt: skip
+
+
 def rod_states_from_nodes(
     nodes: np.ndarray, topology: Topology, dt: float
 ) -> dict[str, np.ndarray]:

@@ -92,14 +92,22 @@ def cap_names(topology: Topology) -> list[str]:
 
 
 def check_caps_seen(nodes: np.ndarray, topology: Topology, where: str) -> None:
-    """Refuse end caps ``nodes`` (N, T+1, 2R, 3) [m] in which an end cap is never seen:
-    a rod's pose needs both of its end caps."""
-    seen = np.isfinite(nodes).all(-1).any((0, 1))
+    """Refuse end caps ``nodes`` (N, T+1, 2R, 3) [m] in which an end cap is never seen
+    (a rod's pose needs both of its end caps), or none is seen in four consecutive
+    samples (the noise level, from third differences, cannot be estimated, nor any
+    window fitted)."""
+    valid = np.isfinite(nodes).all(-1)
+    seen = valid.any((0, 1))
     if not seen.all():
         never = [name for name, s in zip(cap_names(topology), seen, strict=True) if not s]
         raise InputError(f"{where}: end cap{'s' if len(never) > 1 else ''} {', '.join(never)} "
                          "never seen (a rod's pose needs both of its end caps); check the "
                          "marker map")  # fmt: skip
+    runs = valid[:, 3:] & valid[:, 2:-1] & valid[:, 1:-2] & valid[:, :-3]
+    if not runs.any():
+        raise InputError(f"{where}: no end cap is seen in four consecutive samples: the noise "
+                         "level cannot be estimated nor a window fitted (are frames missing "
+                         "at a regular interval?)")  # fmt: skip
 
 
 def rod_states_from_nodes(

@@ -55,6 +55,16 @@ class SampleQuality:
     noise: np.ndarray
 
 
+def third_difference_noise(d3: np.ndarray, least: int = 1) -> float:
+    """Noise std [m] from third differences ``d3`` (any shape; non-finite ones left out):
+    ``1.4826 MAD / √20``; NaN with fewer than ``least`` finite values."""
+    v = np.asarray(d3, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    if v.size < max(least, 1):
+        return float("nan")
+    return MAD_TO_STD * float(np.median(np.abs(v - np.median(v)))) / np.sqrt(20.0)
+
+
 def longest_run(mask: np.ndarray) -> int:
     """Longest run of True along the last axis of a 1-D bool array."""
     best = run = 0
@@ -89,11 +99,8 @@ def sample_quality(ds: Dataset) -> SampleQuality:
     intervals = np.concatenate(steps)
     whole = np.maximum(np.rint(intervals / ds.dt), 1.0)
     dt_dev = intervals - whole * ds.dt
-    noise = np.full(n_caps, np.nan)
-    for c in range(n_caps):
-        v = np.concatenate(d3[c])
-        if v.size >= 10:
-            noise[c] = MAD_TO_STD * np.median(np.abs(v - np.median(v))) / np.sqrt(20.0)
+    noise = np.array([third_difference_noise(np.concatenate(d3[c]), least=10)
+                      for c in range(n_caps)])  # fmt: skip
     return SampleQuality(
         rate=1.0 / ds.dt,
         jitter=float(np.sqrt(np.mean(dt_dev**2))) if dt_dev.size else 0.0,

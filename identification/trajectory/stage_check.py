@@ -13,33 +13,30 @@ import math
 
 import numpy as np
 
+from identification.data.quality import third_difference_noise
 from tensegrity_env.io_utils import StageError
 
 #: a fit whose end-cap RMS exceeds this many noise levels has diverged ...
 DIVERGED = 100.0
 #: ... and this much [m] (clean data: a model missing an effect is off by millimetres)
 DIVERGED_M = 0.01
-#: variance of the third difference of white noise, in units of its variance
-_THIRD_DIFFERENCE_GAIN = 20.0
 
 
 def noise_level(nodes: np.ndarray) -> float:
-    """Measurement noise std [m] of end-cap trajectories ``nodes`` (N, T+1, C, 3).
+    """Measurement noise std [m] of end-cap trajectories ``nodes`` (N, T+1, C, 3); 0 where
+    no end cap is seen in four consecutive samples.
 
-    A robust scale (1.4826 MAD) of the third differences along time, divided by
-    ``sqrt(20)``: white noise of std σ gives third differences of std ``sqrt(20) σ``,
-    while smooth motion sampled at tens of hertz or faster gives third differences
-    far below a millimetre (impacts are rare samples and do not move the median).
+    A robust scale of the third differences along time
+    (:func:`~identification.data.quality.third_difference_noise`): white noise of std σ
+    gives third differences of std ``sqrt(20) σ``, while smooth motion sampled at tens of
+    hertz or faster gives third differences far below a millimetre (impacts are rare
+    samples and do not move the median).
     """
     x = np.asarray(nodes, dtype=float)
     if x.ndim != 4 or x.shape[1] < 4:
         return 0.0
-    d3 = np.diff(x, n=3, axis=1).ravel()
-    d3 = d3[np.isfinite(d3)]
-    if d3.size == 0:
-        return 0.0
-    mad = float(np.median(np.abs(d3 - np.median(d3))))
-    return 1.4826 * mad / math.sqrt(_THIRD_DIFFERENCE_GAIN)
+    noise = third_difference_noise(np.diff(x, n=3, axis=1))
+    return 0.0 if math.isnan(noise) else noise
 
 
 def diverged_limit(noise: float) -> float:

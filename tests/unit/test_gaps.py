@@ -108,6 +108,12 @@ def test_an_end_cap_never_seen_is_refused_by_name() -> None:
     with pytest.raises(InputError, match=r"^d.h5: split 'train': end caps rod1.1, rod5.0 never "
                        r"seen \(a rod's pose needs both of its end caps\)"):  # fmt: skip
         check_caps_seen(nodes, topo, "d.h5: split 'train'")
+    nodes = np.random.default_rng(0).normal(size=(2, 30, 12, 3))
+    nodes[:, ::3] = np.nan  # every third frame lost: no four consecutive samples
+    with pytest.raises(InputError, match="no end cap is seen in four consecutive samples"):
+        check_caps_seen(nodes, topo, "d.h5: split 'train'")
+    nodes[1, 4:8] = 0.0  # one run of four
+    check_caps_seen(nodes, topo, "d.h5: split 'train'")
 
 
 @pytest.mark.slow

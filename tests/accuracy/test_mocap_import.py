@@ -74,6 +74,26 @@ def test_a_timestamp_glitch_is_refused_at_import(tmp_path: Path, clean) -> None:
     assert not out.exists()
 
 
+@pytest.mark.parametrize("fault", ["swapped labels", "millimetres as metres"])
+def test_rods_off_the_robots_length_are_refused_at_import(tmp_path: Path, clean, fault) -> None:
+    """Two markers of different rods swapped, or a file in millimetres read as metres:
+    the rods' end caps are not the robot's distance apart; one line names the rod."""
+    time, caps, names = clean
+    pts = caps.copy()
+    if fault == "swapped labels":
+        pts[:, [1, 2]] = pts[:, [2, 1]]
+    else:
+        pts = pts * 1e3
+    path, out = tmp_path / "take.csv", tmp_path / "data.h5"
+    write_plain_csv(path, time, pts, names, units="m")
+    r = cli("import-mocap", path, "--robot", ROBOT, "--units", "m", "-o", out)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and not out.exists()
+    line = r.stderr.strip().splitlines()[-1]
+    apart = "1040" if fault != "swapped labels" else "0.3432"
+    assert line.startswith(f"error: {path}: the end caps of rod0 are {apart} m apart "
+                           f"(median over {len(time)} frames), the robot's are 1.04 m apart")  # fmt: skip
+
+
 def test_millimetres_and_metres_give_the_same_end_caps(tmp_path: Path, clean) -> None:
     time, caps, names = clean
     for units in ("mm", "m"):

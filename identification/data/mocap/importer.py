@@ -17,6 +17,9 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
 from tensegrity_env.topology import Topology
 
+#: a labelled take's rods may differ from the robot's lengths by at most this fraction
+#: (median over frames; marker offsets a few millimetres off stay far inside)
+ROD_LENGTH_TOL = 0.1
 #: recordings of one dataset may differ in nominal rate by at most this fraction
 RATE_TOL = 0.01
 
@@ -105,6 +108,7 @@ def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Ma
             raise InputError(
                 f"{mmap.source}: maps {len(mmap.caps)} markers, robot {robot.source} has {n_caps} end caps"
             )
+        check_rod_lengths(_apply_map(rec, mmap, n_caps), robot, rec.source)
         return mmap
     if mmap is not None:
         mmap.check_names(rec.names, rec.source)
@@ -121,6 +125,27 @@ def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Ma
             "pass --map naming its tracks"
         )
     return None
+
+
+def check_rod_lengths(caps: np.ndarray, robot: Robot, source: Path) -> None:
+    """Refuse labelled end caps ``caps`` (F, 2R, 3) [m] whose rods are not the robot's
+    length: the median distance of each rod's two end caps over the frames that see both
+    must be within :data:`ROD_LENGTH_TOL` of the rod's length (mislabelled markers, a
+    wrong map or a wrong length unit are far outside)."""
+    for r, rod in enumerate(robot.topology.rods):
+        a, b = caps[:, 2 * r], caps[:, 2 * r + 1]
+        both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
+        if not both.any():
+            continue
+        apart = float(np.median(np.linalg.norm(a[both] - b[both], axis=-1)))
+        ends = rod.ends()
+        length = float(np.linalg.norm(ends[1] - ends[0]))
+        if abs(apart - length) > ROD_LENGTH_TOL * length:
+            raise InputError(
+                f"{source}: the end caps of {rod.name} are {apart:.4g} m apart (median over "
+                f"{int(both.sum())} frames), the robot's are {length:.4g} m apart: "
+                "mislabelled markers, a wrong --map, or the wrong length unit (--units)"
+            )
 
 
 def take_end_caps(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:

@@ -246,6 +246,9 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     if args.window < 2 * dt or args.windows < 1 or args.fit_windows < 1:
         raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
                          "--windows and --fit-windows >= 1")  # fmt: skip
+    if 0 < args.fit_window < 2 * dt:
+        raise InputError(f"--fit-window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} "
+                         "Hz), or be 0 (the --window)")  # fmt: skip
     if not 0 < args.physics_dt:
         raise InputError("--physics-dt must be > 0")
     window = samples_of(args.window, dt, 2)

@@ -8,19 +8,22 @@ turned into sample counts only against a dataset's sample interval
 from __future__ import annotations
 
 import argparse
+import math
 import re
 
 _DURATION = re.compile(r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|ms)?\s*")
 
 
 def seconds(text: str) -> float:
-    """An argparse ``type``: ``"0.1"``, ``"0.1s"`` or ``"100ms"`` -> 0.1 [s] (>= 0)."""
+    """An argparse ``type``: ``"0.1"``, ``"0.1s"`` or ``"100ms"`` -> 0.1 [s] (>= 0, finite)."""
     m = _DURATION.fullmatch(str(text))
     if m is None:
         raise argparse.ArgumentTypeError(
             f"'{text}' is not a duration: give seconds, e.g. 0.1s, 0.1 or 100ms"
         )
     value = float(m.group(1)) * (1e-3 if m.group(2) == "ms" else 1.0)
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a finite duration")
     return value
 
 

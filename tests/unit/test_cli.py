@@ -7,6 +7,9 @@ import importlib
 import subprocess
 import sys
 
+import pytest
+
+from identification.commands.durations import seconds
 from tensegrity_sr.cli import COMMANDS, SUBCOMMANDS, build_parser
 
 
@@ -31,3 +34,13 @@ def test_help_imports_no_command_module() -> None:
 def test_a_command_parses_with_only_its_module() -> None:
     args = build_parser("plant").parse_args(["plant", "none", "-o", "x.h5"])
     assert args.effect == "none" and callable(args.func)
+
+
+def test_durations_are_seconds_and_finite() -> None:
+    """``0.1``, ``0.1s`` and ``100ms`` are the same span; an overflowing or non-numeric one
+    is an argument error (argparse's one line), not an OverflowError later."""
+
+    assert seconds("0.1") == seconds("0.1s") == seconds("100ms") == 0.1
+    for bad in ("1e400", "1e400ms", "nan", "-1", "5h"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            seconds(bad)

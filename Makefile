@@ -23,9 +23,10 @@ demo-full: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(BIN)/python -m tensegrity_sr.demo --full --out $(DEMO_DIR)_full --force
 
 # tests/unit: fast checks (seconds each); tests/accuracy: seeded end-to-end identification and
-# discovery. Tests marked slow stay out of both (run them with `pytest -m slow`).
+# discovery. Tests marked slow stay out of both (run them with `pytest -m slow`). The files
+# run in two processes (pytest-xdist; a file's tests share one, so its fixtures are built once).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q tests/unit tests/accuracy
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests/unit tests/accuracy
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -q tests/unit

@@ -11,7 +11,7 @@ from identification.data.dataset import Dataset, Split
 from identification.data.mocap.labelling import initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
-from identification.data.sample_grid import check_span
+from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
@@ -93,7 +93,7 @@ def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Ma
     finite = np.isfinite(rec.time)
     if finite.any():
         dt = 1.0 / rec.rate
-        k = np.rint((np.where(finite, rec.time, 0.0) - rec.time[finite][0]) / dt).astype(np.int64)
+        k, _ = grid_index(np.where(finite, rec.time, rec.time[finite][0]), dt)
         check_span(rec.time, k, finite, dt, str(rec.source))
     n_caps = 2 * robot.topology.n_rods
     if not rec.unlabelled:

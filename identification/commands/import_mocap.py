@@ -13,9 +13,9 @@ from identification.data.dataset import write_dataset
 from identification.data.mocap.importer import (
     build_dataset,
     check_take,
+    label_take,
     parse_fractions,
     read_robot,
-    take_end_caps,
 )
 from identification.data.mocap.marker_map import read_marker_map
 from identification.data.mocap.recording import read_recording
@@ -67,13 +67,17 @@ def run(args: argparse.Namespace) -> int:
     robot = read_robot(args.robot, tuple(args.ignore), args.end_caps)
     mmap = read_marker_map(args.map, robot.topology) if args.map else None
     recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
-    for rec in recordings:
-        check_take(rec, robot, mmap)
-    takes = [take_end_caps(r, robot, mmap) for r in tqdm(recordings, desc="labelling", unit="take")]
+    maps = [check_take(rec, robot, mmap) for rec in recordings]
+    takes = [label_take(r, robot, m)
+             for r, m in tqdm(list(zip(recordings, maps, strict=True)), desc="labelling", unit="take")]  # fmt: skip
     dataset = build_dataset(takes, robot, fractions, assign or None)
     write_dataset(args.output, dataset)
     frames = sum(len(t.time) for t in takes)
     seen = np.mean([np.isfinite(t.caps).all(-1).mean() for t in takes])
+    held = sum(r.placeholders for r in recordings)
+    if held:
+        print(f"{held} marker samples were placeholders for unseen markers (exactly the origin, "
+              "or one position held over frames): read as unseen")  # fmt: skip
     print(
         f"{args.output}: {len(takes)} takes, {frames} frames at {1 / dataset.dt:g} Hz, "
         f"{2 * robot.topology.n_rods} end caps, {100 * (1 - seen):.2f} % unseen; "

@@ -45,6 +45,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.signal import savgol_filter
 
 from identification.data.dataset import SPLITS, Dataset, Split, check_dataset
+from identification.data.quality import HELD_RUN, placeholder_samples
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import np_quat_to_matrix, shortest_arc, unit
 from tensegrity_env.topology import Topology
@@ -95,7 +96,16 @@ def check_caps_seen(nodes: np.ndarray, topology: Topology, where: str) -> None:
     """Refuse end caps ``nodes`` (N, T+1, 2R, 3) [m] in which an end cap is never seen
     (a rod's pose needs both of its end caps), or none is seen in four consecutive
     samples (the noise level, from third differences, cannot be estimated, nor any
-    window fitted)."""
+    window fitted), or which holds placeholder samples for unseen end caps (exactly the
+    origin, or a position held exactly over frames:
+    :func:`~identification.data.quality.placeholder_samples`)."""
+    held = placeholder_samples(nodes).sum((0, 1))
+    if held.any():
+        worst = int(np.argmax(held))
+        raise InputError(f"{where}: {int(held.sum())} end-cap samples are placeholders for an "
+                         f"unseen end cap (exactly the origin, or one position held over "
+                         f"{HELD_RUN}+ frames; {cap_names(topology)[worst]}: {int(held[worst])}); "
+                         "write them as NaN (import-mocap does)")  # fmt: skip
     valid = np.isfinite(nodes).all(-1)
     seen = valid.any((0, 1))
     if not seen.all():

@@ -24,6 +24,9 @@ from tensegrity_env.io_utils import atomic_path
 
 #: consistency constant of the median absolute deviation for a normal distribution
 MAD_TO_STD = 1.4826
+#: a marker repeating exactly the same position over this many frames in a row holds a
+#: value its tracker no longer sees (noise makes measured positions never repeat exactly)
+HELD_RUN = 3
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,8 @@ class SampleQuality:
         dropout: (2R,) fraction of samples each end cap was not seen.
         longest_gap: (2R,) longest run of unseen samples of each end cap [s].
         noise: (2R,) marker noise std per end cap [m] (NaN: too few samples).
+        placeholders: samples that stand for an unseen end cap rather than a
+            measurement (:func:`placeholder_samples`).
     """
 
     rate: float
@@ -53,6 +58,30 @@ class SampleQuality:
     dropout: np.ndarray
     longest_gap: np.ndarray
     noise: np.ndarray
+    placeholders: int
+
+
+def placeholder_samples(points: np.ndarray) -> np.ndarray:
+    """(..., F, M) bool: the samples of marker positions ``points`` (..., F, M, 3) [m]
+    that stand for an unseen marker rather than a measurement: exactly the origin (an
+    exporter's zero fill), or the repeats of one position held exactly over
+    :data:`HELD_RUN` or more consecutive frames (a tracker holding its last value; the
+    first sample of the run stays). Measurement noise makes both impossible; noise-free
+    data resting exactly in place would read as held."""
+    x = np.asarray(points, dtype=float)
+    mask = (x == 0.0).all(-1)
+    same = np.isfinite(x[..., 1:, :, :]).all(-1) & (x[..., 1:, :, :] == x[..., :-1, :, :]).all(-1)
+    # run[f]: how many samples in a row up to f repeat the one before (0: f differs)
+    run = np.zeros(same.shape, dtype=int)
+    for f in range(same.shape[-2]):
+        run[..., f, :] = np.where(same[..., f, :], (run[..., f - 1, :] if f else 0) + 1, 0)
+    # a repeat belongs to a held run if its run reaches HELD_RUN - 1 repeats
+    reach = run.copy()
+    for f in range(same.shape[-2] - 2, -1, -1):
+        reach[..., f, :] = np.where(same[..., f + 1, :] & same[..., f, :],
+                                    reach[..., f + 1, :], reach[..., f, :])  # fmt: skip
+    mask[..., 1:, :] |= same & (reach >= HELD_RUN - 1)
+    return mask
 
 
 def third_difference_noise(d3: np.ndarray, least: int = 1) -> float:
@@ -79,7 +108,7 @@ def sample_quality(ds: Dataset) -> SampleQuality:
     n_caps = 2 * ds.topology.n_rods
     steps, seen, missing, d3 = [], np.zeros(n_caps), np.zeros(n_caps), [[] for _ in range(n_caps)]
     longest = np.zeros(n_caps, dtype=int)
-    duration = 0.0
+    duration, placeholders = 0.0, 0
     for s in ds.splits.values():
         t = s.times(ds.dt)
         for i in range(s.n_trajectories):
@@ -88,6 +117,7 @@ def sample_quality(ds: Dataset) -> SampleQuality:
             duration += float(ti[-1] - ti[0]) + ds.dt
             steps.append(np.diff(ti))
             nodes = s.nodes[i, ok_t]
+            placeholders += int(placeholder_samples(nodes).sum())
             valid = np.isfinite(nodes).all(-1)
             seen += valid.sum(0)
             missing += (~valid).sum(0)
@@ -111,6 +141,7 @@ def sample_quality(ds: Dataset) -> SampleQuality:
         dropout=missing / np.maximum(seen + missing, 1),
         longest_gap=longest * ds.dt,
         noise=noise,
+        placeholders=placeholders,
     )
 
 
@@ -128,6 +159,10 @@ def quality_text(q: SampleQuality, cap_names: list[str]) -> str:
         f"(max {_us(q.max_jitter)} µs){dropped}, {q.duration:.3g} s recorded",
         "end cap        dropout  longest gap   noise",
     ]
+    if q.placeholders:
+        lines.insert(1, f"placeholder samples: {q.placeholders} (exactly the origin, or one position "
+                        f"held over {HELD_RUN}+ frames): unseen end caps written as positions; "
+                        "identify refuses them, write them as NaN")  # fmt: skip
     for name, d, g, n in zip(cap_names, q.dropout, q.longest_gap, q.noise, strict=True):
         noise = "   n/a" if np.isnan(n) else f"{n * 1e3:6.3f} mm"
         lines.append(f"  {name:<12} {100 * d:6.2f} %  {g * 1e3:8.1f} ms  {noise}")

@@ -112,7 +112,7 @@ def test_an_end_cap_never_seen_is_refused_by_name() -> None:
     nodes[:, ::3] = np.nan  # every third frame lost: no four consecutive samples
     with pytest.raises(InputError, match="no end cap is seen in four consecutive samples"):
         check_caps_seen(nodes, topo, "d.h5: split 'train'")
-    nodes[1, 4:8] = 0.0  # one run of four
+    nodes[1, 4:8] = np.random.default_rng(1).normal(size=(4, 12, 3))  # one run of four
     check_caps_seen(nodes, topo, "d.h5: split 'train'")
 
 

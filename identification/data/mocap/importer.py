@@ -150,8 +150,13 @@ def check_rod_lengths(caps: np.ndarray, robot: Robot, source: Path) -> None:
 
 def take_end_caps(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:
     """The robot's end caps in every frame of ``rec`` (labelled or a point cloud)."""
+    return label_take(rec, robot, check_take(rec, robot, mmap))
+
+
+def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:
+    """:func:`take_end_caps` of a take already checked: ``mmap`` as :func:`check_take`
+    returned it."""
     n_caps = 2 * robot.topology.n_rods
-    mmap = check_take(rec, robot, mmap)
     if not rec.unlabelled:
         assert mmap is not None
         caps = _apply_map(rec, mmap, n_caps)

@@ -11,7 +11,8 @@
 cap's tip). With two markers per rod the rod's roll is unseen, so an offset off the
 axis cannot be undone and is refused. For an unlabelled export the map names the
 track ids of the first frame. Without a map, markers named ``<rod>_<end>`` (e.g.
-``rod0_0``) or ``<rod>_a``/``<rod>_b`` map themselves.
+``rod0_0``) or ``<rod>_a``/``<rod>_b`` map themselves, also behind a subject prefix
+(``ico:rod0_0``, as Vicon Nexus and Motive label a subject's markers).
 """
 
 from __future__ import annotations
@@ -77,11 +78,13 @@ def read_marker_map(path: str | Path, topology: Topology) -> MarkerMap:
 
 
 def default_map(names: list[str], topology: Topology) -> MarkerMap | None:
-    """The map implied by names ``<rod>_<0|1|a|b>`` covering every end cap, else None."""
+    """The map implied by names ``<rod>_<0|1|a|b|end0|end1>`` covering every end cap,
+    else None; a subject prefix (Vicon's and Motive's ``<subject>:<marker>``) is
+    ignored."""
     rods = {r.name: i for i, r in enumerate(topology.rods)}
     caps: dict[str, tuple[int, float]] = {}
     for n in names:
-        stem, _, end = n.rpartition("_")
+        stem, _, end = n.rpartition(":")[2].rpartition("_")
         k = {"0": 0, "1": 1, "a": 0, "b": 1, "end0": 0, "end1": 1}.get(end.lower())
         if stem in rods and k is not None:
             caps[n] = (2 * rods[stem] + k, 0.0)

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from identification.data.quality import placeholder_samples
 from tensegrity_env.io_utils import InputError
 
 #: metres per unit of the length units a file may state
@@ -28,6 +29,9 @@ class MarkerRecording:
         names: M marker names (for an unlabelled export, the exporter's track ids,
             which change when a marker is lost and found again).
         rate: the file's nominal frame rate [Hz].
+        placeholders: samples the file held as positions for an unseen marker (exactly
+            the origin, or one position held over frames), read as NaN
+            (:meth:`without_placeholders`).
     """
 
     source: Path
@@ -35,6 +39,7 @@ class MarkerRecording:
     points: np.ndarray
     names: list[str]
     rate: float
+    placeholders: int = 0
 
     @property
     def n_frames(self) -> int:
@@ -66,6 +71,16 @@ class MarkerRecording:
             raise InputError(f"{where}: marker positions contain inf")
         return self
 
+    def without_placeholders(self) -> MarkerRecording:
+        """This take with its placeholder samples
+        (:func:`~identification.data.quality.placeholder_samples`) read as unseen (NaN)."""
+        mask = placeholder_samples(self.points)
+        if not mask.any():
+            return self
+        points = self.points.copy()
+        points[mask] = np.nan
+        return replace(self, points=points, placeholders=self.placeholders + int(mask.sum()))
+
 
 def unit_scale(name: str | None, where: Path, option: str | None) -> float:
     """Metres per unit: the file's own unit if it states one, else ``option`` (--units)."""
@@ -79,7 +94,8 @@ def unit_scale(name: str | None, where: Path, option: str | None) -> float:
 
 
 def read_recording(path: str | Path, units: str | None = None) -> MarkerRecording:
-    """Read a C3D file, an OptiTrack Motive CSV export or a plain CSV, by content.
+    """Read a C3D file, an OptiTrack Motive CSV export or a plain CSV, by content;
+    placeholder samples for unseen markers are read as NaN.
 
     ``units`` (``"m"``/``"mm"``) is used only where the file does not say.
     """
@@ -89,7 +105,7 @@ def read_recording(path: str | Path, units: str | None = None) -> MarkerRecordin
     if not p.is_file():
         raise InputError(f"{p}: no such motion-capture file")
     if p.suffix.lower() == ".c3d":
-        return c3d_files.read_c3d(p, units).check()
+        return c3d_files.read_c3d(p, units).check().without_placeholders()
     if p.suffix.lower() in (".csv", ".txt"):
-        return csv_files.read_csv(p, units).check()
+        return csv_files.read_csv(p, units).check().without_placeholders()
     raise InputError(f"{p}: unknown motion-capture format (expected .c3d or .csv)")

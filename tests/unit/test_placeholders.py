@@ -1,0 +1,86 @@
+"""Motion-capture exports as labs write them: placeholder positions, subject prefixes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from identification.data.dataset import Dataset, Split, write_dataset
+from identification.data.end_caps import check_caps_seen
+from identification.data.mocap.csv_files import write_plain_csv
+from identification.data.mocap.recording import read_recording
+from identification.data.quality import placeholder_samples, sample_quality
+from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.io_utils import InputError
+
+
+def noisy_walk(frames: int = 40, markers: int = 3, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return 1.0 + np.cumsum(rng.normal(0, 1e-3, (frames, markers, 3)), axis=0)
+
+
+def test_held_runs_of_three_and_the_origin_are_placeholders_single_repeats_are_not() -> None:
+    x = noisy_walk()
+    x[10:14, 0] = x[10, 0]  # held over 4 frames: the 3 repeats are placeholders
+    x[20:22, 1] = x[20, 1]  # one repeat (coarse quantisation can do that): kept
+    x[30, 2] = 0.0  # an exporter's zero fill
+    x[5, 2] = np.nan  # a gap stays a gap, not a placeholder
+    mask = placeholder_samples(x)
+    expected = np.zeros((40, 3), dtype=bool)
+    expected[11:14, 0] = True
+    expected[30, 2] = True
+    np.testing.assert_array_equal(mask, expected)
+    held = np.stack([x, x])  # leading (trajectory) axes
+    np.testing.assert_array_equal(placeholder_samples(held), np.stack([expected, expected]))
+
+
+def test_a_csv_with_zero_fills_and_held_markers_reads_them_as_unseen(tmp_path: Path) -> None:
+    x = noisy_walk(frames=60, markers=2, seed=3)
+    written = x.copy()
+    written[20:30, 0] = written[19, 0]  # the tracker held marker a for 10 frames
+    written[40:43, 1] = 0.0  # marker b zero-filled for 3 frames
+    t = np.arange(60) / 120.0
+    path = write_plain_csv(tmp_path / "take.csv", t, written, ["a", "b"])
+    rec = read_recording(path, units="m")
+    assert rec.placeholders == 13
+    unseen = ~np.isfinite(rec.points).all(-1)
+    assert unseen[20:30, 0].all() and unseen[40:43, 1].all() and unseen.sum() == 13
+    np.testing.assert_allclose(rec.points[~unseen], x[~unseen], atol=1e-12)
+
+
+def _dataset(nodes: np.ndarray) -> Dataset:
+    asm = icosahedron()
+    n, t1 = nodes.shape[:2]
+    split = Split(nodes=nodes, control=np.zeros((n, t1 - 1, 6, 3)))
+    return Dataset(topology=asm.topology, dt=1 / 120, splits={"train": split})
+
+
+def test_identify_refuses_placeholders_in_a_dataset_by_name(tmp_path: Path) -> None:
+    nodes = np.stack([noisy_walk(60, 12, seed=k) for k in range(2)])
+    check_caps_seen(nodes, icosahedron().topology, "d.h5: split 'train'")
+    nodes[1, 30:35, 7] = nodes[1, 29, 7]
+    with pytest.raises(InputError, match=r"^d.h5: split 'train': 5 end-cap samples are "
+                       r"placeholders .*rod3.1: 5\); write them as NaN"):  # fmt: skip
+        check_caps_seen(nodes, icosahedron().topology, "d.h5: split 'train'")
+    assert sample_quality(_dataset(nodes)).placeholders == 5
+    write_dataset(tmp_path / "d.h5", _dataset(nodes))
+    r = subprocess.run([sys.executable, "-m", "tensegrity_sr.cli", "identify", str(tmp_path / "d.h5"),
+                        "-o", str(tmp_path / "p.json")], capture_output=True, text=True)  # fmt: skip
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert "5 end-cap samples are placeholders" in r.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "p.json").exists()
+
+
+def test_marker_names_behind_a_subject_prefix_map_themselves() -> None:
+    from identification.data.mocap.marker_map import default_map
+
+    topo = icosahedron().topology
+    names = [f"ico:{r.name}_{k}" for r in topo.rods for k in (0, 1)]
+    mmap = default_map(["ico:origin", *names[::-1]], topo)
+    assert mmap is not None
+    assert {n: c for n, (c, _) in mmap.caps.items()} == {n: i for i, n in enumerate(names)}
+    assert default_map(names[:-1], topo) is None  # an end cap unnamed: no implied map

@@ -337,6 +337,16 @@ def step_mocap(demo: Demo) -> None:
     data = demo.out / "mocap.h5"
     demo.cli("import-mocap", *files, "--robot", robot, "-o", data)
     demo.cli("inspect", data, "--plot", demo.out / "mocap_quality.png")
+    print("a labelled Motive CSV export, y-up, unseen markers written as 0: read as gaps")
+    from identification.data.mocap.csv_files import write_motive_csv
+    from identification.data.mocap.recording import TO_Z_UP
+
+    t, caps, names = simulate_caps(robot.read_text(), 120.0, demo.size(1.0, 3.0), rng)
+    take = record_take(t, caps, names, rng, noise=1e-3, dropout=0.01)
+    y_up = np.nan_to_num(take.points, nan=0.0) @ TO_Z_UP["y"]
+    motive = write_motive_csv(demo.out / "take_motive.csv", t, y_up, take.names, 120.0)
+    demo.cli("import-mocap", motive, "--robot", robot, "--up", "y", "--split", "1,0,0",
+             "-o", demo.out / "mocap_motive.h5")  # fmt: skip
 
 
 #: the demo's steps, in order: name -> function (steps read what earlier steps wrote)

@@ -13,6 +13,7 @@ from identification.data.dataset import write_dataset
 from identification.data.mocap.importer import (
     build_dataset,
     check_take,
+    check_vertical,
     label_take,
     parse_fractions,
     read_robot,
@@ -41,6 +42,10 @@ def register(sub: Any) -> None:
     p.add_argument("--map", type=Path, help="marker map YAML (marker -> rod end cap, axial offset)")
     p.add_argument("--units", choices=("m", "mm"),
                    help="length unit of files that do not state theirs (plain CSV)")  # fmt: skip
+    p.add_argument("--up", choices=("z", "y", "x"),
+                   help="the files' vertical axis, rotated to z (default z, checked: a take "
+                        "resting on a plane normal to x or y is refused; Vicon and Qualisys "
+                        "record z-up, OptiTrack Motive y-up unless set otherwise)")  # fmt: skip
     p.add_argument("--split", default="0.7,0.15,0.15", metavar="TRAIN,VAL,TEST",
                    help="fractions of the takes (of each take's duration with fewer than 3 takes); "
                         "default 0.7,0.15,0.15")  # fmt: skip
@@ -66,7 +71,10 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{f}: named by --val/--test but not among the files to import")
     robot = read_robot(args.robot, tuple(args.ignore), args.end_caps)
     mmap = read_marker_map(args.map, robot.topology) if args.map else None
-    recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
+    recordings = [read_recording(f, args.units, args.up or "z") for f in args.files]  # all checked before work
+    if args.up is None:
+        for rec in recordings:
+            check_vertical(rec)
     maps = [check_take(rec, robot, mmap) for rec in recordings]
     takes = [label_take(r, robot, m)
              for r, m in tqdm(list(zip(recordings, maps, strict=True)), desc="labelling", unit="take")]  # fmt: skip

@@ -22,6 +22,11 @@ from tensegrity_env.topology import Topology
 ROD_LENGTH_TOL = 0.1
 #: recordings of one dataset may differ in nominal rate by at most this fraction
 RATE_TOL = 0.01
+#: a floor: the take's lowest marker stays within this height band [m] (5th to 95th
+#: percentile over the frames) along one axis ...
+FLOOR_BAND = 0.01
+#: ... while along z it moves over more than this [m]: the file's vertical axis is not z
+FREE_BAND = 0.05
 
 
 @dataclass(frozen=True)
@@ -125,6 +130,26 @@ def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Ma
             "pass --map naming its tracks"
         )
     return None
+
+
+def check_vertical(rec: MarkerRecording) -> None:
+    """Refuse a take that rests on a floor normal to x or y: its lowest marker stays
+    within :data:`FLOOR_BAND` along that axis while it moves over more than
+    :data:`FREE_BAND` along z (a y-up export read as z-up). ``import-mocap`` checks
+    this unless ``--up`` names the axis."""
+    seen = np.isfinite(rec.points).all(-1).any(-1)
+    if seen.sum() < 10:
+        return
+    low = np.nanmin(np.where(np.isfinite(rec.points), rec.points, np.inf)[seen], axis=1)  # (F', 3)
+    band = np.percentile(low, 95, axis=0) - np.percentile(low, 5, axis=0)
+    flat = int(np.argmin(band))
+    if flat != 2 and band[flat] < FLOOR_BAND and band[2] > FREE_BAND:
+        axis = "xyz"[flat]
+        raise InputError(
+            f"{rec.source}: the markers rest on a plane normal to {axis} (lowest marker within "
+            f"{band[flat] * 1e3:.3g} mm along {axis}, over {band[2] * 1e3:.3g} mm along z): the "
+            f"file is {axis}-up; pass --up {axis}"
+        )
 
 
 def check_rod_lengths(caps: np.ndarray, robot: Robot, source: Path) -> None:

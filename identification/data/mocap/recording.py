@@ -14,6 +14,13 @@ from tensegrity_env.io_utils import InputError
 #: metres per unit of the length units a file may state
 UNIT_SCALE = {"m": 1.0, "meters": 1.0, "metres": 1.0, "mm": 1e-3, "millimeters": 1e-3,
               "millimetres": 1e-3, "cm": 1e-2, "centimeters": 1e-2, "centimetres": 1e-2}  # fmt: skip
+#: rotations taking a file's up axis to z (right-handed): Vicon and Qualisys record z-up,
+#: OptiTrack Motive y-up by default
+TO_Z_UP = {
+    "z": np.eye(3),
+    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),  # +90 deg about x
+    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),  # x, y, z -> y, z, x
+}
 #: marker names that mean "not labelled": Motive's ``Unlabeled 1234`` and Vicon's ``*12``
 UNLABELLED = re.compile(r"^(unlabeled|unlabelled)\b|^\*\d+$", re.IGNORECASE)
 
@@ -71,6 +78,12 @@ class MarkerRecording:
             raise InputError(f"{where}: marker positions contain inf")
         return self
 
+    def z_up(self, up: str) -> MarkerRecording:
+        """This take in a z-up frame, its file's vertical axis being ``up`` (x, y or z)."""
+        if up == "z":
+            return self
+        return replace(self, points=self.points @ TO_Z_UP[up].T)
+
     def without_placeholders(self) -> MarkerRecording:
         """This take with its placeholder samples
         (:func:`~identification.data.quality.placeholder_samples`) read as unseen (NaN)."""
@@ -93,11 +106,12 @@ def unit_scale(name: str | None, where: Path, option: str | None) -> float:
     raise InputError(f"{where}: the file does not state its length unit; pass --units mm or m")
 
 
-def read_recording(path: str | Path, units: str | None = None) -> MarkerRecording:
+def read_recording(path: str | Path, units: str | None = None, up: str = "z") -> MarkerRecording:
     """Read a C3D file, an OptiTrack Motive CSV export or a plain CSV, by content;
     placeholder samples for unseen markers are read as NaN.
 
-    ``units`` (``"m"``/``"mm"``) is used only where the file does not say.
+    ``units`` (``"m"``/``"mm"``) is used only where the file does not say; ``up``: the
+    file's vertical axis (``x``, ``y`` or ``z``), rotated to z.
     """
     from identification.data.mocap import c3d_files, csv_files
 
@@ -105,7 +119,7 @@ def read_recording(path: str | Path, units: str | None = None) -> MarkerRecordin
     if not p.is_file():
         raise InputError(f"{p}: no such motion-capture file")
     if p.suffix.lower() == ".c3d":
-        return c3d_files.read_c3d(p, units).check().without_placeholders()
+        return c3d_files.read_c3d(p, units).check().without_placeholders().z_up(up)
     if p.suffix.lower() in (".csv", ".txt"):
-        return csv_files.read_csv(p, units).check().without_placeholders()
+        return csv_files.read_csv(p, units).check().without_placeholders().z_up(up)
     raise InputError(f"{p}: unknown motion-capture format (expected .c3d or .csv)")

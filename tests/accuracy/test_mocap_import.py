@@ -11,7 +11,7 @@ import pytest
 
 from identification.data.dataset import read_dataset
 from identification.data.mocap.c3d_files import write_c3d
-from identification.data.mocap.csv_files import write_motive_csv, write_plain_csv
+from identification.data.mocap.csv_files import write_motive_csv, write_plain_csv, write_vicon_csv
 from identification.data.mocap.importer import read_robot, take_end_caps
 from identification.data.mocap.recording import MarkerRecording
 from identification.simulation.mocap_takes import record_take, simulate_caps
@@ -31,7 +31,7 @@ def cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("fmt", ["c3d", "motive", "plain"])
+@pytest.mark.parametrize("fmt", ["c3d", "motive", "vicon", "plain"])
 def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None:
     time, caps, names = clean
     pts = caps.copy()
@@ -41,6 +41,8 @@ def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None
         write_c3d(path, pts, names, 120.0, units="mm")
     elif fmt == "motive":
         write_motive_csv(path, time, pts, names, 120.0)
+    elif fmt == "vicon":
+        write_vicon_csv(path, pts, [f"ico:{n}" for n in names], 120.0)
     else:
         write_plain_csv(path, time, pts, names, units="m")
     out = tmp_path / "data.h5"
@@ -52,7 +54,7 @@ def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None
     assert ds.split("train").time is not None and abs(1 / ds.dt - 120.0) < 1e-6
     gap = ~np.isfinite(nodes).all(-1)
     assert gap[:, 3].sum() == 15 and gap.sum() == 15  # the gap is NaN, nothing else is
-    precision = {"c3d": 1e-7 * 1e3, "motive": 1e-6, "plain": 1e-12}[fmt]  # file precision [m]
+    precision = {"c3d": 1e-7 * 1e3, "motive": 1e-6, "vicon": 1e-8, "plain": 1e-12}[fmt]  # file precision [m]
     np.testing.assert_allclose(nodes[~gap], caps[~gap], atol=precision)
 
 

@@ -7,6 +7,13 @@ Motive (1.x-3.x "CSV export"): a first row of ``key,value`` pairs (``Capture Fra
 markers. Marker position columns are read; rigid bodies are ignored. Unlabelled
 exports name their tracks ``Unlabeled <id>``.
 
+Vicon Nexus ("Export CSV"): sections (``Devices``, ``Trajectories``, ``Model Outputs``,
+...) separated by blank rows; the ``Trajectories`` section is a row ``Trajectories``, a
+row with the frame rate [Hz], a row of marker names (``<subject>:<marker>``) above each
+marker's first column, a row ``Frame,Sub Frame,X,Y,Z,...``, a row of units (``mm``),
+then one row per frame; empty cells are unseen markers. Frame times are the frame
+numbers over the rate.
+
 Plain: a header ``time,<name>_x,<name>_y,<name>_z,...`` (time in seconds), one row per
 frame, empty or ``nan`` cells for unseen markers; the length unit is ``--units``.
 """
@@ -35,7 +42,8 @@ def _number(cell: str, path: Path, row: int) -> float:
 
 
 def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
-    """A Motive export (by its ``Format Version`` first cell) or a plain CSV."""
+    """A Motive export (by its ``Format Version`` first cell), a Vicon Nexus export (by
+    its ``Devices`` or ``Trajectories`` first cell) or a plain CSV."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
             rows = list(csv.reader(f))
@@ -45,6 +53,8 @@ def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
         raise InputError(f"{path}: empty file")
     if rows[0] and rows[0][0].strip().lower() == "format version":
         return _read_motive(path, rows, units)
+    if rows[0] and rows[0][0].strip().lower() in ("devices", "trajectories"):
+        return _read_vicon(path, rows, units)
     return _read_plain(path, rows, units)
 
 
@@ -114,6 +124,59 @@ def _read_motive(path: Path, rows: list[list[str]], units: str | None) -> Marker
     if not np.isfinite(rate):
         rate = float(1.0 / np.median(np.diff(data[:, 1])))
     return MarkerRecording(path, data[:, 1] - data[0, 1], points, labels, rate)
+
+
+def _read_vicon(path: Path, rows: list[list[str]], units: str | None) -> MarkerRecording:
+    start = next((i for i, r in enumerate(rows) if r and r[0].strip().lower() == "trajectories"), None)
+    if start is None:
+        raise InputError(f"{path}: Vicon export without a 'Trajectories' section")
+    end = next((i for i in range(start + 1, len(rows)) if not any(c.strip() for c in rows[i])),
+               len(rows))  # fmt: skip
+    section = rows[start:end]
+    if len(section) < 6:
+        raise InputError(f"{path}: 'Trajectories' section without its header rows and frames")
+    try:
+        rate = float(section[1][0])
+    except (ValueError, IndexError):
+        raise InputError(f"{path}: 'Trajectories' section without its frame rate row") from None
+    names_row, axes_row, units_row = section[2], section[3], section[4]
+    if [c.strip().lower() for c in axes_row[:2]] != ["frame", "sub frame"]:
+        raise InputError(f"{path}: 'Trajectories' section without its 'Frame,Sub Frame' row")
+    starts = [j for j in range(2, len(names_row)) if names_row[j].strip()]
+    labels = [names_row[j].strip() for j in starts]
+    if not labels:
+        raise InputError(f"{path}: no marker names in the 'Trajectories' section")
+    cols = [j + k for j in starts for k in range(3)]
+    axes = [axes_row[j].strip().lower() if j < len(axes_row) else "" for j in cols]
+    if axes != list(AXES) * len(labels):
+        raise InputError(f"{path}: marker columns are not X, Y, Z triples")
+    stated = {units_row[j].strip() for j in cols if j < len(units_row) and units_row[j].strip()}
+    if len(stated) > 1:
+        raise InputError(f"{path}: marker columns in different units ({', '.join(sorted(stated))})")
+    width = max(len(axes_row), cols[-1] + 1)
+    data = _frames(path, rows[:end], start + 5, width)
+    if np.isnan(data[:, 0]).any():
+        raise InputError(f"{path}: a frame row has no frame number")
+    scale = unit_scale(stated.pop() if stated else None, path, units)
+    points = data[:, cols].reshape(len(data), len(labels), 3) * scale
+    time = (data[:, 0] - data[0, 0]) / rate
+    return MarkerRecording(path, time, points, labels, rate)
+
+
+def write_vicon_csv(
+    path: str | Path, points: np.ndarray, names: list[str], rate: float, units: str = "mm"
+) -> Path:
+    """Write ``points`` (F, M, 3) [m] (NaN: not seen) as a Vicon Nexus CSV export: a
+    ``Devices`` section without devices, then the ``Trajectories`` section."""
+    scale = {"mm": 1e3, "m": 1.0}[units]
+    rows = ["Devices", f"{rate * 10:g}", "", "Trajectories", f"{rate:g}",
+            ",," + ",".join(f"{n},," for n in names).rstrip(","),
+            "Frame,Sub Frame," + ",".join("X,Y,Z" for _ in names),
+            ",," + ",".join(units for _ in range(3 * len(names)))]  # fmt: skip
+    flat = points.reshape(len(points), -1) * scale
+    for i, row in enumerate(flat):
+        rows.append(f"{i + 1},0," + ",".join("" if np.isnan(v) else f"{v:.5f}" for v in row))
+    return atomic_write_text(path, "\n".join(rows) + "\n")
 
 
 def write_plain_csv(

@@ -1,4 +1,4 @@
-"""Motion-capture exports as labs write them: placeholder positions, subject prefixes."""
+"""Motion-capture exports as labs write them: placeholder positions, subject prefixes, Vicon CSV."""
 
 from __future__ import annotations
 
@@ -84,3 +84,40 @@ def test_marker_names_behind_a_subject_prefix_map_themselves() -> None:
     assert mmap is not None
     assert {n: c for n, (c, _) in mmap.caps.items()} == {n: i for i, n in enumerate(names)}
     assert default_map(names[:-1], topo) is None  # an end cap unnamed: no implied map
+
+
+VICON = """Devices
+1000
+,,Force Plate 1 - Force,,
+Frame,Sub Frame,Fx,Fy,Fz
+,,N,N,N
+1,0,0.1,0.2,9.8
+1,1,0.1,0.2,9.7
+
+Trajectories
+100
+,,ico:rod0_0,,,ico:rod0_1,,
+Frame,Sub Frame,X,Y,Z,X,Y,Z
+,,mm,mm,mm,mm,mm,mm
+7,0,1.0,2.0,3.0,4.0,5.0,6.0
+8,0,1.5,2.5,3.5,,,
+9,0,2.0,3.0,4.0,4.5,5.5,6.5
+
+Model Outputs
+100
+"""
+
+
+def test_a_vicon_nexus_export_reads_its_trajectories_section(tmp_path: Path) -> None:
+    """Devices (force plates) before and model outputs after are not markers; times are
+    the frame numbers over the rate, from the first exported frame."""
+    path = tmp_path / "nexus.csv"
+    path.write_text(VICON)
+    rec = read_recording(path)
+    assert rec.names == ["ico:rod0_0", "ico:rod0_1"] and rec.rate == 100.0
+    np.testing.assert_allclose(rec.time, [0.0, 0.01, 0.02])
+    np.testing.assert_allclose(rec.points[2, 1], [4.5e-3, 5.5e-3, 6.5e-3])
+    assert np.isnan(rec.points[1, 1]).all() and np.isfinite(rec.points[1, 0]).all()
+    path.write_text(VICON.replace("Frame,Sub Frame,X,Y,Z,X,Y,Z", "Frame,Sub Frame,X,Y,Z,X,Z,Y"))
+    with pytest.raises(InputError, match=r"nexus.csv: marker columns are not X, Y, Z triples"):
+        read_recording(path)

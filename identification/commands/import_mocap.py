@@ -27,16 +27,16 @@ from tensegrity_env.mjcf.end_caps import add_end_caps_option
 def register(sub: Any) -> None:
     p = sub.add_parser(
         "import-mocap",
-        help="import C3D or CSV motion capture (labelled or unlabelled) into an HDF5 dataset",
+        help="import C3D, TSV or CSV motion capture (labelled or unlabelled) into an HDF5 dataset",
         description=(
-            "Read motion-capture takes (C3D, OptiTrack Motive CSV, Vicon Nexus CSV, or a plain CSV 'time, "
+            "Read motion-capture takes (C3D, Qualisys TSV, OptiTrack Motive CSV, Vicon Nexus CSV, or a plain CSV 'time, "
             "<marker>_x, <marker>_y, <marker>_z, ...'), map markers to the robot's end caps (a marker map, or "
             "marker names <rod>_<0|1>), label unlabelled point clouds by tracking the end caps "
             "under the rod-length constraint, and write end caps with their sample times and "
             "gaps (NaN) as a dataset. One take per file becomes one trajectory."
         ),
     )
-    p.add_argument("files", type=Path, nargs="+", help="C3D or CSV files, one take each")
+    p.add_argument("files", type=Path, nargs="+", help="C3D, TSV or CSV files, one take each")
     p.add_argument("--robot", type=Path, required=True,
                    help="robot MJCF (.xml; its rest pose starts unlabelled tracking) or params.json")  # fmt: skip
     p.add_argument("--map", type=Path, help="marker map YAML (marker -> rod end cap, axial offset)")

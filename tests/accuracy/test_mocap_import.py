@@ -14,6 +14,7 @@ from identification.data.mocap.c3d_files import write_c3d
 from identification.data.mocap.csv_files import write_motive_csv, write_plain_csv, write_vicon_csv
 from identification.data.mocap.importer import read_robot, take_end_caps
 from identification.data.mocap.recording import MarkerRecording
+from identification.data.mocap.tsv_files import write_qtm_tsv
 from identification.simulation.mocap_takes import record_take, simulate_caps
 
 ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "icosahedron_rolling.xml"
@@ -31,16 +32,18 @@ def cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("fmt", ["c3d", "motive", "vicon", "plain"])
+@pytest.mark.parametrize("fmt", ["c3d", "qtm", "motive", "vicon", "plain"])
 def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None:
     time, caps, names = clean
     pts = caps.copy()
     pts[40:55, 3] = np.nan  # marker 3 lost for 15 frames
-    path = tmp_path / ("take.c3d" if fmt == "c3d" else "take.csv")
+    path = tmp_path / {"c3d": "take.c3d", "qtm": "take.tsv"}.get(fmt, "take.csv")
     if fmt == "c3d":
         write_c3d(path, pts, names, 120.0, units="mm")
     elif fmt == "motive":
         write_motive_csv(path, time, pts, names, 120.0)
+    elif fmt == "qtm":  # the gap written as QTM does: 0.000 in every coordinate
+        write_qtm_tsv(path, pts, names, 120.0)
     elif fmt == "vicon":
         write_vicon_csv(path, pts, [f"ico:{n}" for n in names], 120.0)
     else:
@@ -54,7 +57,7 @@ def test_round_trip_with_a_15_frame_gap(tmp_path: Path, clean, fmt: str) -> None
     assert ds.split("train").time is not None and abs(1 / ds.dt - 120.0) < 1e-6
     gap = ~np.isfinite(nodes).all(-1)
     assert gap[:, 3].sum() == 15 and gap.sum() == 15  # the gap is NaN, nothing else is
-    precision = {"c3d": 1e-7 * 1e3, "motive": 1e-6, "vicon": 1e-8, "plain": 1e-12}[fmt]  # file precision [m]
+    precision = {"c3d": 1e-7 * 1e3, "qtm": 1e-6, "motive": 1e-6, "vicon": 1e-8, "plain": 1e-12}[fmt]  # file precision [m]
     np.testing.assert_allclose(nodes[~gap], caps[~gap], atol=precision)
 
 

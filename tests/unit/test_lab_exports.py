@@ -121,3 +121,33 @@ def test_a_vicon_nexus_export_reads_its_trajectories_section(tmp_path: Path) -> 
     path.write_text(VICON.replace("Frame,Sub Frame,X,Y,Z,X,Y,Z", "Frame,Sub Frame,X,Y,Z,X,Z,Y"))
     with pytest.raises(InputError, match=r"nexus.csv: marker columns are not X, Y, Z triples"):
         read_recording(path)
+
+
+QTM = """NO_OF_FRAMES\t3
+NO_OF_CAMERAS\t8
+NO_OF_MARKERS\t2
+FREQUENCY\t200
+NO_OF_ANALOG\t0
+DATA_INCLUDED\t3D
+MARKER_NAMES\trod0_0\trod0_1
+TRAJECTORY_TYPES\tMeasured\tMeasured
+1.000\t2.000\t3.000\t4.000\t5.000\t6.000
+1.500\t2.500\t3.500\t0.000\t0.000\t0.000
+2.000\t3.000\t4.000\t4.500\t5.500\t6.500
+"""
+
+
+def test_a_qtm_tsv_export_without_frame_columns_reads_its_zero_fills_as_gaps(tmp_path: Path) -> None:
+    path = tmp_path / "take.tsv"
+    path.write_text(QTM)
+    rec = read_recording(path)
+    assert rec.names == ["rod0_0", "rod0_1"] and rec.rate == 200.0 and rec.placeholders == 1
+    np.testing.assert_allclose(rec.time, [0.0, 0.005, 0.01])
+    np.testing.assert_allclose(rec.points[2, 1], [4.5e-3, 5.5e-3, 6.5e-3])  # millimetres
+    assert np.isnan(rec.points[1, 1]).all()
+    path.write_text(QTM.replace("4.500\t5.500\t6.500", "4.500\t5.500"))
+    with pytest.raises(InputError, match=r"take.tsv: frame row 11 has 5 of 6 columns"):
+        read_recording(path)
+    path.write_text(QTM.replace("FREQUENCY\t200\n", ""))
+    with pytest.raises(InputError, match=r"take.tsv: not a QTM 3-D export"):
+        read_recording(path)

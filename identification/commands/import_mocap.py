@@ -1,4 +1,4 @@
-"""``tensegrity-sr import-mocap``: C3D / CSV motion capture into the public dataset format."""
+"""``tensegrity-sr import-mocap``: C3D / TSV / CSV motion capture into the public dataset format."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from identification.data.mocap.importer import (
 )
 from identification.data.mocap.marker_map import read_marker_map
 from identification.data.mocap.recording import read_recording
+from identification.data.quality import PLACEHOLDER_KINDS
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.mjcf.end_caps import add_end_caps_option
 
@@ -84,8 +85,8 @@ def run(args: argparse.Namespace) -> int:
     seen = np.mean([np.isfinite(t.caps).all(-1).mean() for t in takes])
     held = sum(r.placeholders for r in recordings)
     if held:
-        print(f"{held} marker samples were placeholders for unseen markers (exactly the origin, "
-              "or one position held over frames): read as unseen")  # fmt: skip
+        print(f"{held} marker samples were placeholders for unseen markers ({PLACEHOLDER_KINDS}): "
+              "read as unseen")  # fmt: skip
     print(
         f"{args.output}: {len(takes)} takes, {frames} frames at {1 / dataset.dt:g} Hz, "
         f"{2 * robot.topology.n_rods} end caps, {100 * (1 - seen):.2f} % unseen; "

@@ -45,7 +45,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.signal import savgol_filter
 
 from identification.data.dataset import SPLITS, Dataset, Split, check_dataset
-from identification.data.quality import HELD_RUN, placeholder_samples
+from identification.data.quality import PLACEHOLDER_KINDS, placeholder_samples
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.rotations import np_quat_to_matrix, shortest_arc, unit
 from tensegrity_env.topology import Topology
@@ -103,8 +103,8 @@ def check_caps_seen(nodes: np.ndarray, topology: Topology, where: str) -> None:
     if held.any():
         worst = int(np.argmax(held))
         raise InputError(f"{where}: {int(held.sum())} end-cap samples are placeholders for an "
-                         f"unseen end cap (exactly the origin, or one position held over "
-                         f"{HELD_RUN}+ frames; {cap_names(topology)[worst]}: {int(held[worst])}); "
+                         f"unseen end cap ({PLACEHOLDER_KINDS}; {cap_names(topology)[worst]}: "
+                         f"{int(held[worst])}); "
                          "write them as NaN (import-mocap does)")  # fmt: skip
     valid = np.isfinite(nodes).all(-1)
     seen = valid.any((0, 1))

@@ -27,6 +27,8 @@ MAD_TO_STD = 1.4826
 #: a marker repeating exactly the same position over this many frames in a row holds a
 #: value its tracker no longer sees (noise makes measured positions never repeat exactly)
 HELD_RUN = 3
+#: what :func:`placeholder_samples` finds, for messages
+PLACEHOLDER_KINDS = f"exactly the origin, one position held over {HELD_RUN}+ frames, or a duplicated frame"
 
 
 @dataclass(frozen=True)
@@ -64,10 +66,11 @@ class SampleQuality:
 def placeholder_samples(points: np.ndarray) -> np.ndarray:
     """(..., F, M) bool: the samples of marker positions ``points`` (..., F, M, 3) [m]
     that stand for an unseen marker rather than a measurement: exactly the origin (an
-    exporter's zero fill), or the repeats of one position held exactly over
+    exporter's zero fill), the repeats of one position held exactly over
     :data:`HELD_RUN` or more consecutive frames (a tracker holding its last value; the
-    first sample of the run stays). Measurement noise makes both impossible; noise-free
-    data resting exactly in place would read as held."""
+    first sample of the run stays), and a frame in which every seen marker (two or
+    more) repeats the frame before exactly (a duplicated frame). Measurement noise makes
+    all three impossible; noise-free data resting exactly in place would read as held."""
     x = np.asarray(points, dtype=float)
     mask = (x == 0.0).all(-1)
     same = np.isfinite(x[..., 1:, :, :]).all(-1) & (x[..., 1:, :, :] == x[..., :-1, :, :]).all(-1)
@@ -81,6 +84,9 @@ def placeholder_samples(points: np.ndarray) -> np.ndarray:
         reach[..., f, :] = np.where(same[..., f + 1, :] & same[..., f, :],
                                     reach[..., f + 1, :], reach[..., f, :])  # fmt: skip
     mask[..., 1:, :] |= same & (reach >= HELD_RUN - 1)
+    seen = np.isfinite(x[..., 1:, :, :]).all(-1)
+    duplicated = (same | ~seen).all(-1) & (same.sum(-1) >= 2)  # (..., F-1)
+    mask[..., 1:, :] |= duplicated[..., None] & seen
     return mask
 
 
@@ -160,9 +166,8 @@ def quality_text(q: SampleQuality, cap_names: list[str]) -> str:
         "end cap        dropout  longest gap   noise",
     ]
     if q.placeholders:
-        lines.insert(1, f"placeholder samples: {q.placeholders} (exactly the origin, or one position "
-                        f"held over {HELD_RUN}+ frames): unseen end caps written as positions; "
-                        "identify refuses them, write them as NaN")  # fmt: skip
+        lines.insert(1, f"placeholder samples: {q.placeholders} ({PLACEHOLDER_KINDS}): unseen end "
+                        "caps written as positions; identify refuses them, write them as NaN")  # fmt: skip
     for name, d, g, n in zip(cap_names, q.dropout, q.longest_gap, q.noise, strict=True):
         noise = "   n/a" if np.isnan(n) else f"{n * 1e3:6.3f} mm"
         lines.append(f"  {name:<12} {100 * d:6.2f} %  {g * 1e3:8.1f} ms  {noise}")

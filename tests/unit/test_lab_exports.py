@@ -23,7 +23,7 @@ def noisy_walk(frames: int = 40, markers: int = 3, seed: int = 0) -> np.ndarray:
     return 1.0 + np.cumsum(rng.normal(0, 1e-3, (frames, markers, 3)), axis=0)
 
 
-def test_held_runs_of_three_and_the_origin_are_placeholders_single_repeats_are_not() -> None:
+def test_held_runs_duplicated_frames_and_the_origin_are_placeholders_single_repeats_are_not() -> None:
     x = noisy_walk()
     x[10:14, 0] = x[10, 0]  # held over 4 frames: the 3 repeats are placeholders
     x[20:22, 1] = x[20, 1]  # one repeat (coarse quantisation can do that): kept
@@ -34,6 +34,9 @@ def test_held_runs_of_three_and_the_origin_are_placeholders_single_repeats_are_n
     expected[11:14, 0] = True
     expected[30, 2] = True
     np.testing.assert_array_equal(mask, expected)
+    x[35] = x[34]  # a duplicated frame: every seen marker repeats the frame before
+    expected[35] = True
+    np.testing.assert_array_equal(placeholder_samples(x), expected)
     held = np.stack([x, x])  # leading (trajectory) axes
     np.testing.assert_array_equal(placeholder_samples(held), np.stack([expected, expected]))
 

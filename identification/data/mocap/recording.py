@@ -37,7 +37,7 @@ class MarkerRecording:
             which change when a marker is lost and found again).
         rate: the file's nominal frame rate [Hz].
         placeholders: samples the file held as positions for an unseen marker (exactly
-            the origin, or one position held over frames), read as NaN
+            the origin, a held position, a duplicated frame), read as NaN
             (:meth:`without_placeholders`).
     """
 

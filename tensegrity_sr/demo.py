@@ -347,6 +347,18 @@ def step_mocap(demo: Demo) -> None:
     motive = write_motive_csv(demo.out / "take_motive.csv", t, y_up, take.names, 120.0)
     demo.cli("import-mocap", motive, "--robot", robot, "--up", "y", "--split", "1,0,0",
              "-o", demo.out / "mocap_motive.h5")  # fmt: skip
+    print("a cable-driven prism's take with its motor command log (40 Hz, held onto the frames)")
+    from identification.data.mocap.commands import write_commands
+
+    prism = robot.parent / "lab_prism.xml"
+    log_t = np.arange(40) / 40.0
+    log_u = rng.uniform(-0.5, 0.5, (40, 3))
+    t, caps, names = simulate_caps(prism.read_text(), 120.0, 1.0, rng, commands=(log_t, log_u))
+    take = record_take(t, caps, names, rng, noise=1e-3)
+    prism_take = write_c3d(demo.out / "prism_take.c3d", take.points, take.names, 120.0)
+    log = write_commands(demo.out / "prism_commands.csv", log_t, log_u, ["a0", "a1", "a2"])
+    demo.cli("import-mocap", prism_take, "--robot", prism, "--commands", log, "--split", "1,0,0",
+             "-o", demo.out / "mocap_prism.h5")  # fmt: skip
 
 
 #: the demo's steps, in order: name -> function (steps read what earlier steps wrote)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +11,7 @@ import numpy as np
 from tqdm import tqdm
 
 from identification.data.dataset import write_dataset
+from identification.data.mocap.commands import hold_commands, read_commands
 from identification.data.mocap.importer import (
     build_dataset,
     check_take,
@@ -19,7 +21,7 @@ from identification.data.mocap.importer import (
     read_robot,
 )
 from identification.data.mocap.marker_map import read_marker_map
-from identification.data.mocap.recording import read_recording
+from identification.data.mocap.recording import MarkerRecording, read_recording
 from identification.data.quality import PLACEHOLDER_KINDS
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.mjcf.end_caps import add_end_caps_option
@@ -43,6 +45,10 @@ def register(sub: Any) -> None:
     p.add_argument("--map", type=Path, help="marker map YAML (marker -> rod end cap, axial offset)")
     p.add_argument("--units", choices=("m", "mm"),
                    help="length unit of files that do not state theirs (plain CSV)")  # fmt: skip
+    p.add_argument("--commands", type=Path, action="append", default=[], metavar="CSV",
+                   help="the cable actuators' command log of a take (CSV 'time,<actuator>,...', "
+                        "times from the take's first frame, held until the next row), once per "
+                        "take in the order of the files; without it, commands are zero")  # fmt: skip
     p.add_argument("--up", choices=("z", "y", "x"),
                    help="the files' vertical axis, rotated to z (default z, checked: a take "
                         "resting on a plane normal to x or y is refused; Vicon and Qualisys "
@@ -62,6 +68,23 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+def take_commands(files: list[Path], recordings: list[MarkerRecording], n_cables: int) -> list[np.ndarray | None]:
+    """Each take's cable commands from its ``--commands`` file, held onto its frames
+    (:func:`~identification.data.mocap.commands.hold_commands`); None without files."""
+    if not files:
+        if n_cables:
+            print(f"warning: the robot has {n_cables} cable actuators and no --commands were "
+                  "given: their commands are recorded as zero (an unactuated robot)")  # fmt: skip
+        return [None] * len(recordings)
+    if not n_cables:
+        raise InputError(f"{files[0]}: --commands given, but the robot has no cable actuators")
+    if len(files) != len(recordings):
+        raise InputError(f"--commands: {len(files)} command files for {len(recordings)} takes "
+                         "(one per take, in the order of the files)")  # fmt: skip
+    return [hold_commands(*read_commands(f, n_cables), rec.time, f"{f} (take {rec.source})")
+            for f, rec in zip(files, recordings, strict=True)]  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force)
     fractions = parse_fractions(args.split)
@@ -77,8 +100,10 @@ def run(args: argparse.Namespace) -> int:
         for rec in recordings:
             check_vertical(rec)
     maps = [check_take(rec, robot, mmap) for rec in recordings]
-    takes = [label_take(r, robot, m)
-             for r, m in tqdm(list(zip(recordings, maps, strict=True)), desc="labelling", unit="take")]  # fmt: skip
+    commands = take_commands(args.commands, recordings, robot.topology.n_cables)
+    takes = [replace(label_take(r, robot, m), commands=u)
+             for r, m, u in tqdm(list(zip(recordings, maps, commands, strict=True)), desc="labelling",
+                                 unit="take")]  # fmt: skip
     dataset = build_dataset(takes, robot, fractions, assign or None)
     write_dataset(args.output, dataset)
     frames = sum(len(t.time) for t in takes)
@@ -93,5 +118,7 @@ def run(args: argparse.Namespace) -> int:
         f"relabelled frames {dataset.attrs['relabelled_frames']}, "
         f"ghost points rejected {dataset.attrs['ghost_points']}; "
         f"splits {', '.join(f'{k} {v.n_trajectories}' for k, v in dataset.splits.items())}"
+        + (f"; commands of {robot.topology.n_cables} cable actuators from {len(args.commands)} "
+           "logs" if args.commands else "")
     )
     return 0

@@ -31,8 +31,13 @@ class Take:
 def simulate_caps(
     xml: str, rate: float, duration: float, rng: np.random.Generator, physics_dt: float = 1e-3,
     speed: float = 0.5, spin: float = 1.5,
+    commands: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, list[str]]:  # fmt: skip
-    """Clean end caps (F, 2R, 3) [m] at ``rate`` [Hz], their times and site names."""
+    """Clean end caps (F, 2R, 3) [m] at ``rate`` [Hz], their times and site names.
+
+    ``commands``: the actuators' log, times (K,) [s] and values (K, C); each physics
+    step applies the last command at or before its start (a motor controller's hold).
+    """
     model = mujoco.MjModel.from_xml_string(xml)
     sub = max(1, round(1.0 / (rate * physics_dt)))
     model.opt.timestep = 1.0 / (rate * sub)
@@ -52,7 +57,14 @@ def simulate_caps(
     for f in range(n):
         mujoco.mj_forward(model, data)
         caps[f] = data.site_xpos[sites]
-        mujoco.mj_step(model, data, nstep=sub)
+        if commands is None:
+            mujoco.mj_step(model, data, nstep=sub)
+            continue
+        for j in range(sub):
+            t = (f * sub + j) * model.opt.timestep
+            k = int(np.searchsorted(commands[0], t + 1e-9, side="right")) - 1
+            data.ctrl[:] = commands[1][k] if k >= 0 else 0.0
+            mujoco.mj_step(model, data)
     return np.arange(n) / rate, caps, names
 
 

@@ -135,6 +135,7 @@ def test_unlabelled_export_with_new_ids_and_ghosts_is_labelled_back(clean) -> No
         ("missing_column", "not one marker's x, y, z columns"),
         ("unknown_marker", "which is not in the file"),
         ("wrong_robot", "end caps"),
+        ("commands_without_actuators", "--commands given, but the robot has no cable actuators"),
     ],
 )
 def test_bad_files_are_one_line_errors_and_leave_nothing(tmp_path: Path, clean, case: str, message: str) -> None:
@@ -154,12 +155,16 @@ def test_bad_files_are_one_line_errors_and_leave_nothing(tmp_path: Path, clean, 
     elif case == "unknown_marker":
         (tmp_path / "map.yaml").write_text("markers:\n  nosuch: {rod: rod0, end: 0}\n")
         extra = ["--map", str(tmp_path / "map.yaml")]
+    elif case == "commands_without_actuators":
+        (tmp_path / "take_commands.csv").write_text("time,a0\n0.0,1.0\n")
+        extra = ["--commands", str(tmp_path / "take_commands.csv")]
     else:
         write_c3d(path, caps[:, :6], names[:6], 120.0)  # 6 markers for 12 end caps
     out = tmp_path / "data.h5"
     r = cli("import-mocap", path, "--robot", robot, *extra, "-o", out)
     assert r.returncode == 2
-    assert message in r.stderr and str(path.name) in r.stderr
+    named = "take_commands.csv" if case == "commands_without_actuators" else path.name
+    assert message in r.stderr and named in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
     assert not out.exists() and not list(tmp_path.glob(".data.h5*"))
 
@@ -201,3 +206,35 @@ def test_a_y_up_export_is_refused_without_up_and_imported_with_it(tmp_path: Path
     a, b = (read_dataset(tmp_path / f"{u}.h5").split("train").nodes for u in ("z", "y"))
     np.testing.assert_allclose(b, a, atol=1e-6)  # the CSV's precision
     np.testing.assert_allclose(a[0], caps, atol=1e-6)
+
+
+def test_logged_cable_commands_drive_the_robot_along_its_imported_end_caps(tmp_path: Path) -> None:
+    """Cable commands logged at 40 Hz beside a 120 Hz take: held onto the frames, fed
+    back into MuJoCo from the same start they reproduce the take's end caps exactly; a
+    hold one frame late, or no commands, does not."""
+    import re
+
+    from identification.data.mocap.commands import write_commands
+
+    xml = re.sub(r'<geom name="floor"[^>]*/>', "", (ROBOT.parent / "lab_prism.xml").read_text())
+    xml = xml.replace(' dyntype="filter" dynprm="0.03"', "")  # force actuators, no lag
+    rng = np.random.default_rng(9)
+    log_t = np.arange(40) / 40.0
+    log_u = rng.uniform(-1.0, 1.0, (40, 3))
+    _, caps, names = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3),
+                                      commands=(log_t, log_u))  # fmt: skip
+    write_c3d(tmp_path / "take.c3d", caps, names, 120.0, units="m")
+    write_commands(tmp_path / "take_commands.csv", log_t, log_u, ["a0", "a1", "a2"])
+    (tmp_path / "robot.xml").write_text(xml)
+    r = cli("import-mocap", tmp_path / "take.c3d", "--robot", tmp_path / "robot.xml",
+            "--commands", tmp_path / "take_commands.csv", "--split", "1,0,0", "-o", tmp_path / "d.h5")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    held = read_dataset(tmp_path / "d.h5").split("train").cable_control[0]  # (T, 3)
+    np.testing.assert_array_equal(held[::3], log_u[: len(held[::3])])
+    frames = np.arange(len(held)) / 120.0
+    _, again, _ = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3), commands=(frames, held))
+    assert np.abs(again - caps).max() < 1e-9
+    late = np.concatenate([held[:1] * 0, held[:-1]])
+    _, off, _ = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3), commands=(frames, late))
+    _, none, _ = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3))
+    assert np.abs(off - caps).max() > 1e-2 and np.abs(none - caps).max() > 1e-2

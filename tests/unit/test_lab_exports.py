@@ -154,3 +154,24 @@ def test_a_qtm_tsv_export_without_frame_columns_reads_its_zero_fills_as_gaps(tmp
     path.write_text(QTM.replace("FREQUENCY\t200\n", ""))
     with pytest.raises(InputError, match=r"take.tsv: not a QTM 3-D export"):
         read_recording(path)
+
+
+def test_commands_hold_from_their_log_time_and_bad_logs_are_one_line_errors(tmp_path: Path) -> None:
+    from identification.data.mocap.commands import hold_commands, read_commands, write_commands
+
+    path = write_commands(tmp_path / "u.csv", np.array([0.0, 0.025, 0.07]),
+                          np.array([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]), ["a0", "a1"])  # fmt: skip
+    t, u = read_commands(path, 2)
+    frames = np.arange(10) / 120.0  # 0, 8.3, 16.7, 25.0 (the second command, to round-off), ...
+    held = hold_commands(t, u, frames, "u.csv")
+    np.testing.assert_array_equal(held[:, 0], [1, 1, 1, 3, 3, 3, 3, 3, 3, 5])
+    with pytest.raises(InputError, match=r"^late.csv: the first command is logged at 0.01 s"):
+        hold_commands(t + 0.01, u, frames, "late.csv")
+    with pytest.raises(InputError, match=r"u.csv: 2 command columns, the robot has 3 cable actuators"):
+        read_commands(path, 3)
+    path.write_text("time,a0\n0.0,1\n0.0,2\n")
+    with pytest.raises(InputError, match=r"u.csv: command times do not increase"):
+        read_commands(path, 1)
+    path.write_text("t,a0\n0.0,1\n")
+    with pytest.raises(InputError, match=r"u.csv: command file must start with a header"):
+        read_commands(path, 1)

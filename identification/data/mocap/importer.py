@@ -65,7 +65,9 @@ def read_robot(
 @dataclass(frozen=True)
 class ImportedTake:
     """End caps of one take. ``caps`` (F, 2R, 3) [m], NaN unseen; ``time`` (F,) [s];
-    ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen)."""
+    ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen);
+    ``commands`` (F, C): each cable actuator's command in force from each frame on
+    [command units] (None: not logged, zero)."""
 
     source: Path
     time: np.ndarray
@@ -74,6 +76,16 @@ class ImportedTake:
     relabelled_frames: int
     ghosts: int
     track_of_cap: np.ndarray
+    commands: np.ndarray | None = None
+
+    def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
+        """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
+        cmd = self.commands if self.commands is not None else np.zeros((len(self.time), n_cables))
+        return self.time[a:b], self.caps[a:b], cmd[a:b]
+
+
+#: one take's stretch for a split: time (F,), caps (F, 2R, 3), commands (F, C)
+Piece = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def _apply_map(rec: MarkerRecording, mmap: MarkerMap, n_caps: int) -> np.ndarray:
@@ -216,15 +228,19 @@ def parse_fractions(text: str) -> tuple[float, float, float]:
     return parts  # type: ignore[return-value]
 
 
-def _stack(pieces: list[tuple[np.ndarray, np.ndarray]], n_rods: int) -> Split:
+def _stack(pieces: list[Piece], n_rods: int) -> Split:
     """Takes of one split as trajectories of equal length: the shortest take's; longer
     takes are cut into as many whole pieces of that length as they hold (the rest of a
-    take, shorter than one piece, is left out)."""
-    T1 = min(len(t) for t, _ in pieces)
-    chunks = [(t[a : a + T1], c[a : a + T1]) for t, c in pieces for a in range(0, len(t) - T1 + 1, T1)]
-    nodes = np.stack([c for _, c in chunks])
-    time = np.stack([t - t[0] for t, _ in chunks])
-    return Split(nodes=nodes, control=np.zeros((len(chunks), T1 - 1, n_rods, 3)), time=time)
+    take, shorter than one piece, is left out). Cable commands (if the robot has cable
+    actuators) are those in force over each sample interval."""
+    T1 = min(len(t) for t, _, _ in pieces)
+    chunks = [(t[a : a + T1], c[a : a + T1], u[a : a + T1 - 1]) for t, c, u in pieces
+              for a in range(0, len(t) - T1 + 1, T1)]  # fmt: skip
+    nodes = np.stack([c for _, c, _ in chunks])
+    time = np.stack([t - t[0] for t, _, _ in chunks])
+    cables = np.stack([u for _, _, u in chunks])
+    return Split(nodes=nodes, control=np.zeros((len(chunks), T1 - 1, n_rods, 3)), time=time,
+                 cable_control=cables if cables.shape[-1] else None)  # fmt: skip
 
 
 def build_dataset(
@@ -236,10 +252,11 @@ def build_dataset(
     rates = np.array([t.rate for t in takes])
     if np.ptp(rates) > RATE_TOL * rates.min():
         raise InputError(f"takes have different frame rates ({sorted(set(rates.round(3)))} Hz); import them separately")
-    groups: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {"train": [], "val": [], "test": []}
+    groups: dict[str, list[Piece]] = {"train": [], "val": [], "test": []}
+    C = robot.topology.n_cables
     if assign:
         for t in takes:
-            groups[assign.get(t.source.name, "train")].append((t.time, t.caps))
+            groups[assign.get(t.source.name, "train")].append(t.piece(n_cables=C))
     elif len(takes) >= 3:
         n = len(takes)
         n_val = round(fractions[1] * n) if fractions[1] > 0 else 0
@@ -247,13 +264,13 @@ def build_dataset(
         n_val, n_test = max(n_val, fractions[1] > 0), max(n_test, fractions[2] > 0)
         names = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
         for t, s in zip(takes, names, strict=True):
-            groups[s].append((t.time, t.caps))
+            groups[s].append(t.piece(n_cables=C))
     else:
         for t in takes:
             edges = np.round(np.cumsum((0.0, *fractions)) * len(t.time)).astype(int)
             for s, a, b in zip(("train", "val", "test"), edges[:-1], edges[1:], strict=True):
                 if b - a >= 2:
-                    groups[s].append((t.time[a:b], t.caps[a:b]))
+                    groups[s].append(t.piece(a, b, C))
     if not groups["train"]:
         raise InputError("no take left for the training split")
     splits = {s: _stack(p, robot.topology.n_rods) for s, p in groups.items() if p}

@@ -175,3 +175,15 @@ def test_commands_hold_from_their_log_time_and_bad_logs_are_one_line_errors(tmp_
     path.write_text("t,a0\n0.0,1\n")
     with pytest.raises(InputError, match=r"u.csv: command file must start with a header"):
         read_commands(path, 1)
+
+
+def test_a_semicolon_csv_with_decimal_commas_reads_as_its_comma_twin(tmp_path: Path) -> None:
+    x = noisy_walk(frames=20, markers=2, seed=5)
+    t = np.arange(20) / 100.0
+    plain = write_plain_csv(tmp_path / "plain.csv", t, x, ["rod0_0", "rod0_1"], units="mm")
+    text = plain.read_text().replace(",", ";").replace(".", ",")  # a German spreadsheet's export
+    (tmp_path / "excel.csv").write_text(text)
+    a, b = read_recording(plain, units="mm"), read_recording(tmp_path / "excel.csv", units="mm")
+    assert b.names == a.names and b.rate == a.rate
+    np.testing.assert_array_equal(b.points, a.points)
+    np.testing.assert_array_equal(b.time, a.time)

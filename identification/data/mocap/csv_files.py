@@ -41,14 +41,25 @@ def _number(cell: str, path: Path, row: int) -> float:
         raise InputError(f"{path}: row {row}: {cell!r} is not a number") from None
 
 
+def _semicolons(text: str) -> bool:
+    """Whether a CSV's first line separates its cells by semicolons (the export of a
+    spreadsheet in a locale whose decimal mark is a comma)."""
+    first = text.split("\n", 1)[0]
+    return first.count(";") > first.count(",")
+
+
 def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
     """A Motive export (by its ``Format Version`` first cell), a Vicon Nexus export (by
-    its ``Devices`` or ``Trajectories`` first cell) or a plain CSV."""
+    its ``Devices`` or ``Trajectories`` first cell) or a plain CSV; cells separated by
+    commas, or by semicolons with decimal commas."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            rows = list(csv.reader(f))
+            text = f.read()
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read it as text ({e})") from None
+    rows = list(csv.reader(text.splitlines(), delimiter=";" if _semicolons(text) else ","))
+    if rows and _semicolons(text):  # a decimal comma goes with the semicolon (Excel's locales)
+        rows = [[c.replace(",", ".") for c in r] for r in rows]
     if not rows:
         raise InputError(f"{path}: empty file")
     if rows[0] and rows[0][0].strip().lower() == "format version":

@@ -22,7 +22,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "generate": ("identification.commands.generate",
                  "roll out randomized MuJoCo trajectories into an HDF5 dataset"),
     "import-mocap": ("identification.commands.import_mocap",
-                     "import C3D or CSV motion capture (labelled or unlabelled) into an HDF5 dataset"),
+                     "import C3D, TSV or CSV motion capture (labelled or unlabelled) into an HDF5 dataset"),
     "inspect": ("identification.commands.inspect",
                 "summarize a dataset: topology, time step, splits, arrays, ground truth"),
     "identify": ("identification.commands.identify",

@@ -80,10 +80,18 @@ def sigterm_raises() -> Iterator[None]:
 def run_reporting(work: Callable[[], int]) -> int:
     """Run ``work`` with SIGTERM raising (:func:`sigterm_raises`) and turn the ways a run
     ends into one line on stderr and an exit status: bad input 2, a failed stage 1,
-    Ctrl-C 130, SIGTERM 143; otherwise ``work``'s own status."""
+    Ctrl-C 130, SIGTERM 143, a closed standard output (``| head``) 141, quietly;
+    otherwise ``work``'s own status."""
     try:
         with sigterm_raises():
-            return work()
+            code = work()
+            sys.stdout.flush()
+            return code
+    except BrokenPipeError:
+        # the reader went away: later writes (and the flush at exit) go nowhere, as
+        # Unix tools stop when their output is closed
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + 13
     except InputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -16,8 +16,10 @@ from identification.data.dataset import (
     read_ground_truth,
 )
 from identification.data.end_caps import cap_names
+from identification.data.mocap.recording import MOCAP_SUFFIXES, read_recording
+from identification.data.mocap.summary import recording_text
 from identification.data.quality import plot_quality, quality_text, sample_quality
-from tensegrity_env.io_utils import add_force_option, check_output_file
+from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.params import UNITS
 
 
@@ -28,10 +30,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Read and check a dataset file and summarize it: the topology (rods, springs, "
             "anchors), the time step, the splits with their sizes, which arrays are stored, "
-            "and whether a ground truth is present (shown only with --ground-truth)."
+            "and whether a ground truth is present (shown only with --ground-truth). Given a "
+            "motion-capture file instead: its frames, rate, markers, gaps, noise and "
+            "placeholder samples, before importing it."
         ),
     )
-    p.add_argument("dataset", type=Path, help="HDF5 dataset")
+    p.add_argument("dataset", type=Path,
+                   help="HDF5 dataset, or a motion-capture file (.c3d, .tsv, .csv) to look at "
+                        "before importing it")  # fmt: skip
+    p.add_argument("--units", choices=("m", "mm"),
+                   help="length unit of a motion-capture file that does not state its own")  # fmt: skip
     p.add_argument("--ground-truth", action="store_true", help="also print the stored ground truth")
     p.add_argument("--plot", type=Path, metavar="PNG",
                    help="draw gaps, dropout and marker noise per end cap into this PNG")  # fmt: skip
@@ -94,6 +102,12 @@ def ground_truth_text(truth: GroundTruth) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.plot is not None:
         check_output_file(args.plot, args.force, "--plot")
+    if args.dataset.suffix.lower() in MOCAP_SUFFIXES:
+        if args.plot is not None or args.ground_truth:
+            raise InputError(f"{args.dataset}: --plot and --ground-truth are for datasets; "
+                             "import the take first (import-mocap)")  # fmt: skip
+        print(recording_text(read_recording(args.dataset, args.units)))
+        return 0
     ds = read_dataset(args.dataset)
     truth = read_ground_truth(args.dataset)
     text = summary(ds, truth)

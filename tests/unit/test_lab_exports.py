@@ -187,3 +187,27 @@ def test_a_semicolon_csv_with_decimal_commas_reads_as_its_comma_twin(tmp_path: P
     assert b.names == a.names and b.rate == a.rate
     np.testing.assert_array_equal(b.points, a.points)
     np.testing.assert_array_equal(b.time, a.time)
+
+
+def test_inspect_looks_at_a_take_before_import_and_stops_quietly_when_piped_to_head(
+    tmp_path: Path,
+) -> None:
+    t = np.arange(200) / 100.0
+    smooth = np.stack([np.sin(t), np.cos(t), 1 + 0.5 * t**2], -1)  # (200, 3) [m]
+    x = smooth[:, None] + np.random.default_rng(7).normal(0, 1e-3, (200, 60, 3))
+    x[50:90, 3] = np.nan  # marker 3 lost for 40 frames (0.4 s)
+    x[120:125, 5] = x[119, 5]  # marker 5 held
+    path = write_plain_csv(tmp_path / "take.csv", t, x,
+                           [f"m{k}" for k in range(60)], units="mm")  # fmt: skip
+    cli = [sys.executable, "-m", "tensegrity_sr.cli", "inspect", str(path), "--units", "mm"]
+    r = subprocess.run(cli, capture_output=True, text=True, check=True)
+    lines = r.stdout.splitlines()
+    assert lines[0].endswith("200 frames at 100 Hz (1.99 s), 60 labelled markers, 0.38 % of samples unseen")  # 40 + 5
+    assert "placeholder samples read as unseen: 5" in lines
+    m3 = next(ln for ln in lines if ln.split()[0] == "m3").split()
+    assert m3[1:3] == ["80.00", "%"] and m3[3] == "400.0"
+    noise = float(next(ln for ln in lines if ln.split()[0] == "m0").split()[5])
+    assert 0.8 < noise < 1.2  # 1 mm white noise on a smooth path
+    assert lines[-1] == "  ... and 20 more"
+    piped = subprocess.run(" ".join(cli) + " | head -n 1", shell=True, capture_output=True, text=True)
+    assert piped.stdout.count("\n") == 1 and piped.stderr == ""

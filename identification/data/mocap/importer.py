@@ -11,6 +11,7 @@ from identification.data.dataset import Dataset, Split
 from identification.data.mocap.labelling import initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
+from identification.data.mocap.summary import lowest_marker_bands
 from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
@@ -149,11 +150,9 @@ def check_vertical(rec: MarkerRecording) -> None:
     within :data:`FLOOR_BAND` along that axis while it moves over more than
     :data:`FREE_BAND` along z (a y-up export read as z-up). ``import-mocap`` checks
     this unless ``--up`` names the axis."""
-    seen = np.isfinite(rec.points).all(-1).any(-1)
-    if seen.sum() < 10:
+    band = lowest_marker_bands(rec.points)
+    if not np.isfinite(band).all():
         return
-    low = np.nanmin(np.where(np.isfinite(rec.points), rec.points, np.inf)[seen], axis=1)  # (F', 3)
-    band = np.percentile(low, 95, axis=0) - np.percentile(low, 5, axis=0)
     flat = int(np.argmin(band))
     if flat != 2 and band[flat] < FLOOR_BAND and band[2] > FREE_BAND:
         axis = "xyz"[flat]

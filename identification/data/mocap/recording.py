@@ -106,6 +106,10 @@ def unit_scale(name: str | None, where: Path, option: str | None) -> float:
     raise InputError(f"{where}: the file does not state its length unit; pass --units mm or m")
 
 
+#: file extensions :func:`read_recording` reads
+MOCAP_SUFFIXES = (".c3d", ".csv", ".txt", ".tsv")
+
+
 def read_recording(path: str | Path, units: str | None = None, up: str = "z") -> MarkerRecording:
     """Read a C3D file, a Qualisys TSV export, an OptiTrack Motive or Vicon Nexus CSV
     export or a plain CSV, by content;

@@ -346,6 +346,7 @@ def step_mocap(demo: Demo) -> None:
     take = record_take(t, caps, names, rng, noise=1e-3, dropout=0.01)
     y_up = np.nan_to_num(take.points, nan=0.0) @ TO_Z_UP["y"]
     motive = write_motive_csv(demo.out / "take_motive.csv", t, y_up, take.names, 120.0)
+    demo.cli("inspect", motive, writes=False)  # the lowest marker's narrow band: along y
     demo.cli("import-mocap", motive, "--robot", robot, "--up", "y", "--split", "1,0,0",
              "-o", demo.out / "mocap_motive.h5")  # fmt: skip
     print("a cable-driven prism's take with its motor command log (40 Hz, held onto the frames)")

@@ -117,7 +117,9 @@ def run(args: argparse.Namespace) -> int:
         f"{2 * robot.topology.n_rods} end caps, {100 * (1 - seen):.2f} % unseen; "
         f"relabelled frames {dataset.attrs['relabelled_frames']}, "
         f"ghost points rejected {dataset.attrs['ghost_points']}; "
-        f"splits {', '.join(f'{k} {v.n_trajectories}' for k, v in dataset.splits.items())}"
+        + (f"labelled samples off their rod's length read as unseen "
+           f"{dataset.attrs['rejected_samples']}; " if dataset.attrs["rejected_samples"] else "")
+        + f"splits {', '.join(f'{k} {v.n_trajectories}' for k, v in dataset.splits.items())}"
         + (f"; commands of {robot.topology.n_cables} cable actuators from {len(args.commands)} "
            "logs" if args.commands else "")
     )

@@ -23,6 +23,10 @@ from tensegrity_env.topology import Topology
 ROD_LENGTH_TOL = 0.1
 #: recordings of one dataset may differ in nominal rate by at most this fraction
 RATE_TOL = 0.01
+#: a labelled frame's rod may differ from its length by at most this fraction; beyond,
+#: both its end caps are read as unseen in that frame (a marker swapped with another
+#: rod's, or mislabelled for a few frames)
+ROD_FRAME_TOL = 0.05
 #: a floor: the take's lowest marker stays within this height band [m] (5th to 95th
 #: percentile over the frames) along one axis ...
 FLOOR_BAND = 0.01
@@ -68,7 +72,8 @@ class ImportedTake:
     """End caps of one take. ``caps`` (F, 2R, 3) [m], NaN unseen; ``time`` (F,) [s];
     ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen);
     ``commands`` (F, C): each cable actuator's command in force from each frame on
-    [command units] (None: not logged, zero)."""
+    [command units] (None: not logged, zero); ``rejected``: labelled samples read as
+    unseen (:func:`checked_labels`)."""
 
     source: Path
     time: np.ndarray
@@ -78,6 +83,7 @@ class ImportedTake:
     ghosts: int
     track_of_cap: np.ndarray
     commands: np.ndarray | None = None
+    rejected: int = 0
 
     def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
@@ -163,19 +169,22 @@ def check_vertical(rec: MarkerRecording) -> None:
         )
 
 
+def cap_distances(robot: Robot) -> np.ndarray:
+    """(R,) [m]: the distance between each rod's two end caps."""
+    return np.array([float(np.linalg.norm(np.subtract(*rod.ends()))) for rod in robot.topology.rods])
+
+
 def check_rod_lengths(caps: np.ndarray, robot: Robot, source: Path) -> None:
     """Refuse labelled end caps ``caps`` (F, 2R, 3) [m] whose rods are not the robot's
     length: the median distance of each rod's two end caps over the frames that see both
     must be within :data:`ROD_LENGTH_TOL` of the rod's length (mislabelled markers, a
     wrong map or a wrong length unit are far outside)."""
-    for r, rod in enumerate(robot.topology.rods):
+    for r, (rod, length) in enumerate(zip(robot.topology.rods, cap_distances(robot), strict=True)):
         a, b = caps[:, 2 * r], caps[:, 2 * r + 1]
         both = np.isfinite(a).all(-1) & np.isfinite(b).all(-1)
         if not both.any():
             continue
         apart = float(np.median(np.linalg.norm(a[both] - b[both], axis=-1)))
-        ends = rod.ends()
-        length = float(np.linalg.norm(ends[1] - ends[0]))
         if abs(apart - length) > ROD_LENGTH_TOL * length:
             raise InputError(
                 f"{source}: the end caps of {rod.name} are {apart:.4g} m apart (median over "
@@ -195,13 +204,16 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
     n_caps = 2 * robot.topology.n_rods
     if not rec.unlabelled:
         assert mmap is not None
-        caps = _apply_map(rec, mmap, n_caps)
         column = np.full(n_caps, -1)
         for name, (cap, _) in mmap.caps.items():
             column[cap] = rec.names.index(name)
+        caps, swapped, rejected = checked_labels(_apply_map(rec, mmap, n_caps), cap_distances(robot))
         track = np.where(np.isfinite(caps).all(-1), column, -1)
-        return ImportedTake(rec.source, rec.time, caps, rec.rate, 0, 0, track)
-    lengths = np.array([r.length for r in robot.topology.rods])
+        for f, r in swapped:
+            track[f, 2 * r : 2 * r + 2] = track[f, 2 * r : 2 * r + 2][::-1]
+        relabelled = len({f for f, _ in swapped})
+        return ImportedTake(rec.source, rec.time, caps, rec.rate, relabelled, 0, track, rejected=rejected)
+    lengths = cap_distances(robot)
     if mmap is not None:
         first = np.full((n_caps, 3), np.nan)
         for name, (cap, _) in mmap.caps.items():
@@ -214,6 +226,36 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
     return ImportedTake(
         rec.source, rec.time, lab.caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap
     )
+
+
+def checked_labels(caps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]], int]:
+    """Labelled end caps ``caps`` (F, 2R, 3) [m] checked frame by frame against the rods'
+    ``lengths`` (R,) [m].
+
+    A rod whose two end caps jump, from one frame to the next, each to about where the
+    other was (its two markers' labels swapped: no rod turns half a turn in one frame)
+    gets them swapped back. Then a rod whose end caps are not its length apart, within
+    :data:`ROD_FRAME_TOL`, loses both in that frame (a marker swapped with another
+    rod's, or mislabelled). Returns the caps, the (frame, rod) pairs swapped back, and
+    the number of samples read as unseen.
+    """
+    caps = caps.copy()
+    R = len(lengths)
+    swapped: list[tuple[int, int]] = []
+    both = np.isfinite(caps).all(-1).reshape(len(caps), R, 2).all(-1)  # (F, R)
+    for r in range(R):
+        for f in np.flatnonzero(both[1:, r] & both[:-1, r]) + 1:
+            a, b = caps[f, 2 * r], caps[f, 2 * r + 1]
+            pa, pb = caps[f - 1, 2 * r], caps[f - 1, 2 * r + 1]
+            stay = np.linalg.norm(a - pa) + np.linalg.norm(b - pb)
+            cross = np.linalg.norm(a - pb) + np.linalg.norm(b - pa)
+            if cross < stay and stay > lengths[r]:
+                caps[f, 2 * r : 2 * r + 2] = caps[f, 2 * r : 2 * r + 2][::-1].copy()
+                swapped.append((int(f), r))
+    apart = np.linalg.norm(caps[:, 0::2] - caps[:, 1::2], axis=-1)  # (F, R)
+    off = np.isfinite(apart) & (np.abs(apart - lengths) > ROD_FRAME_TOL * lengths)
+    caps[np.repeat(off, 2, axis=1)] = np.nan
+    return caps, swapped, int(2 * off.sum())
 
 
 def parse_fractions(text: str) -> tuple[float, float, float]:
@@ -278,5 +320,6 @@ def build_dataset(
         "files": [str(t.source) for t in takes],
         "relabelled_frames": int(sum(t.relabelled_frames for t in takes)),
         "ghost_points": int(sum(t.ghosts for t in takes)),
+        "rejected_samples": int(sum(t.rejected for t in takes)),
     }
     return Dataset(topology=robot.topology, dt=float(1.0 / np.median(rates)), splits=splits, attrs=attrs)

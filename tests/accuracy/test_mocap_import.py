@@ -244,7 +244,7 @@ def test_swapped_labels_are_swapped_back_within_a_rod_and_dropped_across_rods(tm
     """Labelling errors of a labelled export: a rod's two markers swapped for 11 frames
     come back in place (no rod turns half a turn in 1/120 s); markers of two rods
     swapped for 5 frames leave both rods off their length there, read as unseen."""
-    time, caps, names = clean
+    _, caps, names = clean
     pts = caps.copy()
     pts[60:71, [0, 1]] = caps[60:71, [1, 0]]  # rod0's end caps swapped
     pts[30:35, [2, 4]] = caps[30:35, [4, 2]]  # rod1's end 0 and rod2's end 0 swapped

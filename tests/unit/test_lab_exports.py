@@ -211,3 +211,22 @@ def test_inspect_looks_at_a_take_before_import_and_stops_quietly_when_piped_to_h
     assert lines[-1] == "  ... and 20 more"
     piped = subprocess.run(" ".join(cli) + " | head -n 1", shell=True, capture_output=True, text=True)
     assert piped.stdout.count("\n") == 1 and piped.stderr == ""
+
+
+def test_markers_a_constant_distance_off_the_caps_are_not_read_as_labelling_errors() -> None:
+    """Markers 3.5 cm beyond both end caps of a 1 m rod (a map without offsets) sit 7 %
+    off the rod's length in every frame: its usual distance, nothing rejected; a frame
+    in which one marker is another rod's is."""
+    from identification.data.mocap.importer import checked_labels
+
+    rng = np.random.default_rng(2)
+    t = np.arange(100) / 120.0
+    axis = np.stack([np.cos(t), np.sin(t), 0 * t], -1)  # (F, 3), turning slowly
+    centre = np.array([0.0, 0.0, 0.5]) + rng.normal(0, 1e-3, (100, 3))
+    caps = np.stack([centre - 0.535 * axis, centre + 0.535 * axis], 1)  # 1.07 m apart
+    caps += rng.normal(0, 1e-3, caps.shape)
+    out, swapped, rejected = checked_labels(caps, np.array([1.0]))
+    assert swapped == [] and rejected == 0
+    caps[40, 1] = caps[40, 0] + [0.0, 0.0, 0.6]  # another rod's marker
+    out, swapped, rejected = checked_labels(caps, np.array([1.0]))
+    assert swapped == [] and rejected == 2 and np.isnan(out[40]).all()

@@ -23,7 +23,7 @@ from tensegrity_env.topology import Topology
 ROD_LENGTH_TOL = 0.1
 #: recordings of one dataset may differ in nominal rate by at most this fraction
 RATE_TOL = 0.01
-#: a labelled frame's rod may differ from its length by at most this fraction; beyond,
+#: a labelled frame's rod may differ from its usual length by this fraction at most; beyond,
 #: both its end caps are read as unseen in that frame (a marker swapped with another
 #: rod's, or mislabelled for a few frames)
 ROD_FRAME_TOL = 0.05
@@ -234,9 +234,10 @@ def checked_labels(caps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, l
 
     A rod whose two end caps jump, from one frame to the next, each to about where the
     other was (its two markers' labels swapped: no rod turns half a turn in one frame)
-    gets them swapped back. Then a rod whose end caps are not its length apart, within
-    :data:`ROD_FRAME_TOL`, loses both in that frame (a marker swapped with another
-    rod's, or mislabelled). Returns the caps, the (frame, rod) pairs swapped back, and
+    gets them swapped back. Then a rod whose end caps are not their usual distance
+    apart (the take's median, which a constant marker offset moves), within
+    :data:`ROD_FRAME_TOL` of its length, loses both in that frame (a marker swapped with
+    another rod's, or mislabelled). Returns the caps, the (frame, rod) pairs swapped back, and
     the number of samples read as unseen.
     """
     caps = caps.copy()
@@ -253,7 +254,10 @@ def checked_labels(caps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, l
                 caps[f, 2 * r : 2 * r + 2] = caps[f, 2 * r : 2 * r + 2][::-1].copy()
                 swapped.append((int(f), r))
     apart = np.linalg.norm(caps[:, 0::2] - caps[:, 1::2], axis=-1)  # (F, R)
-    off = np.isfinite(apart) & (np.abs(apart - lengths) > ROD_FRAME_TOL * lengths)
+    seen = np.isfinite(apart)
+    usual = np.array([np.median(apart[seen[:, r], r]) if seen[:, r].any() else lengths[r]
+                      for r in range(R)])  # fmt: skip
+    off = seen & (np.abs(apart - usual) > ROD_FRAME_TOL * lengths)
     caps[np.repeat(off, 2, axis=1)] = np.nan
     return caps, swapped, int(2 * off.sum())
 

@@ -13,6 +13,7 @@ from tqdm import tqdm
 from identification.data.dataset import write_dataset
 from identification.data.mocap.commands import hold_commands, read_commands
 from identification.data.mocap.importer import (
+    ImportedTake,
     build_dataset,
     check_take,
     check_vertical,
@@ -68,9 +69,11 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
-def take_commands(files: list[Path], recordings: list[MarkerRecording], n_cables: int) -> list[np.ndarray | None]:
-    """Each take's cable commands from its ``--commands`` file, held onto its frames
-    (:func:`~identification.data.mocap.commands.hold_commands`); None without files."""
+def command_logs(
+    files: list[Path], recordings: list[MarkerRecording], n_cables: int
+) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    """Each take's ``--commands`` log, times (K,) [s] and values (K, C), read and checked
+    against its take before any work; None for every take without files."""
     if not files:
         if n_cables:
             print(f"warning: the robot has {n_cables} cable actuators and no --commands were "
@@ -81,8 +84,18 @@ def take_commands(files: list[Path], recordings: list[MarkerRecording], n_cables
     if len(files) != len(recordings):
         raise InputError(f"--commands: {len(files)} command files for {len(recordings)} takes "
                          "(one per take, in the order of the files)")  # fmt: skip
-    return [hold_commands(*read_commands(f, n_cables), rec.time, f"{f} (take {rec.source})")
-            for f, rec in zip(files, recordings, strict=True)]  # fmt: skip
+    logs: list[tuple[np.ndarray, np.ndarray] | None] = []
+    for f, rec in zip(files, recordings, strict=True):
+        times, values = read_commands(f, n_cables)
+        hold_commands(times, values, rec.time[:1], str(f))  # refuses a log that starts late
+        logs.append((times, values))
+    return logs
+
+
+def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None) -> ImportedTake:
+    """``take`` with its log's commands held onto its frames
+    (:func:`~identification.data.mocap.commands.hold_commands`)."""
+    return take if log is None else replace(take, commands=hold_commands(*log, take.time, str(take.source)))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -100,10 +113,15 @@ def run(args: argparse.Namespace) -> int:
         for rec in recordings:
             check_vertical(rec)
     maps = [check_take(rec, robot, mmap) for rec in recordings]
-    commands = take_commands(args.commands, recordings, robot.topology.n_cables)
-    takes = [replace(label_take(r, robot, m), commands=u)
-             for r, m, u in tqdm(list(zip(recordings, maps, commands, strict=True)), desc="labelling",
-                                 unit="take")]  # fmt: skip
+    logs = command_logs(args.commands, recordings, robot.topology.n_cables)
+    takes = [with_commands(label_take(r, robot, m), log)
+             for r, m, log in tqdm(list(zip(recordings, maps, logs, strict=True)), desc="labelling",
+                                   unit="take")]  # fmt: skip
+    for rec, take in zip(recordings, takes, strict=True):
+        if len(take.time) < rec.n_frames:
+            print(f"{rec.source}: tracking starts at frame {rec.n_frames - len(take.time)} "
+                  f"({take.time[0]:.3g} s), the first that shows every end cap; the frames "
+                  "before it are left out")  # fmt: skip
     dataset = build_dataset(takes, robot, fractions, assign or None)
     write_dataset(args.output, dataset)
     frames = sum(len(t.time) for t in takes)

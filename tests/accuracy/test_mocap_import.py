@@ -257,3 +257,18 @@ def test_swapped_labels_are_swapped_back_within_a_rod_and_dropped_across_rods(tm
     unseen = ~np.isfinite(nodes).all(-1)
     assert unseen[30:35][:, [2, 3, 4, 5]].all() and unseen.sum() == 20
     np.testing.assert_allclose(nodes[~unseen], caps[~unseen], atol=1e-6)  # float32 file
+
+
+def test_unlabelled_tracking_starts_at_the_first_frame_that_shows_every_end_cap(clean) -> None:
+    """A take whose first 10 frames miss a marker: tracking starts at frame 10, from
+    the robot's shape, and labels every end cap right from there."""
+    time, caps, names = clean
+    take = record_take(time, caps, names, np.random.default_rng(1), noise=1e-3, unlabelled=True)
+    points = take.points.copy()
+    points[:10, np.flatnonzero(take.cap_of_track == 5)] = np.nan  # end cap 5 hidden at first
+    rec = MarkerRecording(Path("late.c3d"), take.time, points, take.names, 120.0).check()
+    imp = take_end_caps(rec, read_robot(ROBOT), None)
+    assert len(imp.time) == len(time) - 10 and imp.time[0] == time[10]
+    ok = imp.track_of_cap >= 0
+    assert ok.all() and (take.cap_of_track[imp.track_of_cap] == np.arange(12)).all()
+    np.testing.assert_allclose(imp.caps, caps[10:], atol=6e-3)  # 1 mm noise, 6 sigma

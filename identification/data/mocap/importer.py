@@ -111,7 +111,8 @@ def _apply_map(rec: MarkerRecording, mmap: MarkerMap, n_caps: int) -> np.ndarray
 
 def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> MarkerMap | None:
     """What :func:`take_end_caps` needs, checked before any work: the map to use
-    (labelled takes) or the first frame's start (unlabelled). One-line errors; a take
+    (labelled takes), or for unlabelled takes without a map a frame that shows every end
+    cap (tracking starts at the first such frame; the frames before it are left out). One-line errors; a take
     whose frame times leave most of its grid empty (a timestamp glitch, a long pause) is
     refused here, as ``identify`` would (:func:`~identification.data.sample_grid.check_span`)."""
     finite = np.isfinite(rec.time)
@@ -142,13 +143,20 @@ def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Ma
             f"{rec.source}: unlabelled markers need --map (the first frame's track ids) "
             "or an MJCF robot file (its rest pose starts the tracking)"
         )
-    seen = int(np.isfinite(rec.points[0]).all(-1).sum())
-    if seen < n_caps:
+    if first_full_frame(rec, n_caps) is None:
+        most = int(np.isfinite(rec.points).all(-1).sum(-1).max())
         raise InputError(
-            f"{rec.source}: first frame shows {seen} points for {n_caps} end caps; "
-            "pass --map naming its tracks"
+            f"{rec.source}: no frame shows all {n_caps} end caps (at most {most} points); "
+            "pass --map naming the first frame's tracks"
         )
     return None
+
+
+def first_full_frame(rec: MarkerRecording, n_caps: int) -> int | None:
+    """The first frame of an unlabelled take with at least ``n_caps`` points (where
+    tracking starts from the robot's shape), None if there is none."""
+    full = np.flatnonzero(np.isfinite(rec.points).all(-1).sum(-1) >= n_caps)
+    return int(full[0]) if full.size else None
 
 
 def check_vertical(rec: MarkerRecording) -> None:
@@ -220,6 +228,9 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
             first[cap] = rec.points[0, rec.names.index(name)]
     else:
         assert robot.rest_caps is not None
+        start = first_full_frame(rec, n_caps)
+        assert start is not None, "check_take refuses a take without a full frame"
+        rec = rec.from_frame(start)
         seen = np.isfinite(rec.points[0]).all(-1)
         first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
     lab = label_clouds(rec.points, rec.time, first, lengths)

@@ -78,6 +78,10 @@ class MarkerRecording:
             raise InputError(f"{where}: marker positions contain inf")
         return self
 
+    def from_frame(self, k: int) -> MarkerRecording:
+        """This take from frame ``k`` on (times still from the file's first frame)."""
+        return self if k == 0 else replace(self, time=self.time[k:], points=self.points[k:])
+
     def z_up(self, up: str) -> MarkerRecording:
         """This take in a z-up frame, its file's vertical axis being ``up`` (x, y or z)."""
         if up == "z":

@@ -33,9 +33,10 @@ def register(sub: Any) -> None:
         "import-mocap",
         help="import C3D, TSV or CSV motion capture (labelled or unlabelled) into an HDF5 dataset",
         description=(
-            "Read motion-capture takes (C3D, Qualisys TSV, OptiTrack Motive CSV, Vicon Nexus CSV, or a plain CSV 'time, "
-            "<marker>_x, <marker>_y, <marker>_z, ...'), map markers to the robot's end caps (a marker map, or "
-            "marker names <rod>_<0|1>), label unlabelled point clouds by tracking the end caps "
+            "Read motion-capture takes (C3D, Qualisys TSV, OptiTrack Motive CSV, Vicon Nexus "
+            "CSV, or a plain CSV 'time, <marker>_x, <marker>_y, <marker>_z, ...'), map markers to "
+            "the robot's end caps (a marker map, or marker names <rod>_<0|1>), check labelled "
+            "markers frame by frame, label unlabelled point clouds by tracking the end caps "
             "under the rod-length constraint, and write end caps with their sample times and "
             "gaps (NaN) as a dataset. One take per file becomes one trajectory."
         ),

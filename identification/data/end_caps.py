@@ -97,7 +97,7 @@ def check_caps_seen(nodes: np.ndarray, topology: Topology, where: str) -> None:
     (a rod's pose needs both of its end caps), or none is seen in four consecutive
     samples (the noise level, from third differences, cannot be estimated, nor any
     window fitted), or which holds placeholder samples for unseen end caps (exactly the
-    origin, or a position held exactly over frames:
+    origin, a position held exactly over frames, a duplicated sample:
     :func:`~identification.data.quality.placeholder_samples`)."""
     held = placeholder_samples(nodes).sum((0, 1))
     if held.any():

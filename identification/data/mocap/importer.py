@@ -112,9 +112,9 @@ def _apply_map(rec: MarkerRecording, mmap: MarkerMap, n_caps: int) -> np.ndarray
 def check_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> MarkerMap | None:
     """What :func:`take_end_caps` needs, checked before any work: the map to use
     (labelled takes), or for unlabelled takes without a map a frame that shows every end
-    cap (tracking starts at the first such frame; the frames before it are left out). One-line errors; a take
-    whose frame times leave most of its grid empty (a timestamp glitch, a long pause) is
-    refused here, as ``identify`` would (:func:`~identification.data.sample_grid.check_span`)."""
+    cap (tracking starts at the first such frame). One-line errors; a take whose frame
+    times leave most of its grid empty (a timestamp glitch, a long pause) is refused
+    here, as ``identify`` would (:func:`~identification.data.sample_grid.check_span`)."""
     finite = np.isfinite(rec.time)
     if finite.any():
         dt = 1.0 / rec.rate
@@ -202,7 +202,8 @@ def check_rod_lengths(caps: np.ndarray, robot: Robot, source: Path) -> None:
 
 
 def take_end_caps(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> ImportedTake:
-    """The robot's end caps in every frame of ``rec`` (labelled or a point cloud)."""
+    """The robot's end caps in every frame of ``rec`` (labelled or a point cloud; an
+    unlabelled take without a map from :func:`first_full_frame` on)."""
     return label_take(rec, robot, check_take(rec, robot, mmap))
 
 

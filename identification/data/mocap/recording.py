@@ -116,8 +116,8 @@ MOCAP_SUFFIXES = (".c3d", ".csv", ".txt", ".tsv")
 
 def read_recording(path: str | Path, units: str | None = None, up: str = "z") -> MarkerRecording:
     """Read a C3D file, a Qualisys TSV export, an OptiTrack Motive or Vicon Nexus CSV
-    export or a plain CSV, by content;
-    placeholder samples for unseen markers are read as NaN.
+    export or a plain CSV, by content; placeholder samples for unseen markers are read
+    as NaN.
 
     ``units`` (``"m"``/``"mm"``) is used only where the file does not say; ``up``: the
     file's vertical axis (``x``, ``y`` or ``z``), rotated to z.

@@ -170,6 +170,9 @@ def run(args: argparse.Namespace) -> int:
         check_caps_seen(split.nodes, raw.topology, f"{args.dataset}: split '{name}'")
     end_caps_only = not all(s.has_states for s in raw.splits.values())
     multi_step = args.method == "trajectory" or (args.method == "auto" and end_caps_only)
+    if multi_step and any(s.has_cable_commands for s in raw.splits.values()):
+        raise InputError(f"{args.dataset}: cable actuator commands: the trajectory method of "
+                         "diagnose does not apply them (identify does, in free flight)")  # fmt: skip
     names = [n for n in args.candidates.split(",") if n] or None
     bad = [n for n in names or [] if n not in EFFECTS]
     if bad:

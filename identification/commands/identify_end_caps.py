@@ -42,7 +42,7 @@ from tensegrity_env.io_utils import InputError, StageError
 from tensegrity_env.model import Model
 
 UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
-         "rest_length": "m", "control_gain": "1"}  # fmt: skip
+         "rest_length": "m", "control_gain": "1", "cable_gain": "N/unit"}  # fmt: skip
 
 
 #: what the standard errors of a fit on the floor mean (docs/discovery.md measures them)
@@ -58,7 +58,7 @@ def parameter_rows(
     """The identify table's rows from a fitted trajectory identifier.
 
     ``stderr_`` of the fit is relative (the parameters are fitted as logarithms):
-    absolute standard errors are ``value * relative``. Both perpendicular inertias of a
+    absolute standard errors are ``|value| * relative``. Both perpendicular inertias of a
     rod are one fitted value; the axial one is assumed (``notes_``).
     """
     p = est.params_.numpy()
@@ -73,7 +73,7 @@ def parameter_rows(
                                      "not identifiable", est.notes_[name]))  # fmt: skip
             return
         status = "anchored" if name in anchors else ("ratio" if ratio else "identified")
-        se = value * rel[key] if key in rel else float("nan")
+        se = abs(value) * rel[key] if key in rel else float("nan")
         rows.append(ParameterRow(name, group, el, value, se, UNITS[group], status))
 
     for r, rod in enumerate(topo.rods):
@@ -87,6 +87,9 @@ def parameter_rows(
             name = f"{group}[{spring.name}]"
             row(name, group, s, float(p[group][s]), name)
     row("control_gain", "control_gain", -1, float(p["control_gain"]), "control_gain")
+    for c, s in enumerate(topo.cable_actuators):
+        name = f"cable_gain[{topo.springs[s].name}]"
+        row(name, "cable_gain", c, float(p["cable_gain"][c]), name)
     return rows
 
 
@@ -117,6 +120,10 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     effects: list[PhysicalEffect] = []
     evidence: FloorEvidence | None = None
     floor, why = contact_gate(split, dataset.topology)
+    if floor and split.has_cable_commands:
+        raise InputError(f"{args.dataset}: end caps on a floor with cable actuator commands: the "
+                         "joint fit with ground contact does not apply cable commands; identify "
+                         "from free flight, or from rod states")  # fmt: skip
     if floor:
         print(f"end caps reach a floor ({why}): ground contact is fitted with the declared "
               "model")  # fmt: skip

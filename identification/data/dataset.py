@@ -88,6 +88,11 @@ class Split:
         return int(self.nodes.shape[1]) - 1
 
     @property
+    def has_cable_commands(self) -> bool:
+        """Whether this split drives cable actuators (non-zero ``cable_control``)."""
+        return self.cable_control is not None and bool(np.any(self.cable_control != 0))
+
+    @property
     def has_states(self) -> bool:
         return all(getattr(self, k) is not None for k in STATE_KEYS)
 

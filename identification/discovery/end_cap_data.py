@@ -287,7 +287,7 @@ class EndCapData:
         if name not in self.smooth:
             self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
-        win = cut_windows(split.nodes, split.control, grid, steps)
+        win = cut_windows(split.nodes, split.control, grid, steps, split.cable_control)
         radii = torch.as_tensor(cap_radii(self.topology))
         if airborne:
             gap = win.obs[..., 2] - radii
@@ -430,7 +430,8 @@ def heldout(
 def predicted_caps(data: EndCapData, fit: TrajFit, windows: Windows) -> torch.Tensor:
     """End caps (B, W+1, 2R, 3) [m] of ``fit`` rolled out from ``windows``' states."""
     engine, vec = fixed_engine(data, fit)
-    roll = engine.rollout(windows.state, vec.params(vec.start), windows.steps, windows.control)
+    roll = engine.rollout(windows.state, vec.params(vec.start), windows.steps, windows.control,
+                          windows.cables)  # fmt: skip
     return end_caps(engine, roll.p, roll.q)
 
 

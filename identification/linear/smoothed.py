@@ -77,12 +77,14 @@ def parse_anchors(topology: Topology, anchors: Mapping[str, float]) -> dict[tupl
 
 
 def smoothed_features(
-    topology: Topology, s: SmoothedStates, control: np.ndarray, keep: np.ndarray | None = None
-) -> TransitionFeatures:
+    topology: Topology, s: SmoothedStates, control: np.ndarray, keep: np.ndarray | None = None,
+    cables: np.ndarray | None = None,
+) -> TransitionFeatures:  # fmt: skip
     """:class:`TransitionFeatures` at every sample ``t < T`` away from the ends (``s.margin``).
 
     Continuous-time accelerations from the smoothing replace the transition's finite
-    differences; ``control`` is (N, T, R, 3); ``keep`` (N, T) selects samples (None: all).
+    differences; ``control`` is (N, T, R, 3), ``cables`` the cable actuators' commands
+    (N, T, C) (None: without cable actuators); ``keep`` (N, T) selects samples (None: all).
     Samples whose filter window holds a gap (``s.whole`` False) are never used: their
     accelerations would come from a polynomial fitted across the gap.
     """
@@ -128,6 +130,7 @@ def smoothed_features(
         springs=spring_frames(kin, nodes[:, 0], nodes[:, 1]),
         control=u,
         control_arm=arm_u,
+        cables=None if cables is None else pick(cables),
     )
 
 
@@ -140,6 +143,7 @@ def smoothed_regression(
     keep: np.ndarray | None = None,
     knots: np.ndarray | None = None,
     rod_keep: np.ndarray | None = None,
+    cables: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Stage 1: linear regression on end caps smoothed by
     :func:`~identification.data.end_caps.smooth_rod_states`.
@@ -151,9 +155,10 @@ def smoothed_regression(
     ``knots`` (S,) [m]: also fit each spring's stiffness change ``ΔK`` below its knot
     (:func:`~identification.linear.design.hinge_blocks`), returned as ``compression_stiffness``
     with its standard error ``compression_stiffness_se`` (S,) [N/m].
+    ``cables`` (N, T, C): the cable actuators' commands (a robot with cable actuators).
     Returns natural-unit values: ``stiffness``, ``damping``, ``rest_length`` (S,),
-    ``mass``, ``inertia_perp`` (R,) and ``control_gain`` (1,); NaN where the regression
-    cannot tell. Samples near the ends, where the filter extrapolates, are not used.
+    ``mass``, ``inertia_perp`` (R,), ``control_gain`` (1,) and ``cable_gain`` (C,); NaN
+    where the regression cannot tell. Samples near the ends, where the filter extrapolates, are not used.
     Anchors (see :func:`parse_anchors`) fix the scale; without one it is ``mass`` of the
     first rod = 1.
     """
@@ -163,7 +168,9 @@ def smoothed_regression(
     slots = rod_slots(layout)
     if rod_keep is not None:
         keep = rod_keep.any(-1) if keep is None else keep & rod_keep.any(-1)
-    feat = smoothed_features(topo, smooth, control, keep)
+    if topo.n_cables and cables is None:
+        cables = np.zeros((*control.shape[:2], topo.n_cables))
+    feat = smoothed_features(topo, smooth, control, keep, cables)
     P = layout.n_params
     S = topo.n_springs if knots is not None else 0
     blocks = rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE))
@@ -196,8 +203,9 @@ def smoothed_regression(
     if not any(v != 0 for v in fixed.values()):
         fixed = {layout.index("mass", 0): 1.0}
     sol = solve_constrained(normal[:-1, :-1], fixed, feat.n * topo.n_rods * 6)
-    th = {
-        g: [] for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain")
+    th: dict[str, list[float]] = {
+        g: []
+        for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain", "cable_gain")
     }
     for value, group in zip(sol.theta[:P], layout.groups, strict=True):
         th[group].append(value)
@@ -213,4 +221,5 @@ def smoothed_regression(
             "mass": np.array(th["mass"]),
             "inertia_perp": np.where(count > 0, np.where(perp, inertia, 0).sum(1) / count, np.nan),
             "control_gain": np.array(th["control_gain"]),
+            "cable_gain": np.array(th["cable_gain"]),
         } | (hinge if S else {})

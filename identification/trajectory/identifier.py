@@ -65,7 +65,7 @@ from tqdm.auto import tqdm
 from identification.data.dataset import Dataset
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.linear.smoothed import parse_anchors, smoothed_regression
-from identification.trajectory.param_vector import DTYPE, GROUPS, ParamVector
+from identification.trajectory.param_vector import DTYPE, GROUPS, ParamVector, gain_sign
 from identification.trajectory.windowed_fit import fit_windows
 from identification.trajectory.windows import STATE_KEYS, cut_windows, fill_grid, window_schedule
 from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
@@ -156,11 +156,6 @@ class TrajectoryIdentifier:
 
     def _fit(self, dataset: Dataset, split: str) -> TrajectoryIdentifier:
         topo, data = dataset.topology, dataset.split(split)
-        if data.cable_control is not None and np.any(data.cable_control != 0):
-            raise InputError(
-                f"{dataset.path or 'dataset'}: split '{split}' has cable actuator commands,"
-                " which the trajectory fit does not apply; identify from rod states instead"
-            )
         off_axis = topo.off_axis_points()
         if off_axis:
             raise InputError(
@@ -171,9 +166,12 @@ class TrajectoryIdentifier:
         anchors = parse_anchors(topo, self.anchors)
         sg = odd_window(self.smoothing / dataset.dt)
         smooth = smooth_rod_states(data.nodes, dataset.dt, axes, sg)
-        start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity)
+        cables = data.cable_control
+        start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity,
+                                    cables=cables)  # fmt: skip
         has_control = bool(np.any(data.control != 0))
-        vec = self.start_vector(topo, axes, start, anchors, has_control)
+        has_cables = cables is not None and bool(np.any(cables != 0))
+        vec = self.start_vector(topo, axes, start, anchors, has_control, has_cables)
         engine = Engine(topo, dataset.dt, substeps=substeps_for(dataset.dt, self.physics_dt))
         grid = {k: getattr(smooth, k).copy() for k in STATE_KEYS}
         theta = vec.start[vec.free]
@@ -187,7 +185,7 @@ class TrajectoryIdentifier:
         plan = [(W, False) for W in schedule] + [(schedule[-1], True)]
         self.spin_fitted_ = False
         for k, (W, spin) in enumerate(plan):
-            windows = cut_windows(data.nodes, data.control, grid, W)
+            windows = cut_windows(data.nodes, data.control, grid, W, cables)
             if k == 0 and self.max_windows is not None and windows.size > self.max_windows:
                 rng = np.random.default_rng(self.seed)
                 windows = windows.take(np.sort(rng.choice(windows.size, self.max_windows, False)))
@@ -231,17 +229,20 @@ class TrajectoryIdentifier:
         names = vec.names()
         free = torch.nonzero(vec.free)[:, 0].tolist()
         self.stderr_ = {names[i]: float(s) for i, s in zip(free, final.stderr, strict=True)}
-        self.notes_ = self.notes(topo, axes, has_control)
+        self.notes_ = self.notes(topo, axes, has_control, has_cables)
         return self
 
     def start_vector(
         self, topo: Topology, axes: RodAxes, start: dict[str, np.ndarray],
-        anchors: dict[tuple[str, int], float], has_control: bool,
+        anchors: dict[tuple[str, int], float], has_control: bool, has_cables: bool = False,
     ) -> ParamVector:  # fmt: skip
         """The log-parameter vector the fit starts from: stage-1 values ``start`` (repaired
         where unusable, see :func:`~identification.linear.smoothed.smoothed_regression`), anchors
-        fixed; sets ``mode_`` ("ratios" without a scale anchor, else "anchored")."""
+        fixed; sets ``mode_`` ("ratios" without a scale anchor, else "anchored"). Cable
+        gains keep the sign stage 1 gives them; without cable commands they are held."""
         values, free = [], []
+        cable_sign = gain_sign(start.get("cable_gain", np.zeros(topo.n_cables)))
+        start = {**start, "cable_gain": np.abs(start.get("cable_gain", np.zeros(topo.n_cables)))}
         self.mode_ = "anchored"
         if not any(g != "rest_length" for g, _ in anchors):
             anchors = {**anchors, ("mass", 0): 1.0}
@@ -254,7 +255,7 @@ class TrajectoryIdentifier:
             for (g, i), value in anchors.items():
                 if g == group:
                     v[i], fixed[i] = value, True
-            if group == "control_gain" and not has_control:
+            if (group == "control_gain" and not has_control) or (group == "cable_gain" and not has_cables):
                 v[:], fixed[:] = 1.0, True
             values.append(v)
             free.append(~fixed)
@@ -264,10 +265,11 @@ class TrajectoryIdentifier:
             start=torch.as_tensor(np.log(np.concatenate(values)), dtype=DTYPE),
             free=torch.as_tensor(np.concatenate(free)),
             gravity=torch.tensor(self.gravity, dtype=DTYPE),
+            cable_sign=cable_sign,
         )
 
     @staticmethod
-    def notes(topo: Topology, axes: RodAxes, has_control: bool) -> dict[str, str]:
+    def notes(topo: Topology, axes: RodAxes, has_control: bool, has_cables: bool = False) -> dict[str, str]:
         notes = {
             f"inertia[{rod.name},{'xyz'[k]}]": (
                 "axial inertia: spin about the axis through both end caps is invisible in "
@@ -278,6 +280,11 @@ class TrajectoryIdentifier:
         }
         if not has_control:
             notes["control_gain"] = "no control in this data; not identifiable (assumed 1)"
+        if topo.n_cables and not has_cables:
+            for c in topo.cable_actuators:
+                notes[f"cable_gain[{topo.springs[c].name}]"] = (
+                    "no cable commands in this data; not identifiable (assumed 1)"
+                )
         return notes
 
     @property

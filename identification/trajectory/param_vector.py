@@ -21,8 +21,9 @@ from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 DTYPE = torch.float64
-#: the groups of the trajectory fit's log-parameter vector, in order
-GROUPS = ("stiffness", "damping", "rest_length", "mass", "inertia_perp", "control_gain")
+#: the groups of the trajectory fit's log-parameter vector, in order (``cable_gain``:
+#: the log of each cable actuator's gain magnitude, its sign held; empty without them)
+GROUPS = ("stiffness", "damping", "rest_length", "mass", "inertia_perp", "control_gain", "cable_gain")
 #: the trajectory fit keeps every parameter within a factor e^LOG_BOX (1e4) of its
 #: stage-1 start, so that one the data barely sees cannot run off towards 0, where
 #: its effect (and so its Jacobian column) drops below round-off and it never returns
@@ -36,6 +37,8 @@ class ParamVector:
 
     ``free`` marks the fitted entries; the others stay at ``start``. Inertia is
     ``I_perp`` on both perpendicular axes and the assumed ``M r^2 / 2`` on the axis.
+    A cable actuator's gain is ``cable_sign * exp(log |h_c|)`` (a tendon actuator's gain
+    may be negative: its sign comes from the start and is held).
     """
 
     topology: Topology
@@ -44,6 +47,7 @@ class ParamVector:
     free: torch.Tensor
     gravity: torch.Tensor
     coords: EffectCoords | None = None
+    cable_sign: torch.Tensor | None = None
 
     @classmethod
     def at(cls, topology: Topology, params: Params) -> ParamVector:
@@ -55,11 +59,14 @@ class ParamVector:
         """
         axes = RodAxes.of(topology)
         values = params_values(params, axes)
+        sign = gain_sign(values["cable_gain"])
+        values["cable_gain"] = np.abs(values["cable_gain"])
         v = np.concatenate([values[g] for g in GROUPS])
         v[~(np.isfinite(v) & (v > 0))] = 1.0
         start = torch.as_tensor(np.log(v), dtype=DTYPE)
         free = torch.zeros(len(start), dtype=torch.bool)
-        return cls(topology, axes, start, free, torch.as_tensor(params.gravity, dtype=DTYPE))
+        return cls(topology, axes, start, free, torch.as_tensor(params.gravity, dtype=DTYPE),
+                   cable_sign=sign)  # fmt: skip
 
     @property
     def n_effect(self) -> int:
@@ -110,8 +117,8 @@ class ParamVector:
 
     @property
     def sizes(self) -> dict[str, int]:
-        S, R = self.topology.n_springs, self.topology.n_rods
-        return dict(zip(GROUPS, (S, S, S, R, R, 1), strict=True))
+        S, R, C = self.topology.n_springs, self.topology.n_rods, self.topology.n_cables
+        return dict(zip(GROUPS, (S, S, S, R, R, 1, C), strict=True))
 
     def offset(self, group: str) -> int:
         return sum(list(self.sizes.values())[: GROUPS.index(group)])
@@ -146,17 +153,20 @@ class ParamVector:
             g["inertia_perp"].unsqueeze(-1) * (1 - axial) + (g["mass"] * r2).unsqueeze(-1) * axial
         )
         gain = g["control_gain"][..., 0]
+        sign = self.cable_sign if self.cable_sign is not None else torch.ones(self.sizes["cable_gain"], dtype=DTYPE)
         return Params(
             stiffness=g["stiffness"], damping=g["damping"], rest_length=g["rest_length"],
             mass=g["mass"], inertia=inertia, gravity=self.gravity,
             control_gain=gain if log_full.dim() == 1 else gain[:, None, None],
+            cable_gain=sign * g["cable_gain"],
         )  # fmt: skip
 
     def names(self) -> list[str]:
         """Name of every entry of the full vector, e.g. ``stiffness[spring3]``."""
         rods = [r.name for r in self.topology.rods]
         springs = [s.name for s in self.topology.springs]
-        labels = {"mass": rods, "inertia_perp": rods, "control_gain": None}
+        driven = [self.topology.springs[c].name for c in self.topology.cable_actuators]
+        labels = {"mass": rods, "inertia_perp": rods, "control_gain": None, "cable_gain": driven}
         out = []
         for group in GROUPS:
             els = labels.get(group, springs)
@@ -176,4 +186,11 @@ def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
         "mass": np.asarray(p["mass"], float),
         "inertia_perp": inertia[np.arange(R), (axes.axis + 1) % 3],
         "control_gain": np.atleast_1d(np.asarray(p["control_gain"], float)),
+        "cable_gain": np.atleast_1d(np.asarray(p.get("cable_gain", ()), float)),
     }
+
+
+def gain_sign(gain: np.ndarray) -> torch.Tensor:
+    """(C,) the sign of each cable gain in ``gain`` (+1 where 0 or not finite)."""
+    g = np.nan_to_num(np.asarray(gain, dtype=float))
+    return torch.as_tensor(np.where(g < 0, -1.0, 1.0), dtype=DTYPE)

@@ -132,6 +132,7 @@ def search_rolls(engine: Engine, vec: ParamVector, windows: Windows, spin: bool)
     params = vec.params(vec.start)
     obs = windows.obs.repeat(G, 1, 1, 1)
     ctrl = None if windows.control is None else windows.control.repeat(G, 1, 1, 1)
+    cables = None if windows.cables is None else windows.cables.repeat(G, 1, 1)
     w = windows.weights()
     weights = None if w is None else w.repeat(G, 1, 1, 1)
     state = windows.state
@@ -139,7 +140,7 @@ def search_rolls(engine: Engine, vec: ParamVector, windows: Windows, spin: bool)
         many = State(*(x.repeat(G, *([1] * (x.dim() - 1))) for x in state.tensors()))
         many = turned(many, r, int(axis), grid[:, 0].repeat_interleave(B),
                       grid[:, 1].repeat_interleave(B))  # fmt: skip
-        out = eng.rollout(many, params, windows.steps, ctrl)
+        out = eng.rollout(many, params, windows.steps, ctrl, cables)
         err = end_caps(eng, out.p, out.q) - obs
         if weights is not None:
             err = err * weights

@@ -160,6 +160,7 @@ def gauss_newton_fd(
     state = perturb(state, torch.einsum("bl,lrj->brj", z, basis))
     params = vec.params(vec.full(th))
     ctrl = None if win.control is None else win.control.repeat(n_t + 1, 1, 1, 1)
+    cables = None if win.cables is None else win.cables.repeat(n_t + 1, 1, 1)
     eng = vec.engine(engine, theta)
     # effect coordinates: one more rollout of the windows each, with its own engine
     extra = []
@@ -179,10 +180,12 @@ def gauss_newton_fd(
     caps_e = [[end_caps(engine, s.p, s.q)] for s in extra_state]
     for t in range(win.steps):
         u = None if ctrl is None else ctrl[:, t]
-        state = eng.step(state, params, u)
+        uc = None if cables is None else cables[:, t]
+        state = eng.step(state, params, u, uc)
         caps.append(end_caps(engine, state.p, state.q))
         for k in range(n_e):
-            extra_state[k] = extra[k].step(extra_state[k], p0, None if u is None else u[:b])
+            extra_state[k] = extra[k].step(extra_state[k], p0, None if u is None else u[:b],
+                                           None if uc is None else uc[:b])  # fmt: skip
             caps_e[k].append(end_caps(engine, extra_state[k].p, extra_state[k].q))
         if len(caps) == block or t == win.steps - 1:
             x = torch.stack(caps, dim=1).reshape(n_t + 1, b, len(caps), -1)

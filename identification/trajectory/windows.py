@@ -34,6 +34,8 @@ class Windows:
         traj, start: trajectory index and first sample of each window, (B,).
         valid: which samples count, (B, W+1) bool, or None (all): windows of
             different lengths share one batch, each ending where its valid samples do.
+        cables: the cable actuators' commands during each step, (B, W, C), or None
+            (no cable actuators, or no commands).
     """
 
     obs: torch.Tensor
@@ -42,6 +44,7 @@ class Windows:
     traj: np.ndarray
     start: np.ndarray
     valid: torch.Tensor | None = None
+    cables: torch.Tensor | None = None
 
     @property
     def size(self) -> int:
@@ -80,15 +83,18 @@ class Windows:
         t = torch.as_tensor(i)
         ctrl = None if self.control is None else self.control[t]
         valid = None if self.valid is None else self.valid[t]
-        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[i], self.start[i], valid)
+        cables = None if self.cables is None else self.cables[t]
+        return Windows(self.obs[t], ctrl, self.state.index(t), self.traj[i], self.start[i], valid, cables)
 
 
 def cut_windows(
-    nodes: np.ndarray, control: np.ndarray, grid: dict[str, np.ndarray], window: int
-) -> Windows:
+    nodes: np.ndarray, control: np.ndarray, grid: dict[str, np.ndarray], window: int,
+    cables: np.ndarray | None = None,
+) -> Windows:  # fmt: skip
     """Non-overlapping windows of about ``window`` steps over every trajectory.
 
-    ``nodes`` (N, T+1, 2R, 3), ``control`` (N, T, R, 3); initial states are read from
+    ``nodes`` (N, T+1, 2R, 3), ``control`` (N, T, R, 3), ``cables`` (N, T, C) or None;
+    initial states are read from
     ``grid``, rod states at every sample (N, T+1, R, ·) (the smoothing, or a previous
     fit). The length is adjusted so that ``T // window`` windows tile each trajectory
     (fewer than that many steps are left over at its end). End caps that were not seen
@@ -118,7 +124,15 @@ def cut_windows(
     state = State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS))
     ctrl_t = torch.as_tensor(ctrl, dtype=DTYPE) if np.any(ctrl != 0) else None
     valid = None if seen.all() else torch.as_tensor(seen)
-    return Windows(obs, ctrl_t, state, traj, start, valid)
+    return Windows(obs, ctrl_t, state, traj, start, valid, cable_windows(cables, traj, span))
+
+
+def cable_windows(cables: np.ndarray | None, traj: np.ndarray, span: np.ndarray) -> torch.Tensor | None:
+    """The cable commands (B, W, C) of windows over samples ``span`` (B, W+1) of
+    trajectories ``traj`` (B,); None without commands (or all zero)."""
+    if cables is None or not np.any(cables != 0):
+        return None
+    return torch.as_tensor(cables[traj[:, None], span[:, :-1]], dtype=DTYPE)
 
 
 def defined_starts(
@@ -142,7 +156,7 @@ def fill_grid(
     engine: Engine, params: Params, windows: Windows, grid: dict[str, np.ndarray]
 ) -> None:
     """Write the rollout of every fitted window into ``grid`` (N, T+1, R, ·), in place."""
-    roll = engine.rollout(windows.state, params, windows.steps, windows.control)
+    roll = engine.rollout(windows.state, params, windows.steps, windows.control, windows.cables)
     span = windows.start[:, None] + np.arange(windows.steps + 1)
     for k, arr in roll.numpy().items():
         grid[k][windows.traj[:, None], span] = arr
@@ -205,7 +219,7 @@ def window_residual(
     def f(z: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
         state = perturb(win.state, torch.einsum("bl,lrj->brj", z, basis))
         eng = vec.engine(engine, theta)
-        roll = eng.rollout(state, vec.params(vec.full(theta)), win.steps, win.control)
+        roll = eng.rollout(state, vec.params(vec.full(theta)), win.steps, win.control, win.cables)
         r = end_caps(eng, roll.p, roll.q) - win.obs
         w = win.weights()
         return r if w is None else r * w

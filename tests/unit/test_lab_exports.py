@@ -230,3 +230,25 @@ def test_markers_a_constant_distance_off_the_caps_are_not_read_as_labelling_erro
     caps[40, 1] = caps[40, 0] + [0.0, 0.0, 0.6]  # another rod's marker
     out, swapped, rejected = checked_labels(caps, np.array([1.0]))
     assert swapped == [] and rejected == 2 and np.isnan(out[40]).all()
+
+
+def test_diagnose_refuses_end_caps_with_cable_commands_before_any_fit(tmp_path: Path) -> None:
+    import re
+
+    from tensegrity_env.mjcf import from_mjcf
+
+    asset = Path(__file__).resolve().parents[2] / "tensegrity_env/assets/icosahedron_rolling.xml"
+    xml = re.sub(r"<actuator>.*</actuator>",
+                 '<actuator><general name="a0" tendon="spring0" gainprm="-40"/></actuator>',
+                 asset.read_text(), flags=re.S)  # fmt: skip
+    (tmp_path / "robot.xml").write_text(xml)
+    topo = from_mjcf(tmp_path / "robot.xml").topology
+    nodes = np.stack([noisy_walk(60, 12, seed=k) for k in range(2)])
+    split = Split(nodes=nodes, control=np.zeros((2, 59, 6, 3)), cable_control=np.ones((2, 59, 1)))
+    write_dataset(tmp_path / "d.h5", Dataset(topology=topo, dt=1 / 120, splits={"train": split}))
+    r = subprocess.run([sys.executable, "-m", "tensegrity_sr.cli", "diagnose", str(tmp_path / "d.h5"),
+                        "--anchor", "mass[rod0]=2.0", "-o", str(tmp_path / "out")],
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "cable actuator commands: the trajectory method of diagnose does not apply them" in r.stderr
+    assert not (tmp_path / "out").exists()

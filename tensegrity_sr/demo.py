@@ -349,19 +349,29 @@ def step_mocap(demo: Demo) -> None:
     demo.cli("inspect", motive, writes=False)  # the lowest marker's narrow band: along y
     demo.cli("import-mocap", motive, "--robot", robot, "--up", "y", "--split", "1,0,0",
              "-o", demo.out / "mocap_motive.h5")  # fmt: skip
-    print("a cable-driven prism's take with its motor command log (40 Hz, held onto the frames)")
+    print("a cable-driven icosahedron: takes with their motor command logs (20 Hz), imported "
+          "and identified from the end caps (cable gains against the robot file's)")
     from identification.data.mocap.commands import write_commands
+    from tensegrity_env.mjcf import from_mjcf
+    from tensegrity_env.model import Model
 
-    prism = robot.parent / "lab_prism.xml"
-    log_t = np.arange(40) / 40.0
-    log_u = rng.uniform(-0.5, 0.5, (40, 3))
-    t, caps, names = simulate_caps(prism.read_text(), 120.0, 1.0, rng, commands=(log_t, log_u))
-    take = record_take(t, caps, names, rng, noise=1e-3)
-    prism_take = write_c3d(demo.out / "prism_take.c3d", take.points, take.names, 120.0)
-    log = write_commands(demo.out / "prism_commands.csv", log_t, log_u, ["a0", "a1", "a2"])
-    demo.cli("import-mocap", prism_take, "--robot", prism, "--commands", log, "--split", "1,0,0",
-             "-o", demo.out / "mocap_prism.h5")  # fmt: skip
-
+    cabled = robot.parent / "icosahedron_cables.xml"
+    takes, logs = [], []
+    for k in range(demo.size(6, 12)):
+        log_t = np.arange(0.0, 0.6, 0.05)
+        log_u = rng.uniform(-0.5, 0.5, (len(log_t), 3))
+        t, caps, names = simulate_caps(cabled.read_text(), 120.0, 0.6, rng, commands=(log_t, log_u))
+        take = record_take(t, caps, names, rng, noise=1e-3)
+        takes.append(write_c3d(demo.out / f"cables_take{k}.c3d", take.points, take.names, 120.0))
+        log = write_commands(demo.out / f"cables_commands{k}.csv", log_t, log_u, ["a0", "a1", "a2"])
+        logs += ["--commands", log]
+    demo.cli("import-mocap", *takes, "--robot", cabled, *logs, "-o", demo.out / "mocap_cables.h5")
+    truth = from_mjcf(cabled).params
+    demo.cli("identify", demo.out / "mocap_cables.h5", "--anchor", f"mass[rod0]={float(truth.mass[0])!r}",
+             "-o", demo.out / "cables_params.json")  # fmt: skip
+    got = Model.load(demo.out / "cables_params.json").params.cable_gain.numpy()
+    print("cable gains [N/unit]: identified " + ", ".join(f"{g:.2f}" for g in got)
+          + "; robot file " + ", ".join(f"{g:.0f}" for g in truth.cable_gain.numpy()))
 
 #: the demo's steps, in order: name -> function (steps read what earlier steps wrote)
 STEPS: dict[str, Callable[[Demo], None]] = {

@@ -24,7 +24,8 @@ from tensegrity_env.io_utils import atomic_path
 
 #: consistency constant of the median absolute deviation for a normal distribution
 MAD_TO_STD = 1.4826
-#: a marker repeating exactly the same position over this many frames in a row holds a
+#: a marker repeating exactly the same position over this many frames in a row (the rule
+#: :func:`placeholder_samples` applies) holds a
 #: value its tracker no longer sees (noise makes measured positions never repeat exactly)
 HELD_RUN = 3
 #: what :func:`placeholder_samples` finds, for messages
@@ -74,16 +75,13 @@ def placeholder_samples(points: np.ndarray) -> np.ndarray:
     x = np.asarray(points, dtype=float)
     mask = (x == 0.0).all(-1)
     same = np.isfinite(x[..., 1:, :, :]).all(-1) & (x[..., 1:, :, :] == x[..., :-1, :, :]).all(-1)
-    # run[f]: how many samples in a row up to f repeat the one before (0: f differs)
-    run = np.zeros(same.shape, dtype=int)
-    for f in range(same.shape[-2]):
-        run[..., f, :] = np.where(same[..., f, :], (run[..., f - 1, :] if f else 0) + 1, 0)
-    # a repeat belongs to a held run if its run reaches HELD_RUN - 1 repeats
-    reach = run.copy()
-    for f in range(same.shape[-2] - 2, -1, -1):
-        reach[..., f, :] = np.where(same[..., f + 1, :] & same[..., f, :],
-                                    reach[..., f + 1, :], reach[..., f, :])  # fmt: skip
-    mask[..., 1:, :] |= same & (reach >= HELD_RUN - 1)
+    # same[f]: sample f+1 repeats sample f; a repeat is held when the repeat before or
+    # after it is one too (HELD_RUN = 3 identical samples in a row)
+    before = np.zeros_like(same)
+    before[..., 1:, :] = same[..., :-1, :]
+    after = np.zeros_like(same)
+    after[..., :-1, :] = same[..., 1:, :]
+    mask[..., 1:, :] |= same & (before | after)
     seen = np.isfinite(x[..., 1:, :, :]).all(-1)
     duplicated = (same | ~seen).all(-1) & (same.sum(-1) >= 2)  # (..., F-1)
     mask[..., 1:, :] |= duplicated[..., None] & seen

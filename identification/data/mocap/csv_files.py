@@ -57,8 +57,9 @@ def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
             text = f.read()
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read it as text ({e})") from None
-    rows = list(csv.reader(text.splitlines(), delimiter=";" if _semicolons(text) else ","))
-    if rows and _semicolons(text):  # a decimal comma goes with the semicolon (Excel's locales)
+    semicolons = _semicolons(text)
+    rows = list(csv.reader(text.splitlines(), delimiter=";" if semicolons else ","))
+    if semicolons:  # a decimal comma goes with the semicolon (Excel's locales)
         rows = [[c.replace(",", ".") for c in r] for r in rows]
     if not rows:
         raise InputError(f"{path}: empty file")

@@ -43,9 +43,7 @@ def recording_text(rec: MarkerRecording) -> str:
     lines.append("marker                 seen  longest gap    noise")
     dt = 1.0 / rec.rate
     for m in range(min(M, LISTED)):
-        x = rec.points[:, m]
-        d3 = x[3:] - 3 * x[2:-1] + 3 * x[1:-2] - x[:-3]
-        noise = third_difference_noise(d3, least=10)
+        noise = third_difference_noise(np.diff(rec.points[:, m], n=3, axis=0), least=10)
         gap = longest_run(~seen[:, m]) * dt
         text = "    n/a" if np.isnan(noise) else f"{noise * 1e3:5.3f} mm"
         lines.append(f"  {rec.names[m]:<18} {100 * seen[:, m].mean():6.2f} %  {gap * 1e3:8.1f} ms  {text}")

@@ -25,7 +25,7 @@ HEADER_KEY = re.compile(r"^[A-Z][A-Z0-9_]*$")
 def read_qtm_tsv(path: Path, units: str | None = None) -> MarkerRecording:
     """The 3-D marker trajectories of a QTM TSV export (millimetres unless ``units``)."""
     try:
-        rows = [line.rstrip("\r\n").split("\t") for line in path.read_text(encoding="utf-8-sig").splitlines()]
+        rows = [line.split("\t") for line in path.read_text(encoding="utf-8-sig").splitlines()]
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read it as text ({e})") from None
     meta: dict[str, list[str]] = {}

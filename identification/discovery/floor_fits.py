@@ -40,6 +40,7 @@ from identification.trajectory.floor_fit import (
     bounded,
     fit_on_floor,
     floor_contact,
+    rods_leaning,
     rods_off_floor,
     with_floor,
 )
@@ -151,6 +152,15 @@ def fit_declared_on_floor(
 def floor_rows(data: EndCapData) -> np.ndarray:
     """The rods' equations the regressions use on the floor: rods away from it, (N, T, R)."""
     return rods_off_floor(data.train.nodes, data.topology, data.sg)
+
+
+def leaning_rows(data: EndCapData) -> dict[str, np.ndarray]:
+    """:func:`floor_rows` and, for each rod that leans on the floor with one end cap
+    while its other stays clear, its moment equations about the contact point
+    (``smoothed_regression``'s ``rod_keep``, ``pivots``, ``radius``)."""
+    nodes, topo = data.train.nodes, data.topology
+    return {"rod_keep": floor_rows(data), "pivots": rods_leaning(nodes, topo, data.sg),
+            "radius": np.array([r.radius for r in topo.rods])}  # fmt: skip
 
 
 def on_floor(dataset: Dataset, split: str = "train") -> bool:

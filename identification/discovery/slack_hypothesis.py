@@ -30,7 +30,7 @@ from identification.discovery.end_cap_data import (
     held,
 )
 from identification.discovery.end_cap_fits import fit_declared, fit_with
-from identification.discovery.floor_fits import floor_rows
+from identification.discovery.floor_fits import leaning_rows
 from identification.discovery.judge import MIN_CHI2_GAIN
 from identification.discovery.library import Proposal
 from identification.trajectory.slack_regression import (
@@ -49,13 +49,15 @@ def slack_hypothesis(data: EndCapData, current: TrajFit, anchors: dict[str, floa
 
     The candidate holds every cable of ``current``, old and new (its effect None when
     no new one shows), and starts from the regression's parameter values. On the floor
-    the regression uses the rods away from it, else the airborne samples.
+    the regression uses the rods away from it and the moments of those leaning on it
+    about their contact points (:func:`~identification.discovery.floor_fits.leaning_rows`),
+    else the airborne samples.
     """
     old = [e for e in current.effects if isinstance(e, SlackSprings)]
     known = {int(i) for e in old for i in e.values["springs"].tolist()}
     if len(known) == data.topology.n_springs:
         return Proposal("slack_springs", None, f"all {len(known)} springs are cables already")
-    rows = {"rod_keep": floor_rows(data)} if data.on_floor else {"keep": airborne_keep(data)}
+    rows = leaning_rows(data) if data.on_floor else {"keep": airborne_keep(data)}
     reg = slack_regression(data.topology, data.smooth["train"], data.train.control, anchors,
                            **rows)  # fmt: skip
     new = sorted(set(reg.cables()) - known)

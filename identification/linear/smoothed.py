@@ -20,6 +20,7 @@ import torch
 
 from identification.data.end_caps import RodAxes, SmoothedStates
 from identification.linear.design import (
+    ROWS_PER_ROD,
     ParameterLayout,
     accumulate_normal,
     hinge_blocks,
@@ -134,6 +135,30 @@ def smoothed_features(
     )
 
 
+def pivot_rows(
+    blocks: torch.Tensor, feat: TransitionFeatures, cap: torch.Tensor, radius: torch.Tensor
+) -> torch.Tensor:
+    """Each pivoting rod's equations about its contact point, free of the contact force.
+
+    ``blocks`` (n, R, 6, L) are :func:`~identification.linear.design.rod_blocks`' rows
+    (force, world; torque about the centre, rod frame) times the parameters, equal to the
+    unknown contact force ``F`` at ``c`` and its torque ``ρ_c × F`` (``ρ_c`` the contact
+    point from the rod's centre); ``R τ_rows - ρ_c × F_rows`` is 0 whatever ``F``. ``cap``
+    (n, R): the cap (0, 1) a rod leans on, -1 where it does not (rows unchanged);
+    ``radius`` (R,) [m]: the contact point lies that far below the cap's centre. Returns
+    (n, R, 6, L): a pivoting rod's three moment rows (world, [N*m]) then three zero rows.
+    """
+    n, R = cap.shape
+    leaning = cap >= 0
+    node = 2 * torch.arange(R) + cap.clamp_min(0)  # (n, R)
+    arm = torch.gather(feat.arms, 1, node.unsqueeze(-1).expand(n, R, 3)).clone()
+    arm[..., 2] -= radius
+    moment = torch.einsum("nrij,nrjl->nril", feat.rot, blocks[:, :, 3:])
+    moment = moment - torch.cross(arm.unsqueeze(-1).expand_as(moment), blocks[:, :, :3], dim=2)
+    pivoted = torch.cat([moment, torch.zeros_like(moment)], dim=2)
+    return torch.where(leaning[:, :, None, None], pivoted, blocks)
+
+
 def smoothed_regression(
     topology: Topology,
     smooth: SmoothedStates,
@@ -144,6 +169,8 @@ def smoothed_regression(
     knots: np.ndarray | None = None,
     rod_keep: np.ndarray | None = None,
     cables: np.ndarray | None = None,
+    pivots: np.ndarray | None = None,
+    radius: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Stage 1: linear regression on end caps smoothed by
     :func:`~identification.data.end_caps.smooth_rod_states`.
@@ -152,6 +179,11 @@ def smoothed_regression(
     ``rod_keep`` (N, T, R): the rods' Newton-Euler equations used at each sample (None:
     every rod of a kept sample), e.g. only the rods away from a floor: a rod that does
     not touch it obeys the declared model while the others roll on it.
+    ``pivots`` (N, T, R): the end cap (0 or 1) a rod leans on at each sample, -1 where
+    none (only with ``rod_keep``, and never where it is set): that rod's three moment
+    equations about the cap's contact point, ``radius`` (R,) [m] below the cap's centre,
+    are used instead of its six (:func:`pivot_rows`): an unknown contact force there
+    (normal and friction) drops out.
     ``knots`` (S,) [m]: also fit each spring's stiffness change ``ΔK`` below its knot
     (:func:`~identification.linear.design.hinge_blocks`), returned as ``compression_stiffness``
     with its standard error ``compression_stiffness_se`` (S,) [N/m].
@@ -167,23 +199,32 @@ def smoothed_regression(
     layout = ParameterLayout.build(topo)
     slots = rod_slots(layout)
     if rod_keep is not None:
-        keep = rod_keep.any(-1) if keep is None else keep & rod_keep.any(-1)
+        used_rods = rod_keep if pivots is None else rod_keep | (pivots >= 0)
+        keep = used_rods.any(-1) if keep is None else keep & used_rods.any(-1)
     if topo.n_cables and cables is None:
         cables = np.zeros((*control.shape[:2], topo.n_cables))
     feat = smoothed_features(topo, smooth, control, keep, cables)
     P = layout.n_params
     S = topo.n_springs if knots is not None else 0
     blocks = rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE))
+    n_rows = feat.n * topo.n_rods * ROWS_PER_ROD
+    if knots is not None:
+        blocks = torch.cat([blocks, hinge_blocks(feat, slots, torch.as_tensor(knots))], dim=-1)
+        slots = with_hinges(slots, P, S)
     if rod_keep is not None:  # the same samples smoothed_features picked, (n, R)
         assert keep is not None
         used = keep & smooth.whole[:, : control.shape[1]]
         t = slice(smooth.margin, max(smooth.margin + 1,
                                      min(control.shape[1], smooth.p.shape[1] - smooth.margin)))  # fmt: skip
-        rows = torch.as_tensor(rod_keep[:, t][used[:, t]], dtype=DTYPE)
-        blocks = blocks * rows[:, :, None, None]
-    if knots is not None:
-        blocks = torch.cat([blocks, hinge_blocks(feat, slots, torch.as_tensor(knots))], dim=-1)
-        slots = with_hinges(slots, P, S)
+        whole = torch.as_tensor(rod_keep[:, t][used[:, t]])
+        n_rows = int(whole.sum()) * ROWS_PER_ROD
+        if pivots is not None:
+            assert radius is not None
+            cap = torch.as_tensor(pivots[:, t][used[:, t]], dtype=torch.long).masked_fill(whole, -1)
+            blocks = pivot_rows(blocks, feat, cap, torch.as_tensor(radius, dtype=DTYPE))
+            whole = whole | (cap >= 0)
+            n_rows += int((cap >= 0).sum()) * ROWS_PER_ROD // 2
+        blocks = blocks * whole.to(DTYPE)[:, :, None, None]
     normal = torch.zeros(P + S + 1, P + S + 1, dtype=DTYPE)
     accumulate_normal(blocks, slots, P + S, normal)
     fixed = {}
@@ -202,7 +243,7 @@ def smoothed_regression(
             fixed[layout.lookup(name)] = float(value)
     if not any(v != 0 for v in fixed.values()):
         fixed = {layout.index("mass", 0): 1.0}
-    sol = solve_constrained(normal[:-1, :-1], fixed, feat.n * topo.n_rods * 6)
+    sol = solve_constrained(normal[:-1, :-1], fixed, n_rows)
     th: dict[str, list[float]] = {
         g: []
         for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain", "cable_gain")

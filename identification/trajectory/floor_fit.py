@@ -139,6 +139,19 @@ def rods_off_floor(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarr
     return minimum_filter1d(off, size=span, axis=1)[:, :-1].astype(bool)
 
 
+def rods_leaning(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
+    """Per sample and rod (N, T, R): the end cap (0 or 1) a rod may lean on the floor
+    with while its other cap stays :data:`AIRBORNE` above it over the smoothing
+    filter's ``span`` [samples]; -1 where both caps stay clear (:func:`rods_off_floor`)
+    or neither does. ``nodes`` (N, T+1, 2R, 3) [m]; the floor is taken at z = 0.
+    """
+    N, T1 = nodes.shape[:2]
+    gap = (nodes[..., 2] - cap_radii(topology)).reshape(N, T1, topology.n_rods, 2)
+    clear = minimum_filter1d((gap > AIRBORNE).astype(np.uint8), size=span, axis=1)[:, :-1]
+    one = clear.sum(-1) == 1
+    return np.where(one, np.argmin(clear, axis=-1), -1).astype(np.int8)
+
+
 def floor_height(nodes: np.ndarray, topology: Topology) -> float:
     """Starting floor height [m]: the median ``z - r`` of the lowest end cap over the
     samples where it is within :data:`~identification.trajectory.touchdown.TOUCH` of z = 0

@@ -91,19 +91,21 @@ def slack_regression(
     max_iter: int = 40,
     rod_keep: np.ndarray | None = None,
     tol: float = 1e-5,
+    pivots: np.ndarray | None = None,
+    radius: np.ndarray | None = None,
 ) -> SlackRegression:
     """Fit every spring's compression stiffness change with its knot at its rest length.
 
     Arguments are :func:`smoothed_regression`'s (``control`` (N, T, R, 3), ``keep``
-    (N, T), ``rod_keep`` (N, T, R)). The knots start at the rest lengths of the regression without hinges and
+    (N, T), ``rod_keep`` and ``pivots`` (N, T, R), ``radius`` (R,) [m]). The knots start at the rest lengths of the regression without hinges and
     follow the fitted rest lengths until no knot moves more than ``tol`` [m].
     """
-    plain = smoothed_regression(topology, smooth, control, anchors, keep=keep, rod_keep=rod_keep)
+    rows = {"keep": keep, "rod_keep": rod_keep, "pivots": pivots, "radius": radius}
+    plain = smoothed_regression(topology, smooth, control, anchors, **rows)
     knots = np.nan_to_num(plain["rest_length"], nan=float(np.nanmedian(plain["rest_length"])))
     values, change, it = plain, np.inf, 0
     for it in range(1, max_iter + 1):  # noqa: B007  (reported)
-        values = smoothed_regression(topology, smooth, control, anchors, keep=keep, knots=knots,
-                                     rod_keep=rod_keep)  # fmt: skip
+        values = smoothed_regression(topology, smooth, control, anchors, knots=knots, **rows)
         rest = np.where(np.isfinite(values["rest_length"]), values["rest_length"], knots)
         change = float(np.abs(rest - knots).max())
         knots = rest

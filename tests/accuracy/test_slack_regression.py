@@ -61,3 +61,20 @@ def test_hinge_columns_vanish_above_the_knot() -> None:
     assert np.all(np.isnan(hinged["compression_stiffness"]))
     for key in ("stiffness", "rest_length", "damping", "mass"):
         assert np.allclose(hinged[key], plain[key], rtol=1e-9), key
+
+
+def test_a_rod_left_out_leaves_its_hinges_out_too() -> None:
+    """``rod_keep`` drops a rod's equations, its hinge columns with them: every cable is
+    still named from the other rods (kept, the dropped rod's hinge rows would hold ΔK
+    near 0 with nothing else in those rows)."""
+    d = planted_dataset(PlantSpec("slack_springs", "moderate", noise=0.001, seed=45, n_train=4,
+                                  n_val=1, n_test=1))  # fmt: skip
+    topo, split = d.dataset.topology, d.dataset.split("train")
+    smooth = smooth_rod_states(split.nodes, d.dataset.dt, RodAxes.of(topo), 101)
+    anchors = {"mass[rod0]": float(d.ground_truth.params.mass[0])}
+    rod_keep = np.ones((*split.control.shape[:2], topo.n_rods), bool)
+    rod_keep[:, ::2, 1] = rod_keep[:, 1::2, 4] = False  # two rods, every other sample
+    reg = slack_regression(topo, smooth, split.control, anchors, rod_keep=rod_keep)
+    true = d.ground_truth.effects[0]["params"]["springs"]
+    assert reg.cables() == sorted(true)
+    assert np.allclose(reg.loss[true], 1.0, atol=0.06)

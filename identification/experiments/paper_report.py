@@ -11,8 +11,9 @@ Writes into one folder, each file atomically:
   (:func:`identification.experiments.efficiency.write_outputs`);
 * ``data_requirement.png`` — test rollout error against training transitions, ours and
   both Koopman models, on the icosahedron;
-* ``results.json`` — every number; ``results.md`` — the tables, with the command,
-  machine and wall time.
+* ``results.json`` — every number (standard JSON: ``null`` where a rollout diverged or
+  there is no model); ``results.md`` — the tables, with the command, machine and wall
+  time.
 
 Over 400 lines because it is one report: every figure and table of one
 :class:`~identification.experiments.paper.ExperimentResult`.
@@ -374,6 +375,18 @@ def markdown(result: ExperimentResult, command: str) -> str:
     return "\n".join(lines)
 
 
+def finite_or_null(value: Any) -> Any:
+    """``value`` (nested dicts, lists, numbers) with every non-finite float as None:
+    standard JSON, which has no Infinity or NaN."""
+    if isinstance(value, dict):
+        return {k: finite_or_null(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_or_null(v) for v in value]
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        return None
+    return value
+
+
 def to_json(result: ExperimentResult, command: str) -> dict[str, Any]:
     out: dict[str, Any] = {
         "command": command,
@@ -388,7 +401,7 @@ def to_json(result: ExperimentResult, command: str) -> dict[str, Any]:
         out["assemblies"][name] = {
             "counts": res.counts,
             "dt": res.dt,
-            "curves": {k: [v if np.isfinite(v) else None for v in c.tolist()] for k, c in res.curves.items()},
+            "curves": {k: c.tolist() for k, c in res.curves.items()},
             "one_step": res.one_step,
             "training": res.training,
             "group_errors": res.group_errors,
@@ -419,7 +432,8 @@ def write_results(result: ExperimentResult, out_dir: str | Path, command: str) -
     paths.append(
         atomic_write_text(
             out / "results.json",
-            json.dumps(to_json(result, command), indent=1, default=float) + "\n",
+            json.dumps(finite_or_null(to_json(result, command)), indent=1, default=float,
+                       allow_nan=False) + "\n",
         )
     )
     paths.append(atomic_write_text(out / "results.md", markdown(result, command) + "\n"))

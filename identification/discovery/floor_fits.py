@@ -80,7 +80,6 @@ def floor_fit(
     effects: Sequence[PhysicalEffect] = (),
     values: dict[str, np.ndarray] | None = None,
     contact: GroundContact | None = None,
-    also: GroundContact | None = None,
 ) -> FloorFit:
     """The declared model and ground contact (and ``effects``) fitted together on
     ``s.floor_windows`` windows of the training split, each at most
@@ -89,9 +88,7 @@ def floor_fit(
 
     The declared parameters start from ``values`` (a regression), else ``start`` (a
     params file), else the regression on the rods away from the floor; the contact from
-    the one in ``effects``, else ``contact`` (a params file's), else the default start,
-    and from ``also`` too if given (the first round keeps the start whose contact
-    search fits better: :func:`~identification.trajectory.floor_fit.searched_start`).
+    the one in ``effects``, else ``contact`` (a params file's), else the default start.
     The fit's windows and contact range are returned, not kept in ``data``
     (:func:`adopt_floor_fit` does that).
     """
@@ -108,8 +105,7 @@ def floor_fit(
     count = s.floor_windows
     many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window), count, 3,
                             lift_off=count // 2)  # fmt: skip
-    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log,
-                     also=also)  # fmt: skip
+    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)

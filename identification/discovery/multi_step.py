@@ -469,8 +469,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         contact at the current model's fit). The other is the floor fit of the declared
         model done afresh with the candidate's effects in it, from the same start as the
         first one (:func:`~identification.discovery.floor_fits.floor_fit`:
-        the regression, a contact search, the valley search), its contact searched from
-        the default start and from the current model's contact. Where the current model's
+        the regression, a contact search, the valley search). Where the current model's
         contact has taken up what the candidate explains (a dissipation it lacked, on an
         overdamped floor), the first stays there: on the bench's linear-drag floor cell
         (seed 0) it ended at 2.15 mm (1 mm noise) with the drag at a quarter of the
@@ -480,13 +479,11 @@ class MultiStepScorer(Scorer[EndCapFits]):
         """
         data, s = self.data, self.settings
         effects = [e for e in screened.effects if not isinstance(e, GroundContact)]
-        held = next((e for e in screened.effects if isinstance(e, GroundContact)), None)
         tasks: list[Callable[[], Any]] = [
             lambda: fit_many(data, screened.vec, screened.theta, s, s.base_iter)
         ]
         if afresh is None:  # (a candidate fitted jointly comes with it)
-            tasks.append(lambda: floor_fit(data, s, self.start, effects, contact=self.contact,
-                                           also=held))  # fmt: skip
+            tasks.append(lambda: floor_fit(data, s, self.start, effects, contact=self.contact))
         near, *fresh = side_by_side(tasks, self.jobs, self.log)
         afresh = afresh or fresh[0]
         self.log(f"    floor refit from the screened candidate {near.rms * 1e3:.3f} mm, afresh "

@@ -232,9 +232,8 @@ def search_floor_contact(
     windows: Windows,
     theta: torch.Tensor,
     log: Callable[[str], None] = lambda s: None,
-) -> tuple[torch.Tensor, float]:
-    """``theta`` with the contact's coordinates from a Nelder-Mead search on ``windows``,
-    and the end-cap RMS [m] the search ended at.
+) -> torch.Tensor:
+    """``theta`` with the contact's coordinates from a Nelder-Mead search on ``windows``.
 
     The declared parameters, the other effects and the windows' states are held. The
     contact is ``vec``'s last effect, its coordinates the last of ``theta``.
@@ -250,7 +249,9 @@ def search_floor_contact(
     found = search_contact(engine, params, others, contact, touch, log,
                            horizons=(windows.steps,), keys=FLOOR_FREE,
                            restarts=SEARCH_RESTARTS, what="contact search on floor windows")  # fmt: skip
-    return with_contact(theta, found.contact), found.rms[windows.steps]
+    k = len(FLOOR_FREE)
+    x = torch.tensor([float(v) for v in _coords(found.contact)], dtype=theta.dtype)
+    return torch.cat([theta[: len(theta) - k], x])
 
 
 def _coords(contact: GroundContact) -> list[float]:
@@ -349,26 +350,26 @@ def fit_on_floor(
     state_iters: int = STATE_ITERS,
     rounds: int = ROUNDS,
     log: Callable[[str], None] = lambda s: None,
-    also: GroundContact | None = None,
 ) -> WindowFit:
     """Declared parameters, effects and contact fitted jointly on floor ``windows``.
 
     ``vec`` holds the contact as its last effect with :data:`FLOOR_FREE` free
     (:func:`with_floor`); ``theta`` is where the fit starts. The first round (module
     docstring, step 2) fits the windows' states (``state_iters`` iterations per
-    prefix) with the model held and searches the contact with the rest held
-    (:func:`searched_start`: from ``theta``'s contact and from ``also``'s, if given);
-    from there the contact stays within :func:`contact_box` of the searched values.
-    Each later round searches the valley (:func:`search_scale`); every round ends with
-    a joint Levenberg-Marquardt fit of ``iters`` iterations. Returns the last joint fit.
+    prefix) with the model held and searches the contact with the rest held; from
+    there the contact stays within :func:`contact_box` of the searched values. Each
+    later round searches the valley (:func:`search_scale`); every round ends with a
+    joint Levenberg-Marquardt fit of ``iters`` iterations. Returns the last joint fit.
     """
     fit: WindowFit | None = None
     seeds = windows
     for k in range(rounds):
         t0 = time.perf_counter()
         if k == 0:
-            starts = [theta] if also is None else [theta, with_contact(theta, also)]
-            theta, windows = searched_start(engine, vec, windows, starts, state_iters, log)
+            states = states_at(engine, vec, theta, windows, state_iters)
+            windows = states.windows
+            log(f"    states {np.sqrt(states.history[-1]) * 1e3:.3f} mm")
+            theta = search_floor_contact(engine, vec, windows, theta, log)
             vec = bounded(vec, theta)
         else:
             assert fit is not None
@@ -382,47 +383,6 @@ def fit_on_floor(
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     assert fit is not None
     return fit
-
-
-def searched_start(
-    engine: Engine,
-    vec: ParamVector,
-    windows: Windows,
-    starts: Sequence[torch.Tensor],
-    state_iters: int,
-    log: Callable[[str], None] = lambda s: None,
-) -> tuple[torch.Tensor, Windows]:
-    """The first round's start: for each of ``starts`` (vectors of ``vec`` that differ
-    in the contact), the windows' states fitted at it (:func:`states_at`) and the
-    contact searched from it (:func:`search_floor_contact`); the one whose search ends
-    at the lowest end-cap error, with its windows.
-
-    One contact start is not enough when the model already holds an effect it was
-    fitted without. On the bench's quadratic-drag floor cell (seed 0) the accepted
-    drag's floor fit, searched from :data:`CONTACT_START`, ended at a contact
-    stiffness of 1180 1/s² (true 2770) and, after the rounds, at 1.179 mm on its 8
-    windows (1 mm noise) with one spring's damping near 0; searched from the declared
-    model's fitted contact it ended at 1.033 mm, where a fit from the true parameters
-    ends at 1.022 mm.
-    """
-    best: tuple[float, torch.Tensor, Windows] | None = None
-    for i, start in enumerate(starts):
-        t0 = time.perf_counter()
-        states = states_at(engine, vec, start, windows, state_iters)
-        log(f"    states {np.sqrt(states.history[-1]) * 1e3:.3f} mm")
-        theta, rms = search_floor_contact(engine, vec, states.windows, start, log)
-        if len(starts) > 1:
-            log(f"      (contact start {i + 1} of {len(starts)}: {time.perf_counter() - t0:.0f} s)")
-        if best is None or rms < best[0]:
-            best = (rms, theta, states.windows)
-    assert best is not None
-    return best[1], best[2]
-
-
-def with_contact(theta: torch.Tensor, contact: GroundContact) -> torch.Tensor:
-    """``theta`` with its last (contact) coordinates at ``contact``'s :data:`FLOOR_FREE`."""
-    x = torch.tensor(_coords(contact), dtype=theta.dtype)
-    return torch.cat([theta[: len(theta) - len(x)], x])
 
 
 def states_at(

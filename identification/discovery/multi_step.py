@@ -614,13 +614,19 @@ class MultiStepScorer(Scorer[EndCapFits]):
     # ------------------------------------------------------------------ report
     def describe(self) -> str:
         s = self.settings
+        refit = (f"declared model and every accepted one are refitted on {s.fit_windows} training "
+                 "windows: the parameters below and the test errors come from that fit.")  # fmt: skip
+        if getattr(self, "data", None) is not None and self.data.on_floor:
+            refit = (f"declared model and contact, and every accepted model, are fitted jointly "
+                     f"on {s.floor_windows} floor windows of the training split; the final model "
+                     f"is refitted on up to {s.final_floor_windows} (the parameters written and "
+                     "the final test errors come from that fit).")  # fmt: skip
         return (
             "Models are compared by multi-step prediction of the measured end caps: each is "
             "fitted jointly on windows of the training split; held-out windows (validation) "
             "fit only their initial states. A candidate must lower the training BIC by "
             f"{MIN_BIC_DROP:g} and the held-out chi-square by {self.criteria.min_gain:g}. The "
-            f"declared model and every accepted one are refitted on {s.fit_windows} training "
-            "windows: the parameters below and the test errors come from that fit."
+            + refit
         )
 
     def test_labels(self) -> dict[str, tuple[str, str]]:

@@ -35,3 +35,16 @@ def test_the_bound_moves_with_the_added_effect_gain():
 def test_fractional_gains_are_always_refitted():
     loop = EffectDiscovery(SimpleNamespace(criteria=ONE_STEP))  # type: ignore[arg-type]
     assert loop.settled("cubic_stiffness", _pass(0.5, {"cubic_stiffness": -0.9})) == ""
+
+
+def test_the_report_names_the_windows_its_fits_use_on_the_floor_and_in_flight():
+    from identification.discovery.end_cap_data import TrajectorySettings
+    from identification.discovery.multi_step import MultiStepScorer
+
+    s = TrajectorySettings(fit_windows=32, floor_windows=8, final_floor_windows=48)
+    scorer = MultiStepScorer(s, 1.0)
+    scorer.data = SimpleNamespace(on_floor=False)
+    assert "refitted on 32 training windows" in scorer.describe()
+    scorer.data = SimpleNamespace(on_floor=True)
+    text = scorer.describe()
+    assert "on 8 floor windows" in text and "up to 48" in text and "32" not in text

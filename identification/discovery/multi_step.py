@@ -616,7 +616,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         s = self.settings
         refit = (f"declared model and every accepted one are refitted on {s.fit_windows} training "
                  "windows: the parameters below and the test errors come from that fit.")  # fmt: skip
-        if getattr(self, "data", None) is not None and self.data.on_floor:
+        if self.data.on_floor:  # (set by begin; describe reports a fitted loop)
             refit = (f"declared model and contact, and every accepted model, are fitted jointly "
                      f"on {s.floor_windows} floor windows of the training split; the final model "
                      f"is refitted on up to {s.final_floor_windows} (the parameters written and "

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.judge import MULTI_STEP, ONE_STEP, Candidate
 from identification.discovery.loop import EffectDiscovery, Iteration
+from identification.discovery.multi_step import MultiStepScorer
 
 
 def _pass(chosen_gain: float, others: dict[str, float]) -> Iteration:
@@ -38,9 +40,6 @@ def test_fractional_gains_are_always_refitted():
 
 
 def test_the_report_names_the_windows_its_fits_use_on_the_floor_and_in_flight():
-    from identification.discovery.end_cap_data import TrajectorySettings
-    from identification.discovery.multi_step import MultiStepScorer
-
     s = TrajectorySettings(fit_windows=32, floor_windows=8, final_floor_windows=48)
     scorer = MultiStepScorer(s, 1.0)
     scorer.data = SimpleNamespace(on_floor=False)

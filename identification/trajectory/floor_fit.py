@@ -28,7 +28,15 @@ through the engine, on short windows that touch the floor:
    better of its fitted state and one fitted again from smoothing, since states fitted
    at the far-off starting model stay in other basins through the impacts. Every round
    ends with **Levenberg-Marquardt** fitting everything jointly (declared parameters,
-   contact, states), with a line search along rejected steps (``line_search``). From
+   contact, states), with a line search along rejected steps (``line_search``); the
+   first round holds the **spring damping** at its start (:data:`FIRST_ROUND_HELD`).
+   Its states are still those of the starting model, several times the noise off, and
+   the damping, the weakest group, takes up their misfit: on the bench's
+   quadratic-drag floor cell (seed 0), the floor fit with quadratic drag (as ``diagnose``
+   refits an accepted candidate) drove one spring's damping from 1.11 to 0.13 N*s/m in
+   the first round (plant 1.25), ended at 0.51 N*s/m and 1.116 mm end-cap RMS after the
+   second, and in ``diagnose``'s own run at 0.002 N*s/m; held through the first round,
+   it ended at 0.93 N*s/m and 1.050 mm (1 mm noise). From
    the first search on, the contact stays within :data:`CONTACT_RANGE` of the searched
    values (:func:`contact_box`): a trial step or search point outside is cut at the
    edge or rejected. Without the range, a declared model missing an effect (linear
@@ -104,6 +112,8 @@ from tensegrity_env.topology import Topology
 FLOOR_FREE = (*CONTACT_FREE, "height")
 #: rounds of search and joint fit
 ROUNDS = 2
+#: the declared groups the first round's joint fit holds at their start (module docstring)
+FIRST_ROUND_HELD = ("damping",)
 #: iterations of each round's state fit (the joint fit refits the states)
 STATE_ITERS = 5
 #: Nelder-Mead runs per search
@@ -359,7 +369,8 @@ def fit_on_floor(
     prefix) with the model held and searches the contact with the rest held; from
     there the contact stays within :func:`contact_box` of the searched values. Each
     later round searches the valley (:func:`search_scale`); every round ends with a
-    joint Levenberg-Marquardt fit of ``iters`` iterations. Returns the last joint fit.
+    joint Levenberg-Marquardt fit of ``iters`` iterations (the first with
+    :data:`FIRST_ROUND_HELD` held at the start). Returns the last joint fit.
     """
     fit: WindowFit | None = None
     seeds = windows
@@ -375,14 +386,25 @@ def fit_on_floor(
             assert fit is not None
             theta, windows = search_scale(engine, vec, fit, log)
             windows = reseeded(engine, vec, theta, windows, seeds, state_iters, log)
+        hold = held_groups(vec, FIRST_ROUND_HELD) if k == 0 else None
         with iteration_bar(f"floor round {k + 1}: joint fit", iters) as tick:
             fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True,
-                              line_search=True, progress=tick)  # fmt: skip
+                              line_search=True, progress=tick, hold=hold)  # fmt: skip
         theta, windows = fit.theta, fit.windows
         log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     assert fit is not None
     return fit
+
+
+def held_groups(vec: ParamVector, groups: Sequence[str]) -> torch.Tensor:
+    """Which entries of the fitted vector (n_free + n_effect,) bool are the free
+    log-parameters of ``groups`` (:func:`~identification.trajectory.windowed_fit.fit_windows`'
+    ``hold``)."""
+    full = torch.zeros(len(vec.free), dtype=torch.bool)
+    for group in groups:
+        full[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = True
+    return torch.cat([full[vec.free], torch.zeros(vec.n_effect, dtype=torch.bool)])
 
 
 def states_at(

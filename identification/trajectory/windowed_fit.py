@@ -261,6 +261,7 @@ def bounded_step(
     lo: torch.Tensor,
     hi: torch.Tensor,
     hard: torch.Tensor | None = None,
+    hold: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, float, torch.Tensor]:
     """:func:`schur_step` inside the box ``lo <= θ <= hi`` (n_g,).
 
@@ -268,8 +269,9 @@ def bounded_step(
     default all). One of those on its bound whose step would leave the box is held
     there and the step solved again without it (an active set); the others (search
     ranges) take the free step. Any coordinate that would cross a bound is stopped on it.
+    ``hold`` (n_g,) bool: coordinates held where they are whatever the step.
     """
-    held = torch.zeros_like(theta, dtype=torch.bool)
+    held = torch.zeros_like(theta, dtype=torch.bool) if hold is None else hold.clone()
     hard = torch.ones_like(held) if hard is None else hard
     for _ in range(theta.numel() + 1):
         d_z, d_theta, pred, S = schur_step(ne, lam, held)
@@ -396,6 +398,7 @@ def fit_windows(
     gate: float | None = None,
     roll: bool = False,
     line_search: bool = False,
+    hold: torch.Tensor | None = None,
 ) -> WindowFit:
     """Stage 2: Levenberg-Marquardt on window initial states and free log-parameters.
 
@@ -412,7 +415,8 @@ def fit_windows(
     :data:`LINE_FRACTIONS` of its length, the shortest error kept if lower, before
     more damping (where the error jumps, as on the floor where impacts cross physics
     steps, the damped steps turn towards the jumps while the Gauss-Newton direction
-    still descends).
+    still descends). ``hold`` (n_free + n_effect,) bool: coordinates held at their
+    values in ``theta`` (the others and the states fitted).
     """
     basis = local_basis(vec.axes, spin, roll)
     chunk = group_size(basis, theta, windows.size)
@@ -423,7 +427,7 @@ def fit_windows(
     dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
     history = [ne.sse / ne.m]
     exact = (1e-12 * max(1.0, float(windows.obs.abs().max()))) ** 2  # round-off [m^2]
-    _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard)
+    _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)
     score = newton / max(ne.sse / dof, 1e-300)
     done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
     lam, nu, converged = 1e-7, 2.0, done
@@ -440,7 +444,7 @@ def fit_windows(
     for _ in range(max_iter if not done else 0):
         while True:
             try:
-                d_z, d_theta, pred, _ = bounded_step(ne, lam, theta, lo, hi, hard)
+                d_z, d_theta, pred, _ = bounded_step(ne, lam, theta, lo, hi, hard, hold)
                 if not (bool(torch.isfinite(d_theta).all()) and bool(torch.isfinite(d_z).all())):
                     raise FloatingPointError("non-finite step")
             except (torch.linalg.LinAlgError, FloatingPointError):
@@ -465,7 +469,7 @@ def fit_windows(
             break
         windows, theta = trial, theta + d_theta
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
-        _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard)
+        _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)
         history.append(ne.sse / ne.m)
         if progress is not None:
             progress(history[-1])

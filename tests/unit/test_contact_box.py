@@ -3,8 +3,11 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+import torch
 
 from identification.trajectory.effect_coords import CONTACT_BOX, EffectCoords
 from identification.trajectory.floor_fit import CONTACT_RANGE, FLOOR_FREE, contact_box
@@ -44,3 +47,20 @@ def test_effect_coords_take_the_box_for_the_contact_and_only_bound_drag_at_zero(
     # without a box: ±CONTACT_BOX around the start (5 m on the floor height)
     lo, hi = EffectCoords.of([drag, contact], None, FLOOR_FREE).bounds()
     assert float(hi[n_drag + k] - lo[n_drag + k]) == pytest.approx(2 * CONTACT_BOX)
+
+
+def test_the_first_round_holds_every_free_spring_damping_and_nothing_else() -> None:
+    from identification.trajectory.floor_fit import held_groups, with_floor
+    from identification.trajectory.param_vector import ParamVector
+
+    asm = assemblies.icosahedron()
+    topo = asm.topology
+    vec = ParamVector.at(topo, asm.params)
+    vec = replace(vec, free=torch.ones_like(vec.free))  # every declared parameter fitted
+    vec = with_floor(vec, [LinearDrag(topo)], GroundContact(topo), None)
+    hold = held_groups(vec, ("damping",))
+    names = [n for n, free in zip(vec.names(), vec.free.tolist(), strict=True) if free]
+    assert len(hold) == len(names) + vec.n_effect
+    held = [n for n, h in zip(names, hold.tolist(), strict=False) if h]
+    assert held == [f"damping[{s.name}]" for s in topo.springs]
+    assert not bool(hold[len(names) :].any())  # the effects and the contact are fitted

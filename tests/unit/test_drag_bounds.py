@@ -63,6 +63,20 @@ def test_a_step_out_of_the_bound_holds_that_coordinate_and_solves_for_the_rest()
     assert float(d_theta[0]) == 0.0 and abs(float(d_theta[1]) - free[1]) < 1e-12
 
 
+def test_a_held_coordinate_stays_and_the_rest_take_the_conditional_minimum() -> None:
+    H = np.array([[2.0, 0.8], [0.8, 1.0]])
+    g = np.array([1.0, -1.0])
+    theta = torch.zeros(2, dtype=torch.float64)
+    lo = torch.full((2,), -np.inf, dtype=torch.float64)
+    hi = torch.full((2,), np.inf, dtype=torch.float64)
+    hold = torch.tensor([True, False])
+    _, d_theta, pred, _ = bounded_step(_normal(H, g), 0.0, theta, lo, hi, None, hold)
+    assert float(d_theta[0]) == 0.0  # well inside its (infinite) box, held all the same
+    assert abs(float(d_theta[1]) - 1.0) < 1e-12 and abs(pred - 1.0) < 1e-12  # -g1/H11
+    _, d_theta, _, _ = bounded_step(_normal(H, g), 0.0, theta, lo, hi, None, ~hold)
+    assert float(d_theta[1]) == 0.0 and abs(float(d_theta[0]) + 0.5) < 1e-12  # -g0/H00
+
+
 def test_only_drag_coordinates_have_hard_bounds() -> None:
     """The log-parameters' box and the contact's search box are ranges, not physics."""
     a = icosahedron()

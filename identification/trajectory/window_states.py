@@ -14,7 +14,8 @@ to spins whose explicit gyroscopic integration blows up on longer windows.
 With the rods' **rolls** (an effect that sees them, such as box-form quadratic drag),
 the rolls and spins are held on the prefixes: short prefixes cannot pin them, and rolls
 fitted there stop in the wrong basin. The spins start from the structure's common
-angular velocity (:func:`rigid_spins`), the rolls are searched on the whole window
+angular velocity (:func:`rigid_spins`; a window whose start fits better keeps that
+start), the rolls are searched on the whole window
 (:func:`search_rolls`) before the prefixes and again before the whole window's fit. On
 16 flight windows of 0.6 s (1 mm noise, MuJoCo box drag, seed 0), the true model's
 states fitted from the true states with the rolls on the prefixes ended at 1.39 mm RMS
@@ -59,15 +60,20 @@ def fit_states(
     ``spin``: the axial spins too (from the prefix of 25 steps on); ``roll``: the rods'
     roll about their axes (see :func:`~identification.trajectory.windows.local_basis`),
     searched and fitted on the whole window only, with the spins if ``spin`` (started
-    from :func:`rigid_spins`).
+    from :func:`rigid_spins`, or from the start's own per window where that fits the
+    window better: states fitted at a nearby model hold each rod's spin, and on the
+    floor friction spins each rod on its own).
     ``grow=False``: no prefixes, for states already fitted at a nearby model. Returns
     the fit on the whole windows (its ``history[-1]``: mean squared end-cap error [m^2]).
     """
     empty = torch.zeros(0, dtype=torch.float64)
-    if roll and spin:
-        windows = replace(windows, state=rigid_spins(windows.state, vec.axes.axis))
     if roll:
+        start = windows
+        if spin:
+            windows = replace(windows, state=rigid_spins(windows.state, vec.axes.axis))
         windows = search_rolls(engine, vec, windows, spin)
+        # (a start fitted at a nearby model holds each rod's own spin: kept where better)
+        windows = better_states(engine, vec, empty, start, windows)[0]
     seed = windows
     stages = [g for g in GROW if grow and g < windows.steps]
     for n in stages:

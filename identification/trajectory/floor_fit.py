@@ -287,10 +287,7 @@ def scale_directions(vec: ParamVector, theta: torch.Tensor) -> torch.Tensor:
     rows = []
     forces = torch.where(vec.mass_scaled(), theta.detach(), torch.zeros_like(theta))
     for groups, effects in ((SCALED, forces), (("rest_length",), torch.zeros_like(forces))):
-        full = torch.zeros(len(vec.free), dtype=torch.float64)
-        for group in groups:
-            full[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = 1.0
-        rows.append(torch.cat([full[vec.free], torch.zeros(vec.n_effect, dtype=torch.float64)]) + effects)
+        rows.append(held_groups(vec, groups).to(torch.float64) + effects)
     return torch.stack(rows)
 
 
@@ -400,7 +397,7 @@ def fit_on_floor(
 def held_groups(vec: ParamVector, groups: Sequence[str]) -> torch.Tensor:
     """Which entries of the fitted vector (n_free + n_effect,) bool are the free
     log-parameters of ``groups`` (:func:`~identification.trajectory.windowed_fit.fit_windows`'
-    ``hold``)."""
+    ``hold``; as 0/1, :func:`scale_directions`' rows)."""
     full = torch.zeros(len(vec.free), dtype=torch.bool)
     for group in groups:
         full[vec.offset(group) : vec.offset(group) + vec.sizes[group]] = True

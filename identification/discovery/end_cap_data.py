@@ -177,6 +177,8 @@ class TrajFit:
     extra_k: int = 0
     #: the joint fit met its stopping rule (not just its iteration count)
     converged: bool = True
+    #: Levenberg-Marquardt iterations the joint fit took (one Jacobian each)
+    iterations: int = 0
 
     @property
     def k(self) -> int:
@@ -363,7 +365,8 @@ def fit_trajectory(
     # state unknowns, not common: the rolls and (in flight) the spins that turn them
     rolls = windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
-                   extra_k=extra_k(data, vec) + rolls, converged=fit.converged)  # fmt: skip
+                   extra_k=extra_k(data, vec) + rolls, converged=fit.converged,
+                   iterations=len(fit.history) - 1)  # fmt: skip
 
 
 def extra_k(data: EndCapData, vec: ParamVector) -> int:

@@ -588,8 +588,10 @@ class MultiStepScorer(Scorer[EndCapFits]):
         still = "" if moved > STILL else (
             f"; its parameters stayed at the last fit's (largest change {moved:.2g}: no step "
             "lowered the error on these windows)")  # fmt: skip
+        stop = "converged" if final.converged else "ran out"
         self.log(f"final refit on {final.windows.size} training windows of {windows.steps} "
-                 f"steps: end-cap RMS {final.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)"
+                 f"steps: end-cap RMS {final.rms * 1e3:.3f} mm ({final.iterations} iterations, "
+                 f"{stop}; {time.perf_counter() - t0:.0f} s)"
                  + (f"; not used ({why})" if why else still))  # fmt: skip
         if why:
             return current

@@ -25,7 +25,8 @@ def _scorer(
     refit_stderr: np.ndarray, monkeypatch: pytest.MonkeyPatch, lines: list[str], step: float = 0.1
 ):
     refitted = SimpleNamespace(
-        rms=1.0e-3, stderr=refit_stderr, windows=SimpleNamespace(size=24),
+        rms=1.0e-3, stderr=refit_stderr, windows=SimpleNamespace(size=24), iterations=20,
+        converged=False,
         fitted_model=lambda topology, dt: "refitted model",
         theta=torch.tensor([0.5, -0.2 + step, 1.0], dtype=torch.float64),
     )  # fmt: skip

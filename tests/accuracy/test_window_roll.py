@@ -132,11 +132,11 @@ def test_a_start_with_each_rods_own_spin_is_kept() -> None:
     topo = a.topology
     rng = np.random.default_rng(5)
     B, R, W = 3, topo.n_rods, 300
+    axis = RodAxes.of(topo).axis
     p = np.broadcast_to(a.pose_p, (B, R, 3)) + np.array([0.0, 0.0, 1.0])
     q = _rolled(torch.as_tensor(np.broadcast_to(a.pose_q, (B, R, 4)).copy()),
-                torch.as_tensor(rng.uniform(0, np.pi, (B, R))), RodAxes.of(topo).axis)  # fmt: skip
+                torch.as_tensor(rng.uniform(0, np.pi, (B, R))), axis)  # fmt: skip
     rot = quat_to_matrix(q)
-    axis = RodAxes.of(topo).axis
     along = torch.stack([rot[:, r, :, int(axis[r])] for r in range(R)], 1)
     spins = torch.as_tensor(rng.choice([-4.0, 4.0], (B, R, 1)))
     v = torch.as_tensor(rng.normal(0, 1.0, (B, R, 3)))

@@ -65,6 +65,7 @@ def test_a_refit_whose_parameters_did_not_move_says_so(step, stayed, monkeypatch
     out = scorer.refit(current, SimpleNamespace(steps=30))
     assert out.model == "refitted model"  # kept either way: the same model, more windows
     assert ("its parameters stayed at the last fit's" in lines[-1]) is stayed
+    assert "(20 iterations, ran out;" in lines[-1]
 
 
 @pytest.mark.parametrize(("final_windows", "refits"), [(24, True), (8, False)])

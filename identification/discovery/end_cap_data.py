@@ -204,7 +204,8 @@ class EndCapData:
     def __init__(self, dataset: Dataset, s: TrajectorySettings) -> None:
         self.topology, self.dt = dataset.topology, dataset.dt
         self.axes = RodAxes.of(self.topology)
-        self.engine = Engine(self.topology, self.dt, substeps=substeps_for(self.dt, s.physics_dt))
+        self.engine = Engine(self.topology, self.dt, substeps=substeps_for(self.dt, s.physics_dt),
+                             native=True)
         self.sg = odd_window(s.smoothing / self.dt)
         self.dataset, self.seed = dataset, s.seed
         self.smooth: dict[str, Any] = {}

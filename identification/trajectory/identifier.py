@@ -172,7 +172,8 @@ class TrajectoryIdentifier:
         has_control = bool(np.any(data.control != 0))
         has_cables = cables is not None and bool(np.any(cables != 0))
         vec = self.start_vector(topo, axes, start, anchors, has_control, has_cables)
-        engine = Engine(topo, dataset.dt, substeps=substeps_for(dataset.dt, self.physics_dt))
+        engine = Engine(topo, dataset.dt, substeps=substeps_for(dataset.dt, self.physics_dt),
+                        native=True)
         grid = {k: getattr(smooth, k).copy() for k in STATE_KEYS}
         theta = vec.start[vec.free]
         schedule = window_schedule(self.first_window, min(self.window, data.n_transitions))

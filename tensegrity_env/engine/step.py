@@ -24,6 +24,7 @@ from tensegrity_env.engine.forces import (
 )
 from tensegrity_env.engine.integration import semi_implicit_euler
 from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics, node_kinematics
+from tensegrity_env.engine.native_path import native_step
 from tensegrity_env.engine.state import State
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -58,6 +59,9 @@ class Engine:
         device: device of the topology tensors; states and params must match.
         substeps: physics steps per :meth:`step`, each ``dt / substeps`` [s] long
             (see :func:`substeps_for`); commands are held over them.
+        native: step by the C kernel where it computes the same and no gradient is
+            wanted (:mod:`tensegrity_env.engine.native_path`): the same physics to
+            round-off, for the many small no-gradient rollouts of trajectory fits.
     """
 
     def __init__(
@@ -68,12 +72,14 @@ class Engine:
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
         substeps: int = 1,
+        native: bool = False,
     ) -> None:
         if int(substeps) < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
         self.topology = topology
         self.dt = float(dt)
         self.substeps = int(substeps)
+        self.native = bool(native)
         self.physics_dt = self.dt / self.substeps
         self.effects = tuple(effects)
         names = [e.name for e in self.effects]
@@ -101,7 +107,8 @@ class Engine:
         )  # (C,): the spring each cable actuator drives
 
     def with_effects(self, effects: Sequence[Effect]) -> Engine:
-        return Engine(self.topology, self.dt, effects, self.dtype, self.device, self.substeps)
+        return Engine(self.topology, self.dt, effects, self.dtype, self.device, self.substeps,
+                      self.native)  # fmt: skip
 
     def kinematics(self, state: State) -> Kinematics:
         """Every node's position and velocity (end caps, anchors, attachment points)."""
@@ -197,6 +204,10 @@ class Engine:
         cables: torch.Tensor | None = None,
     ) -> State:
         """Advance every assembly in the batch by ``dt``, in ``substeps`` physics steps."""
+        if self.native:
+            fast = native_step(self, state, params, control, cables)
+            if fast is not None:
+                return fast
         for _ in range(self.substeps):
             accel, alpha_l, omega_l = self.accelerations(state, params, control, cables)
             # integration: semi-implicit Euler (MuJoCo's Euler integrator)

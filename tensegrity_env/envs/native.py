@@ -13,12 +13,44 @@ from __future__ import annotations
 import ctypes
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from tensegrity_env.native_build import NativeUnavailable, build_and_load
 
-SOURCE = Path(__file__).with_name("native_step.c")
+if TYPE_CHECKING:
+    from tensegrity_env.topology import Topology
 
-__all__ = ["SOURCE", "NativeUnavailable", "load_kernel"]
+SOURCE = Path(__file__).with_name("native_step.c")
+#: the contact law's parameters in the order the kernel's model takes them
+CONTACT_LAW = ("stiffness", "damping", "impedance", "impedance_min", "width", "friction",
+               "height")  # fmt: skip
+
+__all__ = ["CONTACT_LAW", "SOURCE", "NativeUnavailable", "load_kernel", "model_vector"]
+
+
+def model_vector(
+    topology: Topology,
+    params: dict[str, np.ndarray],
+    contact: dict[str, float] | None,
+    radius: np.ndarray,
+) -> np.ndarray:
+    """The kernel's packed model (``native_step.c``'s layout) of ``topology`` with
+    ``params`` (:meth:`~tensegrity_env.params.Params.numpy`) and the ground contact's
+    ``contact`` values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R,) [m] the
+    end caps' contact radii."""
+    c = np.zeros(8) if contact is None else np.array([1.0, *(contact[k] for k in CONTACT_LAW)])
+    parts = [
+        topology.end_offsets.ravel(), topology.control_arms.ravel(),
+        topology.anchor_positions.ravel(), params["stiffness"], params["damping"],
+        params["rest_length"], params["mass"], params["inertia"].ravel(),
+        np.reshape(params["control_gain"], -1)[:1], np.reshape(params["gravity"], 3), c, radius,
+        topology.frame_origins.ravel(), [float(r.end_cap == "sphere") for r in topology.rods],
+        [float(topology.n_points)], topology.point_rods.astype(float),
+        topology.point_offsets.ravel(),
+    ]  # fmt: skip
+    return np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
 
 
 @lru_cache(maxsize=1)

@@ -34,7 +34,7 @@ import torch
 
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.effects import Effect
-from tensegrity_env.envs.native import NativeUnavailable, load_kernel
+from tensegrity_env.envs.native import NativeUnavailable, load_kernel, model_vector
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_to_matrix
@@ -138,33 +138,12 @@ class NativeStepper:
         self.dt, self.frame_skip = float(dt), int(frame_skip)
         self.threads = int(threads or default_threads())
         self.iterations = int(contact_iterations or ground_contact.ACTIVE_SET_ITERATIONS)
-        P = params.numpy()
-        if contact is None:
-            c = np.zeros(8)
-            radius = np.zeros(topology.n_rods)
-        else:
-            v = {k: float(t.detach().reshape(-1)[0]) for k, t in contact.values.items()}  # type: ignore[attr-defined]
-            keys = (
-                "stiffness",
-                "damping",
-                "impedance",
-                "impedance_min",
-                "width",
-                "friction",
-                "height",
-            )
-            c = np.array([1.0, *(v[k] for k in keys)])
+        law = None
+        radius = np.zeros(topology.n_rods)
+        if contact is not None:
+            law = {k: float(t.detach().reshape(-1)[0]) for k, t in contact.values.items()}  # type: ignore[attr-defined]
             radius = contact.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]
-        parts = [
-            topology.end_offsets.ravel(), topology.control_arms.ravel(),
-            topology.anchor_positions.ravel(), P["stiffness"], P["damping"], P["rest_length"],
-            P["mass"], P["inertia"].ravel(), [P["control_gain"]], P["gravity"], c, radius,
-            topology.frame_origins.ravel(),
-            [float(r.end_cap == "sphere") for r in topology.rods],
-            [float(topology.n_points)], topology.point_rods.astype(float),
-            topology.point_offsets.ravel(),
-        ]  # fmt: skip
-        self._model = np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
+        self._model = model_vector(topology, params.numpy(), law, radius)
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)
         if verify:
             self.verify(params, effects)

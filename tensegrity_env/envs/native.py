@@ -27,7 +27,12 @@ SOURCE = Path(__file__).with_name("native_step.c")
 CONTACT_LAW = ("stiffness", "damping", "impedance", "impedance_min", "width", "friction",
                "height")  # fmt: skip
 
-__all__ = ["CONTACT_LAW", "SOURCE", "NativeUnavailable", "load_kernel", "model_vector"]
+__all__ = ["CONTACT_LAW", "EFFECT_HEAD", "SOURCE", "NativeUnavailable", "load_kernel", "model_vector"]
+
+
+#: entries of the kernel's effects block besides the per-spring ones: linear drag b, β,
+#: quadratic drag k, κ (3 each, per rod axis) and a force field (3)
+EFFECT_HEAD = 15
 
 
 def model_vector(
@@ -35,22 +40,47 @@ def model_vector(
     params: dict[str, np.ndarray],
     contact: dict[str, float] | None,
     radius: np.ndarray,
+    effects: np.ndarray | None = None,
 ) -> np.ndarray:
     """The kernel's packed model (``native_step.c``'s layout) of ``topology`` with
     ``params`` (:meth:`~tensegrity_env.params.Params.numpy`) and the ground contact's
     ``contact`` values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R,) [m] the
-    end caps' contact radii."""
+    end caps' contact radii; ``effects`` the effects block (:data:`EFFECT_HEAD` + 3 S
+    entries; None: no effect beside contact).
+
+    ``params`` may carry a batch dimension (stiffness (G, S), mass (G, R), inertia
+    (G, R, 3), control gain (G, ...)): one model per row, (G, L).
+    """
+    S = topology.n_springs
     c = np.zeros(8) if contact is None else np.array([1.0, *(contact[k] for k in CONTACT_LAW)])
+    if effects is None:
+        effects = np.zeros(EFFECT_HEAD + 3 * S)
+    stiffness = np.asarray(params["stiffness"], dtype=np.float64)
+    G = stiffness.shape[0] if stiffness.ndim == 2 else 0
+    rows = max(G, 1)
+
+    def per_model(x: np.ndarray, width: int) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        return x.reshape(rows, width) if G and x.size == G * width else np.broadcast_to(
+            x.reshape(-1)[:width], (rows, width))  # fmt: skip
+
+    R = topology.n_rods
     parts = [
-        topology.end_offsets.ravel(), topology.control_arms.ravel(),
-        topology.anchor_positions.ravel(), params["stiffness"], params["damping"],
-        params["rest_length"], params["mass"], params["inertia"].ravel(),
-        np.reshape(params["control_gain"], -1)[:1], np.reshape(params["gravity"], 3), c, radius,
-        topology.frame_origins.ravel(), [float(r.end_cap == "sphere") for r in topology.rods],
-        [float(topology.n_points)], topology.point_rods.astype(float),
-        topology.point_offsets.ravel(),
+        per_model(topology.end_offsets, 6 * R), per_model(topology.control_arms, 3 * R),
+        per_model(topology.anchor_positions, 3 * topology.n_anchors),
+        per_model(stiffness, S), per_model(params["damping"], S),
+        per_model(params["rest_length"], S), per_model(params["mass"], R),
+        per_model(params["inertia"], 3 * R), per_model(params["control_gain"], 1),
+        per_model(params["gravity"], 3), per_model(c, 8), per_model(radius, R),
+        per_model(topology.frame_origins, 3 * R),
+        per_model(np.array([float(r.end_cap == "sphere") for r in topology.rods]), R),
+        per_model(np.array([float(topology.n_points)]), 1),
+        per_model(topology.point_rods.astype(float), topology.n_points),
+        per_model(topology.point_offsets, 3 * topology.n_points),
+        per_model(effects, EFFECT_HEAD + 3 * S),
     ]  # fmt: skip
-    return np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
+    out = np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=np.float64)
+    return out if G else out[0]
 
 
 @lru_cache(maxsize=1)
@@ -63,6 +93,13 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
         c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, i32, c_int
     ]  # fmt: skip
     lib.tsr_step.restype = c_int
+    lib.tsr_step_groups.argtypes = [
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, c_int,
+        ctypes.POINTER(ctypes.c_long), i32, c_int,
+    ]  # fmt: skip
+    lib.tsr_step_groups.restype = c_int
+    lib.tsr_model_size.argtypes = [c_int, c_int, c_int, c_int]
+    lib.tsr_model_size.restype = c_int
     ptr = ctypes.c_void_p
     lib.tsr_contact_forces.argtypes = [
         ctypes.c_long, c_int, *[ptr] * 7, c_int, *[ptr] * 7, c_int, ptr, ptr

@@ -36,7 +36,14 @@
  *           MuJoCo's free joint integrates, tensegrity_env/engine/integration.py),
  *           sphere[R] (1: sphere end caps, whose contact frame is fixed in the world),
  *           n_points, point_rod[P], point_offset[P][3] (spring attachment points on rods
- *           besides the end caps, in their rods' principal frames)
+ *           besides the end caps, in their rods' principal frames),
+ *           then the effects beside contact (zeros where absent): linear drag b[3],
+ *           beta[3] and quadratic drag k[3], kappa[3] per rod axis (explicit, as
+ *           tensegrity_env/effects/drag.py), force_field[3], and per spring the cubic
+ *           stiffness k3[S] (T += k3 (l - l0)^3), rest-length offset delta[S]
+ *           (T -= K delta) and slack[S] (1: no elastic force while l < l0)
+ *   groups  (tsr_step_groups): G models one after the other, and for each the first
+ *           assembly it steps (assemblies start[g] .. start[g+1]-1)
  */
 #include <math.h>
 #include <string.h>
@@ -57,6 +64,8 @@ typedef struct {
     int has_origin;
     int P, point_rod[TSR_MAX_POINTS];
     const double *point_offset;
+    const double *drag, *qdrag, *field, *cubic, *offset, *slack;
+    int has_drag, has_qdrag, has_field, has_spring_law;
     const int *springs;
     int iterations;
     double dt;
@@ -87,7 +96,26 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->P = (int)w[0]; w += 1;
     for (int k = 0; k < m->P && k < TSR_MAX_POINTS; k++) m->point_rod[k] = (int)w[k];
     w += m->P;
-    m->point_offset = w;
+    m->point_offset = w; w += 3 * m->P;
+    m->drag = w; w += 6;
+    m->qdrag = w; w += 6;
+    m->field = w; w += 3;
+    m->cubic = w; w += S;
+    m->offset = w; w += S;
+    m->slack = w;
+    m->has_drag = m->has_qdrag = m->has_field = m->has_spring_law = 0;
+    for (int i = 0; i < 6; i++) {
+        m->has_drag |= m->drag[i] != 0.0;
+        m->has_qdrag |= m->qdrag[i] != 0.0;
+    }
+    for (int i = 0; i < 3; i++) m->has_field |= m->field[i] != 0.0;
+    for (int i = 0; i < S; i++)
+        m->has_spring_law |= m->cubic[i] != 0.0 || m->offset[i] != 0.0 || m->slack[i] != 0.0;
+}
+
+/* the length of the packed model of R rods, S springs, A anchors and P points */
+int tsr_model_size(int R, int S, int A, int P) {
+    return 6 * R + 3 * R + 3 * A + 3 * S + R + 3 * R + 1 + 3 + 8 + R + 4 * R + 1 + 4 * P + 15 + 3 * S;
 }
 
 static inline void cross(const double *a, const double *b, double *o) {
@@ -603,7 +631,12 @@ static void vsubstep(const Model *m, VRod *x) {
         for (int i = 0; i < 3; i++) d[i] = nx[b][i] - nx[a][i];
         vd len = vsqrt(vdot(d, d)), inv = 1.0 / len;
         for (int i = 0; i < 3; i++) { e[i] = d[i] * inv; rate += (nv[b][i] - nv[a][i]) * e[i]; }
-        vd T = m->K[s] * (len - m->l0[s]) + m->c[s] * rate;
+        vd stretch = len - m->l0[s];
+        vd T = m->K[s] * stretch + m->c[s] * rate;
+        if (m->has_spring_law) {
+            T += m->cubic[s] * (stretch * stretch * stretch) - m->K[s] * m->offset[s];
+            if (m->slack[s] != 0.0) T -= vsel(stretch < 0, m->K[s] * stretch, vsplat(0.0));
+        }
         for (int i = 0; i < 3; i++) { nf[a][i] += T * e[i]; nf[b][i] -= T * e[i]; }
     }
     const double dt = m->dt;
@@ -626,6 +659,22 @@ static void vsubstep(const Model *m, VRod *x) {
         vrot_c(M[r], m->arm_u + 3 * r, au);
         vcross(au, fu, tu);
         for (int i = 0; i < 3; i++) { F[i] = f_s[i] + fu[i]; T[i] = t_s[i] + tu[i]; }
+        /* drag per rod axis (explicit) and a force field, before contact reacts */
+        if (m->has_drag || m->has_qdrag) {
+            vd vl_[3], wl_[3], fl[3], tq[3], fw[3], tw[3];
+            vrot_t(M[r], xr->v, vl_);
+            vrot_t(M[r], xr->w, wl_);
+            for (int i = 0; i < 3; i++) {
+                vd av = vsel(vl_[i] < 0, -vl_[i], vl_[i]), aw = vsel(wl_[i] < 0, -wl_[i], wl_[i]);
+                fl[i] = -(m->drag[i] * vl_[i]) - m->qdrag[i] * (av * vl_[i]);
+                tq[i] = -(m->drag[3 + i] * wl_[i]) - m->qdrag[3 + i] * (aw * wl_[i]);
+            }
+            vrot(M[r], fl, fw);
+            vrot(M[r], tq, tw);
+            for (int i = 0; i < 3; i++) { F[i] += fw[i]; T[i] += tw[i]; }
+        }
+        if (m->has_field)
+            for (int i = 0; i < 3; i++) F[i] += m->field[i];
         /* contact is a constraint: it reacts to springs and control together */
         vd fa[3], ta[3];
         for (int i = 0; i < 3; i++) { fa[i] = F[i]; ta[i] = T[i]; }
@@ -687,34 +736,28 @@ static void vsubstep(const Model *m, VRod *x) {
     }
 }
 
-/* frame_skip steps of B assemblies, W at a time (the last block padded with copies of
- * its last assembly); threads: OpenMP threads over the blocks */
-int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
-             double *state, const double *control, const double *model, const int *springs,
-             int threads) {
-    if (R > TSR_MAX_RODS || 2 * R + A > TSR_MAX_NODES) return -1;
-    Model m;
-    unpack(&m, model, springs, R, S, A);
-    if (m.P > TSR_MAX_POINTS || 2 * R + A + m.P > TSR_MAX_NODES) return -1;
-    m.iterations = iterations;
-    m.dt = dt;
-    const int blocks = (B + TSR_W - 1) / TSR_W;
+/* frame_skip steps of assemblies lo..hi-1 under model m, W at a time (the last block
+ * padded with copies of its last assembly); threads: OpenMP threads over the blocks */
+static void step_range(const Model *m, long lo, long hi, int frame_skip, double *state,
+                       const double *control, int threads) {
+    const int R = m->R;
+    const long blocks = (hi - lo + TSR_W - 1) / TSR_W;
     (void)threads;
 #ifdef _OPENMP
     if (threads <= 0) threads = 1;
 #pragma omp parallel for schedule(dynamic, 4) num_threads(threads) if (blocks > 1 && threads > 1)
 #endif
-    for (int blk = 0; blk < blocks; blk++) {
+    for (long blk = 0; blk < blocks; blk++) {
         VRod x[TSR_MAX_RODS];
-        int env[TSR_W];
+        long env[TSR_W];
         for (int l = 0; l < TSR_W; l++) {
-            int e = blk * TSR_W + l;
-            env[l] = e < B ? e : B - 1;
+            long e = lo + blk * TSR_W + l;
+            env[l] = e < hi ? e : hi - 1;
         }
         for (int r = 0; r < R; r++)
             for (int l = 0; l < TSR_W; l++) {
-                const double *s = state + ((long)env[l] * R + r) * 13;
-                const double *u = control + ((long)env[l] * R + r) * 3;
+                const double *s = state + (env[l] * R + r) * 13;
+                const double *u = control + (env[l] * R + r) * 3;
                 for (int i = 0; i < 3; i++) {
                     x[r].p[i][l] = s[i];
                     x[r].v[i][l] = s[3 + i];
@@ -723,10 +766,10 @@ int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iteratio
                 }
                 for (int i = 0; i < 4; i++) x[r].q[i][l] = s[6 + i];
             }
-        for (int k = 0; k < frame_skip; k++) vsubstep(&m, x);
-        for (int l = 0; l < TSR_W && blk * TSR_W + l < B; l++)
+        for (int k = 0; k < frame_skip; k++) vsubstep(m, x);
+        for (int l = 0; l < TSR_W && lo + blk * TSR_W + l < hi; l++)
             for (int r = 0; r < R; r++) {
-                double *s = state + ((long)env[l] * R + r) * 13;
+                double *s = state + (env[l] * R + r) * 13;
                 for (int i = 0; i < 3; i++) {
                     s[i] = x[r].p[i][l];
                     s[3 + i] = x[r].v[i][l];
@@ -734,6 +777,39 @@ int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iteratio
                 }
                 for (int i = 0; i < 4; i++) s[6 + i] = x[r].q[i][l];
             }
+    }
+}
+
+int tsr_step_groups(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
+                    double *state, const double *control, const double *models, int G,
+                    const long *start, const int *springs, int threads);
+
+/* frame_skip steps of B assemblies under one model */
+int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
+             double *state, const double *control, const double *model, const int *springs,
+             int threads) {
+    return tsr_step_groups(B, R, S, A, frame_skip, dt, iterations, state, control, model, 1,
+                           NULL, springs, threads);
+}
+
+/* frame_skip steps of B assemblies under G models: model g (models + g * size) steps
+ * assemblies start[g] .. start[g+1]-1 (start NULL: one model for all B) */
+int tsr_step_groups(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
+                    double *state, const double *control, const double *models, int G,
+                    const long *start, const int *springs, int threads) {
+    if (R > TSR_MAX_RODS || 2 * R + A > TSR_MAX_NODES) return -1;
+    for (int g = 0; g < G; g++) {
+        Model m;
+        const double *w = models;
+        unpack(&m, w, springs, R, S, A);
+        if (m.P > TSR_MAX_POINTS || 2 * R + A + m.P > TSR_MAX_NODES) return -1;
+        w += (long)g * tsr_model_size(R, S, A, m.P);
+        unpack(&m, w, springs, R, S, A);
+        m.iterations = iterations;
+        m.dt = dt;
+        long lo = start ? start[g] : 0, hi = start ? start[g + 1] : B;
+        if (lo < 0 || hi > B || lo > hi) return -2;
+        if (hi > lo) step_range(&m, lo, hi, frame_skip, state, control, threads);
     }
     return 0;
 }

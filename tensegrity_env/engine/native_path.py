@@ -48,7 +48,6 @@ def native_step(
     """``engine.step(state, params, control, cables)`` by the C kernel, or None where the
     kernel does not compute the same (see the module docstring)."""
     from tensegrity_env.effects.ground_contact import ACTIVE_SET_ITERATIONS, native_kernel
-    from tensegrity_env.envs.native import model_vector
 
     if cables is not None and engine.cable_springs.numel():
         return None
@@ -62,28 +61,11 @@ def native_step(
     lib = native_kernel(*tensors)
     if lib is None:
         return None
-    block = effects_block(engine.effects, engine.topology)
-    if block is None:
+    built = _models(engine, fields, B)
+    if built is None:
         return None
-    contact, effects, radius = block
-    batched = {k: v.dim() > BATCHED[k] for k, v in fields.items() if k in BATCHED}
-    if any(batched.values()):
-        rows = _model_rows(fields, batched, B)
-        if rows is None:
-            return None
-        start = _runs(rows)
-        first = torch.as_tensor(start[:-1])
-        G = len(first)
-        values = {"gravity": params.gravity.detach().numpy()}
-        for k in BATCHED:
-            v = fields[k].detach()
-            v = v[first] if batched[k] else v.unsqueeze(0).expand(G, *v.shape)
-            values[k] = v.reshape(G, -1).numpy()
-    else:
-        values = {k: v.detach().numpy() for k, v in fields.items()}
-        start = np.array([0, B], dtype=np.int64)
-    models = np.ascontiguousarray(model_vector(engine.topology, values, contact, radius, effects))
-    x = torch.cat([t.detach() for t in state.tensors()], dim=-1).contiguous().numpy().copy()
+    models, start = built
+    x = torch.cat([t.detach() for t in state.tensors()], dim=-1).contiguous().numpy()
     if control is None:
         u = np.zeros((B, R, 3))
     else:
@@ -101,6 +83,45 @@ def native_step(
         return None
     out = torch.from_numpy(x)
     return State(out[..., 0:3], out[..., 3:6], out[..., 6:10], out[..., 10:13])
+
+
+def _models(
+    engine: Engine, fields: dict[str, torch.Tensor], B: int
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The kernel's models (G, L) and where each one's run of assemblies starts (G + 1,)
+    for ``fields`` (the parameters) on ``engine``'s effects, or None where the kernel
+    does not take them. Kept on the engine for the same parameter tensors (a rollout
+    steps the same parameters every step); the tensors are held, so their ids stay
+    theirs, and their versions tell an in-place change."""
+    from tensegrity_env.envs.native import model_vector
+
+    key = (*((id(t), t._version) for t in fields.values()), B)
+    kept = engine.__dict__.get("_native_models")
+    if kept is not None and kept[0] == key:
+        return kept[2]
+    block = effects_block(engine.effects, engine.topology)
+    if block is None:
+        return None
+    contact, effects, radius = block
+    batched = {k: v.dim() > BATCHED[k] for k, v in fields.items() if k in BATCHED}
+    if any(batched.values()):
+        rows = _model_rows(fields, batched, B)
+        if rows is None:
+            return None
+        start = _runs(rows)
+        first = torch.as_tensor(start[:-1])
+        G = len(first)
+        values = {"gravity": fields["gravity"].detach().numpy()}
+        for k in BATCHED:
+            v = fields[k].detach()
+            v = v[first] if batched[k] else v.unsqueeze(0).expand(G, *v.shape)
+            values[k] = v.reshape(G, -1).numpy()
+    else:
+        values = {k: v.detach().numpy() for k, v in fields.items()}
+        start = np.array([0, B], dtype=np.int64)
+    models = np.ascontiguousarray(model_vector(engine.topology, values, contact, radius, effects))
+    engine.__dict__["_native_models"] = (key, tuple(fields.values()), (models, start))
+    return models, start
 
 
 def effects_block(

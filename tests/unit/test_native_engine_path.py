@@ -1,0 +1,136 @@
+"""The engine's no-gradient steps by the C kernel (``Engine(native=True)``): the same
+physics as the PyTorch engine to round-off, with every effect the kernel has, with
+per-assembly parameters, and the PyTorch step wherever the kernel does not apply."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tensegrity_env.effects import (
+    CubicStiffness,
+    ForceField,
+    GroundContact,
+    ImplicitLinearDrag,
+    LinearDrag,
+    QuadraticDrag,
+    RestLengthOffset,
+    SlackSprings,
+)
+from tensegrity_env.effects.ground_contact import native_kernel
+from tensegrity_env.engine import Engine, State
+from tensegrity_env.engine.native_path import native_step
+from tensegrity_env.envs.physics import pack_states
+from tensegrity_env.envs.twin import face_down_pose, twin_assembly
+from tensegrity_env.params import Params
+
+pytestmark = pytest.mark.skipif(
+    native_kernel(torch.zeros(1, dtype=torch.float64)) is None, reason="no C compiler"
+)
+
+#: largest state difference accepted after the steps below (float64 round-off, grown
+#: through impacts and 20 ms of motion)
+ROUND_OFF = 1e-9
+
+
+def _tumbling(n: int, seed: int) -> State:
+    """Face-down icosahedra 2 mm into the floor, moving and spinning at random."""
+    a = twin_assembly()
+    rng = np.random.default_rng(seed)
+    p, q = face_down_pose(a.topology, a.pose_p, a.pose_q, clearance=-2e-3)
+    return State.from_numpy(
+        p + rng.normal(0, 3e-3, (n, 6, 3)), rng.normal(0, 0.5, (n, 6, 3)),
+        np.broadcast_to(q, (n, 6, 4)).copy(), rng.normal(0, 2.0, (n, 6, 3)),
+    )  # fmt: skip
+
+
+def _effects(topology):  # type: ignore[no-untyped-def]
+    """Every effect the kernel has, at values that move the rods visibly in 20 ms."""
+    rng = np.random.default_rng(7)
+    S = topology.n_springs
+    return [
+        LinearDrag(topology, translational=[2.0, 1.5, 0.4], rotational=[0.05, 0.03, 0.01]),
+        QuadraticDrag(topology, translational=[3.0, 2.0, 0.5], rotational=[0.02, 0.02, 0.004]),
+        ForceField(topology, force=[0.4, -0.3, 0.6]),
+        CubicStiffness(topology, stiffness=rng.normal(0, 2000, S)),
+        RestLengthOffset(topology, offset=rng.normal(0, 0.004, S)),
+        SlackSprings(topology, springs=[0, 3, 5, 7, 11]),
+        GroundContact(topology, friction=0.8, stiffness=2500.0, impedance=0.93),
+    ]
+
+
+def _both(engine_kw, state, params, control, steps=20):  # type: ignore[no-untyped-def]
+    """The states after ``steps`` steps by the PyTorch engine and by the kernel's path."""
+    out = []
+    for native in (False, True):
+        engine = Engine(**engine_kw, native=native)
+        s = state
+        with torch.no_grad():
+            for _ in range(steps):
+                s = engine.step(s, params, control)
+        out.append(pack_states(s))
+    return out
+
+
+def _spread(params: Params, scales: list[float], runs: list[int]) -> Params:
+    """``params`` with a batch dimension: run k of ``runs[k]`` assemblies scales every
+    mass, inertia, stiffness, damping and the control gain by ``scales[k]`` and moves
+    the rest lengths by ``scales[k] - 1`` mm (the layout of a forward-difference batch)."""
+    sc = torch.cat([torch.full((n, 1), s, dtype=torch.float64)
+                    for s, n in zip(scales, runs, strict=True)])  # fmt: skip
+    B = int(sc.shape[0])
+    return Params(
+        stiffness=params.stiffness * sc, damping=params.damping * sc,
+        rest_length=params.rest_length + (sc - 1) * 1e-3, mass=params.mass * sc,
+        inertia=params.inertia * sc[:, :, None],
+        control_gain=params.control_gain * sc[:, :, None], gravity=params.gravity,
+        cable_gain=params.cable_gain.expand(B, -1),
+    )  # fmt: skip
+
+
+def test_every_native_effect_with_control_matches_the_engine() -> None:
+    """Rest lengths 15 % long, so that some of the slack springs go slack."""
+    a = twin_assembly()
+    state = _tumbling(11, 0)
+    u = torch.as_tensor(np.random.default_rng(1).normal(0, 2, (11, 6, 3)))
+    fields = ("stiffness", "damping", "mass", "inertia", "control_gain", "gravity", "cable_gain")
+    params = Params(**{f: getattr(a.params, f) for f in fields},
+                    rest_length=a.params.rest_length * 1.15)  # fmt: skip
+    effects = _effects(a.topology)
+    kw = {"topology": a.topology, "dt": 1 / 120, "effects": effects, "substeps": 9}
+    ref, mine = _both(kw, state, params, u)
+    assert np.abs(mine - ref).max() < ROUND_OFF
+    for k in range(len(effects) - 1):  # each effect moves the states: none is left out
+        without = {**kw, "effects": effects[:k] + effects[k + 1 :]}
+        assert np.abs(_both(without, state, params, u)[1] - ref).max() > 1e-3
+
+
+def test_parameters_per_assembly_run_by_run() -> None:
+    """Three runs of equal parameters (as a forward-difference batch lays them out), the
+    middle run's 5 % heavier, stiffer and more damped model giving other states."""
+    a = twin_assembly()
+    runs = [5, 9, 3]
+    state = _tumbling(sum(runs), 2)
+    params = _spread(a.params, [1.0, 1.05, 0.97], runs)
+    kw = {"topology": a.topology, "dt": 1 / 120, "effects": _effects(a.topology), "substeps": 9}
+    ref, mine = _both(kw, state, params, None)
+    assert np.abs(mine - ref).max() < ROUND_OFF
+    same = _both(kw, state, a.params, None)[0]
+    assert np.abs(same[5:14] - ref[5:14]).max() > 1e-4  # the runs stepped their own models
+
+
+def test_gradients_and_effects_without_native_form_take_the_pytorch_step() -> None:
+    a = twin_assembly()
+    state = _tumbling(2, 3)
+    engine = Engine(a.topology, 1 / 120, [GroundContact(a.topology)], substeps=9, native=True)
+    stiff = a.params.stiffness.clone().requires_grad_(True)
+    params = Params(**{**{f: getattr(a.params, f) for f in ("damping", "rest_length", "mass",
+                    "inertia", "control_gain", "gravity", "cable_gain")}, "stiffness": stiff})  # fmt: skip
+    assert native_step(engine, state, params, None, None) is None
+    out = engine.step(state, params)
+    assert out.p.requires_grad  # the gradient flows through the PyTorch step
+    implicit = engine.with_effects([ImplicitLinearDrag(a.topology, translational=[1.0] * 3)])
+    with torch.no_grad():
+        assert native_step(implicit, state, a.params, None, None) is None
+        assert native_step(engine, state, a.params, None, None) is not None

@@ -8,9 +8,12 @@ measured benchmark's floor plant (``measured_plant.py``, MuJoCo's default contac
 float64, one thread. The reference, timed in the same run and in alternation (best of
 ``--repeats`` per side), is MuJoCo stepping the same plant from the same states one
 after the other (``mj_step`` with ``nstep`` = 9); the engine without its ground
-contact shows what the contact costs, and the engine with the contact law in PyTorch
+contact shows what the contact costs, the engine with the contact law in PyTorch
 (where a gradient is wanted; ``tensegrity_env.effects.ground_contact.USE_NATIVE``)
-what its C kernel saves. Ratios are printed, never asserted::
+what its C kernel saves, and the engine built with ``native=True`` (as the trajectory
+fits build it: without gradients the whole step runs in the environments' C kernel,
+:mod:`tensegrity_env.engine.native_path`) what that saves. Ratios are printed, never
+asserted::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_engine.py
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_engine.py --batch 4000 --repeats 5
@@ -76,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
         "  contact in PyTorch": (with_contact, False),
         "engine without contact": (Engine(asm.topology, 1 / cell.rate, [], substeps=cell.substeps),
                                    True),
+        "engine, native path": (Engine(asm.topology, 1 / cell.rate, contact,
+                                       substeps=cell.substeps, native=True), True),
     }  # fmt: skip
     model = mujoco.MjModel.from_xml_string(truth.xml)
     data = mujoco.MjData(model)
@@ -115,9 +120,10 @@ def main(argv: list[str] | None = None) -> int:
         per = min(times[name]) / steps
         print(f"  {name:24s} {per * 1e6:8.2f} us per assembly-step  ratio to MuJoCo "
               f"{per / ref:6.2f}")  # fmt: skip
-    with_c, in_torch, without = (min(times[n]) for n in engines)
+    with_c, in_torch, without, native = (min(times[n]) for n in engines)
     print(f"  contact share of the engine's step: {1 - without / with_c:.0%}; the step with the "
-          f"contact law in C against PyTorch: ratio {with_c / in_torch:.2f}")  # fmt: skip
+          f"contact law in C against PyTorch: ratio {with_c / in_torch:.2f}; the native path "
+          f"against the engine with contact: ratio {native / with_c:.3f}")  # fmt: skip
     return 0
 
 

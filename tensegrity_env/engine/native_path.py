@@ -4,10 +4,9 @@ An :class:`~tensegrity_env.engine.Engine` built with ``native=True`` hands a ste
 environments' C kernel (``tensegrity_env/envs/native_step.c``: the engine's physics
 written out per assembly) when the kernel computes the same thing: no gradient wanted
 through the state, the parameters or the effects, float64 on the CPU, no cable
-commands, a kernel that builds, and only effects the kernel has
-(:func:`effects_block`: ground contact, explicit linear drag, quadratic drag, a force
-field, cubic stiffness, rest-length offsets, slack springs), each with the shapes it
-takes. Parameters with a batch dimension (a forward-difference Jacobian's perturbed
+commands, a kernel that builds, and only effects the kernel has (:func:`effects_block`:
+ground contact, linear drag (explicit or implicit), quadratic drag, a force field, cubic
+stiffness, rest-length offsets, slack springs), each with the shapes it takes. Parameters with a batch dimension (a forward-difference Jacobian's perturbed
 copies) are stepped in runs of consecutive assemblies that share them, one model per
 run. Otherwise the step runs in PyTorch as always. The two agree to round-off
 (``tests/unit/test_native_engine_path.py``).
@@ -135,6 +134,7 @@ def effects_block(
         CubicStiffness,
         ForceField,
         GroundContact,
+        ImplicitLinearDrag,
         LinearDrag,
         QuadraticDrag,
         RestLengthOffset,
@@ -160,6 +160,13 @@ def effects_block(
                 return None
             contact = {k: float(v.detach()) for k, v in values.items()}
             radius = e.radius.numpy()
+        elif kind is ImplicitLinearDrag:  # its wrench, and its damping implicitly
+            flat = np.concatenate([values[k].detach().cpu().double().numpy().reshape(-1)
+                                   for k in ("translational", "rotational")])  # fmt: skip
+            if flat.size != 6:
+                return None
+            block[0:6] += flat
+            block[15:21] += flat
         elif kind in where:
             at, keys = where[kind]
             flat = np.concatenate([values[k].detach().cpu().double().numpy().reshape(-1)

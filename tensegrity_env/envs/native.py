@@ -31,8 +31,9 @@ __all__ = ["CONTACT_LAW", "EFFECT_HEAD", "SOURCE", "NativeUnavailable", "load_ke
 
 
 #: entries of the kernel's effects block besides the per-spring ones: linear drag b, β,
-#: quadratic drag k, κ (3 each, per rod axis) and a force field (3)
-EFFECT_HEAD = 15
+#: quadratic drag k, κ (3 each, per rod axis), a force field (3) and the linear damping
+#: integrated implicitly b, β (3 each)
+EFFECT_HEAD = 21
 
 
 def model_vector(

@@ -39,7 +39,9 @@
  *           besides the end caps, in their rods' principal frames),
  *           then the effects beside contact (zeros where absent): linear drag b[3],
  *           beta[3] and quadratic drag k[3], kappa[3] per rod axis (explicit, as
- *           tensegrity_env/effects/drag.py), force_field[3], and per spring the cubic
+ *           tensegrity_env/effects/drag.py), force_field[3], the linear damping b[3],
+ *           beta[3] integrated implicitly (an implicit linear drag: its wrench is among
+ *           the linear drag's too; (M + h b) a = f per rod axis), and per spring the cubic
  *           stiffness k3[S] (T += k3 (l - l0)^3), rest-length offset delta[S]
  *           (T -= K delta) and slack[S] (1: no elastic force while l < l0)
  *   groups  (tsr_step_groups): G models one after the other, and for each the first
@@ -64,8 +66,8 @@ typedef struct {
     int has_origin;
     int P, point_rod[TSR_MAX_POINTS];
     const double *point_offset;
-    const double *drag, *qdrag, *field, *cubic, *offset, *slack;
-    int has_drag, has_qdrag, has_field, has_spring_law;
+    const double *drag, *qdrag, *field, *implicit, *cubic, *offset, *slack;
+    int has_drag, has_qdrag, has_field, has_implicit, has_spring_law;
     const int *springs;
     int iterations;
     double dt;
@@ -100,13 +102,15 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->drag = w; w += 6;
     m->qdrag = w; w += 6;
     m->field = w; w += 3;
+    m->implicit = w; w += 6;
     m->cubic = w; w += S;
     m->offset = w; w += S;
     m->slack = w;
-    m->has_drag = m->has_qdrag = m->has_field = m->has_spring_law = 0;
+    m->has_drag = m->has_qdrag = m->has_field = m->has_spring_law = m->has_implicit = 0;
     for (int i = 0; i < 6; i++) {
         m->has_drag |= m->drag[i] != 0.0;
         m->has_qdrag |= m->qdrag[i] != 0.0;
+        m->has_implicit |= m->implicit[i] != 0.0;
     }
     for (int i = 0; i < 3; i++) m->has_field |= m->field[i] != 0.0;
     for (int i = 0; i < S; i++)
@@ -115,7 +119,7 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
 
 /* the length of the packed model of R rods, S springs, A anchors and P points */
 int tsr_model_size(int R, int S, int A, int P) {
-    return 6 * R + 3 * R + 3 * A + 3 * S + R + 3 * R + 1 + 3 + 8 + R + 4 * R + 1 + 4 * P + 15 + 3 * S;
+    return 6 * R + 3 * R + 3 * A + 3 * S + R + 3 * R + 1 + 3 + 8 + R + 4 * R + 1 + 4 * P + 21 + 3 * S;
 }
 
 static inline void cross(const double *a, const double *b, double *o) {
@@ -688,6 +692,15 @@ static void vsubstep(const Model *m, VRod *x) {
         for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
         vcross(wl, Iw, gyro);
         for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
+        if (m->has_implicit) { /* linear damping integrated implicitly, per rod axis */
+            vd al_[3];
+            vrot_t(M[r], acc, al_);
+            for (int i = 0; i < 3; i++) {
+                al_[i] = al_[i] * (mass / (mass + dt * m->implicit[i]));
+                alpha[i] = alpha[i] * (I[i] / (I[i] + dt * m->implicit[3 + i]));
+            }
+            vrot(M[r], al_, acc);
+        }
         /* semi-implicit Euler: velocities first, then positions with the new velocities;
          * of the body origin R o when it is off the centre of mass */
         vd wl2[3], ro[3];

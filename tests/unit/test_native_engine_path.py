@@ -19,6 +19,7 @@ from tensegrity_env.effects import (
     SlackSprings,
 )
 from tensegrity_env.effects.ground_contact import native_kernel
+from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.native_path import native_step
 from tensegrity_env.envs.physics import pack_states
@@ -106,6 +107,22 @@ def test_every_native_effect_with_control_matches_the_engine() -> None:
         assert np.abs(_both(without, state, params, u)[1] - ref).max() > 1e-3
 
 
+def test_implicit_linear_drag_matches_the_engine() -> None:
+    """Linear drag integrated implicitly (as ``diagnose`` proposes it), strong enough
+    that an explicit step would differ, beside the contact."""
+    a = twin_assembly()
+    state = _tumbling(9, 4)
+    drag = ImplicitLinearDrag(a.topology, translational=[8.0, 6.0, 2.0],
+                              rotational=[0.2, 0.1, 0.05])  # fmt: skip
+    contact = GroundContact(a.topology, friction=0.8, stiffness=2500.0, impedance=0.93)
+    kw = {"topology": a.topology, "dt": 1 / 120, "effects": [drag, contact], "substeps": 9}
+    ref, mine = _both(kw, state, a.params, None)
+    assert np.abs(mine - ref).max() < ROUND_OFF
+    explicit = LinearDrag(a.topology, translational=[8.0, 6.0, 2.0], rotational=[0.2, 0.1, 0.05])
+    other = _both({**kw, "effects": [explicit, contact]}, state, a.params, None)[1]
+    assert np.abs(other - ref).max() > 1e-6  # the implicit step is not the explicit one
+
+
 def test_parameters_per_assembly_run_by_run() -> None:
     """Three runs of equal parameters (as a forward-difference batch lays them out), the
     middle run's 5 % heavier, stiffer and more damped model giving other states."""
@@ -130,7 +147,7 @@ def test_gradients_and_effects_without_native_form_take_the_pytorch_step() -> No
     assert native_step(engine, state, params, None, None) is None
     out = engine.step(state, params)
     assert out.p.requires_grad  # the gradient flows through the PyTorch step
-    implicit = engine.with_effects([ImplicitLinearDrag(a.topology, translational=[1.0] * 3)])
+    other = engine.with_effects([CompressionStiffness(a.topology)])
     with torch.no_grad():
-        assert native_step(implicit, state, a.params, None, None) is None
+        assert native_step(other, state, a.params, None, None) is None
         assert native_step(engine, state, a.params, None, None) is not None

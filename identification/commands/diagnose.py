@@ -20,6 +20,7 @@ from identification.data.end_caps import check_caps_seen, with_measured_states
 from identification.data.sample_grid import on_nominal_grid
 from identification.discovery.end_cap_data import (
     FINAL_FLOOR_WINDOWS,
+    FINAL_ITERATIONS,
     FLOOR_WINDOWS,
     TrajectorySettings,
 )
@@ -104,6 +105,9 @@ def register(sub: Any) -> None:
                    help=f"trajectory method on such data: training windows of the final refit "
                    f"of the selected model (default {FINAL_FLOOR_WINDOWS}; none at or below "
                    "--floor-windows)")  # fmt: skip
+    p.add_argument("--final-iterations", type=int, default=FINAL_ITERATIONS,
+                   help=f"trajectory method: most Levenberg-Marquardt iterations of the final "
+                   f"refit of the selected model (default {FINAL_ITERATIONS})")  # fmt: skip
     p.add_argument("--fit-window", type=seconds, default=FIT_WINDOW_S,
                    help=f"trajectory method: length of each window of that final fit (default "
                    f"{FIT_WINDOW_S:g}s; 0: --window); longer windows carry more information per "
@@ -162,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
     check_number("--jobs", args.jobs, 1)
     check_number("--floor-windows", args.floor_windows, 1)
     check_number("--final-floor-windows", args.final_floor_windows, 0)
+    check_number("--final-iterations", args.final_iterations, 0)
     torch.set_num_threads(1)  # small tensors: threads only add overhead
     raw, grid = on_nominal_grid(read_dataset(args.dataset))
     if grid.changed:
@@ -263,5 +268,5 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   fit_windows=args.fit_windows, fit_window=fit_window,
                                   floor_windows=args.floor_windows,
                                   final_floor_windows=args.final_floor_windows,
-                                  seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
+                                  final_iter=args.final_iterations, seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs)

@@ -62,6 +62,8 @@ FLOOR_WINDOWS = 8
 #: group's worth the windows run in the ``--jobs`` workers
 #: (:mod:`identification.trajectory.forked`)
 FINAL_FLOOR_WINDOWS = 48
+#: most Levenberg-Marquardt iterations of the final refit
+FINAL_ITERATIONS = 20
 #: a window whose states, fitted at the selected model, stay above this multiple of the
 #: noise level is left out of the final floor refit (stuck in another basin through an
 #: impact; :func:`~identification.trajectory.windowed_fit.windows_within`)
@@ -92,6 +94,8 @@ class TrajectorySettings:
         final_floor_windows: windows of the training split for the final refit of the
             selected model on such data (default :data:`FINAL_FLOOR_WINDOWS`; none at
             or below ``floor_windows``).
+        final_iter: most Levenberg-Marquardt iterations of the final refit (default
+            :data:`FINAL_ITERATIONS`).
         physics_dt: the longest physics step [s]; the engine substeps between samples
             (:func:`tensegrity_env.engine.substeps_for`) and is compared with the data at
             the sample times.
@@ -111,6 +115,7 @@ class TrajectorySettings:
     fit_window: int = FIT_WINDOW
     floor_windows: int = FLOOR_WINDOWS
     final_floor_windows: int = FINAL_FLOOR_WINDOWS
+    final_iter: int = FINAL_ITERATIONS
     physics_dt: float = PHYSICS_DT
 
 

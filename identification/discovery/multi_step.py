@@ -576,7 +576,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         t0 = time.perf_counter()
         last = current.fit.final
         s = self.settings
-        final = fit_many(self.data, last.vec, last.theta, s, 2 * s.base_iter, windows=windows,
+        final = fit_many(self.data, last.vec, last.theta, s, s.final_iter, windows=windows,
                          within=within, bar="final refit")  # fmt: skip
         ds = self.dataset
         model = final.fitted_model(ds.topology, ds.dt)
@@ -652,5 +652,6 @@ class MultiStepScorer(Scorer[EndCapFits]):
         s = self.settings
         return {"anchors": dict(s.anchors), "window": s.window, "fit_windows": s.fit_windows,
                 "floor_windows": s.floor_windows,
-                "final_floor_windows": s.final_floor_windows, "min_bic_drop": MIN_BIC_DROP,
+                "final_floor_windows": s.final_floor_windows, "final_iterations": s.final_iter,
+                "min_bic_drop": MIN_BIC_DROP,
                 "min_chi2_gain": self.criteria.min_gain}  # fmt: skip

@@ -122,6 +122,7 @@ def test_bad_effect_parameters_are_refused(doc: dict, words: tuple[str, ...]) ->
         (["diagnose", "DATA", "--max-effects", "-1"], "--max-effects"),
         (["diagnose", "DATA", "--floor-windows", "0"], "--floor-windows"),
         (["diagnose", "DATA", "--final-floor-windows", "-1"], "--final-floor-windows"),
+        (["diagnose", "DATA", "--final-iterations", "-1"], "--final-iterations"),
         (["identify", "DATA", "--floor-windows", "0"], "--floor-windows"),
         (["identify", "DATA", "--horizon", "0"], "--horizon"),
         (["identify", "DATA", "--fraction", "nan"], "--fraction"),

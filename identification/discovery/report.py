@@ -140,6 +140,9 @@ def write_report(
         added = next(e for e in c.model.effects if e.name == c.name)
         instead = f", in place of {', '.join(it.replaced)}" if it.replaced else ""
         L += [f"**Added: {c.name}** ({type(added).summary}){instead}", ""]
+        if it.removed:
+            L += ["**Removed** (not needed beside it): "
+                  + "; ".join(f"{n}: {why}" for n, why in it.removed.items()), ""]  # fmt: skip
         if it.runner_up is not None:
             r = it.runner_up
             L += [

@@ -275,3 +275,62 @@ def test_a_refit_the_scorer_refuses_overrules_the_choice_and_is_undone(refused):
         assert verdicts[name] == "rejected: its refit as the model fits the floor windows worse"
     assert scorer.undone == len(refused)
     assert loop.result_.added == ([] if len(refused) == 2 else ["quadratic_drag"])
+
+
+# The backward step (EffectDiscovery.prune): after an addition, each effect added before
+# is fitted out of the model and removed where the model does as well without it.
+
+BOTH_DRAGS = model_with(drag(QuadraticDrag, 0.09, 0.008), drag(LinearDrag, 0.1, 0.01))
+
+
+class PruningScorer(StubScorer):
+    """Quadratic drag passes first; linear drag passes beside it; the model without the
+    quadratic drag loses ``loss`` of held-out chi-square and ``bic`` of BIC."""
+
+    def __init__(self, loss: float, bic: float) -> None:
+        super().__init__({"quadratic_drag": (QUADRATIC_OK, 60.0, QUADRATIC_OK),
+                          "linear_drag": (LINEAR_OK, 50.0, LINEAR_OK)})  # fmt: skip
+        self.second = {"linear_drag": (BOTH_DRAGS, 40.0, BOTH_DRAGS)}
+        self.without = (LINEAR_OK, -loss, LINEAR_OK)
+        self.bic_without = bic
+
+    def propose(self, current: Candidate[None], names: Sequence[str] | None) -> list[Proposal]:
+        have = set(current.model.names)
+        return [p for p in super().propose(current, names) if p.name not in have]
+
+    def entry(self, c: Candidate[None]) -> tuple[FittedModel, float, FittedModel]:
+        if c.gate.startswith("without"):
+            return self.without
+        if c.name == "linear_drag" and getattr(self, "pass_two", False):
+            return self.second["linear_drag"]
+        return super().entry(c)
+
+    def fit_candidate(
+        self, current: Candidate[None], proposal: Proposal, drop: Sequence[str] = ()
+    ) -> Candidate[None]:
+        self.pass_two = "quadratic_drag" in current.model.names
+        c = super().fit_candidate(current, proposal, drop)
+        without = c.gate.startswith("without")
+        c.bic = current.bic + (self.bic_without if without else -500.0)
+        return c
+
+
+@pytest.mark.parametrize(("loss", "bic", "removed"), [(3.0, -40.0, True), (300.0, 250.0, False)])
+def test_an_effect_the_next_one_makes_unneeded_is_removed(loss, bic, removed):
+    scorer = PruningScorer(loss, bic)
+    lines: list[str] = []
+    loop = EffectDiscovery(scorer, max_effects=2, log=lines.append, jobs=1)
+    loop.fit(None)  # type: ignore[arg-type]
+    first, second = loop.iterations_[:2]
+    assert first.chosen.name == "quadratic_drag" and second.chosen.name == "linear_drag"
+    assert scorer.dropped[-1] == ["quadratic_drag", "linear_drag"]  # fitted out of the model
+    if removed:
+        assert list(second.removed) == ["quadratic_drag"]
+        assert loop.model_.names == ["linear_drag"] and loop.result_.added == ["linear_drag"]
+        assert any(ln.startswith("removed quadratic_drag: it lowers the held-out chi-square by 3")
+                   for ln in lines)  # fmt: skip
+    else:
+        assert second.removed == {}
+        assert loop.result_.added == ["quadratic_drag", "linear_drag"]
+        assert "  quadratic_drag beside linear_drag: without it the held-out chi-square rises " \
+               "300 and the BIC +250: stays" in lines

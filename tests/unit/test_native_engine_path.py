@@ -8,16 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from tensegrity_env.effects import (
-    CubicStiffness,
-    ForceField,
-    GroundContact,
-    ImplicitLinearDrag,
-    LinearDrag,
-    QuadraticDrag,
-    RestLengthOffset,
-    SlackSprings,
-)
+from tensegrity_env import effects as fx
 from tensegrity_env.effects.ground_contact import native_kernel
 from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine, State
@@ -51,13 +42,13 @@ def _effects(topology):  # type: ignore[no-untyped-def]
     rng = np.random.default_rng(7)
     S = topology.n_springs
     return [
-        LinearDrag(topology, translational=[2.0, 1.5, 0.4], rotational=[0.05, 0.03, 0.01]),
-        QuadraticDrag(topology, translational=[3.0, 2.0, 0.5], rotational=[0.02, 0.02, 0.004]),
-        ForceField(topology, force=[0.4, -0.3, 0.6]),
-        CubicStiffness(topology, stiffness=rng.normal(0, 2000, S)),
-        RestLengthOffset(topology, offset=rng.normal(0, 0.004, S)),
-        SlackSprings(topology, springs=[0, 3, 5, 7, 11]),
-        GroundContact(topology, friction=0.8, stiffness=2500.0, impedance=0.93),
+        fx.LinearDrag(topology, translational=[2.0, 1.5, 0.4], rotational=[0.05, 0.03, 0.01]),
+        fx.QuadraticDrag(topology, translational=[3.0, 2.0, 0.5], rotational=[0.02, 0.02, 0.004]),
+        fx.ForceField(topology, force=[0.4, -0.3, 0.6]),
+        fx.CubicStiffness(topology, stiffness=rng.normal(0, 2000, S)),
+        fx.RestLengthOffset(topology, offset=rng.normal(0, 0.004, S)),
+        fx.SlackSprings(topology, springs=[0, 3, 5, 7, 11]),
+        fx.GroundContact(topology, friction=0.8, stiffness=2500.0, impedance=0.93),
     ]
 
 
@@ -112,13 +103,13 @@ def test_implicit_linear_drag_matches_the_engine() -> None:
     that an explicit step would differ, beside the contact."""
     a = twin_assembly()
     state = _tumbling(9, 4)
-    drag = ImplicitLinearDrag(a.topology, translational=[8.0, 6.0, 2.0],
+    drag = fx.ImplicitLinearDrag(a.topology, translational=[8.0, 6.0, 2.0],
                               rotational=[0.2, 0.1, 0.05])  # fmt: skip
-    contact = GroundContact(a.topology, friction=0.8, stiffness=2500.0, impedance=0.93)
+    contact = fx.GroundContact(a.topology, friction=0.8, stiffness=2500.0, impedance=0.93)
     kw = {"topology": a.topology, "dt": 1 / 120, "effects": [drag, contact], "substeps": 9}
     ref, mine = _both(kw, state, a.params, None)
     assert np.abs(mine - ref).max() < ROUND_OFF
-    explicit = LinearDrag(a.topology, translational=[8.0, 6.0, 2.0], rotational=[0.2, 0.1, 0.05])
+    explicit = fx.LinearDrag(a.topology, translational=[8.0, 6.0, 2.0], rotational=[0.2, 0.1, 0.05])
     other = _both({**kw, "effects": [explicit, contact]}, state, a.params, None)[1]
     assert np.abs(other - ref).max() > 1e-6  # the implicit step is not the explicit one
 
@@ -140,7 +131,7 @@ def test_parameters_per_assembly_run_by_run() -> None:
 def test_gradients_and_effects_without_native_form_take_the_pytorch_step() -> None:
     a = twin_assembly()
     state = _tumbling(2, 3)
-    engine = Engine(a.topology, 1 / 120, [GroundContact(a.topology)], substeps=9, native=True)
+    engine = Engine(a.topology, 1 / 120, [fx.GroundContact(a.topology)], substeps=9, native=True)
     stiff = a.params.stiffness.clone().requires_grad_(True)
     params = Params(**{**{f: getattr(a.params, f) for f in ("damping", "rest_length", "mass",
                     "inertia", "control_gain", "gravity", "cable_gain")}, "stiffness": stiff})  # fmt: skip

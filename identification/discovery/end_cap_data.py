@@ -55,15 +55,18 @@ FLOOR_WINDOWS = 8
 #: windows of the training split for the final refit of the selected model on the floor:
 #: once selection is done, more windows only sharpen the parameters (spring damping
 #: above all), with nothing left for the declared fit to absorb. The spread of the
-#: fitted damping shrinks as the inverse square root of the windows kept: on the
-#: measured benchmark's floor-only control (seed 0) 48 (41 kept) put it within 6.7 %
-#: (max over 24 springs; median 1.6 %) where the refit on 24 (20 kept) stalled at the
-#: 8-window fit's 14.5 %; on the damaged-cable cell 8.8 % where 24 gave 12.9 %. Above one
-#: group's worth the windows run in the ``--jobs`` workers
+#: fitted damping shrinks as the inverse square root of the windows kept. 96 windows of
+#: 0.25 s are every sample of the benchmark's 8 training trajectories of 3 s: on its
+#: floor cells with seed 1 (the seed the defaults were set on; ``python
+#: benchmarks/bench_measured.py --settings floor --seed0 1``) they put the spring damping
+#: within 8.7 % (max over 24 springs; control), 7.3 % (linear drag) and 11.2 %
+#: (quadratic drag) where 48 windows and 20 iterations gave 11.7, 11.4 and 14.8 %.
+#: Above one group's worth the windows run in the ``--jobs`` workers
 #: (:mod:`identification.trajectory.forked`)
-FINAL_FLOOR_WINDOWS = 48
-#: most Levenberg-Marquardt iterations of the final refit
-FINAL_ITERATIONS = 20
+FINAL_FLOOR_WINDOWS = 96
+#: most Levenberg-Marquardt iterations of the final refit: on those cells the refit on
+#: 74-96 windows converged in 30-49 iterations, where 20 ran out on every cell
+FINAL_ITERATIONS = 60
 #: a window whose states, fitted at the selected model, stay above this multiple of the
 #: noise level is left out of the final floor refit (stuck in another basin through an
 #: impact; :func:`~identification.trajectory.windowed_fit.windows_within`)

@@ -14,7 +14,8 @@ through the engine, on short windows that touch the floor:
    height is fitted too. The contact starts from a params file's ``ground_contact``
    when one is given, else from
    :data:`~identification.trajectory.effect_coords.CONTACT_START`.
-2. **Rounds** (:func:`fit_on_floor`), :data:`ROUNDS` of them. The first fits the
+2. **Rounds** (:func:`fit_on_floor`), :data:`ROUNDS` of them, then more (up to
+   :data:`MAX_ROUNDS`) while each lowers the error by :data:`ROUND_GAIN`. The first fits the
    windows' initial states with the model held and runs a derivative-free
    **Nelder-Mead search** over the contact parameters (:data:`FLOOR_FREE`, log/logit
    coordinates) with the declared parameters and the states held
@@ -110,8 +111,14 @@ from tensegrity_env.topology import Topology
 
 #: contact parameters fitted on the floor (the floor's height too)
 FLOOR_FREE = (*CONTACT_FREE, "height")
-#: rounds of search and joint fit
+#: rounds of search and joint fit at least ...
 ROUNDS = 2
+#: ... and at most: a round after the second runs while the one before lowered the
+#: windows' sum of squares by :data:`ROUND_GAIN` or more (its valley search and states
+#: afresh start from a model the last joint fit moved)
+MAX_ROUNDS = 4
+#: the fraction of the sum of squares a round must remove for another to follow
+ROUND_GAIN = 0.05
 #: the declared groups the first round's joint fit holds at their start (module docstring)
 FIRST_ROUND_HELD = ("damping",)
 #: iterations of each round's state fit (the joint fit refits the states)
@@ -356,6 +363,7 @@ def fit_on_floor(
     iters: int,
     state_iters: int = STATE_ITERS,
     rounds: int = ROUNDS,
+    max_rounds: int = MAX_ROUNDS,
     log: Callable[[str], None] = lambda s: None,
 ) -> WindowFit:
     """Declared parameters, effects and contact fitted jointly on floor ``windows``.
@@ -367,11 +375,18 @@ def fit_on_floor(
     there the contact stays within :func:`contact_box` of the searched values. Each
     later round searches the valley (:func:`search_scale`); every round ends with a
     joint Levenberg-Marquardt fit of ``iters`` iterations (the first with
-    :data:`FIRST_ROUND_HELD` held at the start). Returns the last joint fit.
+    :data:`FIRST_ROUND_HELD` held at the start). ``rounds`` rounds, then more while the
+    last one lowered the sum of squares by :data:`ROUND_GAIN` (``max_rounds`` in all
+    at most). Returns the last joint fit.
     """
     fit: WindowFit | None = None
     seeds = windows
-    for k in range(rounds):
+    before = np.inf
+    for k in range(max(rounds, max_rounds)):
+        if k >= rounds and not fit.history[-1] < (1 - ROUND_GAIN) * before:  # type: ignore[union-attr]
+            break
+        if fit is not None:
+            before = fit.history[-1]
         t0 = time.perf_counter()
         if k == 0:
             states = states_at(engine, vec, theta, windows, state_iters)

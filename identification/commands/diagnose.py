@@ -33,6 +33,7 @@ from identification.discovery.scorer import Scorer
 from identification.linear.regression import parse_anchor
 from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
 from identification.trajectory.floor_evidence import contact_evidence
+from identification.trajectory.floor_fit import FLOOR_WINDOW_S
 from identification.trajectory.forked import usable_cores, window_workers
 from tensegrity_env.effects import EFFECTS, GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
@@ -105,6 +106,9 @@ def register(sub: Any) -> None:
                    help=f"trajectory method on such data: training windows of the final refit "
                    f"of the selected model (default {FINAL_FLOOR_WINDOWS}; none at or below "
                    "--floor-windows)")  # fmt: skip
+    p.add_argument("--final-floor-window", type=seconds, default=0.0,
+                   help="trajectory method on such data: length of each window of that refit "
+                   f"(default 0: as the joint fit's, up to {FLOOR_WINDOW_S:g}s)")  # fmt: skip
     p.add_argument("--final-iterations", type=int, default=FINAL_ITERATIONS,
                    help=f"trajectory method: most Levenberg-Marquardt iterations of the final "
                    f"refit of the selected model (default {FINAL_ITERATIONS})")  # fmt: skip
@@ -254,6 +258,9 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     if args.window < 2 * dt or args.windows < 1 or args.fit_windows < 1:
         raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
                          "--windows and --fit-windows >= 1")  # fmt: skip
+    if 0 < args.final_floor_window < 2 * dt:
+        raise InputError(f"--final-floor-window must span >= 2 samples ({2 * dt:.4g} s at "
+                         f"{1 / dt:g} Hz), or be 0 (as the joint fit's)")  # fmt: skip
     if 0 < args.fit_window < 2 * dt:
         raise InputError(f"--fit-window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} "
                          "Hz), or be 0 (the --window)")  # fmt: skip
@@ -261,6 +268,8 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
         raise InputError("--physics-dt must be > 0")
     window = samples_of(args.window, dt, 2)
     fit_window = samples_of(args.fit_window, dt, 2) if args.fit_window > 0 else 0
+    final_floor_window = (samples_of(args.final_floor_window, dt, 2)
+                          if args.final_floor_window > 0 else 0)  # fmt: skip
     print(f"windows of {describe(args.window, dt)}; final fit on windows of "
           f"{describe(args.fit_window or args.window, dt)}; physics step <= {args.physics_dt:g} s")  # fmt: skip
     settings = TrajectorySettings(anchors=anchors, window=window, train_windows=args.windows,
@@ -268,5 +277,6 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   fit_windows=args.fit_windows, fit_window=fit_window,
                                   floor_windows=args.floor_windows,
                                   final_floor_windows=args.final_floor_windows,
+                                  final_floor_window=final_floor_window,
                                   final_iter=args.final_iterations, seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs)

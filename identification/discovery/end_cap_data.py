@@ -97,6 +97,8 @@ class TrajectorySettings:
         final_floor_windows: windows of the training split for the final refit of the
             selected model on such data (default :data:`FINAL_FLOOR_WINDOWS`; none at
             or below ``floor_windows``).
+        final_floor_window: steps per window of that refit (0: as the floor windows,
+            :func:`~identification.discovery.floor_fits.floor_steps`).
         final_iter: most Levenberg-Marquardt iterations of the final refit (default
             :data:`FINAL_ITERATIONS`).
         physics_dt: the longest physics step [s]; the engine substeps between samples
@@ -118,6 +120,7 @@ class TrajectorySettings:
     fit_window: int = FIT_WINDOW
     floor_windows: int = FLOOR_WINDOWS
     final_floor_windows: int = FINAL_FLOOR_WINDOWS
+    final_floor_window: int = 0
     final_iter: int = FINAL_ITERATIONS
     physics_dt: float = PHYSICS_DT
 

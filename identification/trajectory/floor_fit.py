@@ -381,12 +381,8 @@ def fit_on_floor(
     """
     fit: WindowFit | None = None
     seeds = windows
-    before = np.inf
     for k in range(max(rounds, max_rounds)):
-        if k >= rounds and not fit.history[-1] < (1 - ROUND_GAIN) * before:  # type: ignore[union-attr]
-            break
-        if fit is not None:
-            before = fit.history[-1]
+        before = np.inf if fit is None else fit.history[-1]
         t0 = time.perf_counter()
         if k == 0:
             states = states_at(engine, vec, theta, windows, state_iters)
@@ -405,6 +401,8 @@ def fit_on_floor(
         theta, windows = fit.theta, fit.windows
         log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
+        if k + 1 >= rounds and not fit.history[-1] < (1 - ROUND_GAIN) * before:
+            break
     assert fit is not None
     return fit
 

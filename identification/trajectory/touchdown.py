@@ -289,7 +289,7 @@ def contact_from_dataset(
     """
     topo, s = dataset.topology, dataset.split(split)
     vec = ParamVector.at(topo, params)
-    engine = Engine(topo, dataset.dt, list(effects))
+    engine = Engine(topo, dataset.dt, list(effects), native=True)
     smooth = smooth_rod_states(s.nodes, dataset.dt, vec.axes, odd_window(smoothing / dataset.dt))
     grid = {k: getattr(smooth, k) for k in STATE_KEYS}
     radius = cap_radii(topo)

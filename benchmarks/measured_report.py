@@ -337,23 +337,28 @@ def contact_section(cells: dict[str, Any]) -> list[str]:
 def selection(diagnose_args: str) -> dict[str, float]:
     """The selection windows ``diagnose`` runs with given extra options ``diagnose_args``:
     ``window_s`` (length [s]) and ``windows`` (random windows per split)."""
-    ap = argparse.ArgumentParser(add_help=False)
+    ap = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     ap.add_argument("--window", type=seconds, default=WINDOW_S)
     ap.add_argument("--windows", type=int, default=WINDOWS)
     known, _ = ap.parse_known_args(shlex.split(diagnose_args))
     return {"window_s": known.window, "windows": known.windows}
 
 
-def floor_windows(identify_args: str, diagnose_args: str) -> dict[str, int]:
+def floor_windows(identify_args: str, diagnose_args: str) -> dict[str, float]:
     """The windows of the floor fit of ``identify`` and ``diagnose`` and of the final
-    refit of ``diagnose``, given their extra options."""
-    ap = argparse.ArgumentParser(add_help=False)
+    refit of ``diagnose`` (``diagnose_final``, and its window length
+    ``diagnose_final_window_s`` where one is given), given their extra options."""
+    ap = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     ap.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS)
     ap.add_argument("--final-floor-windows", type=int, default=FINAL_FLOOR_WINDOWS)
+    ap.add_argument("--final-floor-window", type=seconds, default=0.0)
     ident = ap.parse_known_args(shlex.split(identify_args))[0]
     diag = ap.parse_known_args(shlex.split(diagnose_args))[0]
-    return {"identify": ident.floor_windows, "diagnose": diag.floor_windows,
-            "diagnose_final": diag.final_floor_windows}  # fmt: skip
+    out = {"identify": ident.floor_windows, "diagnose": diag.floor_windows,
+           "diagnose_final": diag.final_floor_windows}  # fmt: skip
+    if diag.final_floor_window > 0:
+        out["diagnose_final_window_s"] = diag.final_floor_window
+    return out
 
 
 def floor_windows_text(r: dict[str, Any]) -> str:
@@ -368,7 +373,9 @@ def floor_windows_text(r: dict[str, Any]) -> str:
         return str(ident)
     diag = fw.get("diagnose", OLD_FLOOR_WINDOWS)
     final = fw.get("diagnose_final", 0)
-    return f"{ident} / {diag}" + (f" → {final}" if final > diag else "")
+    length = fw.get("diagnose_final_window_s")
+    final_text = f" → {final}" + (f" x {length:g} s" if length else "")
+    return f"{ident} / {diag}" + (final_text if final > diag else "")
 
 
 def selection_text(r: dict[str, Any]) -> str:

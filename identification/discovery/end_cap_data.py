@@ -372,10 +372,10 @@ def fit_trajectory(
     roll = data.roll if roll is None else roll
     fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1,
                       spin=data.on_floor or roll, roll=roll,
-                      line_search=data.on_floor, progress=progress)  # fmt: skip
+                      line_search=data.on_floor, progress=progress, log=data.log)  # fmt: skip
     m = fit.windows.residuals
     # state unknowns, not common: the rolls and (in flight) the spins that turn them
-    rolls = windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
+    rolls = fit.windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
     return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
                    extra_k=extra_k(data, vec) + rolls, converged=fit.converged,
                    iterations=len(fit.history) - 1)  # fmt: skip

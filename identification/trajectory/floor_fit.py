@@ -338,7 +338,7 @@ def search_scale(
         th, w = at(x)
         if bool(((th < lo) | (th > hi)).any()):
             return np.inf  # out of range (the contact's box): rejected
-        return trial_sse(engine, vec, w, basis, th, chunk) / windows.residuals
+        return trial_sse(engine, vec, w, basis, th, chunk)[1] / windows.residuals
 
     x0 = np.concatenate([np.zeros(n), theta[len(theta) - k :].numpy()])
     grid = [(error(np.concatenate([[a], x0[1:]])), a) for a in SCALE_GRID]
@@ -397,7 +397,7 @@ def fit_on_floor(
         hold = held_groups(vec, FIRST_ROUND_HELD) if k == 0 else None
         with iteration_bar(f"floor round {k + 1}: joint fit", iters) as tick:
             fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True,
-                              line_search=True, progress=tick, hold=hold)  # fmt: skip
+                              line_search=True, progress=tick, hold=hold, log=log)  # fmt: skip
         theta, windows = fit.theta, fit.windows
         log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
@@ -444,8 +444,12 @@ def reseeded(
     basin while the joint fit moves the model (the joint fit stopped at 1.47 mm where the
     true model's states fit to 1.11 mm on the same windows). Afresh means from ``seeds``
     (the states from smoothing) on growing prefixes at the current model; the windows are
-    independent given the model, so each keeps the better of its two states.
+    independent given the model, so each keeps the better of its two states. ``seeds``
+    may hold windows a joint fit left out (:func:`fit_windows`); those stay out.
     """
+    at = {(int(t), int(s)): i for i, (t, s) in enumerate(zip(seeds.traj, seeds.start, strict=True))}
+    seeds = seeds.take(np.array([at[int(t), int(s)] for t, s in  # a fit may leave some out
+                                 zip(windows.traj, windows.start, strict=True)]))  # fmt: skip
     fresh = states_at(engine, vec, theta, seeds, state_iters).windows
     picked, now, best = better_states(engine, vec, theta, fresh, windows)
     n_better = int((best < now).sum())

@@ -289,18 +289,30 @@ def window_sse(
 ) -> float:  # fmt: skip
     """Sum of squared end-cap errors of all windows [m^2], in the groups of
     :func:`linearize`."""
+    return window_sses(engine, vec, win, basis, theta, chunk)[1]
+
+
+def window_sses(
+    engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
+    chunk: int,
+) -> tuple[np.ndarray, float]:  # fmt: skip
+    """Each window's sum of squared end-cap errors (B,) [m^2] and their sum [m^2] (summed
+    group by group), in the groups of :func:`linearize`."""
     tasks = [partial(group_sse, engine, vec, win.take(g), basis, theta)
              for g in window_groups(win.size, chunk)]  # fmt: skip
-    return float(sum(side_by_side(tasks, window_jobs())))
+    parts = side_by_side(tasks, window_jobs())
+    return np.concatenate([each for each, _ in parts]), float(sum(total for _, total in parts))
 
 
 def group_sse(
     engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor
-) -> float:
-    """One group of windows' share of :func:`window_sse` [m^2]."""
+) -> tuple[np.ndarray, float]:
+    """One group of windows' share of :func:`window_sses`: each window's (B_group,) and
+    their sum [m^2]."""
     z0 = torch.zeros(win.size, basis.shape[0], dtype=DTYPE)
     with torch.no_grad():
-        return float((window_residual(engine, vec, win, basis)(z0, theta) ** 2).sum())
+        r2 = window_residual(engine, vec, win, basis)(z0, theta) ** 2
+        return r2.sum(dim=tuple(range(1, r2.dim()))).numpy(), float(r2.sum())
 
 
 def window_errors(
@@ -399,6 +411,7 @@ def fit_windows(
     roll: bool = False,
     line_search: bool = False,
     hold: torch.Tensor | None = None,
+    log: Callable[[str], None] = lambda s: None,
 ) -> WindowFit:
     """Stage 2: Levenberg-Marquardt on window initial states and free log-parameters.
 
@@ -415,8 +428,13 @@ def fit_windows(
     :data:`LINE_FRACTIONS` of its length, the shortest error kept if lower, before
     more damping (where the error jumps, as on the floor where impacts cross physics
     steps, the damped steps turn towards the jumps while the Gauss-Newton direction
-    still descends). ``hold`` (n_free + n_effect,) bool: coordinates held at their
-    values in ``theta`` (the others and the states fitted).
+    still descends). With ``line_search``, a rejected step too short to matter
+    (:data:`SHORT_STEP`) that still raised some windows' error by a jump
+    (:func:`jumped_windows`) leaves those windows out and the fit goes on without them
+    (up to :data:`MAX_JUMPED` of the windows; each such drop is ``log``-ged): an impact
+    sitting on the edge of a physics step makes a window's error discontinuous at the
+    current point, and every step then fails on it. ``hold`` (n_free + n_effect,) bool:
+    coordinates held at their values in ``theta`` (the others and the states fitted).
     """
     basis = local_basis(vec.axes, spin, roll)
     chunk = group_size(basis, theta, windows.size)
@@ -434,13 +452,17 @@ def fit_windows(
 
     def tried(d_z: torch.Tensor | None, d_theta: torch.Tensor | None) -> tuple[Windows, float]:
         """The windows moved by ``d_z`` and their error at ``theta + d_theta`` [m^2]."""
+        nonlocal per_window
         if d_z is None or d_theta is None:
             return windows, float("inf")
         trial = replace(
             windows, state=perturb(windows.state, torch.einsum("bl,lrj->brj", d_z, basis))
         )
-        return trial, trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
+        per_window, sse = trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
+        return trial, sse
 
+    per_window, now = np.zeros(0), None  # the last trial's and the current windows' errors
+    jumps_left = int(MAX_JUMPED * windows.size)
     for _ in range(max_iter if not done else 0):
         while True:
             try:
@@ -455,6 +477,23 @@ def fit_windows(
                 lam *= 0.1 if rho > 0.9 else max(1 / 3, 1 - (2 * rho - 1) ** 3)
                 nu = 2.0
                 break
+            noise_var = ne.sse / dof
+            if line_search and jumps_left and d_z is not None and pred < SHORT_STEP * noise_var:
+                trial_errors = per_window
+                if now is None:
+                    now = trial_sse(engine, vec, windows, basis, theta, chunk)[0]
+                jumped = jumped_windows(now, trial_errors, noise_var)
+                if 0 < jumped.sum() <= jumps_left:
+                    jumps_left -= int(jumped.sum())
+                    windows = windows.take(np.flatnonzero(~jumped))
+                    log(f"    {int(jumped.sum())} windows left out of the fit: their error "
+                        f"jumps at a step too short to matter (an impact on the edge of a "
+                        f"physics step; {windows.size} left)")  # fmt: skip
+                    ne = linearize(engine, vec, windows, basis, theta, chunk,
+                                   exact_gradient=exact_gradient)  # fmt: skip
+                    dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
+                    lam, nu, now = 1e-7, 2.0, None
+                    continue
             if line_search and d_z is not None and d_theta is not None:
                 shorter = [(t, *tried(t * d_z, t * d_theta)) for t in LINE_FRACTIONS]
                 t, trial, sse = min(shorter, key=lambda x: x[2])
@@ -467,7 +506,7 @@ def fit_windows(
         if lam > 1e10:
             converged = True  # no step lowers the error any more
             break
-        windows, theta = trial, theta + d_theta
+        windows, theta, now = trial, theta + d_theta, None
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
         _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)
         history.append(ne.sse / ne.m)
@@ -487,17 +526,26 @@ def trial_sse(
     basis: torch.Tensor,
     theta: torch.Tensor,
     chunk: int,
-) -> float:
-    """:func:`window_sse` of a trial point [m^2], ``inf`` where the engine cannot take it.
+) -> tuple[np.ndarray, float]:
+    """:func:`window_sses` of a trial point, (B,) and their sum [m^2], ``inf`` where the
+    engine cannot take it.
 
     A trial the engine cannot take (a contact solve or an effect at extreme or
     non-finite values, a singular system) is a rejected step, not an error.
     """
     try:
-        sse = window_sse(engine, vec, windows, basis, theta, chunk)
+        each, sse = window_sses(engine, vec, windows, basis, theta, chunk)
     except (torch.linalg.LinAlgError, FloatingPointError, InputError):
-        return float("inf")
-    return sse if np.isfinite(sse) else float("inf")
+        return np.full(windows.size, np.inf), float("inf")
+    each = np.where(np.isfinite(each), each, np.inf)
+    return each, (sse if np.isfinite(sse) else float("inf"))
+
+
+def jumped_windows(now: np.ndarray, trial: np.ndarray, noise_var: float) -> np.ndarray:
+    """Which windows' error (B,) bool rose by more than :data:`JUMP` times the noise
+    variance ``noise_var`` [m^2] from ``now`` to ``trial`` (each (B,) [m^2]): at a step
+    too short to matter, only a discontinuity does that."""
+    return (trial - now) > JUMP * noise_var
 
 
 def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor:
@@ -514,6 +562,14 @@ def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor
 
 #: fractions of a rejected step tried along its direction (``line_search``)
 LINE_FRACTIONS = (0.5, 0.3, 0.1, 0.03)
+#: with ``line_search``, a rejected step that promised less than this many units of
+#: chi-square is too short to raise any window's error by itself ...
+SHORT_STEP = 10.0
+#: ... so a window whose error rose by more than this many noise variances there has
+#: a discontinuity at the current point (an impact on the edge of a physics step)
+JUMP = 25.0
+#: at most this fraction of the windows is left out so (:func:`fit_windows`)
+MAX_JUMPED = 0.1
 
 #: eigenvalues of the equilibrated ``S`` below this fraction of its largest are
 #: directions the data does not see: a parameter with a share in them has an infinite

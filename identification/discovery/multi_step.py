@@ -559,7 +559,6 @@ class MultiStepScorer(Scorer[EndCapFits]):
             if count <= s.floor_windows:
                 return current
             steps = s.final_floor_window or floor_steps(data, s, s.fit_window or s.window)
-            steps = min(steps, data.train.n_transitions)
             windows = data.cut("train", steps, count, 5, lift_off=count // 2)
             return self.refit(current, windows, within=STUCK_WINDOW * self.noise)
         if contact_gate(data.train, data.topology)[0]:

@@ -450,18 +450,19 @@ def fit_windows(
     done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
     lam, nu, converged = 1e-7, 2.0, done
 
-    def tried(d_z: torch.Tensor | None, d_theta: torch.Tensor | None) -> tuple[Windows, float]:
-        """The windows moved by ``d_z`` and their error at ``theta + d_theta`` [m^2]."""
-        nonlocal per_window
+    def tried(
+        d_z: torch.Tensor | None, d_theta: torch.Tensor | None
+    ) -> tuple[Windows, np.ndarray, float]:
+        """The windows moved by ``d_z``, each one's error at ``theta + d_theta`` (B,) and
+        their sum [m^2]."""
         if d_z is None or d_theta is None:
-            return windows, float("inf")
+            return windows, np.full(windows.size, np.inf), float("inf")
         trial = replace(
             windows, state=perturb(windows.state, torch.einsum("bl,lrj->brj", d_z, basis))
         )
-        per_window, sse = trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
-        return trial, sse
+        return trial, *trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
 
-    per_window, now = np.zeros(0), None  # the last trial's and the current windows' errors
+    now = None  # the current windows' errors (B,) [m^2], once a jump check wants them
     jumps_left = int(MAX_JUMPED * windows.size)
     for _ in range(max_iter if not done else 0):
         while True:
@@ -471,7 +472,7 @@ def fit_windows(
                     raise FloatingPointError("non-finite step")
             except (torch.linalg.LinAlgError, FloatingPointError):
                 d_z, d_theta, pred = None, None, 0.0  # a singular system: more damping
-            trial, sse = tried(d_z, d_theta)
+            trial, per_window, sse = tried(d_z, d_theta)
             rho = (ne.sse - sse) / pred if pred > 0 and np.isfinite(sse) else -1.0
             if rho > 0:
                 lam *= 0.1 if rho > 0.9 else max(1 / 3, 1 - (2 * rho - 1) ** 3)
@@ -479,10 +480,9 @@ def fit_windows(
                 break
             noise_var = ne.sse / dof
             if line_search and jumps_left and d_z is not None and pred < SHORT_STEP * noise_var:
-                trial_errors = per_window
                 if now is None:
                     now = trial_sse(engine, vec, windows, basis, theta, chunk)[0]
-                jumped = jumped_windows(now, trial_errors, noise_var)
+                jumped = jumped_windows(now, per_window, noise_var)
                 if 0 < jumped.sum() <= jumps_left:
                     jumps_left -= int(jumped.sum())
                     windows = windows.take(np.flatnonzero(~jumped))
@@ -496,7 +496,7 @@ def fit_windows(
                     continue
             if line_search and d_z is not None and d_theta is not None:
                 shorter = [(t, *tried(t * d_z, t * d_theta)) for t in LINE_FRACTIONS]
-                t, trial, sse = min(shorter, key=lambda x: x[2])
+                t, trial, _, sse = min(shorter, key=lambda x: x[3])
                 if sse < ne.sse:
                     d_theta = t * d_theta
                     break

@@ -9,10 +9,10 @@ float64, one thread. The reference, timed in the same run and in alternation (be
 ``--repeats`` per side), is MuJoCo stepping the same plant from the same states one
 after the other (``mj_step`` with ``nstep`` = 9); the engine without its ground
 contact shows what the contact costs, the engine with the contact law in PyTorch
-(where a gradient is wanted; ``tensegrity_env.effects.ground_contact.USE_NATIVE``)
+(where a gradient is wanted; ``tensegrity_env.effects.kernel.USE_NATIVE``)
 what its C kernel saves, and the engine built with ``native=True`` (as the trajectory
 fits build it: without gradients the whole step runs in the environments' C kernel,
-:mod:`tensegrity_env.engine.native_path`) what that saves. Ratios are printed, never
+:mod:`tensegrity_env.native.engine_step`) what that saves. Ratios are printed, never
 asserted::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/bench_engine.py
@@ -31,10 +31,10 @@ import numpy as np
 import torch
 from measured_plant import Cell, initial_states, simulate, true_model
 
-from tensegrity_env.effects import ground_contact
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.mjcf import from_mjcf
 from tensegrity_env.mjcf_checks import IgnoredFeatureWarning
+from tensegrity_env.native import kernel
 from tensegrity_env.rotations import np_quat_to_matrix
 
 
@@ -96,12 +96,12 @@ def main(argv: list[str] | None = None) -> int:
 
     def engine_batch(engine: Engine, native: bool) -> Callable[[], None]:
         def run() -> None:
-            ground_contact.USE_NATIVE = native
+            kernel.USE_NATIVE = native
             try:
                 with torch.no_grad():
                     engine.step(state, asm.params)
             finally:
-                ground_contact.USE_NATIVE = True
+                kernel.USE_NATIVE = True
 
         return run
 

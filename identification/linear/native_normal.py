@@ -5,8 +5,8 @@ build every rod's 6 x L design block in PyTorch, which at paper scale (736,000
 transitions x 6 rods) moves gigabytes through memory. ``native_normal.c`` computes the
 same features and blocks per transition in registers and adds only their Gram matrices,
 exploiting that every spring column is a 6-vector times a scalar (see the C file). It is
-built once per machine (:mod:`tensegrity_env.native_build`) and runs on ``threads``
-OpenMP threads; :class:`~tensegrity_env.native_build.NativeUnavailable` is raised where
+built once per machine (:mod:`tensegrity_env.native.build`) and runs on ``threads``
+OpenMP threads; :class:`~tensegrity_env.native.build.NativeUnavailable` is raised where
 no C compiler works, and the identifier then uses the PyTorch path. Both paths agree to
 round-off (``tests/unit/test_identification.py``).
 """
@@ -22,7 +22,7 @@ import torch
 
 from identification.data.dataset import Split
 from identification.linear.design import RodSlots
-from tensegrity_env.native_build import NativeUnavailable, build_and_load
+from tensegrity_env.native.build import NativeUnavailable, build_and_load
 from tensegrity_env.topology import Topology
 
 SOURCE = Path(__file__).with_name("native_normal.c")

@@ -38,15 +38,15 @@ passive and actuator forces. Called directly without that wrench, it uses the sp
 
 Where no gradient is wanted (double precision on the CPU, as the trajectory fits'
 forward differences step it), the C kernel's ``tsr_contact_forces``
-(``tensegrity_env/envs/native_step.c``) computes the same geometry and law rod by rod
-(``benchmarks/bench_engine.py`` times both); the two agree to round-off
-(``tests/unit/test_soft_contact_solve.py``). Otherwise, and where no C compiler works,
-PyTorch does (:data:`USE_NATIVE` switches the kernel off).
+(``tensegrity_env/native/native_step.c``, the same law the kernel's step uses) computes
+the same geometry and law rod by rod (``benchmarks/bench_engine.py`` times both); the
+two agree to round-off (``tests/unit/test_soft_contact_solve.py``). Otherwise, and
+where no C compiler works, PyTorch does
+(:data:`tensegrity_env.native.kernel.USE_NATIVE` switches the kernel off).
 """
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import Any, ClassVar
 
 import torch
@@ -62,6 +62,7 @@ from tensegrity_env.engine.forces import (
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.native.kernel import usable_kernel
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 from tensegrity_env.vec3 import dot, rotate, rotate_t, sum_small
@@ -272,7 +273,7 @@ class GroundContact(PhysicalEffect):
         applied: tuple[torch.Tensor, torch.Tensor] | None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         """:meth:`contact_forces` by the C kernel (``tsr_contact_forces``: the geometry
-        and the law, rod by rod), where :func:`native_kernel` takes the inputs and the
+        and the law, rod by rod), where :func:`~tensegrity_env.native.kernel.usable_kernel` takes the inputs and the
         contact's parameters are shared by every end cap; else None."""
         B, R = state.p.shape[:2]
         law = [self.value(k, state.p) for k in NATIVE_LAW]
@@ -284,10 +285,10 @@ class GroundContact(PhysicalEffect):
             return None
         rows = [state.p, state.v, state.omega, kin.rot, kin.arms]
         others = [*rows, mass, inertia, params.gravity, *law]
-        if not all(v.numel() == 1 for v in law) or native_kernel(*others) is None:
+        if not all(v.numel() == 1 for v in law) or usable_kernel(*others) is None:
             return None  # (before the spring wrench: the PyTorch law computes its own)
         f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
-        kernel = native_kernel(f_s, t_s)
+        kernel = usable_kernel(f_s, t_s)
         if kernel is None:
             return None
         rows = [x.detach().contiguous() for x in rows]
@@ -381,35 +382,6 @@ class GroundContact(PhysicalEffect):
         A.diagonal(dim1=-2, dim2=-1).add_(soft)  # A is this function's own tensor
         f = solve_soft_contacts(A, a0 - aref, mask)
         return sum_small(f.reshape(N, 2, 4).unsqueeze(-1) * edges, -2)
-
-
-#: whether the contact law may use the C kernel (where one builds; tests switch it off
-#: to compare)
-USE_NATIVE = True
-
-
-def native_kernel(*tensors: torch.Tensor) -> Any | None:
-    """The C kernel (``tensegrity_env/envs/native_step.c``, loaded) where it may take
-    ``tensors``: double precision on the CPU, no gradient wanted through them; else
-    None (also where no C compiler works)."""
-    if not USE_NATIVE:
-        return None
-    grad = torch.is_grad_enabled()
-    for t in tensors:
-        if t.device.type != "cpu" or t.dtype != torch.float64 or (grad and t.requires_grad):
-            return None
-    return _loaded_kernel()
-
-
-@lru_cache(maxsize=1)
-def _loaded_kernel() -> Any | None:
-    """The loaded library, or None where no C compiler works."""
-    from tensegrity_env.envs.native import NativeUnavailable, load_kernel  # built on first use
-
-    try:
-        return load_kernel()[0]
-    except NativeUnavailable:
-        return None
 
 
 def solve_soft_contacts(H: torch.Tensor, b: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -24,8 +24,8 @@ from tensegrity_env.engine.forces import (
 )
 from tensegrity_env.engine.integration import semi_implicit_euler
 from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics, node_kinematics
-from tensegrity_env.engine.native_path import native_step
 from tensegrity_env.engine.state import State
+from tensegrity_env.native.engine_step import NativeEngineStep
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 from tensegrity_env.vec3 import rotate, rotate_t
@@ -60,8 +60,9 @@ class Engine:
         substeps: physics steps per :meth:`step`, each ``dt / substeps`` [s] long
             (see :func:`substeps_for`); commands are held over them.
         native: step by the C kernel where it computes the same and no gradient is
-            wanted (:mod:`tensegrity_env.engine.native_path`): the same physics to
-            round-off, for the many small no-gradient rollouts of trajectory fits.
+            wanted (:mod:`tensegrity_env.native.engine_step`; elsewhere it logs why
+            not): the same physics to round-off, for the many small no-gradient
+            rollouts of trajectory fits.
     """
 
     def __init__(
@@ -105,6 +106,13 @@ class Engine:
         self.cable_springs = torch.as_tensor(
             topology.cable_actuators, dtype=torch.long, device=self.device
         )  # (C,): the spring each cable actuator drives
+        # the step by the C kernel where it applies, with its cache of packed models
+        self.native_step = (
+            NativeEngineStep(topology, self.effects, self.substeps, self.physics_dt,
+                             bool(self.cable_springs.numel()))
+            if self.native
+            else None
+        )  # fmt: skip
 
     def with_effects(self, effects: Sequence[Effect]) -> Engine:
         return Engine(self.topology, self.dt, effects, self.dtype, self.device, self.substeps,
@@ -204,10 +212,10 @@ class Engine:
         cables: torch.Tensor | None = None,
     ) -> State:
         """Advance every assembly in the batch by ``dt``, in ``substeps`` physics steps."""
-        if self.native:
-            fast = native_step(self, state, params, control, cables)
-            if fast is not None:
-                return fast
+        if self.native_step is not None:
+            x = self.native_step(state.tensors(), params, control, cables)
+            if x is not None:
+                return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
         for _ in range(self.substeps):
             accel, alpha_l, omega_l = self.accelerations(state, params, control, cables)
             # integration: semi-implicit Euler (MuJoCo's Euler integrator)

@@ -5,9 +5,11 @@ float64 in place (rows ``p`` (3) [m], ``v`` (3) [m/s], ``q`` (4, w x y z), ``ome
 (3) [rad/s], world frame, as :class:`~tensegrity_env.engine.State`) under commands
 ``control`` (B, R, 3) held for the whole control step:
 
-* :class:`NativeStepper`, the default on CPU: the C kernel ``native_step.c`` (the
-  engine's step with ground contact, written out per assembly, threads over the
-  batch). It fuses the ``frame_skip`` substeps of a control step into one call and
+* :class:`NativeStepper`, the default on CPU: the C kernel
+  (``tensegrity_env/native/native_step.c``: the engine's step with the effects it has,
+  written out per assembly, threads over the batch; the model packed by
+  :func:`~tensegrity_env.native.pack.pack_model`, as the engine's no-gradient step
+  packs it). It fuses the ``frame_skip`` substeps of a control step into one call and
   visits only the end caps that touch the floor, which is what makes one
   environment step cheaper than MuJoCo's and a batch of 4096 an order of magnitude
   faster (``benchmarks/bench_env.py``).
@@ -32,10 +34,13 @@ from typing import Literal, Protocol
 import numpy as np
 import torch
 
+from tensegrity_env.effects.ground_contact import ACTIVE_SET_ITERATIONS
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.effects import Effect
-from tensegrity_env.envs.native import NativeUnavailable, load_kernel, model_vector
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.native.build import NativeUnavailable
+from tensegrity_env.native.kernel import load_kernel
+from tensegrity_env.native.pack import PACKED_PARAMS, pack_model
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_env.topology import Topology
@@ -77,21 +82,6 @@ def default_threads() -> int:
         return os.cpu_count() or 1
 
 
-def ground_contact_of(effects: Sequence[Effect]) -> Effect | None:
-    """The ground contact in ``effects``; ValueError if any effect has no native form."""
-    from tensegrity_env.effects.ground_contact import GroundContact
-
-    contact = [e for e in effects if isinstance(e, GroundContact)]
-    others = [
-        getattr(e, "name", type(e).__name__) for e in effects if not isinstance(e, GroundContact)
-    ]
-    if others:
-        raise ValueError(f"effects {others} have no native form")
-    if len(contact) > 1:
-        raise ValueError("more than one ground_contact effect")
-    return contact[0] if contact else None
-
-
 class KernelMismatch(ValueError):
     """The native kernel no longer computes what :class:`Engine` computes."""
 
@@ -101,7 +91,8 @@ class NativeStepper:
 
     Args:
         topology, params: the identified model.
-        effects: its effects (ground contact at most; ValueError otherwise).
+        effects: its effects, those the kernel has
+            (:class:`~tensegrity_env.native.pack.NotNative`, a ValueError, otherwise).
         dt: physics step [s]. frame_skip: physics steps per call.
         threads: OpenMP threads over the batch (None: every available core).
         contact_iterations: most active-set iterations of the contact problem (None:
@@ -124,9 +115,7 @@ class NativeStepper:
         contact_iterations: int | None = None,
         verify: bool = True,
     ) -> None:
-        from tensegrity_env.effects import ground_contact
-
-        contact = ground_contact_of(effects)
+        packed = pack_model(topology, {k: getattr(params, k) for k in PACKED_PARAMS}, effects)
         self._lib, self.openmp = load_kernel()
         if (
             topology.n_rods > self._lib.tsr_max_rods()
@@ -137,13 +126,8 @@ class NativeStepper:
         self.topology = topology
         self.dt, self.frame_skip = float(dt), int(frame_skip)
         self.threads = int(threads or default_threads())
-        self.iterations = int(contact_iterations or ground_contact.ACTIVE_SET_ITERATIONS)
-        law = None
-        radius = np.zeros(topology.n_rods)
-        if contact is not None:
-            law = {k: float(t.detach().reshape(-1)[0]) for k, t in contact.values.items()}  # type: ignore[attr-defined]
-            radius = contact.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]
-        self._model = model_vector(topology, params.numpy(), law, radius)
+        self.iterations = int(contact_iterations or ACTIVE_SET_ITERATIONS)
+        self._model = packed.models[0]
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)
         if verify:
             self.verify(params, effects)

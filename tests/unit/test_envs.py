@@ -35,7 +35,9 @@ from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, load_env_model
 from tensegrity_env.envs.twin import face_down_pose, twin_assembly, twin_mjcf
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
+from tensegrity_env.native.pack import NotNative
 from tensegrity_env.params import load_params_document
+from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
 
 RNG = np.random.default_rng(0)
 
@@ -95,6 +97,35 @@ def test_native_step_rod_with_both_caps_on_the_floor() -> None:
     assert np.abs(x - ref).max() < 1e-10
 
 
+def test_native_contact_lanes_do_not_mix() -> None:
+    """Rods lying flat (both end caps down: the 8-edge problem) beside tilted rods (one
+    cap down: 4 edges) in one SIMD block: each assembly steps as it does alone, bit for
+    bit, and as the engine does to round-off."""
+    e = element()
+    n = 8
+    rng = np.random.default_rng(11)
+    p = np.broadcast_to(e.pose_p, (n, 1, 3)).copy()
+    p[..., 2] += e.topology.rods[0].radius - 2e-3
+    tilt = np.where(np.arange(n) % 2 == 0, 0.0, rng.uniform(0.006, 0.01, n))  # even: flat
+    turn = np.stack([np.cos(tilt / 2), 0 * tilt, np.sin(tilt / 2), 0 * tilt], -1)[:, None]
+    q = np_quat_mul(turn, np.broadcast_to(e.pose_q, (n, 1, 4)))
+    state = State.from_numpy(p, rng.normal(0, 0.2, (n, 1, 3)), q, rng.normal(0, 0.5, (n, 1, 3)))
+    effects = [GroundContact(e.topology, friction=0.8)]
+    ends = np.einsum("brij,rkj->brki", np_quat_to_matrix(q), e.topology.end_offsets)[..., 2]
+    down = (p[..., 2:3] + ends - e.topology.rods[0].radius < 0).sum(-1)[:, 0]
+    assert set(down.tolist()) == {1, 2}  # both kinds of rods in the block
+    u = rng.normal(0, 1, (n, 1, 3))
+    stepper = NativeStepper(e.topology, e.params, effects, 1e-3, 20)
+    together = pack_states(state)
+    stepper(together, u)
+    for b in range(n):
+        alone = np.ascontiguousarray(pack_states(state)[b : b + 1])
+        stepper(alone, u[b : b + 1])
+        assert np.array_equal(alone, together[b : b + 1])
+    ref = _engine_steps(e.topology, e.params, effects, state, torch.as_tensor(u), 20)
+    assert np.abs(together - ref).max() < 1e-10
+
+
 def test_native_and_torch_backends_agree_through_the_env() -> None:
     native = IcosahedronSREnv(frame_skip=10)
     torch_env = IcosahedronSREnv(frame_skip=10, backend="torch")
@@ -112,7 +143,8 @@ def test_native_and_torch_backends_agree_through_the_env() -> None:
 
 
 def test_kernel_self_check_catches_a_different_law() -> None:
-    """A contact law the kernel does not implement is caught at construction."""
+    """A contact law the kernel does not implement is caught: a subclass of the ground
+    contact is not packed, and the self-check against the engine catches the law."""
     a = twin_assembly()
 
     class Stiffer(GroundContact):
@@ -120,8 +152,11 @@ def test_kernel_self_check_catches_a_different_law() -> None:
             force, torque = super().wrench(state, kin, params, applied)
             return 1.01 * force, 1.01 * torque
 
-    with pytest.raises(KernelMismatch):
+    with pytest.raises(NotNative, match="no native form"):
         NativeStepper(a.topology, a.params, [Stiffer(a.topology)], 1e-3, 50)
+    native = NativeStepper(a.topology, a.params, [GroundContact(a.topology)], 1e-3, 50)
+    with pytest.raises(KernelMismatch):
+        native.verify(a.params, [Stiffer(a.topology)])
     with pytest.warns(UserWarning, match="PyTorch engine"):
         stepper = make_stepper(a.topology, a.params, [Stiffer(a.topology)], 1e-3, 50)
     assert isinstance(stepper, TorchStepper)

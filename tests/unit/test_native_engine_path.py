@@ -4,21 +4,24 @@ per-assembly parameters, and the PyTorch step wherever the kernel does not apply
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 import torch
 
 from tensegrity_env import effects as fx
-from tensegrity_env.effects.ground_contact import native_kernel
 from tensegrity_env.effects.springs import CompressionStiffness
 from tensegrity_env.engine import Engine, State
-from tensegrity_env.engine.native_path import native_step
-from tensegrity_env.envs.physics import pack_states
+from tensegrity_env.envs.physics import NativeStepper, pack_states
 from tensegrity_env.envs.twin import face_down_pose, twin_assembly
+from tensegrity_env.native.engine_step import FallbackLog
+from tensegrity_env.native.kernel import usable_kernel
+from tensegrity_env.native.pack import NotNative
 from tensegrity_env.params import Params
 
 pytestmark = pytest.mark.skipif(
-    native_kernel(torch.zeros(1, dtype=torch.float64)) is None, reason="no C compiler"
+    usable_kernel(torch.zeros(1, dtype=torch.float64)) is None, reason="no C compiler"
 )
 
 #: largest state difference accepted after the steps below (float64 round-off, grown
@@ -135,10 +138,54 @@ def test_gradients_and_effects_without_native_form_take_the_pytorch_step() -> No
     stiff = a.params.stiffness.clone().requires_grad_(True)
     params = Params(**{**{f: getattr(a.params, f) for f in ("damping", "rest_length", "mass",
                     "inertia", "control_gain", "gravity", "cable_gain")}, "stiffness": stiff})  # fmt: skip
-    assert native_step(engine, state, params, None, None) is None
+    assert engine.native_step(state.tensors(), params, None, None) is None
     out = engine.step(state, params)
     assert out.p.requires_grad  # the gradient flows through the PyTorch step
     other = engine.with_effects([CompressionStiffness(a.topology)])
     with torch.no_grad():
-        assert native_step(other, state, a.params, None, None) is None
-        assert native_step(engine, state, a.params, None, None) is not None
+        assert other.native_step(state.tensors(), a.params, None, None) is None
+        assert engine.native_step(state.tensors(), a.params, None, None) is not None
+
+
+def test_a_fallback_logs_its_reason_once(caplog: pytest.LogCaptureFixture) -> None:
+    """An effect the kernel lacks: three steps in PyTorch, one warning naming it; a
+    gradient wanted: said once, at INFO."""
+    a = twin_assembly()
+    state = _tumbling(2, 3)
+    engine = Engine(a.topology, 1 / 120, [CompressionStiffness(a.topology)], native=True)
+    engine.native_step.fallbacks = FallbackLog()  # type: ignore[union-attr]
+    with caplog.at_level(logging.INFO, logger="tensegrity_env.native"):
+        with torch.no_grad():
+            for _ in range(3):
+                engine.step(state, a.params)
+        said = [r for r in caplog.records if r.name == "tensegrity_env.native"]
+        assert len(said) == 1 and said[0].levelno == logging.WARNING
+        assert "compression_stiffness" in said[0].getMessage()
+        grad = engine.with_effects([fx.GroundContact(a.topology)])
+        grad.native_step.fallbacks = FallbackLog()  # type: ignore[union-attr]
+        stiff = a.params.stiffness.clone().requires_grad_(True)
+        for _ in range(2):
+            grad.step(state, a.params.replace(stiffness=stiff))
+        said = [r for r in caplog.records if r.name == "tensegrity_env.native"][1:]
+        assert len(said) == 1 and said[0].levelno == logging.INFO
+        assert "gradient" in said[0].getMessage()
+
+
+def test_environments_step_every_native_effect_by_the_same_packing() -> None:
+    """The environments' stepper takes the effects the engine's path takes (one
+    packing): 50 physics steps equal the engine's to round-off; an effect the kernel
+    lacks is refused by name."""
+    a = twin_assembly()
+    state = _tumbling(11, 5)
+    effects = _effects(a.topology)
+    u = np.random.default_rng(2).normal(0, 2, (11, 6, 3))
+    engine = Engine(a.topology, 1e-3, effects)
+    ref = state
+    with torch.no_grad():
+        for _ in range(50):
+            ref = engine.step(ref, a.params, torch.as_tensor(u))
+    x = pack_states(state)
+    NativeStepper(a.topology, a.params, effects, 1e-3, 50)(x, u)
+    assert np.abs(x - pack_states(ref)).max() < ROUND_OFF
+    with pytest.raises(NotNative, match="compression_stiffness"):
+        NativeStepper(a.topology, a.params, [CompressionStiffness(a.topology)], 1e-3, 50)

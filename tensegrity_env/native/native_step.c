@@ -1,18 +1,20 @@
 /*
- * The identified spring-rod model's control step, in C, for environments.
+ * The identified spring-rod model's step, in C: the environments' stepper and the
+ * engine's no-gradient step (the model packed by tensegrity_env/native/pack.py), and
+ * the ground contact's forces for the PyTorch engine (tsr_contact_forces).
  *
- * Exactly the physics of tensegrity_env.engine.Engine.step with the effect
- * tensegrity_env.effects.ground_contact.GroundContact (tests/test_envs.py checks
- * the two agree to round-off in double precision):
+ * Exactly the physics of tensegrity_env.engine.Engine.step with the effects the
+ * packing lists (tests/unit/test_envs.py and tests/unit/test_native_engine_path.py
+ * check the two agree to round-off in double precision):
  *
  *   kinematics  end caps x = p + R(q) e, velocities v + w x (R e)
  *   forces      every spring a scalar tension T = K (l - l0) + c dl/dt along its
  *               axis; control h f_u at each rod's arm R r_u; ground contact per rod:
  *               four friction-pyramid edges per touching end cap, forces f >= 0
  *               from min 1/2 f'(A + R)f + f'(a0 - aref), R = (1 - d)/d 2 mu^2 (1 + mu^2) / M,
- *               by the same primal-dual
- *               active-set iteration (at most `iterations`, stop when the active
- *               set settles) and one projected Gauss-Seidel sweep
+ *               by the same primal-dual active-set iteration (at most `iterations`,
+ *               stop when the active set settles) and one projected Gauss-Seidel
+ *               sweep: one function, vrod_contact, for the step and tsr_contact_forces
  *   accel.      a = F / M + g; Euler's equations in the rod frame with the
  *               gyroscopic term
  *   integration MuJoCo's semi-implicit Euler: v, w_local first, then p and the
@@ -122,267 +124,6 @@ int tsr_model_size(int R, int S, int A, int P) {
     return 6 * R + 3 * R + 3 * A + 3 * S + R + 3 * R + 1 + 3 + 8 + R + 4 * R + 1 + 4 * P + 21 + 3 * S;
 }
 
-static inline void cross(const double *a, const double *b, double *o) {
-    o[0] = a[1] * b[2] - a[2] * b[1];
-    o[1] = a[2] * b[0] - a[0] * b[2];
-    o[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-static inline double dot(const double *a, const double *b) {
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-static inline void rot_t(const double *M, const double *v, double *o) {
-    o[0] = M[0] * v[0] + M[3] * v[1] + M[6] * v[2];
-    o[1] = M[1] * v[0] + M[4] * v[1] + M[7] * v[2];
-    o[2] = M[2] * v[0] + M[5] * v[1] + M[8] * v[2];
-}
-
-/* Cholesky solve of the active rows of H (n x n, row-major); inactive unknowns are 0 */
-static void solve_active(int n, const double *H, const double *b, const int *S, double *f) {
-    int idx[TSR_MAX_EDGES], m = 0;
-    double L[TSR_MAX_EDGES * TSR_MAX_EDGES], y[TSR_MAX_EDGES], inv[TSR_MAX_EDGES];
-    for (int i = 0; i < n; i++) {
-        f[i] = 0.0;
-        if (S[i]) idx[m++] = i;
-    }
-    for (int j = 0; j < m; j++) {
-        double acc = H[idx[j] * n + idx[j]];
-        for (int k = 0; k < j; k++) acc -= L[j * m + k] * L[j * m + k];
-        inv[j] = 1.0 / sqrt(acc);
-        for (int i = j + 1; i < m; i++) {
-            double a = H[idx[i] * n + idx[j]];
-            for (int k = 0; k < j; k++) a -= L[i * m + k] * L[j * m + k];
-            L[i * m + j] = a * inv[j];
-        }
-    }
-    for (int i = 0; i < m; i++) {
-        double acc = -b[idx[i]];
-        for (int k = 0; k < i; k++) acc -= L[i * m + k] * y[k];
-        y[i] = acc * inv[i];
-    }
-    for (int i = m - 1; i >= 0; i--) {
-        double acc = y[i];
-        for (int k = i + 1; k < m; k++) acc -= L[k * m + i] * f[idx[k]];
-        f[idx[i]] = acc * inv[i];
-    }
-}
-
-/* GroundContact.solve_soft_contacts on one rod's touching edges */
-static void solve_contacts(int n, const double *H, const double *b, int iterations, double *f) {
-    int S[TSR_MAX_EDGES], Snew[TSR_MAX_EDGES];
-    for (int i = 0; i < n; i++) { S[i] = b[i] < 0; f[i] = 0.0; }
-    for (int it = 0; it < iterations; it++) {
-        solve_active(n, H, b, S, f);
-        int same = 1;
-        for (int i = 0; i < n; i++) {
-            double w = b[i];
-            for (int j = 0; j < n; j++) w += H[i * n + j] * f[j];
-            Snew[i] = (S[i] && f[i] > 0) || (!S[i] && w < 0);
-            same &= Snew[i] == S[i];
-        }
-        if (same) break;
-        memcpy(S, Snew, sizeof(S));
-    }
-    for (int i = 0; i < n; i++) f[i] = f[i] > 0 ? f[i] : 0.0;
-    for (int i = 0; i < n; i++) {
-        double w = b[i];
-        for (int j = 0; j < n; j++) w += H[i * n + j] * f[j];
-        double v = f[i] - w / H[i * n + i];
-        f[i] = v > 0 ? v : 0.0;
-    }
-}
-
-static double impedance(const Model *m, double dist) {
-    double x = fabs(dist) / m->width;
-    x = x < 0 ? 0 : (x > 1 ? 1 : x);
-    double y = x < 0.5 ? 2.0 * x * x : 1.0 - 2.0 * (1.0 - x) * (1.0 - x);
-    return m->d_min + y * (m->d_max - m->d_min);
-}
-
-/* contact force and torque on rod r (added to F, T); f_s, t_s: the wrench of springs and control */
-static void contact_wrench(const Model *m, int r, const double *p, const double *v,
-                           const double *omega, const double *M, const double arms[2][3],
-                           const double *f_s, const double *t_s, double *F, double *T) {
-    double dist[2];
-    int any = 0;
-    for (int k = 0; k < 2; k++) {
-        dist[k] = p[2] + arms[k][2] - m->radius[r] - m->height;
-        any |= dist[k] < 0;
-    }
-    if (!any) return;
-    const double mass = m->mass[r], *I = m->inertia + 3 * r;
-    double sI[3] = {sqrt(I[0]), sqrt(I[1]), sqrt(I[2])};
-    double isI[3] = {1.0 / sI[0], 1.0 / sI[1], 1.0 / sI[2]}, inv_m = 1.0 / mass;
-    /* free accelerations without contact: gravity, springs and control, gyroscopic terms */
-    double acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
-    for (int i = 0; i < 3; i++) acc[i] = f_s[i] * inv_m + m->g[i];
-    rot_t(M, omega, wl);
-    rot_t(M, t_s, tl);
-    for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
-    cross(wl, Iw, gyro);
-    for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) * isI[i];
-    double E[TSR_MAX_EDGES][3], Ang[TSR_MAX_EDGES][3], b[TSR_MAX_EDGES], soft[TSR_MAX_EDGES];
-    double carm[2][3];
-    int cap_of[TSR_MAX_EDGES], n = 0;
-    for (int k = 0; k < 2; k++) {
-        if (!(dist[k] < 0)) continue;
-        carm[k][0] = arms[k][0];
-        carm[k][1] = arms[k][1];
-        carm[k][2] = (m->height + dist[k] / 2) - p[2];
-        double vel[3], wxr[3];
-        cross(omega, carm[k], wxr);
-        for (int i = 0; i < 3; i++) vel[i] = v[i] + wxr[i];
-        double nrm = sqrt(arms[k][0] * arms[k][0] + arms[k][1] * arms[k][1]);
-        double t1x = 1.0, t1y = 0.0;
-        if (nrm > 1e-12) { t1x = arms[k][0] / nrm; t1y = arms[k][1] / nrm; }
-        if (m->sphere[r] != 0.0) { t1x = 0.0; t1y = 1.0; }
-        double d = impedance(m, dist[k]);
-        double sft = (1.0 - d) / d * m->soft * inv_m, kd = m->k_c * d * dist[k];
-        double tan[2][2] = {{t1x, t1y}, {-t1y, t1x}};
-        for (int t = 0; t < 2; t++) {
-            for (int s = 0; s < 2; s++) {
-                double sign = s == 0 ? 1.0 : -1.0, aw[3], al[3];
-                double *e = E[n];
-                e[0] = m->mu * sign * tan[t][0];
-                e[1] = m->mu * sign * tan[t][1];
-                e[2] = 1.0;
-                cross(carm[k], e, aw);
-                rot_t(M, aw, al);
-                for (int i = 0; i < 3; i++) Ang[n][i] = al[i] * isI[i];
-                double a0 = dot(e, acc) + dot(Ang[n], alpha);
-                double aref = -m->b_c * dot(e, vel) - kd;
-                b[n] = a0 - aref;
-                soft[n] = sft;
-                cap_of[n] = k;
-                n++;
-            }
-        }
-    }
-    double H[TSR_MAX_EDGES * TSR_MAX_EDGES], f[TSR_MAX_EDGES];
-    for (int i = 0; i < n; i++) {
-        for (int j = i; j < n; j++) {
-            double h = dot(E[i], E[j]) * inv_m + dot(Ang[i], Ang[j]);
-            if (i == j) h += soft[i];
-            H[i * n + j] = H[j * n + i] = h;
-        }
-    }
-    solve_contacts(n, H, b, m->iterations, f);
-    for (int k = 0; k < 2; k++) {
-        double fk[3] = {0, 0, 0}, tk[3];
-        int has = 0;
-        for (int i = 0; i < n; i++) {
-            if (cap_of[i] != k) continue;
-            has = 1;
-            for (int c = 0; c < 3; c++) fk[c] += f[i] * E[i][c];
-        }
-        if (!has) continue;
-        cross(carm[k], fk, tk);
-        for (int c = 0; c < 3; c++) { F[c] += fk[c]; T[c] += tk[c]; }
-    }
-}
-
-/* GroundContact.contact_forces for the PyTorch engine: the contact force on every end
- * cap of B assemblies of R rods, and its arm (contact point - centre of mass).
- * In: p, v, omega (B, R, 3) world frame; rot (B, R, 3, 3) body to world, row-major;
- * arms (B, R, 2, 3) the end caps' offsets from the rods' centres; mass (B, R) and
- * inertia (B, R, 3) or, with per_assembly = 0, (R) and (R, 3); f_s, t_s (B, R, 3) the
- * applied wrench; radius (R); sphere (R) bytes (1: sphere end caps, contact frame t_1 =
- * y); origin (R, 3) body-frame origins or NULL; gravity[3]; law[7] = {stiffness,
- * damping, friction, impedance_min, impedance, width, height}.
- * Out: force and arm (B, R, 2, 3). The same operations as the PyTorch law, row by row. */
-int tsr_contact_forces(long B, int R, const double *p, const double *v, const double *omega,
-                       const double *rot, const double *arms, const double *mass,
-                       const double *inertia, int per_assembly, const double *f_s,
-                       const double *t_s, const double *radius, const unsigned char *sphere,
-                       const double *origin, const double *gravity, const double *law,
-                       int iterations, double *force, double *arm_out) {
-    Model m;
-    memset(&m, 0, sizeof(m));
-    m.k_c = law[0]; m.b_c = law[1]; m.mu = law[2];
-    m.d_min = law[3]; m.d_max = law[4]; m.width = law[5];
-    const double height = law[6], soft = 2.0 * m.mu * m.mu * (1.0 + m.mu * m.mu);
-    for (long row = 0; row < B * R; row++) {
-        const int r = (int)(row % R);
-        const double *P = p + 3 * row, *V = v + 3 * row, *w = omega + 3 * row;
-        const double *M = rot + 9 * row, *A = arms + 6 * row;
-        double dist[2], arm[2][3], vel[2][3], t1[2][3];
-        int n_touch = 0;
-        for (int k = 0; k < 2; k++) {
-            double cap[3] = {P[0] + A[3 * k], P[1] + A[3 * k + 1], P[2] + A[3 * k + 2]};
-            dist[k] = cap[2] - radius[r] - height;
-            arm[k][0] = cap[0] - P[0];
-            arm[k][1] = cap[1] - P[1];
-            arm[k][2] = (height + dist[k] / 2) - P[2];
-            double wxa[3];
-            cross(w, arm[k], wxa);
-            for (int i = 0; i < 3; i++) vel[k][i] = V[i] + wxa[i];
-            double nrm = sqrt(A[3 * k] * A[3 * k] + A[3 * k + 1] * A[3 * k + 1]);
-            t1[k][0] = 1.0; t1[k][1] = 0.0; t1[k][2] = 0.0;
-            if (nrm > 1e-12) { t1[k][0] = A[3 * k] / nrm; t1[k][1] = A[3 * k + 1] / nrm; }
-            if (sphere[r]) { t1[k][0] = 0.0; t1[k][1] = 1.0; }
-            n_touch += dist[k] < 0;
-        }
-        double *out = force + 6 * row;
-        memcpy(arm_out + 6 * row, arm, sizeof(arm));
-        for (int i = 0; i < 6; i++) out[i] = 0.0;
-        if (!n_touch) continue;
-        const long at = per_assembly ? row : r;
-        const double *I = inertia + 3 * at, inv_m = 1.0 / mass[at];
-        double sI[3] = {sqrt(I[0]), sqrt(I[1]), sqrt(I[2])};
-        double acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
-        for (int i = 0; i < 3; i++) acc[i] = f_s[3 * row + i] * inv_m + gravity[i];
-        if (origin) { /* the centripetal acceleration of the body origin */
-            const double *o = origin + 3 * r;
-            double ro[3], wr[3], wwr[3];
-            for (int i = 0; i < 3; i++) ro[i] = M[3 * i] * o[0] + M[3 * i + 1] * o[1] + M[3 * i + 2] * o[2];
-            cross(w, ro, wr);
-            cross(w, wr, wwr);
-            for (int i = 0; i < 3; i++) acc[i] += wwr[i];
-        }
-        rot_t(M, w, wl);
-        rot_t(M, t_s + 3 * row, tl);
-        for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
-        cross(wl, Iw, gyro);
-        for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) / I[i];
-        double E[TSR_MAX_EDGES][3], Ang[TSR_MAX_EDGES][3], b[TSR_MAX_EDGES], sft[TSR_MAX_EDGES];
-        int cap_of[TSR_MAX_EDGES], n = 0;
-        for (int k = 0; k < 2; k++) {
-            if (!(dist[k] < 0)) continue;
-            const double d = impedance(&m, dist[k]), kd = m.k_c * d * dist[k];
-            const double t2[3] = {-t1[k][1], t1[k][0], 0.0}; /* z x t_1 */
-            for (int t = 0; t < 2; t++) {
-                const double *tk = t == 0 ? t1[k] : t2;
-                for (int s = 0; s < 2; s++) {
-                    double sign = s == 0 ? 1.0 : -1.0, aw[3], al[3], *e = E[n];
-                    for (int i = 0; i < 3; i++) e[i] = m.mu * sign * tk[i];
-                    e[2] += 1.0;
-                    cross(arm[k], e, aw);
-                    rot_t(M, aw, al);
-                    for (int i = 0; i < 3; i++) Ang[n][i] = al[i] / sI[i];
-                    double a0 = dot(e, acc);
-                    for (int i = 0; i < 3; i++) a0 += Ang[n][i] * alpha[i] * sI[i];
-                    b[n] = a0 - (-m.b_c * dot(e, vel[k]) - kd);
-                    sft[n] = (1.0 - d) / d * soft * inv_m;
-                    cap_of[n] = k;
-                    n++;
-                }
-            }
-        }
-        double H[TSR_MAX_EDGES * TSR_MAX_EDGES], f[TSR_MAX_EDGES];
-        for (int i = 0; i < n; i++)
-            for (int j = i; j < n; j++) {
-                double h = dot(E[i], E[j]) * inv_m + dot(Ang[i], Ang[j]);
-                if (i == j) h += sft[i];
-                H[i * n + j] = H[j * n + i] = h;
-            }
-        solve_contacts(n, H, b, iterations, f);
-        for (int i = 0; i < n; i++)
-            for (int c = 0; c < 3; c++) out[3 * cap_of[i] + c] += f[i] * E[i][c];
-    }
-    return 0;
-}
-
 /* ------------------------------------------------------------------ W assemblies at once
  * Every quantity below is a vector of W doubles, one lane per assembly, so each
  * operation is one SIMD instruction for W assemblies. Lanes never mix: a lane's
@@ -450,147 +191,263 @@ static void vsincos(vd x, vd *s, vd *c) {
 
 typedef struct { vd p[3], v[3], q[4], w[3], u[3]; } VRod;
 
-/* the ground contact of one end cap (the rod's other cap off the floor), lanes `act` */
-static void vcontact_cap(const Model *m, int r, const VRod *x, const vd *M, const vd *arm,
-                         const vd *dist, vl act, const vd *acc, const vd *alpha, vd *F, vd *T) {
-    const double mass = m->mass[r], *I = m->inertia + 3 * r;
-    const double isI[3] = {1.0 / sqrt(I[0]), 1.0 / sqrt(I[1]), 1.0 / sqrt(I[2])};
-    const double inv_m = 1.0 / mass, mu = m->mu;
-    vd carm[3] = {arm[0], arm[1], (m->height + *dist / 2) - x->p[2]};
-    vd wxr[3], vel[3];
-    vcross(x->w, carm, wxr);
-    for (int i = 0; i < 3; i++) vel[i] = x->v[i] + wxr[i];
-    vd nrm = vsqrt(arm[0] * arm[0] + arm[1] * arm[1]);
-    vl ok = nrm > 1e-12;
-    vd t1x = vsel(ok, arm[0] / nrm, vsplat(1.0)), t1y = vsel(ok, arm[1] / nrm, vsplat(0.0));
-    if (m->sphere[r] != 0.0) { t1x = vsplat(0.0); t1y = vsplat(1.0); }
-    /* impedance d(|dist|), softness and the spring term of the reference acceleration */
-    vd xi = (vsel(*dist < 0, -*dist, *dist)) / m->width;
-    xi = vsel(xi > 1, vsplat(1.0), xi);
-    vd yi = vsel(xi < 0.5, 2.0 * xi * xi, 1.0 - 2.0 * (1.0 - xi) * (1.0 - xi));
-    vd d = m->d_min + yi * (m->d_max - m->d_min);
-    vd sft = (1.0 - d) / d * (m->soft * inv_m), kd = m->k_c * d * *dist;
-    vd E[4][3], Ang[4][3], b[4];
-    const vd tx[2] = {t1x, -t1y}, ty[2] = {t1y, t1x};
-    for (int j = 0; j < 4; j++) {
-        double sign = (j % 2 == 0) ? 1.0 : -1.0;
-        vd *e = E[j], g[3], al[3];
-        e[0] = mu * sign * tx[j / 2];
-        e[1] = mu * sign * ty[j / 2];
-        e[2] = vsplat(1.0);
-        vcross(carm, e, g);
-        vrot_t(M, g, al);
-        for (int i = 0; i < 3; i++) Ang[j][i] = al[i] * isI[i];
-        vd a0 = vdot(e, acc) + vdot(Ang[j], alpha);
-        vd aref = -m->b_c * vdot(e, vel) - kd;
-        b[j] = a0 - aref;
+/* ------------------------------------------------------------------ the ground contact
+ * GroundContact's law (tensegrity_env/effects/ground_contact.py), the one C form of it:
+ * the kernel's step and tsr_contact_forces (the PyTorch engine's contact forces where no
+ * gradient is wanted) both call vrod_contact.
+ *
+ * One rod on every lane. Each end cap below the floor (dist < 0) contributes four
+ * friction-pyramid edges n +- mu t_1, n +- mu t_2 (t_1 along the cap's horizontal arm,
+ * or y for sphere end caps); the edge forces f >= 0 minimise
+ * 1/2 f'(A + R)f + f'(a0 - aref) with A = J M^-1 J', R = (1 - d)/d 2 mu^2 (1 + mu^2) / M,
+ * a0 the edges' free accelerations (gravity, the applied wrench f_s, t_s, the gyroscopic
+ * term and the body origin's centripetal acceleration) and aref = -b v_e - k d dist: a
+ * primal-dual active-set iteration (at most m->iterations, until every lane's active set
+ * settles; settled lanes repeat the same solve bit for bit) and one projected
+ * Gauss-Seidel sweep. A lane with one end cap down solves 4 unknowns, a rod lying flat
+ * 8 (both caps coupled through the rod); each lane's problem depends on that lane alone,
+ * so an assembly gives the same numbers whatever batch it is stepped in. */
+
+/* the contact problem of the lanes `lanes`, each with `caps` end caps down (1: the
+ * touching one, cap 1 where `second`); adds the forces to fk[k] on those lanes */
+static void vcontact_solve(const Model *m, int caps, vl lanes, vl second, const vd *dist,
+                           vd carm[2][3], const vd *v, const vd *w, const vd *M,
+                           const vd *acc, const vd *alpha, vd inv_m, const vd *isI,
+                           vl sphere, vd fk[2][3]) {
+    const int n = 4 * caps;
+    vd garm[2][3], gdist[2], gvel[2][3], sft[2], kd[2], tx[2][2], ty[2][2];
+    if (caps == 2) {
+        for (int g = 0; g < 2; g++) {
+            gdist[g] = dist[g];
+            for (int i = 0; i < 3; i++) garm[g][i] = carm[g][i];
+        }
+    } else {
+        gdist[0] = vsel(second, dist[1], dist[0]);
+        for (int i = 0; i < 3; i++) garm[0][i] = vsel(second, carm[1][i], carm[0][i]);
     }
-    vd H[4][4];
-    for (int i = 0; i < 4; i++)
-        for (int j = i; j < 4; j++) {
+    for (int g = 0; g < caps; g++) {
+        vd wxr[3];
+        vcross(w, garm[g], wxr);
+        for (int i = 0; i < 3; i++) gvel[g][i] = v[i] + wxr[i];
+        vd nrm = vsqrt(garm[g][0] * garm[g][0] + garm[g][1] * garm[g][1]);
+        vl ok = nrm > 1e-12;
+        vd t1x = vsel(ok, garm[g][0] / nrm, vsplat(1.0));
+        vd t1y = vsel(ok, garm[g][1] / nrm, vsplat(0.0));
+        t1x = vsel(sphere, vsplat(0.0), t1x);
+        t1y = vsel(sphere, vsplat(1.0), t1y);
+        tx[g][0] = t1x; tx[g][1] = -t1y;
+        ty[g][0] = t1y; ty[g][1] = t1x;
+        /* impedance d(|dist|), softness and the spring term of the reference acceleration */
+        vd xi = (vsel(gdist[g] < 0, -gdist[g], gdist[g])) / m->width;
+        xi = vsel(xi > 1, vsplat(1.0), xi);
+        vd yi = vsel(xi < 0.5, 2.0 * xi * xi, 1.0 - 2.0 * (1.0 - xi) * (1.0 - xi));
+        vd d = m->d_min + yi * (m->d_max - m->d_min);
+        sft[g] = (1.0 - d) / d * (m->soft * inv_m);
+        kd[g] = m->k_c * d * gdist[g];
+    }
+    vd E[TSR_MAX_EDGES][3], Ang[TSR_MAX_EDGES][3], b[TSR_MAX_EDGES];
+    for (int s = 0; s < n; s++) {
+        const int g = s / 4, j = s % 4;
+        double sign = (j % 2 == 0) ? 1.0 : -1.0;
+        vd *e = E[s], gg[3], al[3];
+        e[0] = m->mu * sign * tx[g][j / 2];
+        e[1] = m->mu * sign * ty[g][j / 2];
+        e[2] = vsplat(1.0);
+        vcross(garm[g], e, gg);
+        vrot_t(M, gg, al);
+        for (int i = 0; i < 3; i++) Ang[s][i] = al[i] * isI[i];
+        vd a0 = vdot(e, acc) + vdot(Ang[s], alpha);
+        vd aref = -m->b_c * vdot(e, gvel[g]) - kd[g];
+        b[s] = a0 - aref;
+    }
+    vd H[TSR_MAX_EDGES][TSR_MAX_EDGES];
+    for (int i = 0; i < n; i++)
+        for (int j = i; j < n; j++) {
             vd h = vdot(E[i], E[j]) * inv_m + vdot(Ang[i], Ang[j]);
-            if (i == j) h += sft;
+            if (i == j) h += sft[i / 4];
             H[i][j] = H[j][i] = h;
         }
     /* primal-dual active set on the lanes in contact; masked Cholesky (identity off S) */
-    vl S[4];
-    vd f[4];
-    for (int i = 0; i < 4; i++) { S[i] = act & (b[i] < 0); f[i] = vsplat(0.0); }
+    vl S[TSR_MAX_EDGES];
+    vd f[TSR_MAX_EDGES];
+    for (int i = 0; i < n; i++) { S[i] = lanes & (b[i] < 0); f[i] = vsplat(0.0); }
     for (int it = 0; it < m->iterations; it++) {
-        vd sd[4], L[4][4], inv[4], y[4];
-        for (int i = 0; i < 4; i++) sd[i] = vsel(S[i], vsplat(1.0), vsplat(0.0));
-        for (int j = 0; j < 4; j++) {
+        vd sd[TSR_MAX_EDGES], L[TSR_MAX_EDGES][TSR_MAX_EDGES], inv[TSR_MAX_EDGES];
+        vd y[TSR_MAX_EDGES];
+        for (int i = 0; i < n; i++) sd[i] = vsel(S[i], vsplat(1.0), vsplat(0.0));
+        for (int j = 0; j < n; j++) {
             vd a = H[j][j] * sd[j] + (1.0 - sd[j]);
             for (int k = 0; k < j; k++) a -= L[j][k] * L[j][k];
             inv[j] = 1.0 / vsqrt(a);
-            for (int i = j + 1; i < 4; i++) {
+            for (int i = j + 1; i < n; i++) {
                 vd c = H[i][j] * (sd[i] * sd[j]);
                 for (int k = 0; k < j; k++) c -= L[i][k] * L[j][k];
                 L[i][j] = c * inv[j];
             }
         }
-        for (int i = 0; i < 4; i++) {
+        for (int i = 0; i < n; i++) {
             vd a = -b[i] * sd[i];
             for (int k = 0; k < i; k++) a -= L[i][k] * y[k];
             y[i] = a * inv[i];
         }
-        for (int i = 3; i >= 0; i--) {
+        for (int i = n - 1; i >= 0; i--) {
             vd a = y[i];
-            for (int k = i + 1; k < 4; k++) a -= L[k][i] * f[k];
+            for (int k = i + 1; k < n; k++) a -= L[k][i] * f[k];
             f[i] = a * inv[i];
         }
         vl changed = (vl){0};
-        vl Snew[4];
-        for (int i = 0; i < 4; i++) {
-            vd w = b[i];
-            for (int j = 0; j < 4; j++) w += H[i][j] * f[j];
-            Snew[i] = act & ((S[i] & (f[i] > 0)) | (~S[i] & (w < 0)));
+        vl Snew[TSR_MAX_EDGES];
+        for (int i = 0; i < n; i++) {
+            vd wi = b[i];
+            for (int j = 0; j < n; j++) wi += H[i][j] * f[j];
+            Snew[i] = lanes & ((S[i] & (f[i] > 0)) | (~S[i] & (wi < 0)));
             changed |= Snew[i] ^ S[i];
         }
         if (!vany(changed)) break;
-        for (int i = 0; i < 4; i++) S[i] = Snew[i];
+        for (int i = 0; i < n; i++) S[i] = Snew[i];
     }
-    for (int i = 0; i < 4; i++) f[i] = vsel(act, vmax0(f[i]), vsplat(0.0));
-    for (int i = 0; i < 4; i++) { /* one projected Gauss-Seidel sweep */
-        vd w = b[i];
-        for (int j = 0; j < 4; j++) w += H[i][j] * f[j];
-        f[i] = vsel(act, vmax0(f[i] - w / H[i][i]), f[i]);
+    for (int i = 0; i < n; i++) f[i] = vsel(lanes, vmax0(f[i]), vsplat(0.0));
+    for (int i = 0; i < n; i++) { /* one projected Gauss-Seidel sweep */
+        vd wi = b[i];
+        for (int j = 0; j < n; j++) wi += H[i][j] * f[j];
+        f[i] = vsel(lanes, vmax0(f[i] - wi / H[i][i]), f[i]);
     }
-    vd fk[3] = {f[0] * E[0][0], f[0] * E[0][1], f[0] * E[0][2]}, tk[3];
-    for (int j = 1; j < 4; j++)
-        for (int c = 0; c < 3; c++) fk[c] += f[j] * E[j][c];
-    for (int c = 0; c < 3; c++) fk[c] = vsel(act, fk[c], vsplat(0.0));
-    vcross(carm, fk, tk);
-    for (int c = 0; c < 3; c++) { F[c] += fk[c]; T[c] += tk[c]; }
+    for (int g = 0; g < caps; g++) {
+        const int s = 4 * g;
+        vd fg[3] = {f[s] * E[s][0], f[s] * E[s][1], f[s] * E[s][2]};
+        for (int j = 1; j < 4; j++)
+            for (int c = 0; c < 3; c++) fg[c] += f[s + j] * E[s + j][c];
+        for (int c = 0; c < 3; c++) {
+            if (caps == 2) {
+                fk[g][c] = vsel(lanes, fg[c], fk[g][c]);
+            } else {
+                fk[0][c] = vsel(lanes & ~second, fg[c], fk[0][c]);
+                fk[1][c] = vsel(lanes & second, fg[c], fk[1][c]);
+            }
+        }
+    }
 }
 
-/* the contact wrench of rod r on every lane (F, T accumulate) */
-static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[2][3],
-                     const vd *f_s, const vd *t_s, vd *F, vd *T) {
+/* The contact on one rod, every lane. In, per lane: p, v, w the rod's centre of mass,
+ * its velocity and angular velocity (world); M (3 x 3, body to world); arms[k] end cap
+ * k's offset from the centre of mass; f_s, t_s the applied force and torque; mass, I
+ * (principal inertia), radius (the end caps' contact radius), sphere (sphere end caps);
+ * origin the body-frame origin in the principal frame, or NULL (at the centre of mass).
+ * Out: fk[k] the contact force on end cap k (0 off the floor), carm[k] its arm (contact
+ * point - centre of mass). Returns whether any lane touches. */
+static int vrod_contact(const Model *m, const vd *p, const vd *v, const vd *w, const vd *M,
+                        vd arms[2][3], const vd *f_s, const vd *t_s, vd mass, const vd *I,
+                        vd radius, vl sphere, const vd *origin, vd fk[2][3], vd carm[2][3]) {
     vd dist[2];
     vl act[2];
     for (int k = 0; k < 2; k++) {
-        dist[k] = x->p[2] + arms[k][2] - m->radius[r] - m->height;
+        dist[k] = p[2] + arms[k][2] - radius - m->height;
         act[k] = dist[k] < 0;
+        carm[k][0] = arms[k][0];
+        carm[k][1] = arms[k][1];
+        carm[k][2] = (m->height + dist[k] / 2) - p[2];
+        for (int i = 0; i < 3; i++) fk[k][i] = vsplat(0.0);
     }
-    vl both = act[0] & act[1];
-    if (!vany(act[0] | act[1])) return;
-    const double mass = m->mass[r], *I = m->inertia + 3 * r;
-    /* free accelerations without contact: gravity, springs and control, gyroscopic terms */
+    if (!vany(act[0] | act[1])) return 0;
+    const vd inv_m = 1.0 / mass;
+    vd isI[3];
+    for (int i = 0; i < 3; i++) isI[i] = 1.0 / vsqrt(I[i]);
+    /* free accelerations without contact: gravity, the applied wrench, gyroscopic terms */
     vd acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
-    for (int i = 0; i < 3; i++) acc[i] = f_s[i] * (1.0 / mass) + m->g[i];
-    vd fs_o[3]; /* f_s plus M times the body origin's centripetal acceleration (J qacc) */
-    for (int i = 0; i < 3; i++) fs_o[i] = f_s[i];
-    if (m->has_origin) {
+    for (int i = 0; i < 3; i++) acc[i] = f_s[i] * inv_m + m->g[i];
+    if (origin) { /* MuJoCo's J qacc: the centripetal acceleration of the body origin */
         vd ro[3], c1[3], c2[3];
-        vrot_c(M, m->origin + 3 * r, ro);
-        vcross(x->w, ro, c1);
-        vcross(x->w, c1, c2);
-        for (int i = 0; i < 3; i++) { acc[i] += c2[i]; fs_o[i] += mass * c2[i]; }
+        vrot(M, origin, ro);
+        vcross(w, ro, c1);
+        vcross(w, c1, c2);
+        for (int i = 0; i < 3; i++) acc[i] += c2[i];
     }
-    vrot_t(M, x->w, wl);
+    vrot_t(M, w, wl);
     vrot_t(M, t_s, tl);
     for (int i = 0; i < 3; i++) Iw[i] = I[i] * wl[i];
     vcross(wl, Iw, gyro);
-    for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) * (1.0 / sqrt(I[i]));
+    for (int i = 0; i < 3; i++) alpha[i] = (tl[i] - gyro[i]) * isI[i];
+    const vl one = act[0] ^ act[1], both = act[0] & act[1];
+    if (vany(one))
+        vcontact_solve(m, 1, one, act[1], dist, carm, v, w, M, acc, alpha, inv_m, isI, sphere, fk);
+    if (vany(both))
+        vcontact_solve(m, 2, both, act[1], dist, carm, v, w, M, acc, alpha, inv_m, isI, sphere,
+                       fk);
+    return 1;
+}
+
+/* the contact wrench of rod r on every lane (F, T accumulate); f_s, t_s: the wrench of
+ * springs, control and the other effects */
+static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[2][3],
+                     const vd *f_s, const vd *t_s, vd *F, vd *T) {
+    const double *I = m->inertia + 3 * r, *o = m->origin + 3 * r;
+    const vd Iv[3] = {vsplat(I[0]), vsplat(I[1]), vsplat(I[2])};
+    const vd ov[3] = {vsplat(o[0]), vsplat(o[1]), vsplat(o[2])};
+    const vl sphere = vsplat(m->sphere[r]) != 0.0;
+    vd fk[2][3], carm[2][3];
+    if (!vrod_contact(m, x->p, x->v, x->w, M, arms, f_s, t_s, vsplat(m->mass[r]), Iv,
+                      vsplat(m->radius[r]), sphere, m->has_origin ? ov : NULL, fk, carm))
+        return;
     for (int k = 0; k < 2; k++) {
-        vl one = act[k] & ~both;
-        if (vany(one)) vcontact_cap(m, r, x, M, arms[k], &dist[k], one, acc, alpha, F, T);
+        vd tk[3];
+        vcross(carm[k], fk[k], tk);
+        for (int c = 0; c < 3; c++) { F[c] += fk[k][c]; T[c] += tk[c]; }
     }
-    if (!vany(both)) return;
-    /* both end caps on the floor (a rod lying flat): the coupled 8-edge problem, per lane */
-    for (int l = 0; l < TSR_W; l++) {
-        if (!both[l]) continue;
-        double p[3], v[3], w[3], Ms[9], a2[2][3], fs[3], ts[3], Fl[3] = {0}, Tl[3] = {0};
-        for (int i = 0; i < 3; i++) {
-            p[i] = x->p[i][l]; v[i] = x->v[i][l]; w[i] = x->w[i][l];
-            fs[i] = fs_o[i][l]; ts[i] = t_s[i][l];
-            a2[0][i] = arms[0][i][l]; a2[1][i] = arms[1][i][l];
+}
+
+/* GroundContact.contact_forces for the PyTorch engine: the contact force on every end
+ * cap of B assemblies of R rods, and its arm (contact point - centre of mass), by
+ * vrod_contact on W rows at a time.
+ * In: p, v, omega (B, R, 3) world frame; rot (B, R, 3, 3) body to world, row-major;
+ * arms (B, R, 2, 3) the end caps' offsets from the rods' centres; mass (B, R) and
+ * inertia (B, R, 3) or, with per_assembly = 0, (R) and (R, 3); f_s, t_s (B, R, 3) the
+ * applied wrench; radius (R); sphere (R) bytes (1: sphere end caps, contact frame t_1 =
+ * y); origin (R, 3) body-frame origins or NULL; gravity[3]; law[7] = {stiffness,
+ * damping, friction, impedance_min, impedance, width, height}.
+ * Out: force and arm (B, R, 2, 3). */
+int tsr_contact_forces(long B, int R, const double *p, const double *v, const double *omega,
+                       const double *rot, const double *arms, const double *mass,
+                       const double *inertia, int per_assembly, const double *f_s,
+                       const double *t_s, const double *radius, const unsigned char *sphere,
+                       const double *origin, const double *gravity, const double *law,
+                       int iterations, double *force, double *arm_out) {
+    Model m;
+    memset(&m, 0, sizeof(m));
+    m.k_c = law[0]; m.b_c = law[1]; m.mu = law[2];
+    m.d_min = law[3]; m.d_max = law[4]; m.width = law[5]; m.height = law[6];
+    m.soft = 2.0 * m.mu * m.mu * (1.0 + m.mu * m.mu);
+    for (int i = 0; i < 3; i++) m.g[i] = gravity[i];
+    m.iterations = iterations;
+    const long rows = B * R;
+    for (long blk = 0; blk < rows; blk += TSR_W) {
+        vd P[3], V[3], Wv[3], M[9], A[2][3], fs[3], ts[3], ms, I[3], rad, o[3];
+        vl sph;
+        for (int l = 0; l < TSR_W; l++) {
+            const long q = blk + l < rows ? blk + l : rows - 1; /* the last block padded */
+            const int r = (int)(q % R);
+            const long at = per_assembly ? q : r;
+            for (int i = 0; i < 3; i++) {
+                P[i][l] = p[3 * q + i]; V[i][l] = v[3 * q + i]; Wv[i][l] = omega[3 * q + i];
+                fs[i][l] = f_s[3 * q + i]; ts[i][l] = t_s[3 * q + i];
+                A[0][i][l] = arms[6 * q + i]; A[1][i][l] = arms[6 * q + 3 + i];
+                I[i][l] = inertia[3 * at + i];
+                o[i][l] = origin ? origin[3 * r + i] : 0.0;
+            }
+            for (int i = 0; i < 9; i++) M[i][l] = rot[9 * q + i];
+            ms[l] = mass[at];
+            rad[l] = radius[r];
+            sph[l] = sphere[r] ? -1 : 0;
         }
-        for (int i = 0; i < 9; i++) Ms[i] = M[i][l];
-        contact_wrench(m, r, p, v, w, Ms, a2, fs, ts, Fl, Tl);
-        for (int i = 0; i < 3; i++) { F[i][l] += Fl[i]; T[i][l] += Tl[i]; }
+        vd fk[2][3], carm[2][3];
+        vrod_contact(&m, P, V, Wv, M, A, fs, ts, ms, I, rad, sph, origin ? o : NULL, fk, carm);
+        for (int l = 0; l < TSR_W && blk + l < rows; l++)
+            for (int k = 0; k < 2; k++)
+                for (int i = 0; i < 3; i++) {
+                    force[6 * (blk + l) + 3 * k + i] = fk[k][i][l];
+                    arm_out[6 * (blk + l) + 3 * k + i] = carm[k][i][l];
+                }
     }
+    return 0;
 }
 
 /* one physics step of W assemblies (R rods each) */

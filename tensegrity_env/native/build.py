@@ -1,6 +1,6 @@
 """Build and load small C kernels once per machine, with the system C compiler.
 
-Used by the environments' control step (:mod:`tensegrity_env.envs.native`) and the
+Used by the spring-rod kernel (:mod:`tensegrity_env.native.kernel`) and the
 identification's normal equations (:mod:`identification.linear.native_normal`). A kernel is
 compiled with ``$CC`` (else ``cc``/``gcc``) into a cache folder
 (``$TENSEGRITY_SR_CACHE``, else ``$XDG_CACHE_HOME/tensegrity-sr`` or

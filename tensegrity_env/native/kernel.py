@@ -1,0 +1,89 @@
+"""The C kernel ``native_step.c``, loaded: the identified model's step and the ground
+contact's forces.
+
+Built once per machine by :mod:`tensegrity_env.native.build` (about a second). Its
+callers: the environments' stepper (:class:`~tensegrity_env.envs.physics.NativeStepper`),
+the engine's no-gradient step (:mod:`tensegrity_env.native.engine_step`) and the ground
+contact's law where no gradient is wanted
+(:meth:`~tensegrity_env.effects.ground_contact.GroundContact.contact_forces`). When no
+compiler works, :func:`load_kernel` raises :class:`NativeUnavailable` and
+:func:`usable_kernel` returns None: the callers step PyTorch instead.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from functools import lru_cache
+from pathlib import Path
+
+import torch
+
+from tensegrity_env.native.build import NativeUnavailable, build_and_load
+
+SOURCE = Path(__file__).with_name("native_step.c")
+
+#: whether the kernel may stand in for PyTorch where no gradient is wanted (the ground
+#: contact's law and ``Engine(native=True)``); tests and benchmarks switch it off to
+#: compare with PyTorch
+USE_NATIVE = True
+
+__all__ = ["SOURCE", "USE_NATIVE", "NativeUnavailable", "load_kernel", "usable_kernel"]
+
+
+@lru_cache(maxsize=1)
+def load_kernel() -> tuple[ctypes.CDLL, bool]:
+    """The loaded library and whether it has OpenMP. Raises :class:`NativeUnavailable`."""
+    lib, openmp = build_and_load(SOURCE)
+    dbl, i32 = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
+    c_int = ctypes.c_int
+    lib.tsr_step.argtypes = [
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, i32, c_int
+    ]  # fmt: skip
+    lib.tsr_step.restype = c_int
+    lib.tsr_step_groups.argtypes = [
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, c_int,
+        ctypes.POINTER(ctypes.c_long), i32, c_int,
+    ]  # fmt: skip
+    lib.tsr_step_groups.restype = c_int
+    lib.tsr_model_size.argtypes = [c_int, c_int, c_int, c_int]
+    lib.tsr_model_size.restype = c_int
+    ptr = ctypes.c_void_p
+    lib.tsr_contact_forces.argtypes = [
+        ctypes.c_long, c_int, *[ptr] * 7, c_int, *[ptr] * 7, c_int, ptr, ptr
+    ]  # fmt: skip
+    lib.tsr_contact_forces.restype = c_int
+    lib.tsr_max_rods.restype = c_int
+    lib.tsr_max_nodes.restype = c_int
+    lib.tsr_max_points.restype = c_int
+    return lib, openmp
+
+
+@lru_cache(maxsize=1)
+def _loaded() -> ctypes.CDLL | None:
+    """The loaded library, or None where no C compiler works."""
+    try:
+        return load_kernel()[0]
+    except NativeUnavailable:
+        return None
+
+
+def unusable_reason(*tensors: torch.Tensor) -> str | None:
+    """Why the kernel may not take ``tensors`` (None: it may): it is switched off
+    (:data:`USE_NATIVE`), a tensor is not float64 on the CPU, a gradient is wanted
+    through one, or no C compiler works here."""
+    if not USE_NATIVE:
+        return "the C kernel is switched off (tensegrity_env.native.kernel.USE_NATIVE)"
+    grad = torch.is_grad_enabled()
+    for t in tensors:
+        if t.device.type != "cpu" or t.dtype != torch.float64:
+            return f"the kernel takes float64 on the CPU, got {t.dtype} on {t.device.type}"
+        if grad and t.requires_grad:
+            return "a gradient is wanted"
+    if _loaded() is None:
+        return "no C compiler builds the kernel here"
+    return None
+
+
+def usable_kernel(*tensors: torch.Tensor) -> ctypes.CDLL | None:
+    """The loaded kernel where it may take ``tensors`` (:func:`unusable_reason`), else None."""
+    return None if unusable_reason(*tensors) is not None else _loaded()

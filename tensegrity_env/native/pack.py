@@ -1,0 +1,239 @@
+"""One adapter from a model to the C kernel: :func:`pack_model`.
+
+The environments' stepper and the engine's no-gradient step both pack their model here:
+the topology, the parameters (one set, or one per run of assemblies that share them)
+and the effects the kernel has (:func:`effects_block`: ground contact, linear drag
+(explicit or implicit), quadratic drag, a force field, cubic stiffness, rest-length
+offsets, slack springs), in ``native_step.c``'s layout. A model the kernel does not
+compute raises :class:`NotNative` with the reason.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from tensegrity_env.effects import (
+    CubicStiffness,
+    ForceField,
+    GroundContact,
+    ImplicitLinearDrag,
+    LinearDrag,
+    QuadraticDrag,
+    RestLengthOffset,
+    SlackSprings,
+)
+from tensegrity_env.topology import Topology
+
+#: the contact law's parameters in the order the kernel's model takes them
+CONTACT_LAW = ("stiffness", "damping", "impedance", "impedance_min", "width", "friction",
+               "height")  # fmt: skip
+
+#: entries of the kernel's effects block besides the per-spring ones: linear drag b, β,
+#: quadratic drag k, κ (3 each, per rod axis), a force field (3) and the linear damping
+#: integrated implicitly b, β (3 each)
+EFFECT_HEAD = 21
+
+#: the parameters a batch dimension may vary, with their unbatched number of dimensions
+BATCHED = {"stiffness": 1, "damping": 1, "rest_length": 1, "mass": 1, "inertia": 2,
+           "control_gain": 0}  # fmt: skip
+
+#: the parameters the kernel's model holds (the batched ones and gravity (3,))
+PACKED_PARAMS = (*BATCHED, "gravity")
+
+__all__ = ["BATCHED", "CONTACT_LAW", "EFFECT_HEAD", "PACKED_PARAMS", "NotNative",
+           "PackedModel", "effects_block", "model_vector", "pack_model"]  # fmt: skip
+
+
+class NotNative(ValueError):
+    """The kernel does not compute this model (the message says why)."""
+
+
+@dataclass(frozen=True)
+class PackedModel:
+    """A model in the kernel's layout.
+
+    Attributes:
+        models: (G, L) float64, one packed model per run of assemblies (G = 1 where
+            every assembly shares the parameters).
+        start: (G + 1,) int64, where each model's run of assemblies starts, then the
+            batch size (``[0, B]`` for one model; ``[0, 0]`` where the batch is open).
+    """
+
+    models: np.ndarray
+    start: np.ndarray
+
+
+def pack_model(
+    topology: Topology,
+    params: Mapping[str, torch.Tensor],
+    effects: Sequence[object],
+    batch: int | None = None,
+) -> PackedModel:
+    """``topology`` with ``params`` (:data:`PACKED_PARAMS`: the
+    :class:`~tensegrity_env.params.Params` fields of those names) and ``effects``, in
+    the kernel's layout.
+
+    ``batch``: the number of assemblies B it will step. Parameters with a batch
+    dimension (B, ·) (a forward-difference Jacobian's perturbed copies) give one model
+    per run of consecutive assemblies that share them; None: one model for any batch
+    (batched parameters are refused).
+
+    Raises:
+        NotNative: an effect the kernel does not have, or parameters it does not take.
+    """
+    if params["gravity"].numel() != 3:
+        raise NotNative("gravity is not one vector (3,)")
+    contact, block, radius = effects_block(effects, topology)
+    batched = {k: params[k].dim() > n for k, n in BATCHED.items()}
+    values: dict[str, np.ndarray]
+    if any(batched.values()):
+        if batch is None:
+            raise NotNative("parameters with a batch dimension")
+        start = _runs(_model_rows(params, batched, batch))
+        first = torch.as_tensor(start[:-1])
+        G = len(first)
+        values = {"gravity": _array(params["gravity"])}
+        for k in BATCHED:
+            v = params[k].detach()
+            v = v[first] if batched[k] else v.unsqueeze(0).expand(G, *v.shape)
+            values[k] = _array(v.reshape(G, -1))
+    else:
+        values = {k: _array(params[k]) for k in PACKED_PARAMS}
+        start = np.array([0, 0 if batch is None else batch], dtype=np.int64)
+    models = model_vector(topology, values, contact, radius, block)
+    return PackedModel(np.ascontiguousarray(models.reshape(-1, models.shape[-1])), start)
+
+
+def effects_block(
+    effects: Sequence[object], topology: Topology
+) -> tuple[dict[str, float] | None, np.ndarray, np.ndarray]:
+    """The kernel's view of ``effects``: the ground contact's law (None without one),
+    the effects block (``native_step.c``'s layout, :data:`EFFECT_HEAD` + 3 S) and the
+    end caps' contact radii (R,) [m].
+
+    Raises:
+        NotNative: an effect with no native form, or parameters not the single set the
+            kernel takes (a batch of them).
+    """
+    S = topology.n_springs
+    block = np.zeros(EFFECT_HEAD + 3 * S)
+    contact, radius = None, None
+    where = {LinearDrag: (0, ("translational", "rotational")),
+             QuadraticDrag: (6, ("translational", "rotational")), ForceField: (12, ("force",)),
+             CubicStiffness: (EFFECT_HEAD, ("stiffness",)),
+             RestLengthOffset: (EFFECT_HEAD + S, ("offset",))}  # fmt: skip
+    for e in effects:
+        values: dict[str, torch.Tensor] = getattr(e, "values", {})
+        kind = type(e)
+        name = getattr(e, "name", kind.__name__)
+        if kind is GroundContact:
+            if contact is not None:
+                raise NotNative("more than one ground_contact effect")
+            if not all(v.numel() == 1 for v in values.values()):
+                raise NotNative("ground_contact: the kernel takes one value per parameter")
+            contact = {k: float(v.detach()) for k, v in values.items()}
+            radius = e.radius.detach().cpu().double().numpy()
+        elif kind is ImplicitLinearDrag:  # its wrench, and its damping implicitly
+            flat = _flat(values, ("translational", "rotational"))
+            if flat.size != 6:
+                raise NotNative(f"{name}: the kernel takes one value per rod axis")
+            block[0:6] += flat
+            block[15:21] += flat
+        elif kind in where:
+            at, keys = where[kind]
+            flat = _flat(values, keys)
+            width = 6 if kind in (LinearDrag, QuadraticDrag) else (3 if kind is ForceField else S)
+            if flat.size != width:
+                raise NotNative(f"{name}: the kernel takes {width} values, got {flat.size}")
+            block[at : at + width] += flat
+        elif kind is SlackSprings:
+            block[EFFECT_HEAD + 2 * S + values["springs"].cpu().numpy().astype(int)] = 1.0
+        else:
+            raise NotNative(f"effect '{name}' has no native form")
+    if radius is None:
+        radius = np.zeros(topology.n_rods)
+    return contact, block, radius
+
+
+def model_vector(
+    topology: Topology,
+    params: Mapping[str, np.ndarray],
+    contact: Mapping[str, float] | None,
+    radius: np.ndarray,
+    effects: np.ndarray | None = None,
+) -> np.ndarray:
+    """The kernel's packed model (``native_step.c``'s layout) of ``topology`` with
+    ``params`` (arrays of :data:`PACKED_PARAMS`) and the ground contact's ``contact``
+    values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R,) [m] the end caps'
+    contact radii; ``effects`` the effects block (:data:`EFFECT_HEAD` + 3 S entries;
+    None: no effect beside contact).
+
+    ``params`` may carry a batch dimension (stiffness (G, S), mass (G, R), inertia
+    (G, R, 3), control gain (G, ...)): one model per row, (G, L); else (L,).
+    """
+    S = topology.n_springs
+    c = np.zeros(8) if contact is None else np.array([1.0, *(contact[k] for k in CONTACT_LAW)])
+    if effects is None:
+        effects = np.zeros(EFFECT_HEAD + 3 * S)
+    stiffness = np.asarray(params["stiffness"], dtype=np.float64)
+    G = stiffness.shape[0] if stiffness.ndim == 2 else 0
+    rows = max(G, 1)
+
+    def per_model(x: np.ndarray, width: int) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        return x.reshape(rows, width) if G and x.size == G * width else np.broadcast_to(
+            x.reshape(-1)[:width], (rows, width))  # fmt: skip
+
+    R = topology.n_rods
+    parts = [
+        per_model(topology.end_offsets, 6 * R), per_model(topology.control_arms, 3 * R),
+        per_model(topology.anchor_positions, 3 * topology.n_anchors),
+        per_model(stiffness, S), per_model(params["damping"], S),
+        per_model(params["rest_length"], S), per_model(params["mass"], R),
+        per_model(params["inertia"], 3 * R), per_model(params["control_gain"], 1),
+        per_model(params["gravity"], 3), per_model(c, 8), per_model(radius, R),
+        per_model(topology.frame_origins, 3 * R),
+        per_model(np.array([float(r.end_cap == "sphere") for r in topology.rods]), R),
+        per_model(np.array([float(topology.n_points)]), 1),
+        per_model(topology.point_rods.astype(float), topology.n_points),
+        per_model(topology.point_offsets, 3 * topology.n_points),
+        per_model(effects, EFFECT_HEAD + 3 * S),
+    ]  # fmt: skip
+    out = np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=np.float64)
+    return out if G else out[0]
+
+
+def _array(t: torch.Tensor) -> np.ndarray:
+    """``t`` as a float64 NumPy array (detached, on the CPU)."""
+    return np.asarray(t.detach().cpu().numpy(), dtype=np.float64)
+
+
+def _flat(values: Mapping[str, torch.Tensor], keys: Sequence[str]) -> np.ndarray:
+    """The effect's ``keys`` values one after the other, float64, flat."""
+    return np.concatenate([values[k].detach().cpu().double().numpy().reshape(-1) for k in keys])
+
+
+def _model_rows(
+    params: Mapping[str, torch.Tensor], batched: Mapping[str, bool], B: int
+) -> torch.Tensor:
+    """The batched parameters side by side, one row per assembly (B, ·). Raises
+    :class:`NotNative` where a batch dimension is not the state's."""
+    cols = []
+    for k, b in batched.items():
+        if not b:
+            continue
+        v = params[k].detach()
+        if v.shape[0] != B:
+            raise NotNative(f"{k} has a batch of {v.shape[0]}, the state one of {B}")
+        cols.append(v.reshape(B, -1))
+    return torch.cat(cols, dim=1)
+
+
+def _runs(rows: torch.Tensor) -> np.ndarray:
+    """Where each run of equal consecutive rows starts, and the end: (G + 1,)."""
+    change = torch.nonzero((rows[1:] != rows[:-1]).any(dim=1))[:, 0] + 1
+    return np.concatenate([[0], change.numpy(), [rows.shape[0]]]).astype(np.int64)

@@ -12,6 +12,7 @@ from tqdm import tqdm
 
 from identification.data.dataset import write_dataset
 from identification.data.mocap.commands import hold_commands, read_commands
+from identification.data.mocap.formats import read_recording
 from identification.data.mocap.importer import (
     ImportedTake,
     build_dataset,
@@ -22,7 +23,7 @@ from identification.data.mocap.importer import (
     read_robot,
 )
 from identification.data.mocap.marker_map import read_marker_map
-from identification.data.mocap.recording import MarkerRecording, read_recording
+from identification.data.mocap.recording import MarkerRecording
 from identification.data.quality import PLACEHOLDER_KINDS
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.mjcf.end_caps import add_end_caps_option

@@ -16,7 +16,7 @@ from identification.data.dataset import (
     read_ground_truth,
 )
 from identification.data.end_caps import cap_names
-from identification.data.mocap.recording import MOCAP_SUFFIXES, read_recording
+from identification.data.mocap.formats import MOCAP_SUFFIXES, read_recording
 from identification.data.mocap.summary import recording_text
 from identification.data.quality import plot_quality, quality_text, sample_quality
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file

@@ -34,7 +34,7 @@ from tensegrity_env.rotations import (
 from tensegrity_env.topology import Topology
 
 if TYPE_CHECKING:
-    from identification.simulation.generate import GenerateSpec, InitialConditions
+    from identification.simulation.spec import GenerateSpec, InitialConditions
 
 #: How far above its nominal pose the built-in element is lifted when a floor is on [m].
 ELEMENT_GROUND_LIFT = 0.5

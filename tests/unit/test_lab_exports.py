@@ -12,7 +12,7 @@ import pytest
 from identification.data.dataset import Dataset, Split, write_dataset
 from identification.data.end_caps import check_caps_seen
 from identification.data.mocap.csv_files import write_plain_csv
-from identification.data.mocap.recording import read_recording
+from identification.data.mocap.formats import read_recording
 from identification.data.quality import placeholder_samples, sample_quality
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.io_utils import InputError

@@ -7,6 +7,7 @@ seen, with labels or as an unlabelled point cloud per frame. The importer
 and writes the public dataset format.
 """
 
-from identification.data.mocap.recording import MarkerRecording, read_recording
+from identification.data.mocap.formats import read_recording
+from identification.data.mocap.recording import MarkerRecording
 
 __all__ = ["MarkerRecording", "read_recording"]

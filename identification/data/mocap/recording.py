@@ -108,29 +108,3 @@ def unit_scale(name: str | None, where: Path, option: str | None) -> float:
                 raise InputError(f"{where}: unknown length unit {given!r} (use m or mm)")
             return UNIT_SCALE[key]
     raise InputError(f"{where}: the file does not state its length unit; pass --units mm or m")
-
-
-#: file extensions :func:`read_recording` reads
-MOCAP_SUFFIXES = (".c3d", ".csv", ".txt", ".tsv")
-
-
-def read_recording(path: str | Path, units: str | None = None, up: str = "z") -> MarkerRecording:
-    """Read a C3D file, a Qualisys TSV export, an OptiTrack Motive or Vicon Nexus CSV
-    export or a plain CSV, by content; placeholder samples for unseen markers are read
-    as NaN.
-
-    ``units`` (``"m"``/``"mm"``) is used only where the file does not say; ``up``: the
-    file's vertical axis (``x``, ``y`` or ``z``), rotated to z.
-    """
-    from identification.data.mocap import c3d_files, csv_files, tsv_files
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such motion-capture file")
-    if p.suffix.lower() == ".c3d":
-        return c3d_files.read_c3d(p, units).check().without_placeholders().z_up(up)
-    if p.suffix.lower() in (".csv", ".txt"):
-        return csv_files.read_csv(p, units).check().without_placeholders().z_up(up)
-    if p.suffix.lower() == ".tsv":
-        return tsv_files.read_qtm_tsv(p, units).check().without_placeholders().z_up(up)
-    raise InputError(f"{p}: unknown motion-capture format (expected .c3d, .csv or .tsv)")

@@ -330,14 +330,16 @@ static void vcontact_solve(const Model *m, int caps, vl lanes, vl second, const 
 
 /* The contact on one rod, every lane. In, per lane: p, v, w the rod's centre of mass,
  * its velocity and angular velocity (world); M (3 x 3, body to world); arms[k] end cap
- * k's offset from the centre of mass; f_s, t_s the applied force and torque; mass, I
- * (principal inertia), radius (the end caps' contact radius), sphere (sphere end caps);
+ * k's offset from the centre of mass; f_s, t_s the applied force and torque; inv_m = 1 /
+ * mass, I (principal inertia) and isI = 1 / sqrt(I), radius (the end caps' contact
+ * radius), sphere (sphere end caps);
  * origin the body-frame origin in the principal frame, or NULL (at the centre of mass).
  * Out: fk[k] the contact force on end cap k (0 off the floor), carm[k] its arm (contact
  * point - centre of mass). Returns whether any lane touches. */
 static int vrod_contact(const Model *m, const vd *p, const vd *v, const vd *w, const vd *M,
-                        vd arms[2][3], const vd *f_s, const vd *t_s, vd mass, const vd *I,
-                        vd radius, vl sphere, const vd *origin, vd fk[2][3], vd carm[2][3]) {
+                        vd arms[2][3], const vd *f_s, const vd *t_s, vd inv_m, const vd *I,
+                        const vd *isI, vd radius, vl sphere, const vd *origin, vd fk[2][3],
+                        vd carm[2][3]) {
     vd dist[2];
     vl act[2];
     for (int k = 0; k < 2; k++) {
@@ -349,9 +351,6 @@ static int vrod_contact(const Model *m, const vd *p, const vd *v, const vd *w, c
         for (int i = 0; i < 3; i++) fk[k][i] = vsplat(0.0);
     }
     if (!vany(act[0] | act[1])) return 0;
-    const vd inv_m = 1.0 / mass;
-    vd isI[3];
-    for (int i = 0; i < 3; i++) isI[i] = 1.0 / vsqrt(I[i]);
     /* free accelerations without contact: gravity, the applied wrench, gyroscopic terms */
     vd acc[3], wl[3], tl[3], Iw[3], gyro[3], alpha[3];
     for (int i = 0; i < 3; i++) acc[i] = f_s[i] * inv_m + m->g[i];
@@ -382,10 +381,11 @@ static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[
                      const vd *f_s, const vd *t_s, vd *F, vd *T) {
     const double *I = m->inertia + 3 * r, *o = m->origin + 3 * r;
     const vd Iv[3] = {vsplat(I[0]), vsplat(I[1]), vsplat(I[2])};
+    const vd isI[3] = {vsplat(1.0 / sqrt(I[0])), vsplat(1.0 / sqrt(I[1])), vsplat(1.0 / sqrt(I[2]))};
     const vd ov[3] = {vsplat(o[0]), vsplat(o[1]), vsplat(o[2])};
     const vl sphere = vsplat(m->sphere[r]) != 0.0;
     vd fk[2][3], carm[2][3];
-    if (!vrod_contact(m, x->p, x->v, x->w, M, arms, f_s, t_s, vsplat(m->mass[r]), Iv,
+    if (!vrod_contact(m, x->p, x->v, x->w, M, arms, f_s, t_s, vsplat(1.0 / m->mass[r]), Iv, isI,
                       vsplat(m->radius[r]), sphere, m->has_origin ? ov : NULL, fk, carm))
         return;
     for (int k = 0; k < 2; k++) {
@@ -420,7 +420,7 @@ int tsr_contact_forces(long B, int R, const double *p, const double *v, const do
     m.iterations = iterations;
     const long rows = B * R;
     for (long blk = 0; blk < rows; blk += TSR_W) {
-        vd P[3], V[3], Wv[3], M[9], A[2][3], fs[3], ts[3], ms, I[3], rad, o[3];
+        vd P[3], V[3], Wv[3], M[9], A[2][3], fs[3], ts[3], im, I[3], isI[3], rad, o[3];
         vl sph;
         for (int l = 0; l < TSR_W; l++) {
             const long q = blk + l < rows ? blk + l : rows - 1; /* the last block padded */
@@ -431,15 +431,16 @@ int tsr_contact_forces(long B, int R, const double *p, const double *v, const do
                 fs[i][l] = f_s[3 * q + i]; ts[i][l] = t_s[3 * q + i];
                 A[0][i][l] = arms[6 * q + i]; A[1][i][l] = arms[6 * q + 3 + i];
                 I[i][l] = inertia[3 * at + i];
+                isI[i][l] = 1.0 / sqrt(inertia[3 * at + i]);
                 o[i][l] = origin ? origin[3 * r + i] : 0.0;
             }
             for (int i = 0; i < 9; i++) M[i][l] = rot[9 * q + i];
-            ms[l] = mass[at];
+            im[l] = 1.0 / mass[at];
             rad[l] = radius[r];
             sph[l] = sphere[r] ? -1 : 0;
         }
         vd fk[2][3], carm[2][3];
-        vrod_contact(&m, P, V, Wv, M, A, fs, ts, ms, I, rad, sph, origin ? o : NULL, fk, carm);
+        vrod_contact(&m, P, V, Wv, M, A, fs, ts, im, I, isI, rad, sph, origin ? o : NULL, fk, carm);
         for (int l = 0; l < TSR_W && blk + l < rows; l++)
             for (int k = 0; k < 2; k++)
                 for (int i = 0; i < 3; i++) {

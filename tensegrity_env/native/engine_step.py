@@ -21,14 +21,19 @@ from __future__ import annotations
 import ctypes
 import logging
 from collections.abc import Sequence
-from typing import Protocol
 
 import numpy as np
 import torch
 
 from tensegrity_env.effects.ground_contact import ACTIVE_SET_ITERATIONS
-from tensegrity_env.native.kernel import unusable_reason, usable_kernel
+from tensegrity_env.native.kernel import (
+    GRADIENT_WANTED,
+    SWITCHED_OFF,
+    unusable_reason,
+    usable_kernel,
+)
 from tensegrity_env.native.pack import PACKED_PARAMS, NotNative, PackedModel, pack_model
+from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 LOG = logging.getLogger("tensegrity_env.native")
@@ -36,24 +41,13 @@ LOG = logging.getLogger("tensegrity_env.native")
 __all__ = ["FallbackLog", "ModelCache", "NativeEngineStep"]
 
 
-class ParamsLike(Protocol):
-    """The :class:`~tensegrity_env.params.Params` fields the kernel reads."""
-
-    stiffness: torch.Tensor
-    damping: torch.Tensor
-    rest_length: torch.Tensor
-    mass: torch.Tensor
-    inertia: torch.Tensor
-    control_gain: torch.Tensor
-    gravity: torch.Tensor
-
-
 class FallbackLog:
     """Logs why a step that asked for the kernel ran in PyTorch, once per reason.
 
-    A gradient wanted is the kernel's design (it has none) and is logged at INFO; every
-    other reason (an effect without a native form, parameters or dtypes it does not
-    take, cable commands, no compiler) is a step slower than it could be, at WARNING.
+    A gradient wanted (the kernel has none) and the kernel switched off are choices,
+    logged at INFO; every other reason (an effect without a native form, parameters or
+    dtypes it does not take, cable commands, no compiler) is a step slower than it could
+    be, at WARNING.
     """
 
     def __init__(self) -> None:
@@ -63,7 +57,7 @@ class FallbackLog:
         if reason in self.seen:
             return
         self.seen.add(reason)
-        level = logging.INFO if reason == "a gradient is wanted" else logging.WARNING
+        level = logging.INFO if reason in (GRADIENT_WANTED, SWITCHED_OFF) else logging.WARNING
         LOG.log(level, "Engine(native=True): stepping PyTorch instead of the C kernel: %s", reason)
 
 
@@ -127,7 +121,7 @@ class NativeEngineStep:
     def __call__(
         self,
         state: Sequence[torch.Tensor],
-        params: ParamsLike,
+        params: Params,
         control: torch.Tensor | None,
         cables: torch.Tensor | None,
     ) -> torch.Tensor | None:
@@ -143,7 +137,7 @@ class NativeEngineStep:
     def _step(
         self,
         state: Sequence[torch.Tensor],
-        params: ParamsLike,
+        params: Params,
         control: torch.Tensor | None,
         cables: torch.Tensor | None,
     ) -> torch.Tensor:
@@ -151,20 +145,21 @@ class NativeEngineStep:
             raise NotNative("cable commands")
         B, R = state[0].shape[:2]
         fields = {k: getattr(params, k) for k in PACKED_PARAMS}
-        if fields["gravity"].numel() != 3:
-            raise NotNative("gravity is not one vector (3,)")
         tensors = [*state, *fields.values()]
         if control is not None:
             tensors.append(control)
-        lib = usable_kernel(*tensors)
-        if lib is None:
-            raise NotNative(unusable_reason(*tensors) or "the kernel is unavailable")
+        reason = unusable_reason(*tensors)
+        if reason is not None:
+            raise NotNative(reason)
+        lib = usable_kernel()
+        if lib is None:  # pragma: no cover - unusable_reason says why first
+            raise NotNative("the kernel is unavailable")
         if torch.is_grad_enabled() and any(
             torch.is_tensor(v) and v.requires_grad
             for e in self.effects
             for v in getattr(e, "values", {}).values()
         ):
-            raise NotNative("a gradient is wanted")
+            raise NotNative(GRADIENT_WANTED)
         order = [fields[k] for k in PACKED_PARAMS]
         model = self.cache.get(order, B)
         if model is None:

@@ -27,7 +27,13 @@ SOURCE = Path(__file__).with_name("native_step.c")
 #: compare with PyTorch
 USE_NATIVE = True
 
-__all__ = ["SOURCE", "USE_NATIVE", "NativeUnavailable", "load_kernel", "usable_kernel"]
+#: the reason given where a gradient is wanted through a tensor (the kernel has none)
+GRADIENT_WANTED = "a gradient is wanted"
+#: the reason given where :data:`USE_NATIVE` is off
+SWITCHED_OFF = "the C kernel is switched off (tensegrity_env.native.kernel.USE_NATIVE)"
+
+__all__ = ["GRADIENT_WANTED", "SOURCE", "SWITCHED_OFF", "USE_NATIVE", "NativeUnavailable", "load_kernel",
+           "unusable_reason", "usable_kernel"]  # fmt: skip
 
 
 @lru_cache(maxsize=1)
@@ -72,13 +78,13 @@ def unusable_reason(*tensors: torch.Tensor) -> str | None:
     (:data:`USE_NATIVE`), a tensor is not float64 on the CPU, a gradient is wanted
     through one, or no C compiler works here."""
     if not USE_NATIVE:
-        return "the C kernel is switched off (tensegrity_env.native.kernel.USE_NATIVE)"
+        return SWITCHED_OFF
     grad = torch.is_grad_enabled()
     for t in tensors:
         if t.device.type != "cpu" or t.dtype != torch.float64:
             return f"the kernel takes float64 on the CPU, got {t.dtype} on {t.device.type}"
         if grad and t.requires_grad:
-            return "a gradient is wanted"
+            return GRADIENT_WANTED
     if _loaded() is None:
         return "no C compiler builds the kernel here"
     return None

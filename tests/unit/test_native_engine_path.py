@@ -17,7 +17,7 @@ from tensegrity_env.envs.physics import NativeStepper, pack_states
 from tensegrity_env.envs.twin import face_down_pose, twin_assembly
 from tensegrity_env.native.engine_step import FallbackLog
 from tensegrity_env.native.kernel import usable_kernel
-from tensegrity_env.native.pack import NotNative
+from tensegrity_env.native.pack import PACKED_PARAMS, NotNative
 from tensegrity_env.params import Params
 
 pytestmark = pytest.mark.skipif(
@@ -189,3 +189,28 @@ def test_environments_step_every_native_effect_by_the_same_packing() -> None:
     assert np.abs(x - pack_states(ref)).max() < ROUND_OFF
     with pytest.raises(NotNative, match="compression_stiffness"):
         NativeStepper(a.topology, a.params, [CompressionStiffness(a.topology)], 1e-3, 50)
+
+
+def test_the_packed_model_follows_the_parameters() -> None:
+    """The cache packs once for the same parameter tensors and again when one changes in
+    place or is another tensor: every step equals the PyTorch engine's."""
+    a = twin_assembly()
+    state = _tumbling(3, 6)
+    kw = {"topology": a.topology, "dt": 1 / 120, "effects": [fx.GroundContact(a.topology)],
+          "substeps": 9}  # fmt: skip
+    torch_engine, engine = Engine(**kw), Engine(**kw, native=True)
+    params = a.params.replace(stiffness=a.params.stiffness.clone())
+    packed = []
+    with torch.no_grad():
+        for change in (None, None, "in place", "new tensor"):
+            if change == "in place":
+                params.stiffness.mul_(1.2)
+            elif change == "new tensor":
+                params = params.replace(stiffness=params.stiffness * 0.7)
+            ref = pack_states(torch_engine.step(state, params))
+            mine = pack_states(engine.step(state, params))
+            assert np.abs(mine - ref).max() < ROUND_OFF
+            packed.append(engine.native_step.cache.get(  # type: ignore[union-attr]
+                [getattr(params, k) for k in PACKED_PARAMS], 3))
+    assert packed[0] is packed[1]  # the same tensors: packed once
+    assert packed[1] is not packed[2] and packed[2] is not packed[3]

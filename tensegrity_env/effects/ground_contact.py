@@ -62,7 +62,7 @@ from tensegrity_env.engine.forces import (
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.native.kernel import usable_kernel
+from tensegrity_env.native.kernel import CONTACT_LAW, usable_kernel
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 from tensegrity_env.vec3 import dot, rotate, rotate_t, sum_small
@@ -81,9 +81,6 @@ MUJOCO_DEFAULT: dict[str, float] = {
 #: the :meth:`GroundContact.contact_geometry` entries the contact law reads per touching rod
 ROW_GEOMETRY = ("dist", "arm", "vel", "tangent")
 
-#: the contact's parameters in the order the C kernel's ``tsr_contact_forces`` reads them
-NATIVE_LAW = ("stiffness", "damping", "friction", "impedance_min", "impedance", "width",
-              "height")  # fmt: skip
 
 #: Most active-set iterations of the per-rod contact problem (8 unknowns: usually a few;
 #: near-parallel pyramid edges at small friction take more).
@@ -273,10 +270,11 @@ class GroundContact(PhysicalEffect):
         applied: tuple[torch.Tensor, torch.Tensor] | None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         """:meth:`contact_forces` by the C kernel (``tsr_contact_forces``: the geometry
-        and the law, rod by rod), where :func:`~tensegrity_env.native.kernel.usable_kernel` takes the inputs and the
+        and the law, rod by rod), where
+        :func:`~tensegrity_env.native.kernel.usable_kernel` takes the inputs and the
         contact's parameters are shared by every end cap; else None."""
         B, R = state.p.shape[:2]
-        law = [self.value(k, state.p) for k in NATIVE_LAW]
+        law = [self.value(k, state.p) for k in CONTACT_LAW]
         mass, inertia = params.mass, params.inertia
         per_assembly = mass.dim() == 2 and mass.shape[0] == B and B > 1
         if not per_assembly and (mass.numel() != R or inertia.numel() != 3 * R):

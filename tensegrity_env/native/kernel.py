@@ -27,13 +27,18 @@ SOURCE = Path(__file__).with_name("native_step.c")
 #: compare with PyTorch
 USE_NATIVE = True
 
+#: the contact law's parameters in the order the kernel takes them (``tsr_contact_forces``
+#: and the packed model's contact block)
+CONTACT_LAW = ("stiffness", "damping", "impedance", "impedance_min", "width", "friction",
+               "height")  # fmt: skip
+
 #: the reason given where a gradient is wanted through a tensor (the kernel has none)
 GRADIENT_WANTED = "a gradient is wanted"
 #: the reason given where :data:`USE_NATIVE` is off
 SWITCHED_OFF = "the C kernel is switched off (tensegrity_env.native.kernel.USE_NATIVE)"
 
-__all__ = ["GRADIENT_WANTED", "SOURCE", "SWITCHED_OFF", "USE_NATIVE", "NativeUnavailable", "load_kernel",
-           "unusable_reason", "usable_kernel"]  # fmt: skip
+__all__ = ["CONTACT_LAW", "GRADIENT_WANTED", "SOURCE", "SWITCHED_OFF", "USE_NATIVE",
+           "NativeUnavailable", "load_kernel", "unusable_reason", "usable_kernel"]  # fmt: skip
 
 
 @lru_cache(maxsize=1)

@@ -403,7 +403,8 @@ static void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[
  * inertia (B, R, 3) or, with per_assembly = 0, (R) and (R, 3); f_s, t_s (B, R, 3) the
  * applied wrench; radius (R); sphere (R) bytes (1: sphere end caps, contact frame t_1 =
  * y); origin (R, 3) body-frame origins or NULL; gravity[3]; law[7] = {stiffness,
- * damping, friction, impedance_min, impedance, width, height}.
+ * damping, impedance, impedance_min, width, friction, height} (the model's contact
+ * block without its on flag).
  * Out: force and arm (B, R, 2, 3). */
 int tsr_contact_forces(long B, int R, const double *p, const double *v, const double *omega,
                        const double *rot, const double *arms, const double *mass,
@@ -413,8 +414,8 @@ int tsr_contact_forces(long B, int R, const double *p, const double *v, const do
                        int iterations, double *force, double *arm_out) {
     Model m;
     memset(&m, 0, sizeof(m));
-    m.k_c = law[0]; m.b_c = law[1]; m.mu = law[2];
-    m.d_min = law[3]; m.d_max = law[4]; m.width = law[5]; m.height = law[6];
+    m.k_c = law[0]; m.b_c = law[1]; m.d_max = law[2];
+    m.d_min = law[3]; m.width = law[4]; m.mu = law[5]; m.height = law[6];
     m.soft = 2.0 * m.mu * m.mu * (1.0 + m.mu * m.mu);
     for (int i = 0; i < 3; i++) m.g[i] = gravity[i];
     m.iterations = iterations;

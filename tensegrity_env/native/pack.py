@@ -26,11 +26,8 @@ from tensegrity_env.effects import (
     RestLengthOffset,
     SlackSprings,
 )
+from tensegrity_env.native.kernel import CONTACT_LAW
 from tensegrity_env.topology import Topology
-
-#: the contact law's parameters in the order the kernel's model takes them
-CONTACT_LAW = ("stiffness", "damping", "impedance", "impedance_min", "width", "friction",
-               "height")  # fmt: skip
 
 #: entries of the kernel's effects block besides the per-spring ones: linear drag b, β,
 #: quadratic drag k, κ (3 each, per rod axis), a force field (3) and the linear damping
@@ -44,7 +41,7 @@ BATCHED = {"stiffness": 1, "damping": 1, "rest_length": 1, "mass": 1, "inertia":
 #: the parameters the kernel's model holds (the batched ones and gravity (3,))
 PACKED_PARAMS = (*BATCHED, "gravity")
 
-__all__ = ["BATCHED", "CONTACT_LAW", "EFFECT_HEAD", "PACKED_PARAMS", "NotNative",
+__all__ = ["BATCHED", "EFFECT_HEAD", "PACKED_PARAMS", "NotNative",
            "PackedModel", "effects_block", "model_vector", "pack_model"]  # fmt: skip
 
 

@@ -302,13 +302,12 @@ class EndCapData:
             self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
         win = cut_windows(split.nodes, split.control, grid, steps, split.cable_control)
-        radii = torch.as_tensor(cap_radii(self.topology))
         if airborne:
-            gap = win.obs[..., 2] - radii
+            gap = seen_gaps(win, self.topology)
             win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))
         rng = np.random.default_rng([self.seed, stream])
-        if lift_off and win.size > count:  # (unseen end caps read 0: not in the air)
-            in_air = ((win.obs[:, 0, :, 2] - radii).amin(dim=1) > AIRBORNE).numpy()
+        if lift_off and win.size > count:
+            in_air = (seen_gaps(win, self.topology)[:, 0].amin(dim=1) > AIRBORNE).numpy()
             air, ground = (
                 rng.permutation(np.flatnonzero(in_air)),
                 rng.permutation(np.flatnonzero(~in_air)),
@@ -319,6 +318,16 @@ class EndCapData:
         if win.size > count:
             win = win.take(np.sort(rng.choice(win.size, count, replace=False)))
         return win
+
+
+def seen_gaps(win: Windows, topology: Topology) -> torch.Tensor:
+    """Height of every measured end cap of ``win`` above touching the floor (z = 0),
+    (B, W+1, 2R) [m]; +inf where the end cap is not seen (a gap vetoes nothing)."""
+    gap = win.obs[..., 2] - torch.as_tensor(cap_radii(topology))
+    if win.valid is None:
+        return gap
+    seen = win.valid if win.valid.dim() == 3 else win.valid[..., None].expand_as(gap)
+    return torch.where(seen, gap, torch.full_like(gap, torch.inf))
 
 
 def airborne_keep(data: EndCapData) -> np.ndarray | None:

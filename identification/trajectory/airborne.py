@@ -27,8 +27,16 @@ def cap_radii(topology: Topology) -> np.ndarray:
     return np.repeat([r.radius for r in topology.rods], 2)
 
 
+def lowest_seen(gap: np.ndarray) -> np.ndarray:
+    """The lowest of the seen values of ``gap`` (..., 2R) over its last axis (end caps),
+    (...); NaN only where no end cap is seen (a gap in one end cap hides nothing of the
+    others)."""
+    return np.fmin.reduce(gap, axis=-1)
+
+
 def airborne_mask(nodes: np.ndarray, topology: Topology) -> np.ndarray:
-    """Samples (N, T+1) whose measured end caps ``nodes`` (N, T+1, 2R, 3) are all airborne."""
+    """Samples (N, T+1) whose measured end caps ``nodes`` (N, T+1, 2R, 3) are all airborne
+    (a sample where an end cap is not seen is not known to be: False)."""
     return (nodes[..., 2] - cap_radii(topology)).min(-1) > AIRBORNE
 
 

@@ -97,6 +97,9 @@ class TrajectorySettings:
         final_floor_windows: windows of the training split for the final refit of the
             selected model on such data (default :data:`FINAL_FLOOR_WINDOWS`; none at
             or below ``floor_windows``).
+        floor_window: steps per window of the fits on the floor (0: ``fit_window`` or
+            ``window``, at most :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S`;
+            :func:`~identification.discovery.floor_fits.floor_steps`).
         final_floor_window: steps per window of that refit (0: as the floor windows,
             :func:`~identification.discovery.floor_fits.floor_steps`).
         final_iter: most Levenberg-Marquardt iterations of the final refit (default
@@ -121,6 +124,7 @@ class TrajectorySettings:
     floor_windows: int = FLOOR_WINDOWS
     final_floor_windows: int = FINAL_FLOOR_WINDOWS
     final_floor_window: int = 0
+    floor_window: int = 0
     final_iter: int = FINAL_ITERATIONS
     physics_dt: float = PHYSICS_DT
 

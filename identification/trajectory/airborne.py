@@ -35,9 +35,11 @@ def lowest_seen(gap: np.ndarray) -> np.ndarray:
 
 
 def airborne_mask(nodes: np.ndarray, topology: Topology) -> np.ndarray:
-    """Samples (N, T+1) whose measured end caps ``nodes`` (N, T+1, 2R, 3) are all airborne
-    (a sample where an end cap is not seen is not known to be: False)."""
-    return (nodes[..., 2] - cap_radii(topology)).min(-1) > AIRBORNE
+    """Samples (N, T+1) whose seen end caps of ``nodes`` (N, T+1, 2R, 3) are all airborne
+    (False where none is seen). A marker lost for a sample does not end a flight: the
+    fits compare unseen end caps with nothing, and a touchdown shows in the other caps
+    and the samples around it."""
+    return lowest_seen(nodes[..., 2] - cap_radii(topology)) > AIRBORNE
 
 
 def airborne_samples(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:

@@ -17,7 +17,7 @@ from identification.discovery.library import contact_gate
 from identification.linear.extended import evaluate_model
 from identification.linear.features import defined_transitions, drawn_transitions
 from identification.simulation.generate import GenerateSpec, generate_dataset
-from identification.trajectory.airborne import lowest_seen
+from identification.trajectory.airborne import airborne_mask, has_airborne_stretch, lowest_seen
 from identification.trajectory.floor_fit import floor_height
 from identification.trajectory.windows import cut_windows
 from tensegrity_env.assemblies import icosahedron
@@ -112,3 +112,22 @@ def test_transitions_across_a_gap_are_not_drawn_and_the_errors_stay_finite() -> 
     got = evaluate_model(ds.topology, truth.params, [], holey, split="test")
     assert np.isfinite(got["one_step"]) and np.isfinite(got["curve"]).all()
     assert abs(got["one_step"] - clean["one_step"]) < 1e-6 and clean["one_step"] < 1e-6
+
+
+def test_a_lost_marker_does_not_end_a_flight() -> None:
+    """Every twelfth sample loses one marker: the flight is still one airborne stretch;
+    a sample where no marker is seen is not known to be airborne."""
+    caps = resting_caps(1, 120)
+    caps[..., 2] += 0.5  # in the air throughout
+    holes = caps.copy()
+    holes[0, ::12, 5] = np.nan
+    assert airborne_mask(holes, TOPO).all()
+    assert has_airborne_stretch(holes, TOPO, shortest=100)
+    holes[0, 60] = np.nan  # nothing seen at sample 60
+    mask = airborne_mask(holes, TOPO)
+    assert not mask[0, 60] and mask[0, :60].all() and mask[0, 61:].all()
+    assert not has_airborne_stretch(holes, TOPO, shortest=100)
+    low = caps.copy()
+    low[0, 30, 4, 2] = RADIUS  # one seen marker touches: not airborne there
+    low[0, 30, 5] = np.nan
+    assert not airborne_mask(low, TOPO)[0, 30]

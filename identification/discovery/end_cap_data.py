@@ -328,10 +328,7 @@ def seen_gaps(win: Windows, topology: Topology) -> torch.Tensor:
     """Height of every measured end cap of ``win`` above touching the floor (z = 0),
     (B, W+1, 2R) [m]; +inf where the end cap is not seen (a gap vetoes nothing)."""
     gap = win.obs[..., 2] - torch.as_tensor(cap_radii(topology))
-    if win.valid is None:
-        return gap
-    seen = win.valid if win.valid.dim() == 3 else win.valid[..., None].expand_as(gap)
-    return torch.where(seen, gap, torch.full_like(gap, torch.inf))
+    return torch.where(win.seen(), gap, torch.full_like(gap, torch.inf))
 
 
 def airborne_keep(data: EndCapData) -> np.ndarray | None:

@@ -605,7 +605,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         assert fits.val_windows is not None
         radius = np.repeat([rod.radius for rod in data.topology.rods], 2)
         pred = predicted_caps(data, fits.scored, fits.val_windows)
-        res = window_residuals(pred, fits.val_windows.obs, data.dt, radius)
+        res = window_residuals(pred, fits.val_windows.obs, data.dt, radius,
+                               fits.val_windows.seen())  # fmt: skip
         r = summarize_window_residuals(res)
         plot = None
         if plots is not None:

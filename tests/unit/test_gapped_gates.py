@@ -13,6 +13,7 @@ import torch
 
 from identification.data.dataset import Dataset, Split
 from identification.discovery.end_cap_data import seen_gaps
+from identification.discovery.end_cap_residuals import summarize_window_residuals, window_residuals
 from identification.discovery.library import contact_gate
 from identification.linear.extended import evaluate_model
 from identification.linear.features import defined_transitions, drawn_transitions
@@ -131,3 +132,23 @@ def test_a_lost_marker_does_not_end_a_flight() -> None:
     low[0, 30, 4, 2] = RADIUS  # one seen marker touches: not airborne there
     low[0, 30, 5] = np.nan
     assert not airborne_mask(low, TOPO)[0, 30]
+
+
+def test_held_out_residuals_leave_unseen_end_caps_out() -> None:
+    """Unseen end caps read 0 in the windows: as residuals they would be metres."""
+    clean = resting_caps(2, 60)
+    clean[..., 2] += 0.2
+    noisy = clean + np.random.default_rng(5).normal(0.0, 1e-3, clean.shape)
+    grid = {k: np.zeros((2, 60, 6, w)) for k, w in (("p", 3), ("v", 3), ("q", 4), ("omega", 3))}
+    grid["q"][..., 0] = 1.0
+    win = cut_windows(gapped(noisy), np.zeros((2, 59, 6, 3)), grid, 20)
+    span = torch.as_tensor(win.start[:, None] + np.arange(win.steps + 1))
+    pred = torch.as_tensor(clean)[torch.as_tensor(win.traj)[:, None], span]
+    radius = np.full(12, RADIUS)
+    res = window_residuals(pred, win.obs, 0.01, radius, win.seen())
+    r = summarize_window_residuals(res)
+    assert abs(r["rms"] / (1e-3 * np.sqrt(3)) - 1) < 0.1, r
+    assert np.isnan(r.pop("near_floor"))  # no end cap near the floor: nothing to tell
+    assert np.isfinite(list(r.values())).all()
+    blind = summarize_window_residuals(window_residuals(pred, win.obs, 0.01, radius))
+    assert blind["rms"] > 0.05  # the unseen caps counted as errors of their position

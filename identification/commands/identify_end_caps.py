@@ -114,8 +114,18 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         raise InputError(f"--first-window must span >= 2 samples ({2 * dt:.4g} s), "
                          "--smoothing and --physics-dt must be > 0")  # fmt: skip
     window = min(args.window, span)
-    print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: trajectory identification on windows "
-          f"growing from {describe(args.first_window, dt)} to {describe(window, dt)}, physics step "
+    floor, why = contact_gate(split, dataset.topology)
+    settings = TrajectorySettings(
+        anchors=anchors, smoothing=args.smoothing, seed=args.seed, physics_dt=args.physics_dt,
+        fit_window=samples_of(window, dt, 2), floor_windows=args.floor_windows,
+    )  # fmt: skip
+    if floor:
+        how = (f"the declared model and ground contact fitted on {args.floor_windows} windows "
+               f"of {describe(floor_steps(dt, settings) * dt, dt)}")  # fmt: skip
+    else:
+        how = (f"trajectory identification on windows growing from "
+               f"{describe(args.first_window, dt)} to {describe(window, dt)}")  # fmt: skip
+    print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: {how}, physics step "
           f"<= {args.physics_dt:g} s")  # fmt: skip
     start, contact = None, None
     if args.params is not None:
@@ -127,7 +137,6 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     est: TrajectoryIdentifier | FloorIdentification
     effects: list[PhysicalEffect] = []
     evidence: FloorEvidence | None = None
-    floor, why = contact_gate(split, dataset.topology)
     if floor and split.has_cable_commands:
         raise InputError(f"{args.dataset}: end caps on a floor with cable actuator commands: the "
                          "joint fit with ground contact does not apply cable commands; identify "
@@ -135,12 +144,6 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     if floor:
         print(f"end caps reach a floor ({why}): ground contact is fitted with the declared "
               "model")  # fmt: skip
-        settings = TrajectorySettings(
-            anchors=anchors, smoothing=args.smoothing, seed=args.seed,
-            physics_dt=args.physics_dt, fit_window=samples_of(window, dt, 2),
-            floor_windows=args.floor_windows,
-        )  # fmt: skip
-        print(f"floor windows of {describe(floor_steps(dt, settings) * dt, dt)}")
         est = identify_on_floor(dataset, settings, args.split, start=start, contact=contact)
         effects = [est.contact_]
         evidence = contact_evidence(split.nodes, dt, dataset.topology, est.contact_)

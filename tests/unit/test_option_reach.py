@@ -70,3 +70,30 @@ def test_diagnose_window_reaches_the_floor_fits_and_the_header_prints_them(floor
         head = capsys.readouterr().out
         assert floor_steps(floor_data.dt, scorer.settings) == steps
         assert f"on the floor: windows of {span[:-1]} s ({steps} samples at 120 Hz)" in head
+
+
+class Stop(Exception):
+    """Raised where the fit would start: the header has been printed."""
+
+
+@pytest.mark.parametrize(("extra", "span"), [((), "0.25 s (30 samples"),
+                                             (("--window", "0.1s"), "0.1 s (12 samples")])
+def test_identify_prints_the_floor_windows_it_fits_on(floor_data, tmp_path, capsys, monkeypatch,
+                                                      extra, span):
+    import identification.commands.identify_end_caps as command
+    from identification.data.dataset import write_dataset
+    from tensegrity_sr.cli import main
+
+    seen = {}
+
+    def stop(dataset, settings, split, **kw):
+        seen["steps"] = floor_steps(dataset.dt, settings)
+        raise Stop
+
+    monkeypatch.setattr(command, "identify_on_floor", stop)
+    path = write_dataset(tmp_path / "floor.h5", floor_data)
+    with pytest.raises(Stop):
+        main(["identify", str(path), "-o", str(tmp_path / "p.json"), *extra])
+    head = capsys.readouterr().out
+    assert f"ground contact fitted on 8 windows of {span} at 120 Hz)" in head, head
+    assert seen["steps"] == int(span.split("(")[1].split()[0])

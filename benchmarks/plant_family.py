@@ -72,6 +72,8 @@ class Draw:
         mass: [kg]; stiffness: [N/m]; damping: spring damping [N s/m].
         prestress: rest length = (1 - prestress) x the nominal spring length.
         friction: floor and end-cap sliding friction.
+        solref: the floor contact's MuJoCo ``solref`` (time constant [s], damping ratio).
+        solimp: its ``solimp`` (d_min, d_max, width [m]; midpoint 0.5 and power 2).
         end_cap: ``capsule`` (a capsule geom between the end caps) or ``sphere``.
         site_reversed: the file lists the rod's upper-end site first (end cap 0 is the
             nominal cap 1).
@@ -105,6 +107,8 @@ class Draw:
     com_shift: np.ndarray
     frame_origin: np.ndarray
     frame_turn: np.ndarray
+    solref: tuple[float, float] = (0.02, 1.0)
+    solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
 
     @property
     def cell(self) -> Cell:
@@ -129,7 +133,9 @@ def draw(seed: int, setting: str = "flight", **fixed: Any) -> Draw:
     Ranges: rod length 0.3-2 m, mass 0.05-5 kg per rod (±10 % between rods),
     stiffness 20-5000 N/m (±10 % between springs; bounded by
     :data:`MIN_STIFFNESS_WEIGHTS` and :data:`MAX_STIFFNESS_PER_KG`), damping ratio
-    0.5-5 %, prestress 0-60 %, friction 0.5-1.5, 0.1-2 mm noise, 0-2 % dropouts, rates of
+    0.5-5 %, prestress 0-60 %, friction 0.5-1.5, floor ``solref`` 5-40 ms and damping
+    ratio 0.5-2, ``solimp`` d_min 0.8-0.95, d_max up to 0.99 and width 0.5-5 mm (MuJoCo's
+    defaults: 20 ms, 1, 0.9, 0.95, 1 mm), 0.1-2 mm noise, 0-2 % dropouts, rates of
     :data:`FAMILY_RATES`; every convention either way with equal odds; a body frame off
     the centre of mass by up to 20 % of the rod length and turned at random, each in half
     of the rods; the centre of mass up to 15 % of the rod length off its middle.
@@ -160,6 +166,9 @@ def draw(seed: int, setting: str = "flight", **fixed: Any) -> Draw:
         com_shift=length * rng.uniform(-0.15, 0.15, R),
         frame_origin=np.where(off[:, None], length * 0.2 * rng.uniform(-1, 1, (R, 3)), 0.0),
         frame_turn=turn,
+        solref=(log_uniform(0.005, 0.04), log_uniform(0.5, 2.0)),
+        solimp=(d_min := float(rng.uniform(0.8, 0.95)), float(rng.uniform(d_min + 0.01, 0.99)),
+                log_uniform(5e-4, 5e-3)),
     )  # fmt: skip
     return replace(d, **fixed)
 
@@ -215,9 +224,10 @@ def write_mjcf(d: Draw) -> str:
     ET.SubElement(root, "option", timestep=repr(dt), integrator="Euler", gravity="0 0 -9.81")
     world = ET.SubElement(root, "worldbody")
     fric = f"{d.friction!r} 0.005 0.0001"
+    sol = {"solref": _vec(np.array(d.solref)), "solimp": _vec(np.array([*d.solimp, 0.5, 2.0]))}
     if d.setting == "floor":
         ET.SubElement(world, "geom", name="floor", type="plane", size="0 0 1", contype="1",
-                      conaffinity="2", friction=fric)  # fmt: skip
+                      conaffinity="2", friction=fric, **sol)  # fmt: skip
     caps = principal_caps(d)
     inertia = params.numpy()["inertia"]
     for r in range(a.topology.n_rods):
@@ -228,7 +238,7 @@ def write_mjcf(d: Draw) -> str:
         ET.SubElement(body, "joint", name=f"rod{r}_free", type="free")
         ET.SubElement(body, "inertial", pos=_vec(com), quat=_vec(d.frame_turn[r]),
                       mass=repr(float(d.mass[r])), diaginertia=_vec(inertia[r]))  # fmt: skip
-        geom = {"contype": "2", "conaffinity": "1", "friction": fric, "mass": "0"}
+        geom = {"contype": "2", "conaffinity": "1", "friction": fric, "mass": "0", **sol}
         if d.end_cap == "capsule":
             ends = body_caps[::-1] if d.fromto_reversed[r] else body_caps
             ET.SubElement(body, "geom", type="capsule", size=repr(d.radius),
@@ -255,10 +265,11 @@ def write_mjcf(d: Draw) -> str:
 def truth_of(d: Draw) -> tuple[Truth, Topology]:
     """The true model (parameters, MJCF, floor) and the topology a user reads from the MJCF."""
     xml = write_mjcf(d)
-    topology = from_mjcf(f"family{d.seed}.xml", xml=xml).topology
+    read = from_mjcf(f"family{d.seed}.xml", xml=xml)
+    topology = read.topology
     effects: list[dict[str, Any]] = []
-    if d.setting == "floor":
-        effects.append({"name": "ground_contact", "params": {"friction": d.friction, "height": 0.0}})
+    if d.setting == "floor":  # MuJoCo's solref and solimp as the contact model's parameters
+        effects.append({"name": "ground_contact", "params": {**read.contact, "height": 0.0}})
     cell = d.cell
     sim = {"plant": "family", "draw": d.summary(), "timestep": 1.0 / d.rate / cell.substeps,
            "integrator": "Euler", "substeps": cell.substeps, "floor": d.setting == "floor"}  # fmt: skip

@@ -33,6 +33,8 @@ def test_draws_cover_every_convention_and_repeat_from_their_seed() -> None:
     assert len({d.rate for d in draws}) > 3 and all(0 <= d.dropout <= 0.02 for d in draws)
     assert all(0.3 <= d.length <= 2.0 and 0.0 <= d.prestress <= 0.6 for d in draws)
     assert all(20 * 0.9 <= d.stiffness.min() and d.stiffness.max() <= 5000 * 1.1 for d in draws)
+    assert len({d.solref for d in draws}) == 12 and all(0.8 <= d.solimp[0] < d.solimp[1] < 1
+                                                         for d in draws)  # fmt: skip
     np.testing.assert_array_equal(draw(5).frame_turn, draw(5).frame_turn)
     fixed = draw(5, rate=120.0, site_reversed=np.ones(6, bool))
     assert fixed.rate == 120.0 and fixed.site_reversed.all() and fixed.length == draws[5].length
@@ -58,7 +60,8 @@ def test_the_engine_from_the_true_model_reproduces_the_drawn_plant(seed: int, se
     truth, topo = truth_of(d)
     init = family_initial_states(d, 2, np.random.default_rng(0))
     clean = simulate_family(d, truth.xml, init, 0.5)
-    effects = [GroundContact(topo, friction=d.friction, height=0.0)] if setting == "floor" else []
+    effects = from_mjcf("family.xml", xml=truth.xml).declared_effects()  # the drawn contact
+    assert [e.name for e in effects] == (["ground_contact"] if setting == "floor" else [])
     engine = Engine(topo, 1 / d.rate, effects, substeps=substeps_for(1 / d.rate))
     state = State(*(torch.as_tensor(getattr(clean, k)[:, 0]) for k in ("p", "v", "q", "omega")))
     with torch.no_grad():
@@ -72,6 +75,13 @@ def test_the_engine_from_the_true_model_reproduces_the_drawn_plant(seed: int, se
                 state, truth.params, clean.n_transitions
             )
         assert np.abs(fall.p.numpy() - clean.p).max() > 1e-3
+        # and the drawn contact is not MuJoCo's default: the default one misses it
+        default = [GroundContact(topo, friction=d.friction, height=0.0)]
+        with torch.no_grad():
+            other = Engine(topo, 1 / d.rate, default, substeps=substeps_for(1 / d.rate)).rollout(
+                state, truth.params, clean.n_transitions
+            )
+        assert np.abs(other.p.numpy() - clean.p).max() > 1e-5
 
 
 def test_dropouts_can_stay_gaps() -> None:

@@ -1,6 +1,7 @@
 """``tensegrity-sr identify`` on end-cap-only data: the trajectory identification.
 
-Stage 1 smooths the end caps and solves the one-step regression for a start; stage 2
+Stage 1 smooths the end caps and solves the one-step regression for a start (or takes
+the start from ``--params``: a params file or the robot's MJCF); stage 2
 fits the parameters and every window's initial state through the engine
 (:class:`~identification.trajectory.identifier.TrajectoryIdentifier`), the engine
 substepping at ``--physics-dt`` between the measured samples. Parameters are fitted as

@@ -141,7 +141,8 @@ def draw(seed: int, setting: str = "flight", **fixed: Any) -> Draw:
     of the rods; the centre of mass up to 15 % of the rod length off its middle.
     """
     rng = np.random.default_rng([seed, 64])
-    R, S = 6, 24
+    topo = nominal().topology
+    R, S = topo.n_rods, topo.n_springs
     log_uniform = lambda lo, hi: float(np.exp(rng.uniform(np.log(lo), np.log(hi))))  # noqa: E731
     length = log_uniform(0.3, 2.0)
     mass = log_uniform(0.05, 5.0) * rng.uniform(0.9, 1.1, R)

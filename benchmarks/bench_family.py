@@ -36,6 +36,8 @@ from tensegrity_env.io_utils import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
 GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
+#: the draw's fields a record keeps
+DRAWN = ("rate", "noise", "dropout", "length", "prestress", "end_cap", "friction")
 
 
 def seeds_of(text: str) -> list[int]:
@@ -63,25 +65,29 @@ def run_seed(seed: int, setting: str, start: str, work: Path, timeout: float) ->
     """Draw, write and identify one plant from ``start`` (``truth`` or ``default``)."""
     d = draw(seed, setting)
     folder = work / f"family{seed}_{setting}"
+    record: dict[str, Any] = {
+        "seed": seed, "setting": setting, "start": start, "label": d.label,
+        "draw": {k: v for k, v in d.summary().items() if k in DRAWN},
+        "reversed_rods": int(d.site_reversed.sum()), "mass": float(d.mass.mean()),
+        "stiffness": float(d.stiffness.mean()),
+    }  # fmt: skip
     if not (folder / "measured.h5").exists():
-        write_family_cell(d, folder)
+        try:
+            write_family_cell(d, folder)
+        except RuntimeError as e:  # MuJoCo's step diverged: no data to identify
+            record["identify"] = {"status": "no data", "code": None, "seconds": 0.0,
+                                  "message": f"the plant: {e}", "command": ""}  # fmt: skip
+            return record
     gt = read_ground_truth(folder / "measured.h5")
     assert gt is not None
     t = gt.params
-    truth = d.summary()
     out = folder / f"{start}.json"
     out.unlink(missing_ok=True)
     args = ["identify", "measured.h5", "-o", out.name]
     args += (["--params", "true.xml"] if start == "truth"
              else ["--anchor", f"mass[rod0]={float(t.mass[0])!r}"])  # fmt: skip
     run = run_cli(args, folder, f"{start}.log", timeout)
-    record: dict[str, Any] = {
-        "seed": seed, "setting": setting, "start": start, "label": d.label,
-        "draw": {k: truth[k] for k in ("rate", "noise", "dropout", "length", "prestress",
-                                        "end_cap", "friction")},
-        "reversed_rods": int(d.site_reversed.sum()), "mass": float(d.mass.mean()),
-        "stiffness": float(d.stiffness.mean()), "identify": run,
-    }  # fmt: skip
+    record["identify"] = run
     if run["status"] == "ok":
         doc = json.loads(out.read_text())
         prov = doc["provenance"]

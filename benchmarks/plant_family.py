@@ -11,6 +11,9 @@ prestress and floor friction; for the measurement, the sample rate, noise and dr
 left as NaN gaps. The MJCF is written here; the topology the dataset carries is what
 :func:`tensegrity_env.mjcf.reader.from_mjcf` reads from it, as a user's would be.
 
+On a floor many draws diverge in MuJoCo's Euler step (light or thin rods rolling on
+it): :func:`simulate_family` raises then, as the measured benchmark's plant does.
+
 Recorded rod states are those of the principal frame at the centre of mass (the
 dataset's convention), whatever the body frame. The initial states are the measured
 benchmark's (:func:`measured_plant.initial_states`), scaled to the drawn rod length and

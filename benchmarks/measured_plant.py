@@ -251,12 +251,18 @@ def _turned_pose(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarr
     return p, q
 
 
-def _lift(p: np.ndarray, q: np.ndarray, rng: np.random.Generator, lo: float, hi: float) -> None:
+def lift(
+    p: np.ndarray, q: np.ndarray, rng: np.random.Generator, lo: float, hi: float,
+    offsets: np.ndarray | None = None, radius: float | None = None,
+) -> None:  # fmt: skip
     """Raise each pose (in place) so its lowest end cap's surface is ``lo``-``hi`` [m]
-    above the floor (uniform at random)."""
+    above the floor (uniform at random). ``offsets`` (R, 2, 3) [m]: the end caps in the
+    principal frames, ``radius`` [m] theirs (None: the icosahedron's)."""
     topo = assemblies.icosahedron().topology
-    caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", np_quat_to_matrix(q), topo.end_offsets)
-    low = caps[..., 2].reshape(len(p), -1).min(axis=1) - topo.rods[0].radius
+    offsets = topo.end_offsets if offsets is None else offsets
+    radius = topo.rods[0].radius if radius is None else radius
+    caps = p[:, :, None] + np.einsum("nrij,rkj->nrki", np_quat_to_matrix(q), offsets)
+    low = caps[..., 2].reshape(len(p), -1).min(axis=1) - radius
     p[..., 2] += (rng.uniform(lo, hi, len(p)) - low)[:, None]
 
 
@@ -286,7 +292,7 @@ def initial_states(cell: Cell, n: int, rng: np.random.Generator) -> dict[str, np
     v = V[:, None] + np.cross(W[:, None], p) + rng.normal(0.0, 0.3 / np.sqrt(3), (n, R, 3))
     omega = W[:, None] + rng.normal(0.0, 1.0 / np.sqrt(3), (n, R, 3))
     if cell.setting == "floor":
-        _lift(p, q, rng, 0.02, 0.2)
+        lift(p, q, rng, 0.02, 0.2)
     else:
         p[..., 2] += 1.0
     return {"p": p, "v": v, "q": q, "omega": omega}
@@ -296,7 +302,7 @@ def drop_states(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``n`` drops from rest: the nominal shape turned at random, its lowest end cap
     0.1-0.5 m above the floor, every velocity zero (same layout as :func:`initial_states`)."""
     p, q = _turned_pose(n, rng)
-    _lift(p, q, rng, 0.1, 0.5)
+    lift(p, q, rng, 0.1, 0.5)
     zero = np.zeros(p.shape)
     return {"p": p, "v": zero, "q": q, "omega": zero.copy()}
 
@@ -356,8 +362,11 @@ def clean_rolling(seed: int, duration: float = 1.0) -> tuple[Truth, Split]:
     return truth, simulate(cell, truth, init, duration)
 
 
-def measure(nodes: np.ndarray, cell: Cell, rng: np.random.Generator) -> np.ndarray:
-    """End caps as motion capture sees them: noise, then dropped and gap-filled markers."""
+def measure(
+    nodes: np.ndarray, cell: Cell, rng: np.random.Generator, fill: bool = True
+) -> np.ndarray:
+    """End caps as motion capture sees them: noise, then dropped markers, each gap
+    filled by linear interpolation (``fill``) or left as NaN."""
     seen = nodes + cell.noise * rng.standard_normal(nodes.shape)
     if cell.dropout <= 0:
         return seen
@@ -369,6 +378,9 @@ def measure(nodes: np.ndarray, cell: Cell, rng: np.random.Generator) -> np.ndarr
                 run = min(int(rng.integers(1, 6)), target - int(lost.sum()))
                 start = int(rng.integers(1, S - 1 - run))
                 lost[start : start + run] = True
+            if not fill:
+                seen[i, lost, c] = np.nan
+                continue
             t = np.arange(S)
             for ax in range(3):
                 seen[i, lost, c, ax] = np.interp(t[lost], t[~lost], seen[i, ~lost, c, ax])

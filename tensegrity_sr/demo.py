@@ -137,7 +137,7 @@ def step_control_gain(demo: Demo) -> None:
     demo.cli("generate", "--preset", "perturbed", "--n-train", 2, "--n-test", 2,
              "--steps", demo.size(2000, 4000), "--seed", 1, "--no-progress", "-o", path)  # fmt: skip
     params_h = out / "params_with_h.json"
-    demo.cli("identify", path, "--init", out / "params.json", "--freeze",
+    demo.cli("identify", path, "--params", out / "params.json", "--freeze",
              "stiffness,damping,rest_length,mass,inertia", "--horizon", 1000, "-o", params_h)  # fmt: skip
     print("\nBefore (h not identifiable without control, assumed 1) and after (h identified):")
     demo.cli("evaluate", path, "--params", out / "params.json", "--label", "before: h assumed 1",

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from identification.commands.declared import add_params_option, declared_model, declared_start
 from identification.commands.durations import describe, samples_of, seconds
 from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
 from identification.data.end_caps import check_caps_seen, with_measured_states
@@ -24,6 +25,7 @@ from identification.discovery.end_cap_data import (
     FLOOR_WINDOWS,
     TrajectorySettings,
 )
+from identification.discovery.floor_fits import floor_steps, on_floor
 from identification.discovery.library import FitSettings
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
@@ -45,7 +47,6 @@ from tensegrity_env.io_utils import (
     check_output_dir,
     check_output_file,
 )
-from tensegrity_env.model import Model
 
 #: default window lengths of the trajectory method [s]: selection (``--window``) and the
 #: accepted models' fits (``--fit-window``). A fitted initial state absorbs the linear part
@@ -73,9 +74,9 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset (rod states, or end caps only)")
-    p.add_argument("--params", type=Path, help="the declared model: a params.json or the robot's "
-                   "MJCF (.xml; its floor contact, tension-only cables and actuator filter are "
-                   "declared effects); its rod0 mass fixes the scale, its effects start the model")  # fmt: skip
+    add_params_option(p, "the declared model: a params.json or the robot's MJCF (.xml; its "
+                      "floor contact, tension-only cables and actuator filter are declared "
+                      "effects); its rod0 mass fixes the scale, its effects start the model")  # fmt: skip
     p.add_argument("--anchor", action="append", default=[], metavar="NAME=VALUE",
                    help="a known value fixing the scale, e.g. mass[rod0]=1.95 (repeatable)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, default=Path("diagnose_out"), help="report folder")
@@ -90,8 +91,10 @@ def register(sub: Any) -> None:
                    help="regression: one-step regressions on rod states (exact on clean data); "
                    "trajectory: multi-step fits through the engine on end-cap windows (noisy "
                    "motion capture); auto: trajectory when the dataset holds end caps only")  # fmt: skip
-    p.add_argument("--window", type=seconds, default=WINDOW_S,
-                   help=f"trajectory method: length of each window (default {WINDOW_S:g}s)")  # fmt: skip
+    p.add_argument("--window", type=seconds, default=None,
+                   help=f"trajectory method: length of each window (default {WINDOW_S:g}s); on "
+                   f"data that never leaves the floor, given, also of the floor fits' windows "
+                   f"(default there: --fit-window up to {FLOOR_WINDOW_S:g}s)")  # fmt: skip
     p.add_argument("--windows", type=int, default=WINDOWS,
                    help=f"trajectory method: random windows per split (default {WINDOWS})")  # fmt: skip
     p.add_argument("--fit-windows", type=int, default=32,
@@ -230,12 +233,24 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start: list[PhysicalEffect] = []
     if args.params is not None:
-        model = Model.read(args.params, dt=dataset.dt)
-        if not model.topology.same_as(dataset.topology):
-            raise InputError(f"{args.params}: topology differs from {args.dataset}")
+        model = declared_model(args.params, dataset, args.dataset)
         anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
         start = list(model.effects)
     return OneStepScorer(FitSettings(anchors=anchors), args.horizon, start)
+
+
+def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
+    """The windows the trajectory fits use on ``dataset``, as they will be cut (one line)."""
+    dt = dataset.dt
+    if on_floor(dataset):
+        floor = floor_steps(dt, s)
+        final = s.final_floor_window or floor
+        how = (f"on the floor: windows of {describe(floor * dt, dt)}; final refit on windows "
+               f"of {describe(final * dt, dt)}")  # fmt: skip
+    else:
+        how = (f"windows of {describe(s.window * dt, dt)}; final fit on windows of "
+               f"{describe((s.fit_window or s.window) * dt, dt)}")  # fmt: skip
+    return f"{how}; physics step <= {s.physics_dt:g} s"
 
 
 def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepScorer:
@@ -243,19 +258,10 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None
     if args.params is not None:
-        model = Model.read(args.params, dt=dataset.dt)
-        if not model.topology.same_as(dataset.topology):
-            raise InputError(f"{args.params}: topology differs from {args.dataset}")
-        start = model.params
-        anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(start.mass[0]))
-        floors = [e for e in model.effects if isinstance(e, GroundContact)]
-        if len(floors) < len(model.effects) or len(floors) > 1:
-            raise InputError(f"{args.params}: --method trajectory starts from the declared "
-                             "model and at most one ground_contact (remove its other "
-                             "'effects')")  # fmt: skip
-        contact = floors[0] if floors else None
+        start, contact = declared_start(args.params, dataset, args.dataset, anchors)
     dt = dataset.dt
-    if args.window < 2 * dt or args.windows < 1 or args.fit_windows < 1:
+    span = WINDOW_S if args.window is None else args.window
+    if span < 2 * dt or args.windows < 1 or args.fit_windows < 1:
         raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
                          "--windows and --fit-windows >= 1")  # fmt: skip
     if 0 < args.final_floor_window < 2 * dt:
@@ -266,17 +272,18 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                          "Hz), or be 0 (the --window)")  # fmt: skip
     if not 0 < args.physics_dt:
         raise InputError("--physics-dt must be > 0")
-    window = samples_of(args.window, dt, 2)
+    window = samples_of(span, dt, 2)
     fit_window = samples_of(args.fit_window, dt, 2) if args.fit_window > 0 else 0
     final_floor_window = (samples_of(args.final_floor_window, dt, 2)
                           if args.final_floor_window > 0 else 0)  # fmt: skip
-    print(f"windows of {describe(args.window, dt)}; final fit on windows of "
-          f"{describe(args.fit_window or args.window, dt)}; physics step <= {args.physics_dt:g} s")  # fmt: skip
+    floor_window = 0 if args.window is None else window
     settings = TrajectorySettings(anchors=anchors, window=window, train_windows=args.windows,
                                   val_windows=args.windows, test_windows=args.windows,
                                   fit_windows=args.fit_windows, fit_window=fit_window,
                                   floor_windows=args.floor_windows,
                                   final_floor_windows=args.final_floor_windows,
                                   final_floor_window=final_floor_window,
-                                  final_iter=args.final_iterations, seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
+                                  floor_window=floor_window, final_iter=args.final_iterations,
+                                  seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
+    print(window_header(dataset, settings))
     return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs)

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from identification.commands.declared import add_params_option, declared_model
 from identification.commands.durations import samples_of, seconds
 from identification.commands.identify_end_caps import run_end_caps
 from identification.data.dataset import read_dataset, read_ground_truth
@@ -61,10 +62,12 @@ def register(sub: Any) -> None:
     p.add_argument("--solver", choices=("lstsq", "network"), default="lstsq",
                    help="exact least squares (default) or the paper's linear layer trained on MSE")  # fmt: skip
     p.add_argument("--shared", action="store_true", help="one K, c, l0 and one M, I for all")
-    p.add_argument("--init", type=Path, help="starting params file (for --freeze)")
+    add_params_option(p, "the model to start from: a params.json or the robot's MJCF (.xml); "
+                      "with rod states, the fields --freeze keeps; on end caps, where the "
+                      "trajectory fit starts (its floor contact too)")  # fmt: skip
     p.add_argument(
         "--freeze", default="", metavar="FIELDS",
-        help="comma-separated fields kept from --init, e.g. "
+        help="comma-separated fields kept from --params, e.g. "
         "stiffness,damping,rest_length,mass,inertia to fit only control_gain",
     )  # fmt: skip
     p.add_argument("--fraction", type=float, help="fit on this random fraction of training steps")
@@ -101,11 +104,8 @@ def run(args: argparse.Namespace) -> int:
     if not dataset.split(args.split).has_states:
         return run_end_caps(args, dataset, anchors)
     init = None
-    if args.init is not None:
-        init_model = Model.load(args.init)
-        init = init_model.params
-        if not init_model.topology.same_as(dataset.topology):
-            raise InputError(f"{args.init}: topology differs from {args.dataset}")
+    if args.params is not None:
+        init = declared_model(args.params, dataset, args.dataset).params
     freeze = tuple(f for f in args.freeze.split(",") if f)
     if args.fraction is not None and not 0 < args.fraction <= 1:
         raise InputError(f"--fraction must be in (0, 1], got {args.fraction}")

@@ -1,6 +1,7 @@
 """``tensegrity-sr identify`` on end-cap-only data: the trajectory identification.
 
-Stage 1 smooths the end caps and solves the one-step regression for a start; stage 2
+Stage 1 smooths the end caps and solves the one-step regression for a start (or takes
+the start from ``--params``: a params file or the robot's MJCF); stage 2
 fits the parameters and every window's initial state through the engine
 (:class:`~identification.trajectory.identifier.TrajectoryIdentifier`), the engine
 substepping at ``--physics-dt`` between the measured samples. Parameters are fitted as
@@ -25,11 +26,16 @@ from typing import Any
 
 import numpy as np
 
+from identification.commands.declared import declared_start
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.data.end_caps import check_caps_seen
 from identification.discovery.end_cap_data import TrajectorySettings
-from identification.discovery.floor_fits import FloorIdentification, identify_on_floor
+from identification.discovery.floor_fits import (
+    FloorIdentification,
+    floor_steps,
+    identify_on_floor,
+)
 from identification.discovery.library import contact_gate
 from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
@@ -96,8 +102,7 @@ def parameter_rows(
 def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, float]) -> int:
     """Identify from end caps only, print the table, write params.json."""
     used = [o for o, v in (("--solver network", args.solver == "network"),
-                           ("--shared", args.shared), ("--init", args.init is not None),
-                           ("--freeze", bool(args.freeze)),
+                           ("--shared", args.shared), ("--freeze", bool(args.freeze)),
                            ("--fraction", args.fraction is not None)) if v]  # fmt: skip
     if used:
         raise InputError(f"{args.dataset}: end caps only; {', '.join(used)} need rod states "
@@ -110,16 +115,29 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         raise InputError(f"--first-window must span >= 2 samples ({2 * dt:.4g} s), "
                          "--smoothing and --physics-dt must be > 0")  # fmt: skip
     window = min(args.window, span)
-    print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: trajectory identification on windows "
-          f"growing from {describe(args.first_window, dt)} to {describe(window, dt)}, physics step "
+    floor, why = contact_gate(split, dataset.topology)
+    settings = TrajectorySettings(
+        anchors=anchors, smoothing=args.smoothing, seed=args.seed, physics_dt=args.physics_dt,
+        fit_window=samples_of(window, dt, 2), floor_windows=args.floor_windows,
+    )  # fmt: skip
+    if floor:
+        how = (f"the declared model and ground contact fitted on {args.floor_windows} windows "
+               f"of {describe(floor_steps(dt, settings) * dt, dt)}")  # fmt: skip
+    else:
+        how = (f"trajectory identification on windows growing from "
+               f"{describe(args.first_window, dt)} to {describe(window, dt)}")  # fmt: skip
+    print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: {how}, physics step "
           f"<= {args.physics_dt:g} s")  # fmt: skip
+    start, contact = None, None
+    if args.params is not None:
+        start, contact = declared_start(args.params, dataset, args.dataset, anchors)
+        print(f"starting from the model in {args.params}")
     noise = noise_level(split.nodes)
     print(f"noise level estimated from the end caps: {noise * 1e3:.3g} mm")
     t0 = time.perf_counter()
     est: TrajectoryIdentifier | FloorIdentification
     effects: list[PhysicalEffect] = []
     evidence: FloorEvidence | None = None
-    floor, why = contact_gate(split, dataset.topology)
     if floor and split.has_cable_commands:
         raise InputError(f"{args.dataset}: end caps on a floor with cable actuator commands: the "
                          "joint fit with ground contact does not apply cable commands; identify "
@@ -127,19 +145,14 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     if floor:
         print(f"end caps reach a floor ({why}): ground contact is fitted with the declared "
               "model")  # fmt: skip
-        settings = TrajectorySettings(
-            anchors=anchors, smoothing=args.smoothing, seed=args.seed,
-            physics_dt=args.physics_dt, fit_window=samples_of(window, dt, 2),
-            floor_windows=args.floor_windows,
-        )  # fmt: skip
-        est = identify_on_floor(dataset, settings, args.split)
+        est = identify_on_floor(dataset, settings, args.split, start=start, contact=contact)
         effects = [est.contact_]
         evidence = contact_evidence(split.nodes, dt, dataset.topology, est.contact_)
     else:
         est = TrajectoryIdentifier(
             anchors=anchors, window=samples_of(window, dt, 2),
             first_window=samples_of(args.first_window, dt, 2), smoothing=args.smoothing,
-            seed=args.seed, progress=True, physics_dt=args.physics_dt,
+            seed=args.seed, progress=True, physics_dt=args.physics_dt, start=start,
         ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
     check_stage("the trajectory fit", est.rms_, noise,

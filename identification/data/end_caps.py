@@ -56,21 +56,32 @@ from tensegrity_env.topology import Topology
 class RodAxes:
     """End caps on a principal axis through the centre of mass, for every rod.
 
+    Which end of a rod is end cap 0 is the file's choice: end cap 0 -> end cap 1 runs
+    along the principal axis ``axis`` in either direction, ``sign``.
+
     Attributes:
         axis: index (0, 1, 2) of the principal axis holding rod r's end caps, (R,).
         frac: the COM as ``x_0 + frac * (x_1 - x_0)`` between the end caps, (R,).
         radius: rod radius for the assumed axial inertia ``M r^2 / 2`` [m], (R,).
+        sign: +1 where end cap 0 -> end cap 1 runs along the positive principal axis,
+            -1 where along the negative one, (R,).
     """
 
     axis: np.ndarray
     frac: np.ndarray
     radius: np.ndarray
+    sign: np.ndarray
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit vector from end cap 0 to end cap 1 in each rod's principal frame, (R, 3)."""
+        return np.eye(3)[self.axis] * self.sign[:, None]
 
     @classmethod
     def of(cls, topology: Topology) -> RodAxes:
         """Raise :class:`InputError` if some rod's end caps are not on a principal axis."""
         ends = topology.end_offsets  # (R, 2, 3)
-        axis, frac = [], []
+        axis, frac, sign = [], [], []
         for r, e in enumerate(ends):
             k = int(np.argmax(np.abs(e[1] - e[0])))
             off = np.delete(e, k, axis=1)
@@ -82,8 +93,9 @@ class RodAxes:
                 )
             axis.append(k)
             frac.append(-e[0, k] / (e[1, k] - e[0, k]))
+            sign.append(1.0 if e[1, k] > e[0, k] else -1.0)
         radius = np.array([max(rod.radius, 1e-3) for rod in topology.rods])
-        return cls(np.array(axis), np.array(frac), radius)
+        return cls(np.array(axis), np.array(frac), radius, np.array(sign))
 
 
 # ---------------------------------------------------------------------- end caps -> rod states
@@ -267,7 +279,9 @@ def smooth_rod_states(
     velocities and accelerations are the fitted polynomials and their derivatives (no
     finite differences); the perpendicular angular velocity and acceleration are
     ``u × u̇`` and ``u × ü`` of the rod direction ``u``, and the orientation the
-    shortest arc onto ``u`` (no twist, as :func:`rod_states_from_nodes`). Gaps (NaN)
+    shortest arc from the rod's own end cap 0 -> end cap 1 direction
+    (:attr:`RodAxes.direction`, either sign) onto ``u`` (no twist, as
+    :func:`rod_states_from_nodes`). Gaps (NaN)
     are fitted through by :func:`masked_savgol`; a rod's states are NaN where a gap of
     either end cap is too long to bridge (:attr:`SmoothedStates.finite` is False there).
     """
@@ -291,7 +305,7 @@ def smooth_rod_states(
     alpha = np.cross(u, ddd / length)
     return SmoothedStates(
         x=x.reshape(nodes.shape), xd=xd.reshape(nodes.shape), p=p, v=v, a=a,
-        q=shortest_arc(np.eye(3)[axes.axis], u),  # the roll about u is not seen by end caps
+        q=shortest_arc(axes.direction, u),  # the roll about u is not seen by end caps
         omega=omega, alpha=alpha, window=window, whole=whole_windows(nodes, window),
     )  # fmt: skip
 

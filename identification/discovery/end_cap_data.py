@@ -97,6 +97,9 @@ class TrajectorySettings:
         final_floor_windows: windows of the training split for the final refit of the
             selected model on such data (default :data:`FINAL_FLOOR_WINDOWS`; none at
             or below ``floor_windows``).
+        floor_window: steps per window of the fits on the floor (0: ``fit_window`` or
+            ``window``, at most :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S`;
+            :func:`~identification.discovery.floor_fits.floor_steps`).
         final_floor_window: steps per window of that refit (0: as the floor windows,
             :func:`~identification.discovery.floor_fits.floor_steps`).
         final_iter: most Levenberg-Marquardt iterations of the final refit (default
@@ -121,6 +124,7 @@ class TrajectorySettings:
     floor_windows: int = FLOOR_WINDOWS
     final_floor_windows: int = FINAL_FLOOR_WINDOWS
     final_floor_window: int = 0
+    floor_window: int = 0
     final_iter: int = FINAL_ITERATIONS
     physics_dt: float = PHYSICS_DT
 
@@ -302,13 +306,12 @@ class EndCapData:
             self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
         win = cut_windows(split.nodes, split.control, grid, steps, split.cable_control)
-        radii = torch.as_tensor(cap_radii(self.topology))
         if airborne:
-            gap = win.obs[..., 2] - radii
+            gap = seen_gaps(win, self.topology)
             win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))
         rng = np.random.default_rng([self.seed, stream])
-        if lift_off and win.size > count:  # (unseen end caps read 0: not in the air)
-            in_air = ((win.obs[:, 0, :, 2] - radii).amin(dim=1) > AIRBORNE).numpy()
+        if lift_off and win.size > count:
+            in_air = (seen_gaps(win, self.topology)[:, 0].amin(dim=1) > AIRBORNE).numpy()
             air, ground = (
                 rng.permutation(np.flatnonzero(in_air)),
                 rng.permutation(np.flatnonzero(~in_air)),
@@ -319,6 +322,13 @@ class EndCapData:
         if win.size > count:
             win = win.take(np.sort(rng.choice(win.size, count, replace=False)))
         return win
+
+
+def seen_gaps(win: Windows, topology: Topology) -> torch.Tensor:
+    """Height of every measured end cap of ``win`` above touching the floor (z = 0),
+    (B, W+1, 2R) [m]; +inf where the end cap is not seen (a gap vetoes nothing)."""
+    gap = win.obs[..., 2] - torch.as_tensor(cap_radii(topology))
+    return torch.where(win.seen(), gap, torch.full_like(gap, torch.inf))
 
 
 def airborne_keep(data: EndCapData) -> np.ndarray | None:

@@ -31,7 +31,7 @@ class WindowResiduals:
     """Held-out end-cap residuals and the quantities they are plotted against.
 
     Attributes:
-        error: predicted minus measured end caps, (B, W+1, 2R, 3) [m].
+        error: predicted minus measured end caps, (B, W+1, 2R, 3) [m]; NaN where unseen.
         height: predicted end-cap height z, (B, W+1, 2R) [m].
         speed: predicted end-cap speed, (B, W+1, 2R) [m/s].
         time: time since the window's start, (W+1,) [s].
@@ -46,13 +46,18 @@ class WindowResiduals:
 
 
 def window_residuals(
-    predicted: torch.Tensor, measured: torch.Tensor, dt: float, radius: np.ndarray
-) -> WindowResiduals:
-    """Residuals of ``predicted`` end caps (B, W+1, 2R, 3) [m] against ``measured``."""
+    predicted: torch.Tensor, measured: torch.Tensor, dt: float, radius: np.ndarray,
+    seen: torch.Tensor | None = None,
+) -> WindowResiduals:  # fmt: skip
+    """Residuals of ``predicted`` end caps (B, W+1, 2R, 3) [m] against ``measured``;
+    NaN where an end cap was not seen (``seen`` (B, W+1, 2R) False)."""
     pred = predicted.detach().numpy()
     vel = np.gradient(pred, dt, axis=1)
+    error = pred - measured.detach().numpy()
+    if seen is not None:
+        error[~seen.numpy()] = np.nan
     return WindowResiduals(
-        error=pred - measured.detach().numpy(),
+        error=error,
         height=pred[..., 2],
         speed=np.linalg.norm(vel, axis=-1),
         time=np.arange(pred.shape[1]) * dt,
@@ -63,6 +68,10 @@ def window_residuals(
 def _binned(x: np.ndarray, y: np.ndarray, bins: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """Bin centres of ``x`` (quantile bins) and the RMS of ``y`` in each."""
     x, y = x.reshape(-1), y.reshape(-1)
+    keep = np.isfinite(x) & np.isfinite(y)  # (unseen end caps: left out)
+    x, y = x[keep], y[keep]
+    if x.size == 0:
+        return np.full(0, np.nan), np.full(0, np.nan)
     edges = np.unique(np.quantile(x, np.linspace(0, 1, bins + 1)))
     idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
     centre = np.array([x[idx == k].mean() if np.any(idx == k) else np.nan
@@ -75,13 +84,14 @@ def _binned(x: np.ndarray, y: np.ndarray, bins: int = 20) -> tuple[np.ndarray, n
 def summarize_window_residuals(r: WindowResiduals) -> dict[str, float]:
     """Numbers [m]: overall RMS; RMS near the floor (caps within 2 cm of touching) and
     above it; RMS of the fastest and slowest quarter of samples; RMS in the window's
-    last and first fifth."""
+    last and first fifth. Over the seen end caps only."""
     e = np.linalg.norm(r.error, axis=-1)
+    seen = np.isfinite(e)
     gap = r.height - r.radius
     fast = r.speed > np.quantile(r.speed, 0.75)
     slow = r.speed < np.quantile(r.speed, 0.25)
     W1 = r.error.shape[1]
-    rms = lambda m: float(np.sqrt(np.mean(e[m] ** 2))) if np.any(m) else float("nan")  # noqa: E731
+    rms = lambda m: float(np.sqrt(np.mean(e[m & seen] ** 2))) if np.any(m & seen) else float("nan")  # noqa: E731
     late = np.zeros_like(e, dtype=bool)
     late[:, -max(1, W1 // 5) :] = True
     early = np.zeros_like(e, dtype=bool)

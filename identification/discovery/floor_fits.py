@@ -52,9 +52,13 @@ from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 
-def floor_steps(data: EndCapData, s: TrajectorySettings, steps: int) -> int:
-    """``steps`` capped at :data:`FLOOR_WINDOW_S` of samples (at least 2)."""
-    return max(2, min(steps, round(FLOOR_WINDOW_S / data.dt)))
+def floor_steps(dt: float, s: TrajectorySettings) -> int:
+    """Steps per window of the fits on the floor, at ``dt`` [s] between samples:
+    ``s.floor_window`` where set, else ``s.fit_window`` (or ``s.window``) capped at
+    :data:`FLOOR_WINDOW_S` (at least 2)."""
+    if s.floor_window > 0:
+        return max(2, s.floor_window)
+    return max(2, min(s.fit_window or s.window, round(FLOOR_WINDOW_S / dt)))
 
 
 @dataclass(frozen=True)
@@ -101,9 +105,10 @@ def floor_fit(
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
-             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps)")  # fmt: skip
+             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); windows of "
+             f"{floor_steps(data.dt, s)} steps")  # fmt: skip
     count = s.floor_windows
-    many_windows = data.cut("train", floor_steps(data, s, s.fit_window or s.window), count, 3,
+    many_windows = data.cut("train", floor_steps(data.dt, s), count, 3,
                             lift_off=count // 2)  # fmt: skip
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
@@ -198,16 +203,20 @@ def identify_on_floor(
     settings: TrajectorySettings,
     split: str = "train",
     log: Callable[[str], None] = print,
+    start: Params | None = None,
+    contact: GroundContact | None = None,
 ) -> FloorIdentification:
     """The declared model and ground contact fitted on ``split``'s end caps
-    (:func:`fit_declared_on_floor`: ``settings.fit_windows`` windows of
-    ``settings.fit_window`` steps at most), as ``identify`` reports it."""
+    (:func:`fit_declared_on_floor`: ``settings.floor_windows`` windows of
+    :func:`floor_steps`), as ``identify`` reports it; from ``start`` and ``contact``
+    (a params file's) where given, as :func:`floor_fit`."""
     if split != "train":
         splits = {**dataset.splits, "train": dataset.split(split)}
         dataset = Dataset(dataset.topology, dataset.dt, splits, dataset.attrs)
     data = EndCapData(dataset, settings)
     data.log = log
-    many, _ = fit_declared_on_floor(data, settings, selection=False)
+    many, _ = fit_declared_on_floor(data, settings, start=start, contact=contact,
+                                    selection=False)  # fmt: skip
     vec, topo = many.vec, dataset.topology
     ident = TrajectoryIdentifier(anchors=settings.anchors)
     has_control = bool(np.any(data.train.control != 0))

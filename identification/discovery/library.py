@@ -275,10 +275,15 @@ def contact_proposal(split: Split, topology: Topology) -> Proposal:
 
 
 def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
-    """Whether end caps reach the floor and the floor stops them, and why (one line)."""
+    """Whether end caps reach the floor and the floor stops them, and why (one line).
+
+    Over the seen end-cap samples only: a gap (NaN) is neither low nor deep."""
     radius = np.array([r.radius for r in topology.rods]).repeat(2)
     height = split.nodes[..., 2] - radius
-    low, deepest = float((height <= 0).mean()), float(height.min())
+    seen = height[np.isfinite(height)]
+    if seen.size == 0:
+        return False, "no end cap is seen"
+    low, deepest = float((seen <= 0).mean()), float(seen.min())
     if low > 0 and deepest > -FLOOR_DEPTH:
         return True, (
             f"{low:.1%} of end-cap samples at or below z - r = 0; "

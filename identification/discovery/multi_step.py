@@ -558,7 +558,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
             count = s.final_floor_windows
             if count <= s.floor_windows:
                 return current
-            steps = s.final_floor_window or floor_steps(data, s, s.fit_window or s.window)
+            steps = s.final_floor_window or floor_steps(data.dt, s)
             windows = data.cut("train", steps, count, 5, lift_off=count // 2)
             return self.refit(current, windows, within=STUCK_WINDOW * self.noise)
         if contact_gate(data.train, data.topology)[0]:
@@ -605,7 +605,8 @@ class MultiStepScorer(Scorer[EndCapFits]):
         assert fits.val_windows is not None
         radius = np.repeat([rod.radius for rod in data.topology.rods], 2)
         pred = predicted_caps(data, fits.scored, fits.val_windows)
-        res = window_residuals(pred, fits.val_windows.obs, data.dt, radius)
+        res = window_residuals(pred, fits.val_windows.obs, data.dt, radius,
+                               fits.val_windows.seen())  # fmt: skip
         r = summarize_window_residuals(res)
         plot = None
         if plots is not None:

@@ -53,7 +53,7 @@ from identification.discovery.residuals import (
 from identification.discovery.rollout_plots import rod_state_rollout_plot
 from identification.discovery.scorer import Residual, Scorer
 from identification.linear.extended import acting_split, evaluate_model
-from identification.linear.features import cable_commands_at, transitions_of
+from identification.linear.features import cable_commands_at, drawn_transitions, transitions_of
 from identification.report.tables import error_text
 from identification.trajectory.windows import STATE_KEYS
 from tensegrity_env.effects import ImplicitLinearDrag, LinearDrag, ResidualNetwork, SlackSprings
@@ -68,9 +68,7 @@ SAMPLE_STRIDE = 10
 def one_step_bic(dataset: Dataset, model: FittedModel, max_transitions: int = 20_000) -> float:
     """``n ln(SSE/n) + k ln(n)`` of the one-step position errors on the training split."""
     data = dataset.split("train")
-    N, T = data.n_trajectories, data.n_transitions
-    rng = np.random.default_rng(1)
-    idx = np.sort(rng.choice(N * T, size=min(N * T, max_transitions), replace=False))
+    idx = drawn_transitions(data, max_transitions, 1)
     acting = acting_split(model.effects, data, dataset.dt)
     s0, s1, u = transitions_of(acting, idx)
     cables = cable_commands_at(acting, idx)
@@ -88,8 +86,7 @@ def one_step_bic(dataset: Dataset, model: FittedModel, max_transitions: int = 20
 def predicted_change(dataset: Dataset, a: FittedModel, b: FittedModel, split: str) -> np.ndarray:
     """One-step velocity predictions of ``b`` minus ``a`` on a split's transitions, flattened."""
     data = dataset.split(split)
-    N, T = data.n_trajectories, data.n_transitions
-    idx = np.sort(np.random.default_rng(2).choice(N * T, size=min(N * T, 5000), replace=False))
+    idx = drawn_transitions(data, 5000, 2)
     out = []
     for m in (a, b):
         acting = acting_split(m.effects, data, dataset.dt)

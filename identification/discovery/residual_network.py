@@ -41,13 +41,17 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
 from identification.discovery.library import FitSettings, FittedModel
 from identification.linear.extended import ExtendedIdentifier, acting_split, evaluate_model
-from identification.linear.features import cable_commands_at, transition_features, transitions_of
+from identification.linear.features import (
+    cable_commands_at,
+    drawn_transitions,
+    transition_features,
+    transitions_of,
+)
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import ResidualMLP, ResidualNetwork, rod_features
@@ -130,9 +134,7 @@ def missing_wrench(
     """
     data = dataset.split(split)
     topo = dataset.topology
-    N, T = data.n_trajectories, data.n_transitions
-    rng = np.random.default_rng(seed)
-    idx = np.sort(rng.choice(N * T, size=min(N * T, max_transitions), replace=False))
+    idx = drawn_transitions(data, max_transitions, seed)
     acting = acting_split(model.effects, data, dataset.dt)
     s0, s1, u = transitions_of(acting, idx)
     cables = cable_commands_at(acting, idx)

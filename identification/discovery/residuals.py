@@ -40,7 +40,12 @@ import torch
 
 from identification.data.dataset import Dataset
 from identification.linear.extended import acting_split
-from identification.linear.features import cable_commands_at, transition_features, transitions_of
+from identification.linear.features import (
+    cable_commands_at,
+    drawn_transitions,
+    transition_features,
+    transitions_of,
+)
 from identification.report.plots import save_figure
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine
@@ -105,9 +110,8 @@ def compute_residuals(
 ) -> Residuals:
     """Residuals of the model (params + effects) on a random subset of a split."""
     data = dataset.split(split)
-    N, T = data.n_trajectories, data.n_transitions
-    rng = np.random.default_rng(seed)
-    idx = np.sort(rng.choice(N * T, size=min(N * T, max_transitions), replace=False))
+    T = data.n_transitions
+    idx = drawn_transitions(data, max_transitions, seed)
     acting = acting_split(effects, data, dataset.dt)
     s0, s1, u = transitions_of(acting, idx)
     cables = cable_commands_at(acting, idx)

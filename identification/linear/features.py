@@ -56,6 +56,24 @@ class TransitionFeatures:
         return int(self.accel.shape[0])
 
 
+def defined_transitions(split: Split) -> np.ndarray:
+    """Flat indices ``n T + t`` of the transitions of ``split`` whose two rod states are
+    defined (rod states derived from end caps are NaN where a gap is too long to
+    bridge); every transition without gaps."""
+    defined = np.logical_and.reduce(
+        [np.isfinite(getattr(split, k)).all(axis=(2, 3)) for k in ("p", "v", "q", "omega")]
+    )  # (N, T+1)
+    return np.flatnonzero((defined[:, :-1] & defined[:, 1:]).ravel())
+
+
+def drawn_transitions(split: Split, most: int, seed: int) -> np.ndarray:
+    """At most ``most`` of the :func:`defined_transitions` of ``split``, drawn at random
+    with ``seed`` without replacement, sorted (flat indices ``n T + t``)."""
+    usable = defined_transitions(split)
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.choice(usable, size=min(len(usable), most), replace=False))
+
+
 def transitions_of(
     split: Split, index: np.ndarray | None = None
 ) -> tuple[State, State, torch.Tensor]:

@@ -35,6 +35,8 @@ from identification.linear.design import (
 )
 from identification.linear.features import (
     cable_commands_at,
+    defined_transitions,
+    drawn_transitions,
     transition_features,
     transitions_of,
 )
@@ -173,10 +175,7 @@ class SpringRodIdentifier:
         """Flat indices ``n T + t`` of the transitions to fit: those whose two states are
         defined (rod states derived from end caps are NaN in a gap too long to bridge),
         a random ``fraction`` of them, at most ``max_transitions``."""
-        defined = np.logical_and.reduce(
-            [np.isfinite(getattr(data, k)).all(axis=(2, 3)) for k in ("p", "v", "q", "omega")]
-        )  # (N, T+1)
-        usable = np.flatnonzero((defined[:, :-1] & defined[:, 1:]).ravel())
+        usable = defined_transitions(data)
         if len(usable) == 0:
             raise InputError("no transition with both rod states defined (gaps everywhere)")
         total = len(usable)
@@ -433,9 +432,7 @@ def evaluate_params(
     """One-step and rollout position errors of ``params`` on a split (see ``score``)."""
     data = dataset.split(split)
     engine = Engine(topology, dataset.dt)
-    total = data.n_trajectories * data.n_transitions
-    rng = np.random.default_rng(seed)
-    idx = np.sort(rng.choice(total, size=min(total, max_one_step), replace=False))
+    idx = drawn_transitions(data, max_one_step, seed)
     s0, s1, u = transitions_of(data, idx)
     cables = cable_commands_at(data, idx)
     with torch.no_grad():
@@ -449,7 +446,7 @@ def evaluate_params(
         )
         roll = engine.rollout(init, params, T, ctrl, cable_ctrl)
         err = torch.linalg.vector_norm(roll.p - torch.as_tensor(data.p[:, : T + 1]), dim=-1)
-        curve = err.mean(dim=(0, 2)).numpy()
+        curve = err.nanmean(dim=(0, 2)).numpy()  # (samples in a gap: left out)
     return {
         "one_step_position_error": one_step,
         "rollout_final_position_error": float(curve[-1]),

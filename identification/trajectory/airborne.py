@@ -27,9 +27,19 @@ def cap_radii(topology: Topology) -> np.ndarray:
     return np.repeat([r.radius for r in topology.rods], 2)
 
 
+def lowest_seen(gap: np.ndarray) -> np.ndarray:
+    """The lowest of the seen values of ``gap`` (..., 2R) over its last axis (end caps),
+    (...); NaN only where no end cap is seen (a gap in one end cap hides nothing of the
+    others)."""
+    return np.fmin.reduce(gap, axis=-1)
+
+
 def airborne_mask(nodes: np.ndarray, topology: Topology) -> np.ndarray:
-    """Samples (N, T+1) whose measured end caps ``nodes`` (N, T+1, 2R, 3) are all airborne."""
-    return (nodes[..., 2] - cap_radii(topology)).min(-1) > AIRBORNE
+    """Samples (N, T+1) whose seen end caps of ``nodes`` (N, T+1, 2R, 3) are all airborne
+    (False where none is seen). A marker lost for a sample does not end a flight: the
+    fits compare unseen end caps with nothing, and a touchdown shows in the other caps
+    and the samples around it."""
+    return lowest_seen(nodes[..., 2] - cap_radii(topology)) > AIRBORNE
 
 
 def airborne_samples(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:

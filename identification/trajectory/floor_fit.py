@@ -88,7 +88,7 @@ import torch
 from scipy.ndimage import minimum_filter1d
 from scipy.optimize import minimize
 
-from identification.trajectory.airborne import AIRBORNE, cap_radii
+from identification.trajectory.airborne import AIRBORNE, cap_radii, lowest_seen
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
 from identification.trajectory.effect_fit import to_free
 from identification.trajectory.param_vector import ParamVector
@@ -173,7 +173,7 @@ def floor_height(nodes: np.ndarray, topology: Topology) -> float:
     """Starting floor height [m]: the median ``z - r`` of the lowest end cap over the
     samples where it is within :data:`~identification.trajectory.touchdown.TOUCH` of z = 0
     (or below). ``nodes`` (N, T+1, 2R, 3) [m]."""
-    lowest = (nodes[..., 2] - cap_radii(topology)).min(-1)
+    lowest = lowest_seen(nodes[..., 2] - cap_radii(topology))
     near = lowest[np.isfinite(lowest) & (lowest < TOUCH)]
     return float(np.median(near)) if near.size else 0.0
 

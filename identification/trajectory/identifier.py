@@ -65,11 +65,18 @@ from tqdm.auto import tqdm
 from identification.data.dataset import Dataset
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.linear.smoothed import parse_anchors, smoothed_regression
-from identification.trajectory.param_vector import DTYPE, GROUPS, ParamVector, gain_sign
+from identification.trajectory.param_vector import (
+    DTYPE,
+    GROUPS,
+    ParamVector,
+    gain_sign,
+    params_values,
+)
 from identification.trajectory.windowed_fit import fit_windows
 from identification.trajectory.windows import STATE_KEYS, cut_windows, fill_grid, window_schedule
 from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 
@@ -100,6 +107,9 @@ class TrajectoryIdentifier:
         threads: torch intra-op threads during ``fit`` (restored after); the tensors are
             small, so extra threads mostly add overhead (and stall on a busy machine).
         physics_dt: the longest physics step [s]; the engine substeps between samples.
+        start: the parameters to start from (a params file's, e.g. a robot's nominal
+            model); None: the stage-1 regression on the smoothed end caps. Anchors keep
+            their values either way.
 
     After ``fit``: ``params_`` (:class:`Params`), ``initial_params_`` (stage 1),
     ``history_`` (mean squared end-cap error [m^2] before the first and after each
@@ -127,6 +137,7 @@ class TrajectoryIdentifier:
         exact_gradient: bool = False,
         threads: int | None = 1,
         physics_dt: float = PHYSICS_DT,
+        start: Params | None = None,
     ) -> None:
         if min(window, first_window) < 1 or max_iter < 0 or not smoothing > 0:
             raise InputError("windows >= 1 step, max_iter >= 0 and smoothing > 0 are required")
@@ -143,6 +154,7 @@ class TrajectoryIdentifier:
         self.exact_gradient = exact_gradient
         self.threads = threads
         self.physics_dt = float(physics_dt)
+        self.start = start
 
     def fit(self, dataset: Dataset, split: str = "train") -> TrajectoryIdentifier:
         """Identify the parameters from the end caps (and control) of ``split``."""
@@ -167,8 +179,11 @@ class TrajectoryIdentifier:
         sg = odd_window(self.smoothing / dataset.dt)
         smooth = smooth_rod_states(data.nodes, dataset.dt, axes, sg)
         cables = data.cable_control
-        start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity,
-                                    cables=cables)  # fmt: skip
+        if self.start is not None:
+            start = params_values(self.start, axes)
+        else:
+            start = smoothed_regression(topo, smooth, data.control, self.anchors, self.gravity,
+                                        cables=cables)  # fmt: skip
         has_control = bool(np.any(data.control != 0))
         has_cables = cables is not None and bool(np.any(cables != 0))
         vec = self.start_vector(topo, axes, start, anchors, has_control, has_cables)

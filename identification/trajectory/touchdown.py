@@ -40,7 +40,7 @@ from scipy.optimize import minimize
 
 from identification.data.dataset import Dataset
 from identification.data.end_caps import odd_window, smooth_rod_states
-from identification.trajectory.airborne import cap_radii
+from identification.trajectory.airborne import cap_radii, lowest_seen
 from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
 from identification.trajectory.effect_fit import from_free, to_free
 from identification.trajectory.param_vector import ParamVector
@@ -118,7 +118,7 @@ def find_touchdowns(
     gap = nodes[..., 2] - radius  # (N, T+1, 2R) [m]
     states, obs, ctrl, traj, first, sse, m = [], [], [], [], [], 0.0, 0
     for i in range(nodes.shape[0]):
-        near = np.flatnonzero(gap[i].min(-1) < TOUCH)
+        near = np.flatnonzero(lowest_seen(gap[i]) < TOUCH)
         if near.size == 0:
             continue
         n = int(near[0]) - LEAD  # airborne prefix [steps]

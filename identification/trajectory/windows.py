@@ -67,6 +67,13 @@ class Windows:
         coords = int(self.obs.shape[-1]) if self.valid.ndim == 3 else int(self.obs[0, 0].numel())
         return per * coords
 
+    def seen(self) -> torch.Tensor:
+        """Which end caps count at each sample, (B, W+1, 2R) bool (see ``valid``)."""
+        shape = self.obs.shape[:-1]
+        if self.valid is None:
+            return torch.ones(shape, dtype=torch.bool)
+        return (self.valid if self.valid.ndim == 3 else self.valid[..., None]).expand(shape)
+
     def weights(self, t0: int = 0, t1: int | None = None) -> torch.Tensor | None:
         """``valid`` of samples ``t0:t1`` as 0/1 weights, (B, t1-t0, 1 or 2R, 1), or None.
 

@@ -1,0 +1,46 @@
+"""The declared model a command starts from: one option name, ``--params``, in every
+command, and one way to read it against the dataset."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from identification.data.dataset import Dataset
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.model import Model
+from tensegrity_env.params import Params
+
+
+def add_params_option(parser: argparse.ArgumentParser, help: str) -> None:
+    """``--params FILE`` (a params.json or the robot's MJCF); ``--init``, its former name
+    in ``identify``, is still read and not shown."""
+    parser.add_argument("--params", type=Path, help=help)
+    parser.add_argument("--init", type=Path, dest="params", help=argparse.SUPPRESS)
+
+
+def declared_model(path: Path, dataset: Dataset, source: Path) -> Model:
+    """The model in ``path`` (:meth:`~tensegrity_env.model.Model.read`), at the dataset's
+    sample interval; raises :class:`InputError` if its topology is not the dataset's
+    (``source``: the dataset's file, for the message)."""
+    model = Model.read(path, dt=dataset.dt)
+    if not model.topology.same_as(dataset.topology):
+        raise InputError(f"{path}: topology differs from {source}")
+    return model
+
+
+def declared_start(
+    path: Path, dataset: Dataset, source: Path, anchors: dict[str, float]
+) -> tuple[Params, GroundContact | None]:
+    """Where a trajectory fit on end caps starts from the model in ``path``: its
+    parameters and its floor contact (None: none). Its first rod's mass fixes the scale
+    unless ``anchors`` (updated in place) already does; a model with effects other than
+    one ground contact is refused (the fit starts from the declared model)."""
+    model = declared_model(path, dataset, source)
+    anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
+    floors = [e for e in model.effects if isinstance(e, GroundContact)]
+    if len(floors) < len(model.effects) or len(floors) > 1:
+        raise InputError(f"{path}: a trajectory fit starts from the declared model and at "
+                         "most one ground_contact (remove its other 'effects')")  # fmt: skip
+    return model.params, floors[0] if floors else None

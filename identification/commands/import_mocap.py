@@ -43,7 +43,8 @@ def register(sub: Any) -> None:
     )
     p.add_argument("files", type=Path, nargs="+", help="C3D, TSV or CSV files, one take each")
     p.add_argument("--robot", type=Path, required=True,
-                   help="robot MJCF (.xml; its rest pose starts unlabelled tracking) or params.json")  # fmt: skip
+                   help="robot MJCF (.xml) or NTRT YAML model (.yaml; the rest pose of either starts "
+                        "unlabelled tracking), or params.json")  # fmt: skip
     p.add_argument("--map", type=Path, help="marker map YAML (marker -> rod end cap, axial offset)")
     p.add_argument("--units", choices=("m", "mm"),
                    help="length unit of files that do not state theirs (plain CSV)")  # fmt: skip

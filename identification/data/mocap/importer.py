@@ -47,14 +47,20 @@ def read_robot(
     path: str | Path, ignore: tuple[str, ...] = (), end_caps: tuple[str, ...] = ()
 ) -> Robot:
     """A robot from an MJCF file (graph + rest pose; ``end_caps``: its end-cap sites,
-    two per rod, where the convention does not find them) or a params.json (graph only)."""
+    two per rod, where the convention does not find them), an NTRT YAML model (graph +
+    rest pose, :func:`~tensegrity_env.ntrt.from_ntrt`) or a params.json (graph only)."""
     p = Path(path)
     if p.suffix.lower() == ".json":
         from tensegrity_env.model import Model
 
         return Robot(Model.load(p).topology, None, p)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        from tensegrity_env.ntrt import from_ntrt
+
+        ntrt = from_ntrt(p)
+        return Robot(ntrt.topology, ntrt.rest_caps, p)
     if p.suffix.lower() != ".xml":
-        raise InputError(f"{p}: robot file must be an MJCF .xml or a params .json")
+        raise InputError(f"{p}: robot file must be an MJCF .xml, an NTRT .yaml or a params .json")
     from tensegrity_env.mjcf import from_mjcf
 
     asm = from_mjcf(p, ignore=ignore, end_caps=end_caps)

@@ -10,17 +10,11 @@ import numpy as np
 
 from identification.data.quality import placeholder_samples, repeated_frames
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.rotations import TO_Z_UP
 
 #: metres per unit of the length units a file may state
 UNIT_SCALE = {"m": 1.0, "meters": 1.0, "metres": 1.0, "mm": 1e-3, "millimeters": 1e-3,
               "millimetres": 1e-3, "cm": 1e-2, "centimeters": 1e-2, "centimetres": 1e-2}  # fmt: skip
-#: rotations taking a file's up axis to z (right-handed): Vicon and Qualisys record z-up,
-#: OptiTrack Motive y-up by default
-TO_Z_UP = {
-    "z": np.eye(3),
-    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),  # +90 deg about x
-    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),  # x, y, z -> y, z, x
-}
 #: marker names that mean "not labelled": Motive's ``Unlabeled 1234``, Vicon's ``*12`` and
 #: the OptiTrack row format's ``Marker-1234``
 UNLABELLED = re.compile(r"^(unlabeled|unlabelled)\b|^\*\d+$|^marker-\d+$", re.IGNORECASE)

@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from identification.data.dataset import Dataset, Split
-from identification.data.mocap.labelling import initial_caps_from_shape, label_clouds
+from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
 from identification.data.mocap.summary import lowest_marker_bands
+from identification.data.quality import third_difference_noise
 from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
@@ -27,6 +28,14 @@ RATE_TOL = 0.01
 #: both its end caps are read as unseen in that frame (a marker swapped with another
 #: rod's, or mislabelled for a few frames)
 ROD_FRAME_TOL = 0.05
+#: a rod's marker distance may stray from its usual value by this many times the
+#: take's marker noise (a rigid rod: only noise moves it) ...
+NOISE_TO_LENGTH_TOL = 20.0
+#: ... within this range [m] (2 mm: the precision a model of the rods can use; 1 cm:
+#: the tracker's gate for noisy data)
+LENGTH_TOL_RANGE = (0.002, LENGTH_TOL)
+#: the span [s] over which a rod's usual marker distance is the median
+ROD_LENGTH_WINDOW = 1.0
 #: a floor: the take's lowest marker stays within this height band [m] (5th to 95th
 #: percentile over the frames) along one axis ...
 FLOOR_BAND = 0.01
@@ -79,7 +88,9 @@ class ImportedTake:
     ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen);
     ``commands`` (F, C): each cable actuator's command in force from each frame on
     [command units] (None: not logged, zero); ``rejected``: labelled samples read as
-    unseen (:func:`checked_labels`)."""
+    unseen (:func:`checked_labels`, :func:`rods_off_their_length`); ``reacquired``
+    (2R,): times each cap was found again after being lost (unlabelled takes);
+    ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`)."""
 
     source: Path
     time: np.ndarray
@@ -90,6 +101,8 @@ class ImportedTake:
     track_of_cap: np.ndarray
     commands: np.ndarray | None = None
     rejected: int = 0
+    reacquired: np.ndarray | None = None
+    ids: np.ndarray | None = None
 
     def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
@@ -231,8 +244,9 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
     lengths = cap_distances(robot)
     if mmap is not None:
         first = np.full((n_caps, 3), np.nan)
-        for name, (cap, _) in mmap.caps.items():
+        for name, (cap, off) in mmap.caps.items():
             first[cap] = rec.points[0, rec.names.index(name)]
+            lengths[cap // 2] += off  # the markers' distance, offsets included
     else:
         assert robot.rest_caps is not None
         start = first_full_frame(rec, n_caps)
@@ -240,10 +254,59 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
         rec = rec.from_frame(start)
         seen = np.isfinite(rec.points[0]).all(-1)
         first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
-    lab = label_clouds(rec.points, rec.time, first, lengths)
+    # two passes: the rods' marker distances as tracked with the robot's lengths and a
+    # loose gate, then tracked again with those
+    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids)
+    apart = np.linalg.norm(lab.caps[:, 0::2] - lab.caps[:, 1::2], axis=-1)
+    usual = np.array([np.median(a[np.isfinite(a)]) if np.isfinite(a).any() else np.nan for a in apart.T])
+    lengths = np.where(np.isfinite(usual), usual, lengths)
+    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
+    caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
     return ImportedTake(
-        rec.source, rec.time, lab.caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap
-    )
+        rec.source, rec.time, caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap,
+        rejected=rejected, reacquired=lab.reacquired, ids=rec.ids,
+    )  # fmt: skip
+
+
+def marker_distances(first: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(R,) [m]: each rod's marker distance as the first frame's end caps ``first``
+    (2R, 3) show it (markers sit on the caps' surfaces, millimetres beyond the robot
+    file's end caps), where both are seen and within :data:`ROD_LENGTH_TOL` of the
+    robot's ``lengths`` (R,) [m] (offsets included); else that length."""
+    apart = np.linalg.norm(first[0::2] - first[1::2], axis=-1)
+    ok = np.isfinite(apart) & (np.abs(apart - lengths) <= ROD_LENGTH_TOL * lengths)
+    return np.where(ok, apart, lengths)
+
+
+def length_tolerance(rec: MarkerRecording) -> float:
+    """How far [m] a labelled rod's marker distance may stray from its usual value:
+    :data:`NOISE_TO_LENGTH_TOL` times the take's marker noise (the median over its
+    tracks), within :data:`LENGTH_TOL_RANGE`."""
+    d3 = np.diff(rec.points, n=3, axis=0)
+    noise = third_difference_noise(d3, least=10)
+    lo, hi = LENGTH_TOL_RANGE
+    return float(np.clip(NOISE_TO_LENGTH_TOL * noise, lo, hi)) if np.isfinite(noise) else hi
+
+
+def rods_off_their_length(caps: np.ndarray, time: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
+    """End caps ``caps`` (F, 2R, 3) [m] at ``time`` (F,) [s] with both caps of a rod read
+    as unseen in the frames where their distance is more than ``tol`` [m] from its
+    median over the :data:`ROD_LENGTH_WINDOW` around the frame (a marker mistaken for
+    another, or a reconstruction that jumps; a marker that moves on its cap over a
+    take, as an impact can make it, shifts the median with it); returns them and the
+    number of samples so read."""
+    apart = np.linalg.norm(caps[:, 0::2] - caps[:, 1::2], axis=-1)  # (F, R)
+    usual = np.full_like(apart, np.nan)
+    lo = np.searchsorted(time, time - ROD_LENGTH_WINDOW / 2)
+    hi = np.searchsorted(time, time + ROD_LENGTH_WINDOW / 2, side="right")
+    for f in np.flatnonzero(np.isfinite(apart).any(-1)):
+        window = apart[lo[f] : hi[f]]
+        has = np.isfinite(window).any(0)
+        usual[f, has] = np.nanmedian(window[:, has], axis=0)
+    off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
+    out = caps.copy()
+    out[np.repeat(off, 2, axis=1)] = np.nan
+    return out, int(2 * off.sum())
 
 
 def checked_labels(caps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]], int]:

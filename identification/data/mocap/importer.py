@@ -2,21 +2,22 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from identification.data.dataset import Dataset, Split
+from identification.data.end_caps import cap_names
 from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
-from identification.data.mocap.summary import lowest_marker_bands
-from identification.data.quality import third_difference_noise
+from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
+from identification.data.quality import longest_run, third_difference_noise
 from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
+from tensegrity_env.rotations import TO_Z_UP, np_quat_mul, np_quat_to_matrix
 from tensegrity_env.topology import Topology
 
 #: a labelled take's rods may differ from the robot's lengths by at most this fraction
@@ -36,11 +37,6 @@ NOISE_TO_LENGTH_TOL = 20.0
 LENGTH_TOL_RANGE = (0.002, LENGTH_TOL)
 #: the span [s] over which a rod's usual marker distance is the median
 ROD_LENGTH_WINDOW = 1.0
-#: a floor: the take's lowest marker stays within this height band [m] (5th to 95th
-#: percentile over the frames) along one axis ...
-FLOOR_BAND = 0.01
-#: ... while along z it moves over more than this [m]: the file's vertical axis is not z
-FREE_BAND = 0.05
 
 
 @dataclass(frozen=True)
@@ -178,22 +174,44 @@ def first_full_frame(rec: MarkerRecording, n_caps: int) -> int | None:
     return int(full[0]) if full.size else None
 
 
-def check_vertical(rec: MarkerRecording) -> None:
-    """Refuse a take that rests on a floor normal to x or y: its lowest marker stays
-    within :data:`FLOOR_BAND` along that axis while it moves over more than
-    :data:`FREE_BAND` along z (a y-up export read as z-up). ``import-mocap`` checks
-    this unless ``--up`` names the axis."""
-    band = lowest_marker_bands(rec.points)
-    if not np.isfinite(band).all():
-        return
-    flat = int(np.argmin(band))
-    if flat != 2 and band[flat] < FLOOR_BAND and band[2] > FREE_BAND:
-        axis = "xyz"[flat]
-        raise InputError(
-            f"{rec.source}: the markers rest on a plane normal to {axis} (lowest marker within "
-            f"{band[flat] * 1e3:.3g} mm along {axis}, over {band[2] * 1e3:.3g} mm along z): the "
-            f"file is {axis}-up; pass --up {axis}"
-        )
+def upright(take: ImportedTake, up: str | None) -> tuple[ImportedTake, str]:
+    """``take`` (end caps in the file's coordinates) turned z-up, and a line saying how
+    its vertical was found (:func:`~identification.data.mocap.vertical.find_vertical`).
+    ``up``: the axis the user named (``--up``), refused in one line when the data says
+    otherwise; None: the data's (z when it shows neither free flight nor a floor)."""
+    found = find_vertical(take.caps, take.time)
+    src = take.source
+    if found is not None and found.angle > AXIS_ANGLE:
+        raise InputError(f"{src}: {found.evidence}, {found.angle:.0f} deg from the file's nearest "
+                         f"axis {found.axis}: a tilted vertical is not read")  # fmt: skip
+    if up is not None:
+        if found is not None and found.axis.lstrip("-") != up:
+            raise InputError(f"{src}: --up {up} contradicts the data: {found.evidence}; the file is "
+                             f"{found.axis}-up")  # fmt: skip
+        axis, how = up, "given by --up" + (f", and {found.evidence}" if found else "")
+    elif found is None:
+        axis, how = "z", "taken as z: no free flight and no floor found in the take (--up names it)"
+    else:
+        axis, how = found.axis, found.evidence
+    return replace(take, caps=take.caps @ TO_Z_UP[axis].T), f"{src}: up is {axis} ({how})"
+
+
+def tracking_report(take: ImportedTake, topology: Topology) -> str:
+    """Per end cap of an unlabelled take: the share of frames it was seen, its longest
+    gap, how often it was found again after being lost, and how many marker ids it
+    was seen under."""
+    seen = np.isfinite(take.caps).all(-1)
+    dt = 1.0 / take.rate
+    lines = [f"{take.source}: tracking per end cap (labelled up to the robot's symmetry)",
+             "  end cap          seen   longest gap  found again  marker ids"]  # fmt: skip
+    for i, name in enumerate(cap_names(topology)):
+        cols = take.track_of_cap[:, i]
+        rows = np.flatnonzero(cols >= 0)
+        ids = take.ids[rows, cols[rows]] if take.ids is not None else cols[rows]
+        again = int(take.reacquired[i]) if take.reacquired is not None else 0
+        lines.append(f"  {name:<12} {100 * seen[:, i].mean():6.2f} %  {longest_run(~seen[:, i]) * dt:8.3f} s"
+                     f"  {again:11d}  {len(np.unique(ids)):10d}")  # fmt: skip
+    return "\n".join(lines)
 
 
 def cap_distances(robot: Robot) -> np.ndarray:
@@ -289,12 +307,14 @@ def length_tolerance(rec: MarkerRecording) -> float:
 
 
 def rods_off_their_length(caps: np.ndarray, time: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
-    """End caps ``caps`` (F, 2R, 3) [m] at ``time`` (F,) [s] with both caps of a rod read
-    as unseen in the frames where their distance is more than ``tol`` [m] from its
-    median over the :data:`ROD_LENGTH_WINDOW` around the frame (a marker mistaken for
-    another, or a reconstruction that jumps; a marker that moves on its cap over a
-    take, as an impact can make it, shifts the median with it); returns them and the
-    number of samples so read."""
+    """End caps ``caps`` (F, 2R, 3) [m] at ``time`` (F,) [s] with a rod's cap read as
+    unseen in the frames where the rod's marker distance is more than ``tol`` [m] from
+    its median over the :data:`ROD_LENGTH_WINDOW` around the frame (a marker mistaken
+    for another, or a reconstruction that jumps; a marker that moves on its cap over a
+    take, as an impact can make it, shifts the median with it). The cap read as unseen
+    is the one farther from the line through its positions in the frames before and
+    after (the one that jumped); both where neither is seen in both. Returns the caps
+    and the number of samples so read."""
     apart = np.linalg.norm(caps[:, 0::2] - caps[:, 1::2], axis=-1)  # (F, R)
     usual = np.full_like(apart, np.nan)
     lo = np.searchsorted(time, time - ROD_LENGTH_WINDOW / 2)
@@ -305,8 +325,16 @@ def rods_off_their_length(caps: np.ndarray, time: np.ndarray, tol: float) -> tup
         usual[f, has] = np.nanmedian(window[:, has], axis=0)
     off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
     out = caps.copy()
-    out[np.repeat(off, 2, axis=1)] = np.nan
-    return out, int(2 * off.sum())
+    bend = np.full(caps.shape[:2], np.inf)  # (F, 2R): how far each cap leaves the line
+    bend[1:-1] = np.linalg.norm(caps[:-2] - 2.0 * caps[1:-1] + caps[2:], axis=-1)  # of its neighbours
+    bend[~np.isfinite(bend)] = np.inf
+    for f, r in zip(*np.nonzero(off), strict=True):
+        a, b = bend[f, 2 * r], bend[f, 2 * r + 1]
+        if np.isfinite(a) or np.isfinite(b):  # the cap that jumped, seen by its neighbours
+            out[f, 2 * r + int(b > a)] = np.nan
+        else:
+            out[f, 2 * r : 2 * r + 2] = np.nan
+    return out, int(np.isnan(out).any(-1).sum() - np.isnan(caps).any(-1).sum())
 
 
 def checked_labels(caps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]], int]:

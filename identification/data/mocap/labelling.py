@@ -42,8 +42,9 @@ REACQUIRE_GATE = 0.06
 #: rotations tried to place the robot's shape on the first frame's cloud (one every
 #: ~10 degrees of the rotation group, then refined)
 SHAPE_TRIES = 3000
-#: shape placements refined by alternating matching and rigid alignment
-SHAPE_REFINED = 20
+#: shape placements refined by alternating matching and rigid alignment (enough to
+#: hold each of an icosahedron's 60 rotations several times)
+SHAPE_REFINED = 200
 #: a take that starts near the robot file's pose keeps that pose's labelling when it
 #: fits within this [m] RMS of the best placement (of a symmetric robot's equivalent ones)
 SHAPE_TIE = 0.005
@@ -98,15 +99,31 @@ def _refine(shape: np.ndarray, cloud: np.ndarray, rot: np.ndarray, t: np.ndarray
     return pick, float(np.sqrt(np.mean(np.sum((moved[ok] - cloud[pick[ok]]) ** 2, -1))))
 
 
+def rod_misfit(caps: np.ndarray, lengths: np.ndarray) -> float:
+    """RMS [m] of each rod's marker distance in ``caps`` (2R, 3) against its length
+    ``lengths`` (R,) plus one common marker offset (markers sit on the caps' surfaces,
+    beyond the end caps: the offset is >= 0); NaN caps are left out."""
+    d = np.linalg.norm(caps[0::2] - caps[1::2], axis=-1) - lengths
+    d = d[np.isfinite(d)]
+    if not d.size:
+        return float("inf")
+    return float(np.sqrt(np.mean((d - max(0.0, float(np.median(d)))) ** 2)))
+
+
 def initial_caps_from_shape(shape: np.ndarray, cloud: np.ndarray, seed: int = 0) -> np.ndarray:
     """End caps of the first frame: the robot's shape (2R, 3) placed on the cloud (K, 3),
-    in whatever pose the robot is. :data:`SHAPE_TRIES` rotations about the centre of
-    the points near the cloud's median (ghosts far away left out) are matched to the
-    cloud; the best :data:`SHAPE_REFINED` are refined by alternating matching and rigid
-    alignment (Kabsch); the placement with the least RMS distance wins, unless the one
-    refined from the robot file's own pose fits within :data:`SHAPE_TIE` of it. A
-    symmetric robot has several equally good placements: the labelling is unique up
-    to its symmetry. Unmatched caps are NaN."""
+    in whatever pose the robot is.
+
+    :data:`SHAPE_TRIES` rotations about the centre of the points near the cloud's median
+    (ghosts far away left out) are matched to the cloud; the best
+    :data:`SHAPE_REFINED` are refined by alternating matching and rigid alignment
+    (Kabsch), and so is the robot file's own pose. A tensegrity's end caps can be
+    nearly as symmetric as a regular polyhedron while its rods pair them less
+    symmetrically: of the placements within :data:`SHAPE_TIE` RMS of the best, the one
+    whose rods are their lengths (:func:`rod_misfit`) wins, the file's own pose when
+    it is as good. The labelling is unique up to the robot's symmetry. Unmatched caps
+    are NaN."""
+    lengths = np.linalg.norm(shape[0::2] - shape[1::2], axis=-1)
     span = float(np.max(np.linalg.norm(shape[:, None] - shape[None], axis=-1)))
     near = cloud[np.linalg.norm(cloud - np.median(cloud, axis=0), axis=-1) <= span]
     if len(near) < min(len(shape), len(cloud)):
@@ -119,19 +136,20 @@ def initial_caps_from_shape(shape: np.ndarray, cloud: np.ndarray, seed: int = 0)
         d = np.linalg.norm(moved[n][:, None] - cloud[None], axis=-1)
         rows, cols = linear_sum_assignment(d)
         scores[n] = d[rows, cols].sum()
-    best = None
-    for n in np.argsort(scores)[:SHAPE_REFINED]:
-        pick, rms = _refine(shape, cloud, rots[n], centre - rots[n] @ mid)
-        if best is None or rms < best[1]:
-            best = (pick, rms)
-    assert best is not None
-    own = _refine(shape, cloud, np.eye(3), np.zeros(3))  # the robot file's own pose
-    if own[1] <= best[1] + SHAPE_TIE:
-        best = own
-    out = np.full_like(shape, np.nan)
-    ok = best[0] >= 0
-    out[ok] = cloud[best[0][ok]]
-    return out
+    tried = [_refine(shape, cloud, np.eye(3), np.zeros(3))]  # the robot file's own pose first
+    tried += [_refine(shape, cloud, rots[n], centre - rots[n] @ mid)
+              for n in np.argsort(scores)[:SHAPE_REFINED]]  # fmt: skip
+
+    def caps_of(pick: np.ndarray) -> np.ndarray:
+        out = np.full_like(shape, np.nan)
+        out[pick >= 0] = cloud[pick[pick >= 0]]
+        return out
+
+    best_rms = min(rms for _, rms in tried)
+    tied = [caps_of(pick) for pick, rms in tried if rms <= best_rms + SHAPE_TIE]
+    misfit = [rod_misfit(c, lengths) for c in tied]
+    own = tried[0][1] <= best_rms + SHAPE_TIE and misfit[0] <= min(misfit) + SHAPE_TIE / 5
+    return tied[0] if own else tied[int(np.argmin(misfit))]
 
 
 def label_clouds(

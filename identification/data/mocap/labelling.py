@@ -11,6 +11,10 @@ Then each end cap is tracked from frame to frame, its id ignored:
 * a cap lost for longer is predicted from the robot's shape: the last frame that saw
   every cap, moved rigidly onto the caps seen now (Kabsch), and re-acquired within
   :data:`REACQUIRE_GATE` of that, whatever id the camera system gave its marker;
+* a robot lost altogether (fewer than three caps tracked, as in a jump) is found again
+  by placing the last frame that saw every cap on a frame showing as many points
+  (:func:`initial_caps_from_shape`; of a symmetric robot's placements, the one nearest
+  its last pose);
 * the frame's points are assigned to end caps by a minimum-cost matching
   (:func:`scipy.optimize.linear_sum_assignment`): the distance to the prediction plus
   the misfit ``| |x - x_partner| - L_r |`` of the rod's marker distance ``L_r`` (the
@@ -42,11 +46,14 @@ REACQUIRE_GATE = 0.06
 #: rotations tried to place the robot's shape on the first frame's cloud (one every
 #: ~10 degrees of the rotation group, then refined)
 SHAPE_TRIES = 3000
+#: with fewer than three caps tracked, the last frame that saw every cap is placed anew
+#: on a frame that shows as many points, at most this often [s]
+REPLACE_EVERY = 0.1
 #: shape placements refined by alternating matching and rigid alignment (enough to
 #: hold each of an icosahedron's 60 rotations several times)
 SHAPE_REFINED = 200
-#: a take that starts near the robot file's pose keeps that pose's labelling when it
-#: fits within this [m] RMS of the best placement (of a symmetric robot's equivalent ones)
+#: a take that starts near the shape's own pose keeps that pose's labelling when it
+#: scores within this [m] of the best placement (of a symmetric robot's equivalent ones)
 SHAPE_TIE = 0.005
 
 
@@ -117,12 +124,11 @@ def initial_caps_from_shape(shape: np.ndarray, cloud: np.ndarray, seed: int = 0)
     :data:`SHAPE_TRIES` rotations about the centre of the points near the cloud's median
     (ghosts far away left out) are matched to the cloud; the best
     :data:`SHAPE_REFINED` are refined by alternating matching and rigid alignment
-    (Kabsch), and so is the robot file's own pose. A tensegrity's end caps can be
-    nearly as symmetric as a regular polyhedron while its rods pair them less
-    symmetrically: of the placements within :data:`SHAPE_TIE` RMS of the best, the one
-    whose rods are their lengths (:func:`rod_misfit`) wins, the file's own pose when
-    it is as good. The labelling is unique up to the robot's symmetry. Unmatched caps
-    are NaN."""
+    (Kabsch), and so is the shape's own pose. A tensegrity's end caps can be nearly as
+    symmetric as a regular polyhedron while its rods pair them less symmetrically: a
+    placement scores its RMS distance plus its :func:`rod_misfit`; the least wins, the
+    own pose when it scores within :data:`SHAPE_TIE` of it. The labelling is unique up
+    to the robot's symmetry. Unmatched caps are NaN."""
     lengths = np.linalg.norm(shape[0::2] - shape[1::2], axis=-1)
     span = float(np.max(np.linalg.norm(shape[:, None] - shape[None], axis=-1)))
     near = cloud[np.linalg.norm(cloud - np.median(cloud, axis=0), axis=-1) <= span]
@@ -145,11 +151,9 @@ def initial_caps_from_shape(shape: np.ndarray, cloud: np.ndarray, seed: int = 0)
         out[pick >= 0] = cloud[pick[pick >= 0]]
         return out
 
-    best_rms = min(rms for _, rms in tried)
-    tied = [caps_of(pick) for pick, rms in tried if rms <= best_rms + SHAPE_TIE]
-    misfit = [rod_misfit(c, lengths) for c in tied]
-    own = tried[0][1] <= best_rms + SHAPE_TIE and misfit[0] <= min(misfit) + SHAPE_TIE / 5
-    return tied[0] if own else tied[int(np.argmin(misfit))]
+    placed = [caps_of(pick) for pick, _ in tried]
+    score = np.array([rms + rod_misfit(c, lengths) for c, (_, rms) in zip(placed, tried, strict=True)])
+    return placed[0] if score[0] <= score.min() + SHAPE_TIE else placed[int(np.argmin(score))]
 
 
 def label_clouds(
@@ -190,11 +194,20 @@ def label_clouds(
         return int(ids[f, j]) if ids is not None else j
 
     previous = {ident(0, int(j)): i for i, j in enumerate(track[0]) if j >= 0}
+    tried_at = -np.inf  # when the shape was last placed anew on a frame
     for f in range(1, F):
         present = np.flatnonzero(np.isfinite(points[f]).all(-1))
         cloud = points[f, present]
         pred, reach, fresh = _predict(caps, time, seen_at, f, gate, shape)
         known = np.isfinite(pred).all(-1)
+        lost = fresh.sum() < 3 and shape is not None and len(cloud) >= n_caps
+        if lost and time[f] - tried_at >= REPLACE_EVERY:
+            tried_at = time[f]
+            placed = initial_caps_from_shape(shape, cloud)
+            pick = np.array([int(np.argmin(np.linalg.norm(cloud - c, axis=-1))) if np.isfinite(c).all()
+                             else -1 for c in placed])  # fmt: skip
+            pred, reach = np.where(pick[:, None] >= 0, cloud[np.clip(pick, 0, None)], np.nan), np.full(n_caps, gate)
+            known = np.isfinite(pred).all(-1)
         if len(cloud) == 0 or not known.any():
             continue
         dist = np.linalg.norm(pred[:, None] - cloud[None], axis=-1)

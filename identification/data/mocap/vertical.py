@@ -4,8 +4,9 @@ Two kinds of evidence, in order:
 
 * **free flight**: where the robot flies (dropped, jumping), the centre of its end caps
   accelerates at g, straight down. Stretches of at least :data:`FLIGHT_MIN` whose
-  centre's acceleration (second differences, averaged over :data:`FLIGHT_SMOOTH`) is
-  within :data:`FLIGHT_TOL` of 9.81 m/s^2 give gravity's direction.
+  centre's acceleration (second differences, averaged over :data:`FLIGHT_SMOOTH`, and
+  its median over the stretch: an impact's spike smoothed is no flight) is within
+  :data:`FLIGHT_TOL` of 9.81 m/s^2 give gravity's direction.
 * **a floor**: where it rests or rolls, its lowest end cap stays at the floor's height
   and its two lowest caps sit level. Along the floor's normal that holds for most of
   the take (also when a person lifts the robot for a while); along a wall, a resting
@@ -37,6 +38,9 @@ FLOOR_BAND = 0.01
 FLOOR_SHARE = 0.5
 #: ... and for at most this fraction of that along any other axis direction
 FLOOR_MARGIN = 0.7
+#: a robot leaves its floor (lifted, jumping) for at least this fraction of the frames
+#: before the floor's side is read from it
+LEFT_FLOOR = 0.02
 #: the file's axis nearest to the evidence must be within this angle [deg] of it
 AXIS_ANGLE = 30.0
 AXES = ("x", "y", "z")
@@ -69,59 +73,70 @@ def _nearest_axis(up: np.ndarray) -> tuple[str, float]:
 def free_flight(caps: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, float] | None:
     """Gravity's direction (3,) (unit, pointing down) from the stretches where the
     centre of the end caps ``caps`` (F, N, 3) [m] at ``time`` (F,) [s] accelerates at
-    g, and their total duration [s]; None without such stretches."""
+    g, and their total duration [s]; None without such stretches. Frames that see
+    fewer than all but two caps are skipped (second differences over uneven steps)."""
     F, N = caps.shape[:2]
     seen = np.isfinite(caps).all(-1)
-    acc = np.full((F, 3), np.nan)
-    for f in range(1, F - 1):
-        both = seen[f - 1] & seen[f] & seen[f + 1]
-        if both.sum() < max(N - 2, 1):
-            continue
-        c = caps[f - 1 : f + 2, both].mean(1)  # (3, 3)
-        h0, h1 = time[f] - time[f - 1], time[f + 1] - time[f]
-        acc[f] = 2.0 * ((c[2] - c[1]) / h1 - (c[1] - c[0]) / h0) / (h0 + h1)
+    usable = np.flatnonzero(seen.sum(-1) >= max(N - 2, 1))
     dt = float(np.median(np.diff(time)))
-    w = max(1, round(FLIGHT_SMOOTH / dt))
+    acc = np.full((F, 3), np.nan)
+    for a, f, b in zip(usable[:-2], usable[1:-1], usable[2:], strict=True):
+        both = seen[a] & seen[f] & seen[b]
+        h0, h1 = time[f] - time[a], time[b] - time[f]
+        if both.sum() < max(N - 2, 1) or max(h0, h1) > 3.5 * dt:
+            continue
+        c0, c1, c2 = (caps[k, both].mean(0) for k in (a, f, b))
+        acc[f] = 2.0 * ((c2 - c1) / h1 - (c1 - c0) / h0) / (h0 + h1)
     ok = np.isfinite(acc).all(-1)
     smooth = np.full((F, 3), np.nan)
-    for f in range(F - w + 1):
-        if ok[f : f + w].all():
-            smooth[f + w // 2] = acc[f : f + w].mean(0)
+    half = FLIGHT_SMOOTH / 2
+    lo = np.searchsorted(time, time - half)
+    hi = np.searchsorted(time, time + half, side="right")
+    for f in np.flatnonzero(ok):
+        if ok[lo[f] : hi[f]].mean() >= 0.5:  # at least half the span measured
+            smooth[f] = acc[lo[f] : hi[f]][ok[lo[f] : hi[f]]].mean(0)
     norm = np.linalg.norm(smooth, axis=-1)
     fly = np.isfinite(norm) & (np.abs(norm - G) < FLIGHT_TOL * G)
-    keep = np.zeros(F, dtype=bool)  # runs of at least FLIGHT_MIN
-    start = None
-    for f in range(F + 1):
-        if f < F and fly[f]:
-            start = f if start is None else start
-        elif start is not None:
-            if time[f - 1] - time[start] + dt >= FLIGHT_MIN:
-                keep[start:f] = True
-            start = None
+    keep = np.zeros(F, dtype=bool)  # runs of at least FLIGHT_MIN, unmeasured frames bridged
+    start = last = None
+    for f in [*np.flatnonzero(fly), None]:
+        if f is not None and last is not None and time[f] - time[last] <= 3.5 * dt:
+            last = f
+            continue
+        if start is not None and last is not None and time[last] - time[start] + dt >= FLIGHT_MIN:
+            run = ok[start : last + 1]
+            typical = np.median(acc[start : last + 1][run], axis=0)  # an impact's spike is not typical
+            if abs(np.linalg.norm(typical) - G) < FLIGHT_TOL * G:
+                keep[start : last + 1] = fly[start : last + 1]
+        start = last = f
     if not keep.any():
         return None
     down = smooth[keep].mean(0)
-    return down / np.linalg.norm(down), float(keep.sum() * dt)
+    return down / np.linalg.norm(down), float(time[keep][-1] - time[keep][0] + dt) if keep.sum() > 1 else dt
 
 
-def floor_shares(caps: np.ndarray) -> np.ndarray:
-    """(6,): for each direction +x, -x, +y, -y, +z, -z taken as up, the fraction of the
-    frames of ``caps`` (F, N, 3) [m] in which the lowest cap lies within
-    :data:`FLOOR_BAND` of its median height and the two lowest lie level within it."""
-    out = np.zeros(6)
+def floor_shares(caps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each direction +x, -x, +y, -y, +z, -z taken as up, (6,) each: the fraction of
+    the frames of ``caps`` (F, N, 3) [m] in which the lowest cap lies within
+    :data:`FLOOR_BAND` of its median height and the two lowest lie level within it;
+    and the fraction in which the lowest cap lies more than that below its median
+    height (nothing goes through a floor: along the wrong sign of its normal, a robot
+    lifted or jumping sinks below its 'floor')."""
+    shares, below = np.zeros(6), np.zeros(6)
     seen = np.isfinite(caps).all(-1)
     frames = seen.sum(-1) >= 2
     if not frames.any():
-        return out
+        return shares, below
     for k in range(6):
         up = np.zeros(3)
         up[k // 2] = 1.0 if k % 2 == 0 else -1.0
-        h = np.where(seen, caps @ up, np.inf)[frames]
+        h = np.where(seen, np.nan_to_num(caps) @ up, np.inf)[frames]
         two = np.sort(h, axis=-1)[:, :2]
         low = two[:, 0]
-        share = (np.abs(low - np.median(low)) < FLOOR_BAND) & (two[:, 1] - two[:, 0] < FLOOR_BAND)
-        out[k] = share.mean()
-    return out
+        usual = np.median(low)
+        shares[k] = ((np.abs(low - usual) < FLOOR_BAND) & (two[:, 1] - two[:, 0] < FLOOR_BAND)).mean()
+        below[k] = (low < usual - FLOOR_BAND).mean()
+    return shares, below
 
 
 def find_vertical(caps: np.ndarray, time: np.ndarray) -> Vertical | None:
@@ -134,22 +149,22 @@ def find_vertical(caps: np.ndarray, time: np.ndarray) -> Vertical | None:
         axis, angle = _nearest_axis(-down)
         return Vertical(-down, axis, angle, f"free flight over {seconds:.2g} s accelerates along "
                         f"{_signed(down)} at g")  # fmt: skip
-    shares = floor_shares(caps)
+    shares, below = floor_shares(caps)
     per_axis = shares.reshape(3, 2).max(-1)
     k = int(np.argmax(per_axis))
     others = np.delete(per_axis, k)
     if per_axis[k] < FLOOR_SHARE or others.max() > FLOOR_MARGIN * per_axis[k]:
         return None
-    plus, minus = shares[2 * k], shares[2 * k + 1]
-    up = np.zeros(3)
-    up[k] = 1.0 if plus >= minus else -1.0
-    axis, _ = _nearest_axis(up)
     text = (f"the lowest end caps rest on a plane normal to {AXES[k]} in {100 * per_axis[k]:.0f} % "
             f"of the frames (at most {100 * others.max():.0f} % along another axis)")  # fmt: skip
-    if min(plus, minus) > FLOOR_MARGIN * max(plus, minus):
+    plus, minus = below[2 * k], below[2 * k + 1]
+    if abs(plus - minus) < LEFT_FLOOR:
         return Vertical(np.eye(3)[k], AXES[k], 0.0, text + f"; which way is up along {AXES[k]} is not "
                         f"seen (nothing leaves the floor): taken as +{AXES[k]}")  # fmt: skip
-    return Vertical(up, axis, 0.0, text + f", nothing below it along {axis}")
+    up = np.zeros(3)
+    up[k] = 1.0 if plus < minus else -1.0
+    axis, _ = _nearest_axis(up)
+    return Vertical(up, axis, 0.0, text + f", and what leaves it goes towards {axis}")
 
 
 def _signed(v: np.ndarray) -> str:

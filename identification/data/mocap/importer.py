@@ -37,6 +37,8 @@ NOISE_TO_LENGTH_TOL = 20.0
 LENGTH_TOL_RANGE = (0.002, LENGTH_TOL)
 #: the span [s] over which a rod's usual marker distance is the median
 ROD_LENGTH_WINDOW = 1.0
+#: rounds of that check, each on the medians of what the one before kept
+ROD_LENGTH_ROUNDS = 5
 
 
 @dataclass(frozen=True)
@@ -313,27 +315,37 @@ def rods_off_their_length(caps: np.ndarray, time: np.ndarray, tol: float) -> tup
     for another, or a reconstruction that jumps; a marker that moves on its cap over a
     take, as an impact can make it, shifts the median with it). The cap read as unseen
     is the one farther from the line through its positions in the frames before and
-    after (the one that jumped); both where neither is seen in both. Returns the caps
-    and the number of samples so read."""
-    apart = np.linalg.norm(caps[:, 0::2] - caps[:, 1::2], axis=-1)  # (F, R)
-    usual = np.full_like(apart, np.nan)
+    after (the one that jumped); both where neither is seen in both. Repeated on the
+    medians of what is kept (:data:`ROD_LENGTH_ROUNDS`) until every kept rod is within
+    ``tol`` of its median. Returns the caps and the number of samples so read."""
     lo = np.searchsorted(time, time - ROD_LENGTH_WINDOW / 2)
     hi = np.searchsorted(time, time + ROD_LENGTH_WINDOW / 2, side="right")
-    for f in np.flatnonzero(np.isfinite(apart).any(-1)):
-        window = apart[lo[f] : hi[f]]
-        has = np.isfinite(window).any(0)
-        usual[f, has] = np.nanmedian(window[:, has], axis=0)
-    off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
     out = caps.copy()
-    bend = np.full(caps.shape[:2], np.inf)  # (F, 2R): how far each cap leaves the line
-    bend[1:-1] = np.linalg.norm(caps[:-2] - 2.0 * caps[1:-1] + caps[2:], axis=-1)  # of its neighbours
-    bend[~np.isfinite(bend)] = np.inf
-    for f, r in zip(*np.nonzero(off), strict=True):
-        a, b = bend[f, 2 * r], bend[f, 2 * r + 1]
-        if np.isfinite(a) or np.isfinite(b):  # the cap that jumped, seen by its neighbours
-            out[f, 2 * r + int(b > a)] = np.nan
-        else:
-            out[f, 2 * r : 2 * r + 2] = np.nan
+    for _ in range(ROD_LENGTH_ROUNDS):  # the medians of what is kept, until they hold
+        apart = np.linalg.norm(out[:, 0::2] - out[:, 1::2], axis=-1)  # (F, R)
+        usual = np.full_like(apart, np.nan)
+        for f in np.flatnonzero(np.isfinite(apart).any(-1)):
+            window = apart[lo[f] : hi[f]]
+            has = np.isfinite(window).any(0)
+            usual[f, has] = np.nanmedian(window[:, has], axis=0)
+        off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
+        if not off.any():
+            break
+        bend = np.full(out.shape[:2], np.inf)  # (F, 2R): how far each cap leaves the line
+        bend[1:-1] = np.linalg.norm(out[:-2] - 2.0 * out[1:-1] + out[2:], axis=-1)  # of its neighbours
+        bend[~np.isfinite(bend)] = np.inf
+        for f, r in zip(*np.nonzero(off), strict=True):
+            a, b = bend[f, 2 * r], bend[f, 2 * r + 1]
+            if np.isfinite(a) or np.isfinite(b):  # the cap that jumped, seen by its neighbours
+                out[f, 2 * r + int(b > a)] = np.nan
+            else:
+                out[f, 2 * r : 2 * r + 2] = np.nan
+    else:  # what is left after the last round is checked once more, both caps dropped
+        apart = np.linalg.norm(out[:, 0::2] - out[:, 1::2], axis=-1)
+        usual = np.array([[np.nanmedian(apart[lo[f] : hi[f], r]) if np.isfinite(apart[lo[f] : hi[f], r]).any()
+                           else np.nan for r in range(apart.shape[1])] for f in range(len(apart))])  # fmt: skip
+        off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
+        out[np.repeat(off, 2, axis=1)] = np.nan
     return out, int(np.isnan(out).any(-1).sum() - np.isnan(caps).any(-1).sum())
 
 

@@ -14,6 +14,7 @@ from identification.data.dataset import read_dataset
 from identification.data.mocap.optitrack_rows import write_optitrack_rows
 from identification.data.mocap.recording import read_recording
 from identification.data.mocap.vertical import find_vertical
+from identification.data.quality import repeated_frames
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.ntrt import from_ntrt
 from tensegrity_env.rotations import TO_Z_UP, axis_angle_to_quat, np_quat_to_matrix
@@ -171,3 +172,15 @@ def test_malformed_rows_are_one_line_errors_naming_row_and_column(tmp_path: Path
         read_recording(tmp_path / "bad.csv")
     text = str(e.value)
     assert "bad.csv" in text and f"row {k + 1}" in text and message in text and "\n" not in text
+
+
+def test_a_copy_of_the_frame_before_is_repeated_a_still_robot_is_not() -> None:
+    """Markers at rest with 30 µm noise (the finest optical systems) never repeat within
+    1 µm; an exporter's copy to 1e-8 m does."""
+    rng = np.random.default_rng(5)
+    x = np.ones((50, 12, 3)) + rng.normal(0, 3e-5, (50, 12, 3))
+    x[20] = x[19] + rng.normal(0, 1e-8, (12, 3))
+    x[30, 3:] = x[29, 3:]  # a partial copy: three markers moved
+    x[40, :] = np.nan
+    x[40, 0] = x[39, 0]  # one marker alone is no frame
+    np.testing.assert_array_equal(np.flatnonzero(repeated_frames(x)), [20])

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import yaml
 
@@ -71,6 +72,9 @@ class NtrtRobot:
         params: the model's nominal parameters [SI]: stiffness, damping, rest lengths,
             each rigid body's mass and principal inertia, gravity (0, 0, -9.81).
         rest_caps: (2R, 3) the end caps as the model builds them [m], z up.
+        rest_p: (R, 3) each rod's centre of mass in that pose [m].
+        rest_q: (R, 4) each rod's principal frame in that pose, a unit quaternion
+            (w, x, y, z) taking it to the world.
         friction: the rods' friction coefficient (the first rod builder's).
         source: the top-level file.
     """
@@ -78,6 +82,8 @@ class NtrtRobot:
     topology: Topology
     params: Params
     rest_caps: np.ndarray
+    rest_p: np.ndarray
+    rest_q: np.ndarray
     friction: float
     source: Path
 
@@ -288,7 +294,8 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
                 if n not in on_rod:
                     raise InputError(f"{path}: sphere {key!r} at node {sorted(tags)} is on no rod")
                 spheres.append((n, rho * 4.0 / 3.0 * np.pi * r**3))
-    rods, masses, inertias, caps, points = [], [], [], [], []
+    tied = {n for a, b, _, _ in cables for n in (a, b)}  # nodes cables attach to
+    rods, masses, inertias, caps, points, poses = [], [], [], [], [], []
     for k, g in enumerate(bodies):
         mine = [p for p in pieces if root(p[0]) == g]
         main = max(mine, key=lambda p: p[2])
@@ -308,11 +315,12 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
                 d = pos[n] - com
                 tensor += m * (d @ d * np.eye(3) - np.outer(d, d))
         inertia, frame = np.linalg.eigh(tensor)  # principal frame: columns, world coordinates
+        if np.linalg.det(frame) < 0:
+            frame[:, 2] *= -1.0  # a right-handed frame (a rotation)
         if not (mass > 0 and inertia.min() > 0):
             raise InputError(f"{path}: rod through node {sorted(s.tags[main[0]])[0]} has no mass or inertia "
                              "(density 0)")  # fmt: skip
         ends = (frame.T @ (pos[main[0]] - com), frame.T @ (pos[main[1]] - com))
-        tied = {n for a, b, _, _ in cables for n in (a, b)}
         others = [n for n in range(len(pos)) if root(n) == g and n not in main[:2] and n in on_rod and n in tied]
         points.append({n: i for i, n in enumerate(others)})
         rods.append(Rod(
@@ -325,6 +333,9 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
         ))  # fmt: skip
         masses.append(mass)
         inertias.append(inertia)
+        q = np.zeros(4)
+        mujoco.mju_mat2Quat(q, frame.flatten())  # row-major 3x3
+        poses.append((com, q))
         caps.append((main[0], main[1]))
     node_of: dict[int, int] = {}
     for k, (a, b) in enumerate(caps):
@@ -362,4 +373,6 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
                            inertia=np.array(inertias), gravity=(0.0, 0.0, -9.81),
                            cable_gain=[1.0] * len(actuated))  # fmt: skip
     rest_caps = np.array([pos[n] for pair in caps for n in pair])
-    return NtrtRobot(topology, params, rest_caps, friction[0], path)
+    rest_p = np.array([p for p, _ in poses])
+    rest_q = np.array([q for _, q in poses])
+    return NtrtRobot(topology, params, rest_caps, rest_p, rest_q, friction[0], path)

@@ -160,3 +160,15 @@ def test_bad_models_are_one_line_errors_naming_the_file(tmp_path: Path, edit: tu
         from_ntrt(tmp_path / "bad.yaml")
     text = str(e.value)
     assert "bad.yaml" in text and message in text and "\n" not in text
+
+
+def test_the_rest_pose_is_rebuilt_from_each_rods_principal_frame(files: tuple[Path, Path]) -> None:
+    """End caps placed by each rod's rest pose (centre of mass, principal frame as a
+    unit quaternion) land on the model's nodes: the frames are rotations, not
+    reflections, and the offsets are consistent with them."""
+    from tensegrity_env.assemblies import node_positions
+
+    robot = from_ntrt(files[1])
+    np.testing.assert_allclose(np.linalg.norm(robot.rest_q, axis=-1), 1.0, atol=1e-12)
+    nodes = node_positions(robot.topology, robot.rest_p, robot.rest_q)
+    np.testing.assert_allclose(nodes[: 2 * robot.topology.n_rods], robot.rest_caps, atol=1e-12)

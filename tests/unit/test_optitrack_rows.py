@@ -13,7 +13,7 @@ import pytest
 from identification.data.dataset import read_dataset
 from identification.data.mocap.optitrack_rows import write_optitrack_rows
 from identification.data.mocap.recording import read_recording
-from identification.data.mocap.vertical import find_vertical
+from identification.data.mocap.vertical import find_vertical, free_flight
 from identification.data.quality import repeated_frames
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.ntrt import from_ntrt
@@ -184,3 +184,15 @@ def test_a_copy_of_the_frame_before_is_repeated_a_still_robot_is_not() -> None:
     x[40, :] = np.nan
     x[40, 0] = x[39, 0]  # one marker alone is no frame
     np.testing.assert_array_equal(np.flatnonzero(repeated_frames(x)), [20])
+
+
+def test_marker_noise_makes_no_free_flight() -> None:
+    """A robot resting on a z floor, its markers 1 mm noisy at 120 Hz: the noise's
+    accelerations reach g now and then, but never measured well enough to be a flight."""
+    rest = np.array([[0.0, 0.01, 0.0], [0.31, 0.52, 0.3], [0.43, 0.11, 0.0], [0.07, 0.41, 0.3],
+                     [0.33, 0.17, 0.0], [0.52, 0.33, 0.25]])  # fmt: skip
+    time = np.arange(240) / 120.0
+    caps = rest[None] + np.random.default_rng(6).normal(0, 1e-3, (240, 6, 3))
+    assert free_flight(caps, time) is None
+    found = find_vertical(caps, time)
+    assert found is not None and found.axis == "z"

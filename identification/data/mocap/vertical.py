@@ -6,7 +6,8 @@ Two kinds of evidence, in order:
   accelerates at g, straight down. Stretches of at least :data:`FLIGHT_MIN` whose
   centre's acceleration (second differences, averaged over :data:`FLIGHT_SMOOTH`, and
   its median over the stretch: an impact's spike smoothed is no flight) is within
-  :data:`FLIGHT_TOL` of 9.81 m/s^2 give gravity's direction.
+  :data:`FLIGHT_TOL` of 9.81 m/s^2, measured to :data:`FLIGHT_ERROR` of it, give
+  gravity's direction, unless the floor says otherwise (then the floor is taken).
 * **a floor**: where it rests or rolls, its lowest end cap stays at the floor's height
   and its two lowest caps sit level. Along the floor's normal that holds for most of
   the take (also when a person lifts the robot for a while); along a wall, a resting
@@ -18,7 +19,7 @@ The vertical is the file's axis (x, y or z, pointing up) nearest to what was fou
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -31,6 +32,10 @@ FLIGHT_MIN = 0.05
 FLIGHT_SMOOTH = 0.05
 #: a flying robot's centre accelerates at g within this fraction
 FLIGHT_TOL = 0.15
+#: ... measured to this fraction of g at least (the standard error of the stretch's mean
+#: acceleration): noisy markers make short stretches of any acceleration (1 mm noise at
+#: 120 Hz: ~4 m/s^2 over 0.05 s); a tumbling robot's fall measured to 0.1 mm, ~1 m/s^2
+FLIGHT_ERROR = 0.15
 #: resting on a floor: the lowest cap within this [m] of its usual height, and the two
 #: lowest caps within it of each other (markers sit millimetres above a cap's contact)
 FLOOR_BAND = 0.01
@@ -104,9 +109,10 @@ def free_flight(caps: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, float] 
             last = f
             continue
         if start is not None and last is not None and time[last] - time[start] + dt >= FLIGHT_MIN:
-            run = ok[start : last + 1]
-            typical = np.median(acc[start : last + 1][run], axis=0)  # an impact's spike is not typical
-            if abs(np.linalg.norm(typical) - G) < FLIGHT_TOL * G:
+            raw = acc[start : last + 1][ok[start : last + 1]]
+            typical = np.median(raw, axis=0)  # an impact's spike is not typical
+            spread = float(np.linalg.norm(raw.std(0))) / np.sqrt(len(raw))  # noise: the mean's error
+            if abs(np.linalg.norm(typical) - G) < FLIGHT_TOL * G and spread < FLIGHT_ERROR * G:
                 keep[start : last + 1] = fly[start : last + 1]
         start = last = f
     if not keep.any():
@@ -143,12 +149,21 @@ def find_vertical(caps: np.ndarray, time: np.ndarray) -> Vertical | None:
     """The vertical of a take from its end caps ``caps`` (F, N, 3) [m] (NaN unseen) at
     ``time`` (F,) [s], in file coordinates: from free flight where there is any, else
     from a floor; None when neither is found."""
+    floor = _floor(caps)
     flight = free_flight(caps, time)
-    if flight is not None:
-        down, seconds = flight
-        axis, angle = _nearest_axis(-down)
-        return Vertical(-down, axis, angle, f"free flight over {seconds:.2g} s accelerates along "
-                        f"{_signed(down)} at g")  # fmt: skip
+    if flight is None:
+        return floor
+    down, seconds = flight
+    axis, angle = _nearest_axis(-down)
+    text = f"free flight over {seconds:.2g} s accelerates along {_signed(down)} at g"
+    sign_seen = floor is not None and "not seen" not in floor.evidence
+    if floor is not None and (floor.axis[-1] != axis[-1] or (sign_seen and floor.axis != axis)):
+        return replace(floor, evidence=f"{floor.evidence} (a {text} is not taken)")
+    return Vertical(-down, axis, angle, text)
+
+
+def _floor(caps: np.ndarray) -> Vertical | None:
+    """The vertical from a floor (:func:`floor_shares`), None without one."""
     shares, below = floor_shares(caps)
     per_axis = shares.reshape(3, 2).max(-1)
     k = int(np.argmax(per_axis))

@@ -130,11 +130,18 @@ class Model:
     # ------------------------------------------------------------------ files
     @classmethod
     def read(cls, path: str | Path, dt: float = DEFAULT_DT) -> Model:
-        """A declared model from a ``params.json`` (:meth:`load`) or a robot MJCF
+        """A declared model from a ``params.json`` (:meth:`load`), a robot MJCF
         (``.xml``: its parameters, and as effects what it declares beyond linear springs,
-        see :meth:`~tensegrity_env.mjcf.MjcfAssembly.declared_effects`); raises
+        see :meth:`~tensegrity_env.mjcf.MjcfAssembly.declared_effects`) or an NTRT YAML
+        model (``.yaml``: :func:`~tensegrity_env.ntrt.from_ntrt`, a floor and
+        tension-only cables declared); raises
         :class:`InputError` naming the file."""
         path = Path(path)
+        if path.suffix.lower() in (".yaml", ".yml"):
+            from tensegrity_env.ntrt import from_ntrt
+
+            robot = from_ntrt(path)
+            return cls(robot.topology, robot.params, robot.declared_effects(), dt)
         if path.suffix.lower() != ".xml":
             return cls.load(path, dt)
         from tensegrity_env.mjcf import from_mjcf

@@ -63,6 +63,18 @@ def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> tor
     return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
 
 
+#: rotations taking a file's up axis to z (right-handed): Vicon and Qualisys record z-up,
+#: OptiTrack Motive and NTRT models y-up
+TO_Z_UP = {
+    "z": np.eye(3),
+    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),  # +90 deg about x
+    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),  # x, y, z -> y, z, x
+    "-z": np.diag([1.0, -1.0, -1.0]),  # 180 deg about x
+    "-y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]),  # -90 deg about x
+    "-x": np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]]),  # x, y, z -> -y, z, -x
+}
+
+
 def axis_angle_to_quat(axis: np.ndarray, angle: float) -> np.ndarray:
     """Numpy helper: unit quaternion (w, x, y, z) rotating ``angle`` [rad] about ``axis``."""
     a = np.asarray(axis, dtype=float)

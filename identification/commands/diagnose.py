@@ -74,9 +74,10 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument("dataset", type=Path, help="HDF5 dataset (rod states, or end caps only)")
-    add_params_option(p, "the declared model: a params.json or the robot's MJCF (.xml; its "
+    add_params_option(p, "the declared model: a params.json, the robot's MJCF (.xml; its "
                       "floor contact, tension-only cables and actuator filter are declared "
-                      "effects); its rod0 mass fixes the scale, its effects start the model")  # fmt: skip
+                      "effects) or an NTRT YAML model (.yaml; a floor and tension-only cables); "
+                      "its rod0 mass fixes the scale, its effects start the model")  # fmt: skip
     p.add_argument("--anchor", action="append", default=[], metavar="NAME=VALUE",
                    help="a known value fixing the scale, e.g. mass[rod0]=1.95 (repeatable)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, default=Path("diagnose_out"), help="report folder")

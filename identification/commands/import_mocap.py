@@ -17,14 +17,15 @@ from identification.data.mocap.importer import (
     ImportedTake,
     build_dataset,
     check_take,
-    check_vertical,
     label_take,
     parse_fractions,
     read_robot,
+    tracking_report,
+    upright,
 )
 from identification.data.mocap.marker_map import read_marker_map
 from identification.data.mocap.recording import MarkerRecording
-from identification.data.quality import PLACEHOLDER_KINDS
+from identification.data.quality import PLACEHOLDER_KINDS, REPEAT_TOL
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.mjcf.end_caps import add_end_caps_option
 
@@ -44,7 +45,8 @@ def register(sub: Any) -> None:
     )
     p.add_argument("files", type=Path, nargs="+", help="C3D, TSV or CSV files, one take each")
     p.add_argument("--robot", type=Path, required=True,
-                   help="robot MJCF (.xml; its rest pose starts unlabelled tracking) or params.json")  # fmt: skip
+                   help="robot MJCF (.xml) or NTRT YAML model (.yaml; the rest pose of either starts "
+                        "unlabelled tracking), or params.json")  # fmt: skip
     p.add_argument("--map", type=Path, help="marker map YAML (marker -> rod end cap, axial offset)")
     p.add_argument("--units", choices=("m", "mm"),
                    help="length unit of files that do not state theirs (plain CSV)")  # fmt: skip
@@ -53,9 +55,9 @@ def register(sub: Any) -> None:
                         "times from the take's first frame, held until the next row), once per "
                         "take in the order of the files; without it, commands are zero")  # fmt: skip
     p.add_argument("--up", choices=("z", "y", "x"),
-                   help="the files' vertical axis, rotated to z (default z, checked: a take "
-                        "resting on a plane normal to x or y is refused; Vicon and Qualisys "
-                        "record z-up, OptiTrack Motive y-up unless set otherwise)")  # fmt: skip
+                   help="the files' vertical axis, rotated to z (default: found in each take, "
+                        "from free flight where there is any, else from the floor its lowest "
+                        "end caps rest on; a named axis the data contradicts is refused)")  # fmt: skip
     p.add_argument("--split", default="0.7,0.15,0.15", metavar="TRAIN,VAL,TEST",
                    help="fractions of the takes (of each take's duration with fewer than 3 takes); "
                         "default 0.7,0.15,0.15")  # fmt: skip
@@ -110,15 +112,19 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{f}: named by --val/--test but not among the files to import")
     robot = read_robot(args.robot, tuple(args.ignore), args.end_caps)
     mmap = read_marker_map(args.map, robot.topology) if args.map else None
-    recordings = [read_recording(f, args.units, args.up or "z") for f in args.files]  # all checked before work
-    if args.up is None:
-        for rec in recordings:
-            check_vertical(rec)
+    recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
     maps = [check_take(rec, robot, mmap) for rec in recordings]
     logs = command_logs(args.commands, recordings, robot.topology.n_cables)
     takes = [with_commands(label_take(r, robot, m), log)
              for r, m, log in tqdm(list(zip(recordings, maps, logs, strict=True)), desc="labelling",
                                    unit="take")]  # fmt: skip
+    turned = [upright(t, args.up) for t in takes]  # every take checked before one is written
+    for _, line in turned:
+        print(line)
+    takes = [t for t, _ in turned]
+    for take in takes:
+        if take.reacquired is not None:
+            print(tracking_report(take, robot.topology))
     for rec, take in zip(recordings, takes, strict=True):
         if len(take.time) < rec.n_frames:
             print(f"{rec.source}: tracking starts at frame {rec.n_frames - len(take.time)} "
@@ -128,6 +134,10 @@ def run(args: argparse.Namespace) -> int:
     write_dataset(args.output, dataset)
     frames = sum(len(t.time) for t in takes)
     seen = np.mean([np.isfinite(t.caps).all(-1).mean() for t in takes])
+    repeated = sum(r.repeated_frames for r in recordings)
+    if repeated:
+        print(f"{repeated} frames repeated the frame before within {REPEAT_TOL * 1e6:g} µm (not "
+              "measurements): read as gaps")  # fmt: skip
     held = sum(r.placeholders for r in recordings)
     if held:
         print(f"{held} marker samples were placeholders for unseen markers ({PLACEHOLDER_KINDS}): "

@@ -28,8 +28,13 @@ MAD_TO_STD = 1.4826
 #: :func:`placeholder_samples` applies) holds a
 #: value its tracker no longer sees (noise makes measured positions never repeat exactly)
 HELD_RUN = 3
+#: a frame whose every seen marker lies within this [m] of the frame before (per
+#: coordinate) repeats it: 30 times below the finest marker noise of optical systems
+#: (~0.03 mm), 100 times above the round-off of positions exported with 8 decimals
+REPEAT_TOL = 1e-6
 #: what :func:`placeholder_samples` finds, for messages
-PLACEHOLDER_KINDS = f"exactly the origin, one position held over {HELD_RUN}+ frames, or a duplicated frame"
+PLACEHOLDER_KINDS = (f"exactly the origin, one position held over {HELD_RUN}+ frames, or a frame "
+                     f"repeating the one before within {REPEAT_TOL * 1e6:g} µm")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -69,9 +74,9 @@ def placeholder_samples(points: np.ndarray) -> np.ndarray:
     that stand for an unseen marker rather than a measurement: exactly the origin (an
     exporter's zero fill), the repeats of one position held exactly over
     :data:`HELD_RUN` or more consecutive frames (a tracker holding its last value; the
-    first sample of the run stays), and a frame in which every seen marker (two or
-    more) repeats the frame before exactly (a duplicated frame). Measurement noise makes
-    all three impossible; noise-free data resting exactly in place would read as held."""
+    first sample of the run stays), and the samples of a repeated frame
+    (:func:`repeated_frames`). Measurement noise makes all three impossible; noise-free
+    data resting exactly in place would read as held."""
     x = np.asarray(points, dtype=float)
     mask = (x == 0.0).all(-1)
     same = np.isfinite(x[..., 1:, :, :]).all(-1) & (x[..., 1:, :, :] == x[..., :-1, :, :]).all(-1)
@@ -82,10 +87,22 @@ def placeholder_samples(points: np.ndarray) -> np.ndarray:
     after = np.zeros_like(same)
     after[..., :-1, :] = same[..., 1:, :]
     mask[..., 1:, :] |= same & (before | after)
-    seen = np.isfinite(x[..., 1:, :, :]).all(-1)
-    duplicated = (same | ~seen).all(-1) & (same.sum(-1) >= 2)  # (..., F-1)
-    mask[..., 1:, :] |= duplicated[..., None] & seen
+    mask |= repeated_frames(x)[..., None] & np.isfinite(x).all(-1)
     return mask
+
+
+def repeated_frames(points: np.ndarray) -> np.ndarray:
+    """(..., F) bool: the frames of marker positions ``points`` (..., F, M, 3) [m] in
+    which every seen marker (two or more) repeats its position of the frame before
+    within :data:`REPEAT_TOL`: an exporter's copy of the frame before (a capture system
+    writing frames faster than it measures), not a measurement."""
+    x = np.asarray(points, dtype=float)
+    seen = np.isfinite(x[..., 1:, :, :]).all(-1)
+    with np.errstate(invalid="ignore"):
+        close = (np.abs(x[..., 1:, :, :] - x[..., :-1, :, :]) <= REPEAT_TOL).all(-1)  # NaN: False
+    out = np.zeros(x.shape[:-2], dtype=bool)
+    out[..., 1:] = (close | ~seen).all(-1) & (close.sum(-1) >= 2)
+    return out
 
 
 def third_difference_noise(d3: np.ndarray, least: int = 1) -> float:

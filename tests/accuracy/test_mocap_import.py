@@ -187,23 +187,26 @@ def test_inspect_reports_rate_gaps_and_noise_of_an_import(tmp_path: Path) -> Non
     assert np.all(np.abs(q.noise - 1e-3) < 0.25e-3)  # 1 mm planted, per end cap
 
 
-def test_a_y_up_export_is_refused_without_up_and_imported_with_it(tmp_path: Path, clean) -> None:
-    """Motive's default export is y-up: read as z-up, the floor the robot rolls on would
-    be a wall. Refused with the axis named; ``--up y`` gives the z-up import's end caps."""
+def test_a_y_up_export_is_found_y_up_and_a_contradicting_up_is_refused(tmp_path: Path, clean) -> None:
+    """Motive's default export is y-up: the floor the robot rolls on says so, and the
+    import turns it z-up without ``--up``; ``--up z`` (the floor read as a wall) is
+    refused in one line naming the axis."""
     from identification.data.mocap.recording import TO_Z_UP
 
     time, caps, names = clean
     write_motive_csv(tmp_path / "z.csv", time, caps, names, 120.0)
     write_motive_csv(tmp_path / "y.csv", time, caps @ TO_Z_UP["y"], names, 120.0)  # y-up file
-    r = cli("import-mocap", tmp_path / "y.csv", "--robot", ROBOT, "--split", "1,0,0",
+    r = cli("import-mocap", tmp_path / "y.csv", "--robot", ROBOT, "--split", "1,0,0", "--up", "z",
             "-o", tmp_path / "bad.h5")  # fmt: skip
     assert r.returncode != 0 and "Traceback" not in r.stderr
-    assert r.stderr.strip().splitlines()[-1].endswith("the file is y-up; pass --up y")
+    last = r.stderr.strip().splitlines()[-1]
+    assert "--up z contradicts the data" in last and last.endswith("the file is y-up")
     assert not (tmp_path / "bad.h5").exists()
-    for name, up in (("z", ()), ("y", ("--up", "y"))):
+    for name in ("z", "y"):
         r = cli("import-mocap", tmp_path / f"{name}.csv", "--robot", ROBOT, "--split", "1,0,0",
-                *up, "-o", tmp_path / f"{name}.h5")  # fmt: skip
+                "-o", tmp_path / f"{name}.h5")  # fmt: skip
         assert r.returncode == 0, r.stderr
+        assert f"up is {name} (the lowest end caps rest on a plane normal to {name}" in r.stdout
     a, b = (read_dataset(tmp_path / f"{u}.h5").split("train").nodes for u in ("z", "y"))
     np.testing.assert_allclose(b, a, atol=1e-6)  # the CSV's precision
     np.testing.assert_allclose(a[0], caps, atol=1e-6)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from identification.data.mocap.optitrack_rows import is_optitrack_rows, read_optitrack_rows
 from identification.data.mocap.recording import MarkerRecording, unit_scale
 from tensegrity_env.io_utils import InputError, atomic_write_text
 
@@ -49,7 +50,8 @@ def _semicolons(text: str) -> bool:
 
 
 def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
-    """A Motive export (by its ``Format Version`` first cell), a Vicon Nexus export (by
+    """An OptiTrack row-format export (:mod:`.optitrack_rows`, by its ``info,version``
+    row), a Motive export (by its ``Format Version`` first cell), a Vicon Nexus export (by
     its ``Devices`` or ``Trajectories`` first cell) or a plain CSV; cells separated by
     commas, or by semicolons with decimal commas."""
     try:
@@ -63,6 +65,8 @@ def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
         rows = [[c.replace(",", ".") for c in r] for r in rows]
     if not rows:
         raise InputError(f"{path}: empty file")
+    if is_optitrack_rows(rows):
+        return read_optitrack_rows(path, rows, units)
     if rows[0] and rows[0][0].strip().lower() == "format version":
         return _read_motive(path, rows, units)
     if rows[0] and rows[0][0].strip().lower() in ("devices", "trajectories"):

@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from identification.data.dataset import Dataset, Split
-from identification.data.mocap.labelling import initial_caps_from_shape, label_clouds
+from identification.data.end_caps import cap_names
+from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
-from identification.data.mocap.summary import lowest_marker_bands
+from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
+from identification.data.quality import longest_run, third_difference_noise
 from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
+from tensegrity_env.rotations import TO_Z_UP, np_quat_mul, np_quat_to_matrix
 from tensegrity_env.topology import Topology
 
 #: a labelled take's rods may differ from the robot's lengths by at most this fraction
@@ -27,11 +29,16 @@ RATE_TOL = 0.01
 #: both its end caps are read as unseen in that frame (a marker swapped with another
 #: rod's, or mislabelled for a few frames)
 ROD_FRAME_TOL = 0.05
-#: a floor: the take's lowest marker stays within this height band [m] (5th to 95th
-#: percentile over the frames) along one axis ...
-FLOOR_BAND = 0.01
-#: ... while along z it moves over more than this [m]: the file's vertical axis is not z
-FREE_BAND = 0.05
+#: a rod's marker distance may stray from its usual value by this many times the
+#: take's marker noise (a rigid rod: only noise moves it) ...
+NOISE_TO_LENGTH_TOL = 20.0
+#: ... within this range [m] (2 mm: the precision a model of the rods can use; 1 cm:
+#: the tracker's gate for noisy data)
+LENGTH_TOL_RANGE = (0.002, LENGTH_TOL)
+#: the span [s] over which a rod's usual marker distance is the median
+ROD_LENGTH_WINDOW = 1.0
+#: rounds of that check, each on the medians of what the one before kept
+ROD_LENGTH_ROUNDS = 5
 
 
 @dataclass(frozen=True)
@@ -47,14 +54,20 @@ def read_robot(
     path: str | Path, ignore: tuple[str, ...] = (), end_caps: tuple[str, ...] = ()
 ) -> Robot:
     """A robot from an MJCF file (graph + rest pose; ``end_caps``: its end-cap sites,
-    two per rod, where the convention does not find them) or a params.json (graph only)."""
+    two per rod, where the convention does not find them), an NTRT YAML model (graph +
+    rest pose, :func:`~tensegrity_env.ntrt.from_ntrt`) or a params.json (graph only)."""
     p = Path(path)
     if p.suffix.lower() == ".json":
         from tensegrity_env.model import Model
 
         return Robot(Model.load(p).topology, None, p)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        from tensegrity_env.ntrt import from_ntrt
+
+        ntrt = from_ntrt(p)
+        return Robot(ntrt.topology, ntrt.rest_caps, p)
     if p.suffix.lower() != ".xml":
-        raise InputError(f"{p}: robot file must be an MJCF .xml or a params .json")
+        raise InputError(f"{p}: robot file must be an MJCF .xml, an NTRT .yaml or a params .json")
     from tensegrity_env.mjcf import from_mjcf
 
     asm = from_mjcf(p, ignore=ignore, end_caps=end_caps)
@@ -73,7 +86,9 @@ class ImportedTake:
     ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen);
     ``commands`` (F, C): each cable actuator's command in force from each frame on
     [command units] (None: not logged, zero); ``rejected``: labelled samples read as
-    unseen (:func:`checked_labels`)."""
+    unseen (:func:`checked_labels`, :func:`rods_off_their_length`); ``reacquired``
+    (2R,): times each cap was found again after being lost (unlabelled takes);
+    ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`)."""
 
     source: Path
     time: np.ndarray
@@ -84,6 +99,8 @@ class ImportedTake:
     track_of_cap: np.ndarray
     commands: np.ndarray | None = None
     rejected: int = 0
+    reacquired: np.ndarray | None = None
+    ids: np.ndarray | None = None
 
     def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
@@ -159,22 +176,44 @@ def first_full_frame(rec: MarkerRecording, n_caps: int) -> int | None:
     return int(full[0]) if full.size else None
 
 
-def check_vertical(rec: MarkerRecording) -> None:
-    """Refuse a take that rests on a floor normal to x or y: its lowest marker stays
-    within :data:`FLOOR_BAND` along that axis while it moves over more than
-    :data:`FREE_BAND` along z (a y-up export read as z-up). ``import-mocap`` checks
-    this unless ``--up`` names the axis."""
-    band = lowest_marker_bands(rec.points)
-    if not np.isfinite(band).all():
-        return
-    flat = int(np.argmin(band))
-    if flat != 2 and band[flat] < FLOOR_BAND and band[2] > FREE_BAND:
-        axis = "xyz"[flat]
-        raise InputError(
-            f"{rec.source}: the markers rest on a plane normal to {axis} (lowest marker within "
-            f"{band[flat] * 1e3:.3g} mm along {axis}, over {band[2] * 1e3:.3g} mm along z): the "
-            f"file is {axis}-up; pass --up {axis}"
-        )
+def upright(take: ImportedTake, up: str | None) -> tuple[ImportedTake, str]:
+    """``take`` (end caps in the file's coordinates) turned z-up, and a line saying how
+    its vertical was found (:func:`~identification.data.mocap.vertical.find_vertical`).
+    ``up``: the axis the user named (``--up``), refused in one line when the data says
+    otherwise; None: the data's (z when it shows neither free flight nor a floor)."""
+    found = find_vertical(take.caps, take.time)
+    src = take.source
+    if found is not None and found.angle > AXIS_ANGLE:
+        raise InputError(f"{src}: {found.evidence}, {found.angle:.0f} deg from the file's nearest "
+                         f"axis {found.axis}: a tilted vertical is not read")  # fmt: skip
+    if up is not None:
+        if found is not None and found.axis.lstrip("-") != up:
+            raise InputError(f"{src}: --up {up} contradicts the data: {found.evidence}; the file is "
+                             f"{found.axis}-up")  # fmt: skip
+        axis, how = up, "given by --up" + (f", and {found.evidence}" if found else "")
+    elif found is None:
+        axis, how = "z", "taken as z: no free flight and no floor found in the take (--up names it)"
+    else:
+        axis, how = found.axis, found.evidence
+    return replace(take, caps=take.caps @ TO_Z_UP[axis].T), f"{src}: up is {axis} ({how})"
+
+
+def tracking_report(take: ImportedTake, topology: Topology) -> str:
+    """Per end cap of an unlabelled take: the share of frames it was seen, its longest
+    gap, how often it was found again after being lost, and how many marker ids it
+    was seen under."""
+    seen = np.isfinite(take.caps).all(-1)
+    dt = 1.0 / take.rate
+    lines = [f"{take.source}: tracking per end cap (labelled up to the robot's symmetry)",
+             "  end cap          seen   longest gap  found again  marker ids"]  # fmt: skip
+    for i, name in enumerate(cap_names(topology)):
+        cols = take.track_of_cap[:, i]
+        rows = np.flatnonzero(cols >= 0)
+        ids = take.ids[rows, cols[rows]] if take.ids is not None else cols[rows]
+        again = int(take.reacquired[i]) if take.reacquired is not None else 0
+        lines.append(f"  {name:<12} {100 * seen[:, i].mean():6.2f} %  {longest_run(~seen[:, i]) * dt:8.3f} s"
+                     f"  {again:11d}  {len(np.unique(ids)):10d}")  # fmt: skip
+    return "\n".join(lines)
 
 
 def cap_distances(robot: Robot) -> np.ndarray:
@@ -225,8 +264,9 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
     lengths = cap_distances(robot)
     if mmap is not None:
         first = np.full((n_caps, 3), np.nan)
-        for name, (cap, _) in mmap.caps.items():
+        for name, (cap, off) in mmap.caps.items():
             first[cap] = rec.points[0, rec.names.index(name)]
+            lengths[cap // 2] += off  # the markers' distance, offsets included
     else:
         assert robot.rest_caps is not None
         start = first_full_frame(rec, n_caps)
@@ -234,10 +274,79 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
         rec = rec.from_frame(start)
         seen = np.isfinite(rec.points[0]).all(-1)
         first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
-    lab = label_clouds(rec.points, rec.time, first, lengths)
+    # two passes: the rods' marker distances as tracked with the robot's lengths and a
+    # loose gate, then tracked again with those
+    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids)
+    apart = np.linalg.norm(lab.caps[:, 0::2] - lab.caps[:, 1::2], axis=-1)
+    usual = np.array([np.median(a[np.isfinite(a)]) if np.isfinite(a).any() else np.nan for a in apart.T])
+    lengths = np.where(np.isfinite(usual), usual, lengths)
+    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
+    caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
     return ImportedTake(
-        rec.source, rec.time, lab.caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap
-    )
+        rec.source, rec.time, caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap,
+        rejected=rejected, reacquired=lab.reacquired, ids=rec.ids,
+    )  # fmt: skip
+
+
+def marker_distances(first: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """(R,) [m]: each rod's marker distance as the first frame's end caps ``first``
+    (2R, 3) show it (markers sit on the caps' surfaces, millimetres beyond the robot
+    file's end caps), where both are seen and within :data:`ROD_LENGTH_TOL` of the
+    robot's ``lengths`` (R,) [m] (offsets included); else that length."""
+    apart = np.linalg.norm(first[0::2] - first[1::2], axis=-1)
+    ok = np.isfinite(apart) & (np.abs(apart - lengths) <= ROD_LENGTH_TOL * lengths)
+    return np.where(ok, apart, lengths)
+
+
+def length_tolerance(rec: MarkerRecording) -> float:
+    """How far [m] a labelled rod's marker distance may stray from its usual value:
+    :data:`NOISE_TO_LENGTH_TOL` times the take's marker noise (the median over its
+    tracks), within :data:`LENGTH_TOL_RANGE`."""
+    d3 = np.diff(rec.points, n=3, axis=0)
+    noise = third_difference_noise(d3, least=10)
+    lo, hi = LENGTH_TOL_RANGE
+    return float(np.clip(NOISE_TO_LENGTH_TOL * noise, lo, hi)) if np.isfinite(noise) else hi
+
+
+def rods_off_their_length(caps: np.ndarray, time: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
+    """End caps ``caps`` (F, 2R, 3) [m] at ``time`` (F,) [s] with a rod's cap read as
+    unseen in the frames where the rod's marker distance is more than ``tol`` [m] from
+    its median over the :data:`ROD_LENGTH_WINDOW` around the frame (a marker mistaken
+    for another, or a reconstruction that jumps; a marker that moves on its cap over a
+    take, as an impact can make it, shifts the median with it). The cap read as unseen
+    is the one farther from the line through its positions in the frames before and
+    after (the one that jumped); both where neither is seen in both. Repeated on the
+    medians of what is kept (:data:`ROD_LENGTH_ROUNDS`) until every kept rod is within
+    ``tol`` of its median. Returns the caps and the number of samples so read."""
+    lo = np.searchsorted(time, time - ROD_LENGTH_WINDOW / 2)
+    hi = np.searchsorted(time, time + ROD_LENGTH_WINDOW / 2, side="right")
+    out = caps.copy()
+    for _ in range(ROD_LENGTH_ROUNDS):  # the medians of what is kept, until they hold
+        apart = np.linalg.norm(out[:, 0::2] - out[:, 1::2], axis=-1)  # (F, R)
+        usual = np.full_like(apart, np.nan)
+        for f in np.flatnonzero(np.isfinite(apart).any(-1)):
+            window = apart[lo[f] : hi[f]]
+            has = np.isfinite(window).any(0)
+            usual[f, has] = np.nanmedian(window[:, has], axis=0)
+        off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
+        if not off.any():
+            break
+        bend = np.full(out.shape[:2], np.inf)  # (F, 2R): how far each cap leaves the line
+        bend[1:-1] = np.linalg.norm(out[:-2] - 2.0 * out[1:-1] + out[2:], axis=-1)  # of its neighbours
+        bend[~np.isfinite(bend)] = np.inf
+        for f, r in zip(*np.nonzero(off), strict=True):
+            a, b = bend[f, 2 * r], bend[f, 2 * r + 1]
+            if np.isfinite(a) or np.isfinite(b):  # the cap that jumped, seen by its neighbours
+                out[f, 2 * r + int(b > a)] = np.nan
+            else:
+                out[f, 2 * r : 2 * r + 2] = np.nan
+    else:  # what is left after the last round is checked once more, both caps dropped
+        apart = np.linalg.norm(out[:, 0::2] - out[:, 1::2], axis=-1)
+        usual = np.array([[np.nanmedian(apart[lo[f] : hi[f], r]) if np.isfinite(apart[lo[f] : hi[f], r]).any()
+                           else np.nan for r in range(apart.shape[1])] for f in range(len(apart))])  # fmt: skip
+        off = np.isfinite(apart) & (np.abs(apart - usual) > tol)
+        out[np.repeat(off, 2, axis=1)] = np.nan
+    return out, int(np.isnan(out).any(-1).sum() - np.isnan(caps).any(-1).sum())
 
 
 def checked_labels(caps: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int]], int]:

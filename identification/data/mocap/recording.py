@@ -8,21 +8,16 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.data.quality import placeholder_samples
+from identification.data.quality import placeholder_samples, repeated_frames
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.rotations import TO_Z_UP
 
 #: metres per unit of the length units a file may state
 UNIT_SCALE = {"m": 1.0, "meters": 1.0, "metres": 1.0, "mm": 1e-3, "millimeters": 1e-3,
               "millimetres": 1e-3, "cm": 1e-2, "centimeters": 1e-2, "centimetres": 1e-2}  # fmt: skip
-#: rotations taking a file's up axis to z (right-handed): Vicon and Qualisys record z-up,
-#: OptiTrack Motive y-up by default
-TO_Z_UP = {
-    "z": np.eye(3),
-    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),  # +90 deg about x
-    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),  # x, y, z -> y, z, x
-}
-#: marker names that mean "not labelled": Motive's ``Unlabeled 1234`` and Vicon's ``*12``
-UNLABELLED = re.compile(r"^(unlabeled|unlabelled)\b|^\*\d+$", re.IGNORECASE)
+#: marker names that mean "not labelled": Motive's ``Unlabeled 1234``, Vicon's ``*12`` and
+#: the OptiTrack row format's ``Marker-1234``
+UNLABELLED = re.compile(r"^(unlabeled|unlabelled)\b|^\*\d+$|^marker-\d+$", re.IGNORECASE)
 
 
 @dataclass
@@ -37,8 +32,12 @@ class MarkerRecording:
             which change when a marker is lost and found again).
         rate: the file's nominal frame rate [Hz].
         placeholders: samples the file held as positions for an unseen marker (exactly
-            the origin, a held position, a duplicated frame), read as NaN
-            (:meth:`without_placeholders`).
+            the origin, a held position), read as NaN (:meth:`without_placeholders`).
+        repeated_frames: frames that repeated the frame before far below the noise
+            (:func:`~identification.data.quality.repeated_frames`), read as gaps.
+        ids: (F, M) the capture system's marker id of each sample, -1 where none, for
+            exports whose columns hold several ids in turn (the OptiTrack row format);
+            None when a column is one track.
     """
 
     source: Path
@@ -47,6 +46,8 @@ class MarkerRecording:
     names: list[str]
     rate: float
     placeholders: int = 0
+    repeated_frames: int = 0
+    ids: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -80,7 +81,10 @@ class MarkerRecording:
 
     def from_frame(self, k: int) -> MarkerRecording:
         """This take from frame ``k`` on (times still from the file's first frame)."""
-        return self if k == 0 else replace(self, time=self.time[k:], points=self.points[k:])
+        if k == 0:
+            return self
+        ids = None if self.ids is None else self.ids[k:]
+        return replace(self, time=self.time[k:], points=self.points[k:], ids=ids)
 
     def z_up(self, up: str) -> MarkerRecording:
         """This take in a z-up frame, its file's vertical axis being ``up`` (x, y or z)."""
@@ -90,13 +94,18 @@ class MarkerRecording:
 
     def without_placeholders(self) -> MarkerRecording:
         """This take with its placeholder samples
-        (:func:`~identification.data.quality.placeholder_samples`) read as unseen (NaN)."""
-        mask = placeholder_samples(self.points)
-        if not mask.any():
+        (:func:`~identification.data.quality.placeholder_samples`) and its repeated
+        frames (:func:`~identification.data.quality.repeated_frames`) read as unseen
+        (NaN)."""
+        repeated = repeated_frames(self.points)
+        mask = placeholder_samples(self.points) & ~repeated[:, None]
+        if not mask.any() and not repeated.any():
             return self
         points = self.points.copy()
         points[mask] = np.nan
-        return replace(self, points=points, placeholders=self.placeholders + int(mask.sum()))
+        points[repeated] = np.nan
+        return replace(self, points=points, placeholders=self.placeholders + int(mask.sum()),
+                       repeated_frames=self.repeated_frames + int(repeated.sum()))  # fmt: skip
 
 
 def unit_scale(name: str | None, where: Path, option: str | None) -> float:

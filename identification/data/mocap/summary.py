@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from identification.data.mocap.recording import MarkerRecording
-from identification.data.quality import longest_run, third_difference_noise
+from identification.data.quality import REPEAT_TOL, longest_run, third_difference_noise
 
 #: markers listed one per line at most (an unlabelled export may hold hundreds of tracks)
 LISTED = 40
@@ -33,6 +33,9 @@ def recording_text(rec: MarkerRecording) -> str:
         f"{rec.source}: {F} frames at {rec.rate:g} Hz ({rec.time[-1] - rec.time[0]:.3g} s), "
         f"{M} {kind}, {100 * (1 - seen.mean()):.2f} % of samples unseen",
     ]
+    if rec.repeated_frames:
+        lines.append(f"frames repeating the frame before within {REPEAT_TOL * 1e6:g} µm, read as gaps: "
+                     f"{rec.repeated_frames} ({100 * rec.repeated_frames / F:.1f} %)")  # fmt: skip
     if rec.placeholders:
         lines.append(f"placeholder samples read as unseen: {rec.placeholders}")
     bands = lowest_marker_bands(rec.points)

@@ -90,7 +90,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file(args.output, args.force)
+    check_output_file(args.output, args.force, inputs=[args.dataset, args.init])
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
     check_number("--floor-windows", args.floor_windows, 1)

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from policies.vec import env_spec
 
-    check_output_dir(args.output, args.force)
+    check_output_dir(args.output, args.force, inputs=[*args.policy, args.reference])
     if args.train_reference is not None:  # an existing reference run is resumed, not replaced
         check_output_dir(args.train_reference, force=True, option="--train-reference")
     if args.episodes < 1:

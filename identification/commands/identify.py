@@ -24,6 +24,7 @@ from identification.report.tables import (
 from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
+    StageError,
     add_force_option,
     check_number,
     check_output_file,
@@ -115,6 +116,13 @@ def run(args: argparse.Namespace) -> int:
         fraction=args.fraction, seed=args.seed, progress=True,
     ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
+    try:  # nothing outside the physical domain is written
+        est.params_.validate(dataset.topology, source="identified parameters")
+    except InputError as e:
+        raise StageError("the regression", f"{e} (not written; {est.n_transitions_} "
+                         f"transitions of '{args.split}')",
+                         "more or longer trajectories in which every spring stretches and every "
+                         "rod turns, or --shared") from None  # fmt: skip
     truth = read_ground_truth(args.dataset)
     truth_params = truth.params if truth is not None else None
     ratios = est.mode_ == "ratios"

@@ -149,7 +149,7 @@ def test_a_qtm_tsv_export_without_frame_columns_reads_its_zero_fills_as_gaps(tmp
     np.testing.assert_allclose(rec.points[2, 1], [4.5e-3, 5.5e-3, 6.5e-3])  # millimetres
     assert np.isnan(rec.points[1, 1]).all()
     path.write_text(QTM.replace("4.500\t5.500\t6.500", "4.500\t5.500"))
-    with pytest.raises(InputError, match=r"take.tsv: frame row 11 has 5 of 6 columns"):
+    with pytest.raises(InputError, match=r"take.tsv: row 11 has 5 of 6 columns"):
         read_recording(path)
     path.write_text(QTM.replace("FREQUENCY\t200\n", ""))
     with pytest.raises(InputError, match=r"take.tsv: not a QTM 3-D export"):

@@ -202,6 +202,18 @@ def params_to_dict(params: Params) -> dict[str, Any]:
     }
 
 
+def check_numbers(value: Any, where: str, source: str) -> None:
+    """Raise :class:`InputError` if a leaf of ``value`` (nested lists) is text, a boolean or
+    a mapping: ``"1.5"`` would otherwise be read as a number. ``None`` (JSON null) reads as NaN and
+    is refused by :meth:`Params.validate`."""
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            check_numbers(v, f"{where}[{i}]", source)
+    elif isinstance(value, (str, bool, dict)):
+        raise InputError(f"{source}: {where} is {json.dumps(value)}: not numeric (write "
+                         "numbers without quotes)")  # fmt: skip
+
+
 def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
     """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``.
 
@@ -212,6 +224,8 @@ def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
     missing = [f for f in FIELDS if f not in d]
     if missing:
         raise InputError(f"{source}: missing parameter(s) {missing}")
+    for f in FIELDS:
+        check_numbers(d[f], f"'{f}'", source)
     try:
         return Params.create(**{f: d[f] for f in FIELDS})
     except (ValueError, TypeError, RuntimeError) as e:  # torch reshapes raise RuntimeError

@@ -222,6 +222,10 @@ def from_mjcf(
     shape_found: list[Unsupported] = []
     for i, b in enumerate(rod_bodies):
         e0, e1 = (np.asarray(to_inertial(i, m.site_pos[s])) for s in rod_ends[i])
+        if not np.linalg.norm(e1 - e0) > 0:  # before the end caps' geoms are looked for
+            raise InputError(f"{src}: rod '{mj_name(m, BODY, b)}': length must be positive, got "
+                             f"0.0 (end-cap sites '{mj_name(m, SITE, rod_ends[i][0])}' and "
+                             f"'{mj_name(m, SITE, rod_ends[i][1])}' coincide)")  # fmt: skip
         radius, geoms = end_cap_radius(m, b, rod_ends[i], floor, src)
         cap_geoms += geoms
         shapes = {CAP_TYPES[int(m.geom_type[g])] for g in geoms}

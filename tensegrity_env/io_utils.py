@@ -86,6 +86,11 @@ def sigterm_raises() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def one_line(e: BaseException) -> str:
+    """An error's message on one line: a line break (in a file name, say) written as ``\\n``."""
+    return str(e).replace("\r", "\\r").replace("\n", "\\n")
+
+
 def run_reporting(work: Callable[[], int]) -> int:
     """Run ``work`` with SIGTERM raising (:func:`sigterm_raises`) and turn the ways a run
     ends into one line on stderr and an exit status: bad input 2, a failed stage 1,
@@ -103,10 +108,10 @@ def run_reporting(work: Callable[[], int]) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 128 + 13
     except InputError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {one_line(e)}", file=sys.stderr)
         return 2
     except StageError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {one_line(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

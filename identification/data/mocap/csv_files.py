@@ -83,7 +83,7 @@ def _column(j: int, header: list[str] | None) -> str:
     return f"{j + 1} ({name!r})" if name else str(j + 1)
 
 
-def _frames(
+def frame_rows(
     path: Path,
     rows: list[list[str]],
     first: int,
@@ -145,7 +145,7 @@ def _read_plain(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
         names.append(stems.pop())
     if not names:
         raise InputError(f"{path}: no marker columns after 'time'")
-    data = _frames(path, rows, 1, len(header), header=header, time_column=0,
+    data = frame_rows(path, rows, 1, len(header), header=header, time_column=0,
                    triples=list(range(1, len(header), 3)))  # fmt: skip
     scale = unit_scale(None, path, units)
     points = data[:, 1:].reshape(len(data), len(names), 3) * scale
@@ -171,7 +171,7 @@ def _read_motive(path: Path, rows: list[list[str]], units: str | None) -> Marker
     axes = [rows[head][j].strip().lower() for j in cols]
     if axes != list(AXES) * len(labels):
         raise InputError(f"{path}: marker columns are not X, Y, Z triples")
-    data = _frames(path, rows, head + 1, len(rows[head]), header=rows[head], time_column=1,
+    data = frame_rows(path, rows, head + 1, len(rows[head]), header=rows[head], time_column=1,
                    triples=cols[::3])  # fmt: skip
     scale = unit_scale(meta.get("Length Units"), path, units)
     points = data[:, cols].reshape(len(data), len(labels), 3) * scale
@@ -212,7 +212,7 @@ def _read_vicon(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
     if len(stated) > 1:
         raise InputError(f"{path}: marker columns in different units ({', '.join(sorted(stated))})")
     width = max(len(axes_row), cols[-1] + 1)
-    data = _frames(path, rows[:end], start + 5, width, header=axes_row, time_column=0,
+    data = frame_rows(path, rows[:end], start + 5, width, header=axes_row, time_column=0,
                    triples=cols[::3])  # fmt: skip
     scale = unit_scale(stated.pop() if stated else None, path, units)
     points = data[:, cols].reshape(len(data), len(labels), 3) * scale

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from identification.data.mocap.csv_files import _frames
+from identification.data.mocap.csv_files import frame_rows
 from identification.data.mocap.recording import MarkerRecording, unit_scale
 from tensegrity_env.io_utils import InputError, atomic_write_text
 
@@ -57,7 +57,7 @@ def read_qtm_tsv(path: Path, units: str | None = None) -> MarkerRecording:
         want = [f"{n} {a}" for n in names for a in "XYZ"]
         if columns[lead:] != want:
             raise InputError(f"{path}: coordinate columns are not each marker's X, Y, Z")
-    data = _frames(path, rows, k, width + lead, header=columns, time_column=1 if lead else None,
+    data = frame_rows(path, rows, k, width + lead, header=columns, time_column=1 if lead else None,
                    triples=list(range(lead, width + lead, 3)))  # fmt: skip
     time = data[:, 1] - data[0, 1] if lead else np.arange(len(data)) / rate
     scale = unit_scale("mm" if units is None else units, path, None)

@@ -184,3 +184,19 @@ def test_masses_written_as_text_are_refused(tmp_path: Path, one_line_error) -> N
     bad.write_text(json.dumps(doc))
     with pytest.raises(InputError, match=r"'mass'\[2\] is true: not numeric"):
         Model.load(bad)
+
+
+@pytest.mark.parametrize("keep", [0, 10, 511, 520, 600, 700, 800, 1100, 1600, 1800])
+def test_a_truncated_c3d_is_refused_in_one_line(keep: int, tmp_path: Path) -> None:
+    """Cut in its header, its parameters (where ezc3d crashes or loops forever: 520, 700,
+    800 bytes) or its point data."""
+    from identification.data.mocap.c3d_files import write_c3d
+
+    _, x = _points()
+    good = write_c3d(tmp_path / "good.c3d", x, NAMES, 100.0).read_bytes()
+    bad = tmp_path / "cut.c3d"
+    bad.write_bytes(good[:keep])
+    with pytest.raises(InputError) as e:
+        read_recording(bad)
+    text = str(e.value)
+    assert "\n" not in text and text.startswith(f"{bad}: not a readable C3D file"), text

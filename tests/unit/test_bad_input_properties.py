@@ -230,7 +230,7 @@ MOCAP_FILES = ("plain.csv", "motive.csv", "vicon.csv", "qtm.tsv", "take.c3d")
 #: what a mutation writes into a cell: numbers of every kind, text, nothing
 cells = st.one_of(
     st.sampled_from(["", " ", "nan", "NaN", "inf", "-inf", "1e400", "abc", "1,5", "0", "-1e30"]),
-    st.text(st.characters(exclude_characters="\x00\r\n"), max_size=8),
+    st.text(st.characters(exclude_characters="\x00\r\n", exclude_categories=("Cs",)), max_size=8),
     st.floats(allow_nan=True, allow_infinity=True).map(str),
 )
 
@@ -306,8 +306,9 @@ def test_mocap_readers(name: str, tmp_path_factory: pytest.TempPathFactory, data
         raw = bytearray(good)
         if data.draw(st.booleans()):
             raw = raw[: data.draw(st.integers(0, len(raw) - 1))]
-        else:  # a byte of the point data (after the 512-byte header and parameter blocks)
-            i = data.draw(st.integers(min(len(raw) - 1, 1024), len(raw) - 1))
+        else:  # a byte of the point data, which starts at the block the header's word 9 names
+            start = (int.from_bytes(good[16:18], "little") - 1) * 512
+            i = data.draw(st.integers(start, len(raw) - 1))
             raw[i] = data.draw(st.integers(0, 255))
         path.write_bytes(bytes(raw))
     else:

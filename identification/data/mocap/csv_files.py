@@ -167,6 +167,10 @@ def _read_motive(path: Path, rows: list[list[str]], units: str | None) -> Marker
     ]  # fmt: skip
     if not cols or len(cols) % 3:
         raise InputError(f"{path}: no complete marker position columns (X, Y, Z) in the header")
+    unnamed = next((j for j in cols[::3] if j >= len(names) or not names[j].strip()), None)
+    if unnamed is not None:
+        raise InputError(f"{path}: row {head - 2}, column {unnamed + 1}: a marker column without "
+                         "its marker's name")  # fmt: skip
     labels = [names[j].strip() for j in cols[::3]]
     axes = [rows[head][j].strip().lower() for j in cols]
     if axes != list(AXES) * len(labels):
@@ -197,6 +201,9 @@ def _read_vicon(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
         rate = float(section[1][0])
     except (ValueError, IndexError):
         raise InputError(f"{path}: 'Trajectories' section without its frame rate row") from None
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputError(f"{path}: row {start + 2}, column 1: frame rate {rate:g} Hz is not a "
+                         "positive number")  # fmt: skip
     names_row, axes_row, units_row = section[2], section[3], section[4]
     if [c.strip().lower() for c in axes_row[:2]] != ["frame", "sub frame"]:
         raise InputError(f"{path}: 'Trajectories' section without its 'Frame,Sub Frame' row")

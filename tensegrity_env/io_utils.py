@@ -306,13 +306,14 @@ def held_signals() -> Iterator[list[int]]:
         yield held
         return
 
-    previous = {s: signal.getsignal(s) for s in HELD_SIGNALS}
+    # a handler installed outside Python (None) could not be put back: left as it is
+    previous = {s: h for s in HELD_SIGNALS if (h := signal.getsignal(s)) is not None}
 
     def record(signum: int, frame: FrameType | None) -> None:
         if previous[signum] is not signal.SIG_IGN:  # an ignored signal stays ignored
             held.append(signum)
 
-    for s in HELD_SIGNALS:
+    for s in previous:
         signal.signal(s, record)
     try:
         yield held
@@ -362,10 +363,11 @@ def atomic_path(
     tail = ".tmp" + final.suffix if keep_extension else suffix + ".tmp"
     with held_signals() as held:
         created = _make_parents(final.parent)
-        fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=tail, dir=final.parent)
-        tmp_path = Path(tmp)
+        tmp_path: Path | None = None
         done = False
         try:
+            fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=tail, dir=final.parent)
+            tmp_path = Path(tmp)
             os.close(fd)
             umask = os.umask(0)
             os.umask(umask)
@@ -376,7 +378,8 @@ def atomic_path(
                 os.replace(tmp_path, final)
                 done = True
         finally:
-            tmp_path.unlink(missing_ok=True)
+            if tmp_path is not None:
+                tmp_path.unlink(missing_ok=True)
             if not done:
                 _remove_empty(created)
 
@@ -394,7 +397,11 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
     final = Path(path)
     refuse_input(final)
     created = _make_parents(final.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    except OSError:
+        _remove_empty(created)
+        raise
     done = False
     try:
         umask = os.umask(0)

@@ -135,3 +135,19 @@ def test_a_signal_at_any_point_of_the_write_ends_the_run_and_leaves_nothing(
     assert all(r[3].strip() == "[]" for r in results), results  # no temporary, no output
     assert proc.returncode == code, err
     assert err.splitlines() == [said] * len(trials), err  # no "Exception ignored", no traceback
+
+
+def test_an_ignored_signal_stays_ignored_and_the_file_is_written(tmp_path: Path) -> None:
+    """A process that ignores Ctrl-C (started in the background by a shell) writes on."""
+    from tensegrity_env.io_utils import atomic_path
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with atomic_path(tmp_path / "x.txt") as tmp:
+            tmp.write_text("whole")
+            signal.raise_signal(signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert [p.name for p in tmp_path.iterdir()] == ["x.txt"]
+    assert (tmp_path / "x.txt").read_text() == "whole"
+    assert signal.getsignal(signal.SIGINT) is previous

@@ -91,6 +91,17 @@ def one_line(e: BaseException) -> str:
     return str(e).replace("\r", "\\r").replace("\n", "\\n")
 
 
+def parse_error(e: Exception) -> str:
+    """A parser's error (YAML's ``MarkedYAMLError``, ...) on one line, led by the place it
+    names: ``line L, column C: <problem>``; else its first line."""
+    mark = getattr(e, "problem_mark", None)
+    first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    problem = getattr(e, "problem", None) or first
+    if mark is None:
+        return problem
+    return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+
+
 def run_reporting(work: Callable[[], int]) -> int:
     """Run ``work`` with SIGTERM raising (:func:`sigterm_raises`) and turn the ways a run
     ends into one line on stderr and an exit status: bad input 2, a failed stage 1,

@@ -200,3 +200,23 @@ def test_a_truncated_c3d_is_refused_in_one_line(keep: int, tmp_path: Path) -> No
         read_recording(bad)
     text = str(e.value)
     assert "\n" not in text and text.startswith(f"{bad}: not a readable C3D file"), text
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("markers:\n  a: {rod: rod0, end: 0, offset: \"0.1\"}\n", "offset '0.1' is not a finite"),
+        ("markers:\n  a: {rod: rod0, end: 0, offset: .nan}\n", "offset nan is not a finite"),
+        ("markers:\n  a: {rod: rod0\n  b: [\n", "not valid YAML (line 3, column 4: "),
+    ],
+    ids=["text", "nan", "yaml"],
+)
+def test_a_marker_map_error_says_where(text: str, words: str, tmp_path: Path) -> None:
+    from identification.data.mocap.marker_map import read_marker_map
+    from tensegrity_env.assemblies import icosahedron
+
+    path = tmp_path / "map.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError) as e:
+        read_marker_map(path, icosahedron().topology)
+    assert str(e.value).startswith(f"{path}: ") and words in str(e.value), str(e.value)

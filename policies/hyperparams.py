@@ -25,7 +25,7 @@ from typing import Any
 import torch.nn as nn
 import yaml
 
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, parse_error
 
 #: the YAML files that ship with the package, one per algorithm
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
@@ -102,7 +102,7 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     except OSError as e:
         raise InputError(f"{path}: cannot read hyperparameters ({e.strerror})") from None
     except yaml.YAMLError as e:
-        raise InputError(f"{path}: not valid YAML ({type(e).__name__})") from None
+        raise InputError(f"{path}: not valid YAML ({parse_error(e)})") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping of environment ids to settings")
     if env_id not in doc:

@@ -124,7 +124,9 @@ class Params:
 
     # ------------------------------------------------------------------ checks
     def validate(self, topology: Topology, source: str = "params") -> Params:
-        """Check shapes against ``topology`` and physical signs. Raises :class:`InputError`."""
+        """Check shapes against ``topology`` and the physical domain (finite; M, I, K > 0;
+        c, l0 >= 0; principal inertias obey the triangle inequality). Raises
+        :class:`InputError` naming the field and the spring or rod."""
         S, R = topology.n_springs, topology.n_rods
         shapes = {
             "stiffness": (S,),
@@ -136,16 +138,31 @@ class Params:
             "gravity": (3,),
             "cable_gain": (topology.n_cables,),
         }
+        springs = [sp.name for sp in topology.springs]
+        rods = [r.name for r in topology.rods]
+        owners = {"stiffness": springs, "damping": springs, "rest_length": springs,
+                  "mass": rods, "inertia": rods}  # fmt: skip
+
+        def where(f: str, bad: torch.Tensor) -> str:
+            """The elements of field ``f`` where ``bad`` holds, by name, with their values."""
+            rows = bad.reshape(bad.shape[0], -1).any(-1) if bad.ndim else bad.reshape(1)
+            names = owners.get(f) or [f"{f}[{i}]" for i in range(rows.numel())]
+            values = getattr(self, f).reshape(rows.numel(), -1).tolist()
+            hits = [f"{names[i]} = {v[0] if len(v) == 1 else v}"
+                    for i, v in enumerate(values) if bool(rows[i])]  # fmt: skip
+            return ", ".join(hits[:4]) + (f" (and {len(hits) - 4} more)" if len(hits) > 4 else "")
+
         for f, shape in shapes.items():
             v = getattr(self, f)
             if tuple(v.shape) != shape:
                 raise InputError(f"{source}: '{f}' has shape {tuple(v.shape)}, expected {shape}")
             if not torch.isfinite(v).all():
-                raise InputError(f"{source}: '{f}' contains NaN or inf")
+                raise InputError(f"{source}: '{f}' contains NaN or inf ({where(f, ~torch.isfinite(v))})")
         if (self.mass <= 0).any():
-            raise InputError(f"{source}: masses must be positive, got {self.mass.tolist()}")
+            raise InputError(f"{source}: masses must be positive: {where('mass', self.mass <= 0)}")
         if (self.inertia <= 0).any():
-            raise InputError(f"{source}: inertias must be positive")
+            raise InputError(f"{source}: inertias must be positive: "
+                             f"{where('inertia', self.inertia <= 0)}")  # fmt: skip
         total = self.inertia.sum(-1, keepdim=True)
         if (2 * self.inertia > total * (1 + 1e-9)).any():
             bad = [i for i, row in enumerate((2 * self.inertia > total * (1 + 1e-9)).tolist())
@@ -153,11 +170,14 @@ class Params:
             raise InputError(f"{source}: principal inertias of rod(s) {bad} violate the triangle "
                              "inequality (each must be <= the sum of the other two)")  # fmt: skip
         if (self.stiffness <= 0).any():
-            raise InputError(f"{source}: spring stiffness must be positive")
+            raise InputError(f"{source}: spring stiffness must be positive: "
+                             f"{where('stiffness', self.stiffness <= 0)}")  # fmt: skip
         if (self.damping < 0).any():
-            raise InputError(f"{source}: spring damping must be >= 0")
+            raise InputError(f"{source}: spring damping must be >= 0: "
+                             f"{where('damping', self.damping < 0)}")  # fmt: skip
         if (self.rest_length < 0).any():
-            raise InputError(f"{source}: rest lengths must be >= 0")
+            raise InputError(f"{source}: rest lengths must be >= 0: "
+                             f"{where('rest_length', self.rest_length < 0)}")  # fmt: skip
         return self
 
     def relative_error(self, truth: Params) -> dict[str, np.ndarray]:
@@ -182,6 +202,18 @@ def params_to_dict(params: Params) -> dict[str, Any]:
     }
 
 
+def check_numbers(value: Any, where: str, source: str) -> None:
+    """Raise :class:`InputError` if a leaf of ``value`` (nested lists) is text, a boolean or
+    a mapping: ``"1.5"`` would otherwise be read as a number. ``None`` (JSON null) reads as NaN and
+    is refused by :meth:`Params.validate`."""
+    if isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            check_numbers(v, f"{where}[{i}]", source)
+    elif isinstance(value, (str, bool, dict)):
+        raise InputError(f"{source}: {where} is {json.dumps(value)}: not numeric (write "
+                         "numbers without quotes)")  # fmt: skip
+
+
 def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
     """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``.
 
@@ -192,6 +224,8 @@ def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
     missing = [f for f in FIELDS if f not in d]
     if missing:
         raise InputError(f"{source}: missing parameter(s) {missing}")
+    for f in FIELDS:
+        check_numbers(d[f], f"'{f}'", source)
     try:
         return Params.create(**{f: d[f] for f in FIELDS})
     except (ValueError, TypeError, RuntimeError) as e:  # torch reshapes raise RuntimeError

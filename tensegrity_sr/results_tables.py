@@ -16,6 +16,8 @@ import json
 import sys
 from pathlib import Path
 
+from tensegrity_env.io_utils import atomic_write_text
+
 ROOT = Path(__file__).resolve().parent.parent
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 MODELS = ("Ours", "Interaction", "Interaction+Int", "Koopman+Int")
@@ -84,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             print("README.md: results table out of date; run python -m tensegrity_sr.results_tables")
             return 1
         return 0
-    readme_path.write_text(new)
+    atomic_write_text(readme_path, new)
     return 0
 
 

@@ -43,6 +43,7 @@ from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
+    atomic_dir,
     check_number,
     check_output_dir,
     check_output_file,
@@ -166,7 +167,7 @@ def run_plant(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_dir(args.output, args.force)
+    check_output_dir(args.output, args.force, inputs=[args.dataset, args.params])
     check_number("--max-effects", args.max_effects, 0)
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--smoothing", args.smoothing, 0, strict=True)
@@ -196,26 +197,28 @@ def run(args: argparse.Namespace) -> int:
     else:
         dataset = with_measured_states(raw, args.smoothing)
         scorer = one_step_scorer(args, dataset)
-    out: Path = args.output
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    loop = EffectDiscovery(scorer, args.max_effects, names, plots=out, jobs=args.jobs)
-    # candidates may fit badly (judged); a large fit's window groups use the --jobs workers
-    with np.errstate(invalid="ignore", divide="ignore"), window_workers(args.jobs):
-        result = loop.fit(dataset).result_
-    truth = read_ground_truth(args.dataset)
-    contacts = [e for e in result.model.effects if isinstance(e, GroundContact)]
-    evidence = [contact_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology, c)
-                for c in contacts]  # fmt: skip
-    report = write_report(result, out, str(args.dataset), None if truth is None else truth.effects,
-                          [e.markdown() for e in evidence])  # fmt: skip
-    extra: dict[str, Any] = {"dataset": str(args.dataset)}
-    if evidence:
-        extra["floor_evidence"] = evidence[0].as_dict()
-    if multi_step:
-        extra["method"] = "trajectory"
-    extra["seconds"] = time.perf_counter() - t0
-    params = write_params(result, out / "params.json", extra)
+    # the report is assembled in a temporary folder, moved to --output only when complete
+    with atomic_dir(args.output) as out:
+        loop = EffectDiscovery(scorer, args.max_effects, names, plots=out, jobs=args.jobs)
+        # candidates may fit badly (judged); a large fit's window groups use the --jobs workers
+        with np.errstate(invalid="ignore", divide="ignore"), window_workers(args.jobs):
+            result = loop.fit(dataset).result_
+        truth = read_ground_truth(args.dataset)
+        contacts = [e for e in result.model.effects if isinstance(e, GroundContact)]
+        evidence = [contact_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,
+                                     c) for c in contacts]  # fmt: skip
+        report = write_report(result, out, str(args.dataset),
+                              None if truth is None else truth.effects,
+                              [e.markdown() for e in evidence])  # fmt: skip
+        extra: dict[str, Any] = {"dataset": str(args.dataset)}
+        if evidence:
+            extra["floor_evidence"] = evidence[0].as_dict()
+        if multi_step:
+            extra["method"] = "trajectory"
+        extra["seconds"] = time.perf_counter() - t0
+        params = write_params(result, out / "params.json", extra)
+    report, params = args.output / report.name, args.output / params.name
     print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
     for e in result.model.effects:
         print(f"  {e.describe()}")

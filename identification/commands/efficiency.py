@@ -11,7 +11,7 @@ from identification.commands.durations import samples_of, seconds
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.experiments.efficiency import DEFAULT_FRACTIONS, run_efficiency, write_outputs
 from identification.linear.regression import parse_anchor
-from tensegrity_env.io_utils import InputError, add_force_option, check_output_dir
+from tensegrity_env.io_utils import InputError, add_force_option, atomic_dir, check_output_dir
 
 
 def register(sub: Any) -> None:
@@ -54,7 +54,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_dir(args.output, args.force)
+    check_output_dir(args.output, args.force, inputs=[args.dataset])
     if args.horizon is not None and not args.horizon > 0:
         raise InputError(f"--horizon must be > 0 s, got {args.horizon}")
     bad = [f for f in args.fractions if not 0 < f <= 1]
@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         progress=True,
         solver=args.solver,
     )
-    paths = write_outputs(result, args.output)
+    with atomic_dir(args.output) as out:  # moved to --output only when complete
+        paths = {k: args.output / p.name for k, p in write_outputs(result, out).items()}
     print()
     print(result.markdown())
     if truth is None:

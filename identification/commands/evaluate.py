@@ -16,6 +16,7 @@ from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
+    atomic_dir,
     atomic_write_text,
     check_output_dir,
 )
@@ -47,7 +48,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_dir(args.output, args.force)
+    check_output_dir(args.output, args.force, inputs=[args.dataset, *args.params])
     dataset = read_dataset(args.dataset, splits=(args.split,))
     split = dataset.split(args.split)
     if not split.has_states:
@@ -64,13 +65,13 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"{path}: topology differs from {args.dataset}")
         curves[label] = long_horizon_errors(Engine(model.topology, model.dt), model.params, split)
     table = checkpoint_table(curves, dataset.dt)
-    args.output.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(
-        args.output / "long_horizon.md",
-        f"# Long-horizon error on {args.dataset} ({args.split})\n\n"
-        "mean rod position error / mean orientation error\n\n" + table + "\n",
-    )
-    plot_long_horizon(curves, dataset.dt, args.output / "long_horizon.png")
+    with atomic_dir(args.output) as out:  # moved to --output only when complete
+        atomic_write_text(
+            out / "long_horizon.md",
+            f"# Long-horizon error on {args.dataset} ({args.split})\n\n"
+            "mean rod position error / mean orientation error\n\n" + table + "\n",
+        )
+        plot_long_horizon(curves, dataset.dt, out / "long_horizon.png")
     print(table)
     print(f"\nwrote {args.output / 'long_horizon.md'} and {args.output / 'long_horizon.png'}")
     return 0

@@ -10,7 +10,13 @@ import torch
 
 from identification.experiments.paper import SCALES, run_paper
 from identification.experiments.paper_report import claim_checks, write_results
-from tensegrity_env.io_utils import InputError, add_force_option, check_number, check_output_dir
+from tensegrity_env.io_utils import (
+    InputError,
+    add_force_option,
+    atomic_dir,
+    check_number,
+    check_output_dir,
+)
 
 
 def register(sub: Any) -> None:
@@ -57,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
         result = run_paper(args.scale, seed=args.seed, progress=True)
     finally:
         torch.set_num_threads(threads)
-    paths = write_results(result, args.output, command)
+    with atomic_dir(args.output) as out:  # moved to --output only when complete
+        paths = [args.output / p.name for p in write_results(result, out, command)]
     print("\n".join(claim_checks(result)))
     print(f"\nwall time {result.seconds:.0f} s; wrote {len(paths)} files into {args.output}:")
     for path in paths:

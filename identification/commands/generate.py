@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
         end_caps=args.end_caps,
     )
     name = Path(spec.mjcf).stem if spec.mjcf is not None else spec.assembly
-    output = check_output_file(args.output or Path(f"{name}_{spec.preset}.h5"), args.force)
+    output = check_output_file(args.output or Path(f"{name}_{spec.preset}.h5"), args.force,
+                               inputs=[args.mjcf])
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -25,6 +25,7 @@ from identification.report.tables import (
 from tensegrity_env.engine import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
+    StageError,
     add_force_option,
     check_number,
     check_output_file,
@@ -93,7 +94,7 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file(args.output, args.force)
+    check_output_file(args.output, args.force, inputs=[args.dataset, args.init])
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
     check_number("--floor-windows", args.floor_windows, 1)
@@ -115,6 +116,13 @@ def run(args: argparse.Namespace) -> int:
         fraction=args.fraction, seed=args.seed, progress=True,
     ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
+    try:  # nothing outside the physical domain is written
+        est.params_.validate(dataset.topology, source="identified parameters")
+    except InputError as e:
+        raise StageError("the regression", f"{e} (not written; {est.n_transitions_} "
+                         f"transitions of '{args.split}')",
+                         "more or longer trajectories in which every spring stretches and every "
+                         "rod turns, or --shared") from None  # fmt: skip
     truth = read_ground_truth(args.dataset)
     truth_params = truth.params if truth is not None else None
     ratios = est.mode_ == "ratios"

@@ -103,7 +103,8 @@ def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None)
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file(args.output, args.force)
+    check_output_file(args.output, args.force, inputs=[*args.files, args.robot, args.map,
+                                                     *args.commands, *args.val, *args.test])
     fractions = parse_fractions(args.split)
     named = {f.name for f in args.files}
     assign = {f.name: "val" for f in args.val} | {f.name: "test" for f in args.test}

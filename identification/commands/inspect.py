@@ -19,6 +19,7 @@ from identification.data.end_caps import cap_names
 from identification.data.mocap.formats import MOCAP_SUFFIXES, read_recording
 from identification.data.mocap.summary import recording_text
 from identification.data.quality import plot_quality, quality_text, sample_quality
+from identification.report.plots import check_figure_path
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 from tensegrity_env.params import UNITS
 
@@ -101,7 +102,8 @@ def ground_truth_text(truth: GroundTruth) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if args.plot is not None:
-        check_output_file(args.plot, args.force, "--plot")
+        check_figure_path(args.plot, "--plot")
+        check_output_file(args.plot, args.force, "--plot", inputs=[args.dataset])
     if args.dataset.suffix.lower() in MOCAP_SUFFIXES:
         if args.plot is not None or args.ground_truth:
             raise InputError(f"{args.dataset}: --plot and --ground-truth are for datasets; "

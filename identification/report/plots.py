@@ -10,7 +10,22 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from tensegrity_env.io_utils import atomic_path
+from tensegrity_env.io_utils import InputError, atomic_path
+
+
+def check_figure_path(path: str | Path, option: str = "--plot") -> Path:
+    """Raise :class:`InputError` unless ``path``'s extension names a picture format that
+    matplotlib writes (``.png``, ``.pdf``, ``.svg``, ...); returns it as a Path."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    p = Path(path)
+    formats = sorted(FigureCanvasBase.get_supported_filetypes())
+    ext = p.suffix[1:].lower()
+    if ext not in formats:
+        what = f"'.{ext}' is not a picture format" if ext else "has no file extension"
+        raise InputError(f"{option} {p}: {what}; name a picture file ending in one of "
+                         f"{', '.join('.' + f for f in formats)}")
+    return p
 
 
 def save_figure(fig: plt.Figure, path: str | Path) -> Path:

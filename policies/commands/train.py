@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = args.output or Path("runs") / f"{args.algo}_{args.env}_s{args.seed}"
     # a folder holding a run is continued with --resume, never replaced (train() says so)
-    check_output_dir(out, force=True)
+    check_output_dir(out, force=True, inputs=[args.hyperparams])
     for option, value, low in (("--timesteps", args.timesteps, 1), ("--seed", args.seed, 0),
                                ("--n-envs", args.n_envs, 1), ("--threads", args.threads, 0),
                                ("--checkpoint-every", args.checkpoint_every, 1),

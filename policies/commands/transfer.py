@@ -12,6 +12,7 @@ from typing import Any
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
+    atomic_dir,
     atomic_write_text,
     check_number,
     check_output_dir,
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from policies.vec import env_spec
 
-    check_output_dir(args.output, args.force)
+    check_output_dir(args.output, args.force, inputs=[*args.policy, args.reference])
     if args.train_reference is not None:  # an existing reference run is resumed, not replaced
         check_output_dir(args.train_reference, force=True, option="--train-reference")
     if args.episodes < 1:
@@ -129,20 +130,21 @@ def run(args: argparse.Namespace) -> int:
             "wall_s": ref.record.get("wall_s"),
             "timesteps": ref.record.get("timesteps"),
         }
-    if not args.no_video:
-        from tensegrity_env.envs import RenderingUnavailable
+    with atomic_dir(args.output) as out:  # moved to --output only when complete
+        if not args.no_video:
+            from tensegrity_env.envs import RenderingUnavailable
 
-        try:
-            video = side_by_side_video(
-                policy, args.output / "side_by_side.mp4", args.seed, source=args.source,
-                target=args.target,
-            )  # fmt: skip
-            report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
-        except RenderingUnavailable as e:
-            print(f"no video: {e}")
-    text = "\n".join(report) + "\n"
-    atomic_write_text(args.output / "transfer.md", text)
-    atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")
+            try:
+                video = side_by_side_video(
+                    policy, out / "side_by_side.mp4", args.seed, source=args.source,
+                    target=args.target,
+                )  # fmt: skip
+                report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
+            except RenderingUnavailable as e:
+                print(f"no video: {e}")
+        text = "\n".join(report) + "\n"
+        atomic_write_text(out / "transfer.md", text)
+        atomic_write_text(out / "transfer.json", json.dumps(doc, indent=2) + "\n")
     print(text)
     print(f"wrote {args.output / 'transfer.md'} and transfer.json")
     return 0
@@ -174,8 +176,9 @@ def run_several(args: argparse.Namespace) -> int:
     doc = {"seed": args.seed, "episodes": args.episodes, "runs": runs,
            "aggregate": to_dict(agg, len(results))}  # fmt: skip
     text = "\n".join(report) + "\n"
-    atomic_write_text(args.output / "transfer.md", text)
-    atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")
+    with atomic_dir(args.output) as out:  # moved to --output only when complete
+        atomic_write_text(out / "transfer.md", text)
+        atomic_write_text(out / "transfer.json", json.dumps(doc, indent=2) + "\n")
     print(text)
     print(f"wrote {args.output / 'transfer.md'} and transfer.json")
     return 0

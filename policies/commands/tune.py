@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, protect_inputs
 
 #: the algorithms of :data:`policies.artifacts.ALGOS` (not imported here: SB3 is slow to import)
 ALGO_NAMES = ("ppo", "sac")
@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
     env_spec(args.env)
     out = args.out or Path("runs") / f"tune_{args.algo}_{args.env}"
+    protect_inputs(args.hyperparams, args.enqueue)
     base = base_entry(args.algo, args.env, args.hyperparams)
     if args.n_envs is not None:
         base["n_envs"] = args.n_envs

@@ -29,7 +29,7 @@ from tensegrity_env.engine.forces import kinematics_wrench
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.params import Params
+from tensegrity_env.params import Params, check_numbers
 from tensegrity_env.topology import Topology
 
 
@@ -107,6 +107,8 @@ class PhysicalEffect(EffectBase):
         return {"spring": self.topology.n_springs, "rod": self.topology.n_rods}.get(spec.per)
 
     def _tensor(self, key: str, spec: ParamSpec, value: Any) -> torch.Tensor:
+        if not isinstance(value, torch.Tensor):
+            check_numbers(value, f"'{key}'", f"effect '{self.name}'")
         if spec.integer:
             try:
                 idx = np.asarray(value, dtype=float).reshape(-1)

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -100,6 +101,15 @@ class MjcfAssembly:
         return effects
 
 
+def mujoco_error(e: ValueError) -> str:
+    """MuJoCo's error on loading a model, on one line, led by the line of the file it
+    names (``Line number=13``, ``Element 'inertial', line 17``)."""
+    parts = [line.strip() for line in str(e).splitlines() if line.strip()]
+    found = re.search(r"\bline(?: number)?\s*=?\s*(\d+)", str(e), re.IGNORECASE)
+    where = f"line {found.group(1)}: " if found else ""
+    return f"{where}MuJoCo cannot load it ({'; '.join(parts) or type(e).__name__})"
+
+
 def from_mjcf(
     source: str | Path,
     xml: str | None = None,
@@ -127,7 +137,7 @@ def from_mjcf(
                 raise InputError(f"{src}: no such MJCF file")
             model = mujoco.MjModel.from_xml_path(src)
     except ValueError as e:
-        raise InputError(f"{src}: MuJoCo cannot load it ({str(e).splitlines()[0]})") from None
+        raise InputError(f"{src}: {mujoco_error(e)}") from None
     m = model
     BODY, SITE, TEN = mujoco.mjtObj.mjOBJ_BODY, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_TENDON
 
@@ -212,6 +222,10 @@ def from_mjcf(
     shape_found: list[Unsupported] = []
     for i, b in enumerate(rod_bodies):
         e0, e1 = (np.asarray(to_inertial(i, m.site_pos[s])) for s in rod_ends[i])
+        if not np.linalg.norm(e1 - e0) > 0:  # before the end caps' geoms are looked for
+            raise InputError(f"{src}: rod '{mj_name(m, BODY, b)}': length must be positive, got "
+                             f"0.0 (end-cap sites '{mj_name(m, SITE, rod_ends[i][0])}' and "
+                             f"'{mj_name(m, SITE, rod_ends[i][1])}' coincide)")  # fmt: skip
         radius, geoms = end_cap_radius(m, b, rod_ends[i], floor, src)
         cap_geoms += geoms
         shapes = {CAP_TYPES[int(m.geom_type[g])] for g in geoms}

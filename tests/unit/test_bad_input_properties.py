@@ -222,3 +222,137 @@ def test_env_step(kind: str, action: np.ndarray) -> None:
         assert np.all(np.isfinite(obs)) and math.isfinite(reward)
         if terminated or truncated:
             e.reset(seed=0)
+
+
+# ---------------------------------------------------------------------- motion-capture readers
+#: one valid take per reader: plain CSV, Motive CSV, Vicon CSV, Qualisys TSV, C3D
+MOCAP_FILES = ("plain.csv", "motive.csv", "vicon.csv", "qtm.tsv", "take.c3d")
+#: what a mutation writes into a cell: numbers of every kind, text, nothing
+cells = st.one_of(
+    st.sampled_from(["", " ", "nan", "NaN", "inf", "-inf", "1e400", "abc", "1,5", "0", "-1e30"]),
+    st.text(st.characters(exclude_characters="\x00\r\n", exclude_categories=("Cs",)), max_size=8),
+    st.floats(allow_nan=True, allow_infinity=True).map(str),
+)
+
+
+@cache
+def valid_take_bytes(name: str, tmp: str) -> bytes:
+    from identification.data.mocap.c3d_files import write_c3d
+    from identification.data.mocap.csv_files import (
+        write_motive_csv,
+        write_plain_csv,
+        write_vicon_csv,
+    )
+    from identification.data.mocap.tsv_files import write_qtm_tsv
+
+    rng = np.random.default_rng(1)
+    t = np.arange(15) / 100.0
+    x = 1.0 + rng.normal(0, 1e-2, (15, 3, 3))
+    x[5, 1] = np.nan  # an unseen marker
+    names = ["m0", "m1", "m2"]
+    path = Path(tmp) / name
+    writers = {
+        "plain.csv": lambda: write_plain_csv(path, t, x, names, units="mm"),
+        "motive.csv": lambda: write_motive_csv(path, t, x, names, 100.0),
+        "vicon.csv": lambda: write_vicon_csv(path, x, names, 100.0),
+        "qtm.tsv": lambda: write_qtm_tsv(path, x, names, 100.0),
+        "take.c3d": lambda: write_c3d(path, x, names, 100.0),
+    }
+    writers[name]()
+    return path.read_bytes()
+
+
+def check_recording(rec: Any) -> None:
+    """A take that was read: finite or wholly unseen samples, increasing times, a rate."""
+    assert rec.points.ndim == 3 and rec.points.shape[2] == 3 and rec.points.shape[0] >= 2
+    assert not np.isinf(rec.points).any()
+    unseen = np.isnan(rec.points)
+    assert (unseen.any(-1) == unseen.all(-1)).all()  # a marker is seen in x, y, z or not at all
+    assert np.isfinite(rec.time).all() and (np.diff(rec.time) > 0).all()
+    assert math.isfinite(rec.rate) and rec.rate > 0
+    assert len(rec.names) == rec.points.shape[1]
+
+
+def mutated_text(text: str, sep: str, data: st.DataObject) -> str:
+    """``text`` with one cell replaced, one row dropped, repeated or cut, or cut short."""
+    lines = text.splitlines()
+    kind = data.draw(st.sampled_from(["cell", "drop", "repeat", "cut row", "truncate"]))
+    if kind == "truncate":
+        return text[: data.draw(st.integers(0, len(text) - 1))]
+    i = data.draw(st.integers(0, len(lines) - 1))
+    cells_i = lines[i].split(sep)
+    if kind == "cell":
+        cells_i[data.draw(st.integers(0, len(cells_i) - 1))] = data.draw(cells)
+        lines[i] = sep.join(cells_i)
+    elif kind == "drop":
+        del lines[i]
+    elif kind == "repeat":
+        lines.insert(i, lines[i])
+    else:
+        lines[i] = sep.join(cells_i[: data.draw(st.integers(0, len(cells_i)))])
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("name", MOCAP_FILES)
+@given(data=st.data())
+def test_mocap_readers(name: str, tmp_path_factory: pytest.TempPathFactory, data: st.DataObject) -> None:
+    from identification.data.mocap.recording import read_recording
+
+    tmp = tmp_path_factory.getbasetemp() / "takes"
+    tmp.mkdir(exist_ok=True)
+    good = valid_take_bytes(name, str(tmp))
+    path = tmp / f"mutated_{name}"
+    if name.endswith(".c3d"):
+        raw = bytearray(good)
+        if data.draw(st.booleans()):
+            raw = raw[: data.draw(st.integers(0, len(raw) - 1))]
+        else:  # a byte of the point data, which starts at the block the header's word 9 names
+            start = (int.from_bytes(good[16:18], "little") - 1) * 512
+            i = data.draw(st.integers(start, len(raw) - 1))
+            raw[i] = data.draw(st.integers(0, 255))
+        path.write_bytes(bytes(raw))
+    else:
+        sep = "\t" if name.endswith(".tsv") else ","
+        path.write_text(mutated_text(good.decode(), sep, data))
+    try:
+        rec = read_recording(path, units="mm")
+    except InputError as e:
+        assert str(path) in one_line(e)
+    else:
+        check_recording(rec)
+
+
+# ---------------------------------------------------------------------- --plot names
+picture_names = st.tuples(
+    st.text(st.characters(exclude_characters="/\\", exclude_categories=("Cc", "Cs")),
+            min_size=1, max_size=8),
+    st.sampled_from(["", ".png", ".PNG", ".pdf", ".svg", ".jpg", ".txt", ".", ".png.", ".h5", ".docx"]),
+).map("".join)
+
+
+@given(name=picture_names)
+def test_plot_names(tmp_path_factory: pytest.TempPathFactory, name: str) -> None:
+    """A picture name is refused in one line or gives a readable picture of that format."""
+    import matplotlib.pyplot as plt
+
+    from identification.report.plots import check_figure_path
+    from tensegrity_env.io_utils import atomic_path
+
+    tmp = tmp_path_factory.getbasetemp() / "pictures"
+    tmp.mkdir(exist_ok=True)
+    path = tmp / name
+    if name in (".", "..") or path.is_dir():
+        return
+    try:
+        check_figure_path(path)
+    except InputError as e:
+        assert one_line(e).startswith(f"--plot {path}: ") and ".png" in str(e)
+        return
+    fig = plt.figure(figsize=(1, 1))
+    try:
+        with atomic_path(path, keep_extension=True) as out:  # as inspect --plot writes it
+            fig.savefig(out, dpi=20)
+    finally:
+        plt.close(fig)
+    assert path.stat().st_size > 0
+    path.unlink()

@@ -149,7 +149,7 @@ def test_a_qtm_tsv_export_without_frame_columns_reads_its_zero_fills_as_gaps(tmp
     np.testing.assert_allclose(rec.points[2, 1], [4.5e-3, 5.5e-3, 6.5e-3])  # millimetres
     assert np.isnan(rec.points[1, 1]).all()
     path.write_text(QTM.replace("4.500\t5.500\t6.500", "4.500\t5.500"))
-    with pytest.raises(InputError, match=r"take.tsv: frame row 11 has 5 of 6 columns"):
+    with pytest.raises(InputError, match=r"take.tsv: row 11 has 5 of 6 columns"):
         read_recording(path)
     path.write_text(QTM.replace("FREQUENCY\t200\n", ""))
     with pytest.raises(InputError, match=r"take.tsv: not a QTM 3-D export"):
@@ -170,7 +170,13 @@ def test_commands_hold_from_their_log_time_and_bad_logs_are_one_line_errors(tmp_
     with pytest.raises(InputError, match=r"u.csv: 2 command columns, the robot has 3 cable actuators"):
         read_commands(path, 3)
     path.write_text("time,a0\n0.0,1\n0.0,2\n")
-    with pytest.raises(InputError, match=r"u.csv: command times do not increase"):
+    with pytest.raises(InputError, match=r"u.csv: row 3, column 1: command times do not increase"):
+        read_commands(path, 1)
+    path.write_text("time,a0\n0.0,1\n\n0.1,up\n")  # a blank row still counts
+    with pytest.raises(InputError, match=r"u.csv: row 4, column 2 \('a0'\): 'up' is not a number"):
+        read_commands(path, 1)
+    path.write_text("time,a0\n0.0,1\n0.1,inf\n")
+    with pytest.raises(InputError, match=r"u.csv: row 3, column 2 \('a0'\): 'inf' is not a finite"):
         read_commands(path, 1)
     path.write_text("t,a0\n0.0,1\n")
     with pytest.raises(InputError, match=r"u.csv: command file must start with a header"):

@@ -21,6 +21,7 @@ def read_c3d(path: Path, units: str | None = None) -> MarkerRecording:
     """Read the 3-D points of a C3D file; ``units`` only if the file states none."""
     import ezc3d
 
+    declared = _declared_frames(path)  # before ezc3d, which can loop on a truncated file
     try:
         c = ezc3d.c3d(str(path))
     except (OSError, RuntimeError, ValueError) as e:
@@ -37,7 +38,6 @@ def read_c3d(path: Path, units: str | None = None) -> MarkerRecording:
         raise InputError(f"{path}: C3D file without 3-D point data ({e})") from None
     if data.ndim != 3 or data.shape[1] == 0:
         raise InputError(f"{path}: C3D file holds no 3-D points")
-    declared = _declared_frames(path)
     if declared is not None and declared > data.shape[2]:
         raise InputError(
             f"{path}: not a readable C3D file (truncated or corrupt: header declares {declared} "
@@ -53,15 +53,48 @@ def read_c3d(path: Path, units: str | None = None) -> MarkerRecording:
     return MarkerRecording(path, time - time[0], points, labels, rate)
 
 
+#: C3D processor types whose header words this check reads: Intel (little-endian) and
+#: MIPS (big-endian); DEC's floats differ and are left to ezc3d
+BYTE_ORDER = {84: "<", 86: ">"}
+
+
 def _declared_frames(path: Path) -> int | None:
-    """Frame count the file's header declares (first/last frame words, Intel byte order);
-    ezc3d reports only the frames it could read."""
+    """Frame count the file's header declares (first/last frame words), after checking
+    that the file holds the parameter blocks and point data its header declares; ezc3d
+    reports only the frames it could read, and loops on some truncated files. None
+    where the header cannot be read this way (left to ezc3d)."""
+    size = path.stat().st_size
     with open(path, "rb") as fh:
-        head = fh.read(10)
-    if len(head) < 10 or head[1] != 0x50:
+        head = fh.read(512)
+        if len(head) < 10 or head[1] != 0x50:
+            return None
+        fh.seek(max(head[0] - 1, 0) * 512)
+        params = fh.read(4)
+
+    def truncated(what: str) -> InputError:
+        return InputError(f"{path}: not a readable C3D file (truncated or corrupt: {what})")
+
+    if len(head) < 512 or len(params) < 4:
+        raise truncated(f"{size} bytes hold no complete header and parameter section")
+    order = BYTE_ORDER.get(params[3])
+    if order is None:
         return None
-    first, last = struct.unpack_from("<HH", head, 6)
-    return last - first + 1 if last >= first else None
+    points, analog, first, last = struct.unpack_from(order + "HHHH", head, 2)
+    (scale,) = struct.unpack_from(order + "f", head, 12)
+    (data_block,) = struct.unpack_from(order + "H", head, 16)
+    param_end = (head[0] - 1 + params[2]) * 512
+    if param_end > size:
+        raise truncated(f"the header declares parameters up to byte {param_end}, the file has "
+                        f"{size}")  # fmt: skip
+    if last < first:
+        return None
+    frames = last - first + 1
+    word = 4 if scale < 0 else 2  # a negative scale factor: 32-bit float samples
+    need = max(data_block - 1, 0) * 512 + frames * (4 * points + analog) * word
+    if need > size:
+        held = max(size - max(data_block - 1, 0) * 512, 0) // max((4 * points + analog) * word, 1)
+        raise truncated(f"header declares {frames} frames, data holds {held}")
+    return frames
 
 
 def write_c3d(

@@ -27,30 +27,34 @@ def read_commands(path: Path, n_actuators: int) -> tuple[np.ndarray, np.ndarray]
     """Command times (K,) [s] and values (K, C) of a command CSV; one-line errors."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            rows = [r for r in csv.reader(f) if any(c.strip() for c in r)]
+            reader = csv.reader(f)
+            rows = [(reader.line_num, r) for r in reader if any(c.strip() for c in r)]
     except OSError as e:
         raise InputError(f"{path}: cannot read the command file ({e.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file") from None
-    if not rows or rows[0][0].strip().lower() != "time":
+    if not rows or rows[0][1][0].strip().lower() != "time":
         raise InputError(f"{path}: command file must start with a header 'time,<actuator>,...'")
-    if len(rows[0]) - 1 != n_actuators:
-        raise InputError(f"{path}: {len(rows[0]) - 1} command columns, the robot has "
+    header = rows[0][1]
+    if len(header) - 1 != n_actuators:
+        raise InputError(f"{path}: {len(header) - 1} command columns, the robot has "
                          f"{n_actuators} cable actuators")  # fmt: skip
     if len(rows) < 2:
         raise InputError(f"{path}: no commands after the header")
     data = np.empty((len(rows) - 1, n_actuators + 1))
-    for i, r in enumerate(rows[1:]):
+    for i, (line, r) in enumerate(rows[1:]):
         if len(r) != n_actuators + 1:
-            raise InputError(f"{path}: row {i + 2} has {len(r)} cells, the header {n_actuators + 1}")
-        try:
-            data[i] = [float(c) for c in r]
-        except ValueError:
-            raise InputError(f"{path}: row {i + 2} holds a cell that is not a number") from None
-    if not np.isfinite(data).all():
-        raise InputError(f"{path}: commands or times that are not finite")
-    if (np.diff(data[:, 0]) <= 0).any():
-        raise InputError(f"{path}: command times do not increase")
+            raise InputError(f"{path}: row {line} has {len(r)} cells, the header {n_actuators + 1}")
+        for j, cell in enumerate(r):
+            where = f"{path}: row {line}, column {j + 1} ({header[j].strip()!r})"
+            try:
+                data[i, j] = float(cell)
+            except ValueError:
+                raise InputError(f"{where}: {cell!r} is not a number") from None
+            if not np.isfinite(data[i, j]):
+                raise InputError(f"{where}: {cell!r} is not a finite number")
+        if i and data[i, 0] <= data[i - 1, 0]:
+            raise InputError(f"{path}: row {line}, column 1: command times do not increase")
     return data[:, 0], data[:, 1:]
 
 

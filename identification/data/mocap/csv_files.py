@@ -32,14 +32,21 @@ from tensegrity_env.io_utils import InputError, atomic_write_text
 AXES = ("x", "y", "z")
 
 
-def _number(cell: str, path: Path, row: int) -> float:
+def _number(cell: str, path: Path, row: int, column: str = "") -> float:
+    """A cell's value; NaN for an empty or ``nan`` cell (an unseen marker). ``row`` is the
+    file's row number and ``column`` names the column, for the one-line error on text or
+    an infinite value."""
     cell = cell.strip()
     if cell == "" or cell.lower() == "nan":
         return np.nan
+    where = f"{path}: row {row}{', column ' + column if column else ''}"
     try:
-        return float(cell)
+        value = float(cell)
     except ValueError:
-        raise InputError(f"{path}: row {row}: {cell!r} is not a number") from None
+        raise InputError(f"{where}: {cell!r} is not a number") from None
+    if not np.isfinite(value):
+        raise InputError(f"{where}: {cell!r} is not a finite number")
+    return value
 
 
 def _semicolons(text: str) -> bool:
@@ -74,14 +81,55 @@ def read_csv(path: Path, units: str | None = None) -> MarkerRecording:
     return _read_plain(path, rows, units)
 
 
-def _frames(path: Path, rows: list[list[str]], first: int, width: int) -> np.ndarray:
-    body = [r for r in rows[first:] if any(c.strip() for c in r)]
+def _column(j: int, header: list[str] | None) -> str:
+    """Column ``j`` (0-based) of a file as a message names it: its number and heading."""
+    name = header[j].strip() if header is not None and j < len(header) else ""
+    return f"{j + 1} ({name!r})" if name else str(j + 1)
+
+
+def frame_rows(
+    path: Path,
+    rows: list[list[str]],
+    first: int,
+    width: int,
+    *,
+    header: list[str] | None = None,
+    time_column: int | None = None,
+    triples: list[int] | None = None,
+) -> np.ndarray:
+    """The numbers of the frame rows ``rows[first:]`` (blank rows skipped), (F, width).
+
+    Checked before use, each error naming the file, the row and the column: a frame row
+    with fewer than ``width`` cells (truncated or ragged) or with more that are not
+    empty, a cell that is text or infinite, an empty ``time_column``, a marker whose x,
+    y, z columns (starting at each of ``triples``) are partly empty. ``header`` names
+    the columns in messages. No frame row at all is an error too.
+    """
+    body = [(first + i + 1, r) for i, r in enumerate(rows[first:]) if any(c.strip() for c in r)]
+    if not body:
+        raise InputError(f"{path}: no frame rows after the header (row {first}): the file "
+                         "holds no data")  # fmt: skip
     out = np.full((len(body), width), np.nan)
-    for i, r in enumerate(body):
-        if len(r) > width:
-            r = r[:width]
-        for j, cell in enumerate(r):
-            out[i, j] = _number(cell, path, first + i + 1)
+    for i, (row, r) in enumerate(body):
+        if len(r) < width:
+            raise InputError(f"{path}: row {row} has {len(r)} of {width} columns (a truncated "
+                             "or ragged row)")  # fmt: skip
+        extra = next((j for j in range(width, len(r)) if r[j].strip()), None)
+        if extra is not None:
+            raise InputError(f"{path}: row {row}, column {extra + 1}: a value beyond the "
+                             f"header's {width} columns (a ragged row)")  # fmt: skip
+        for j, cell in enumerate(r[:width]):
+            out[i, j] = _number(cell, path, row, _column(j, header))
+        if time_column is not None and np.isnan(out[i, time_column]):
+            raise InputError(f"{path}: row {row}, column {_column(time_column, header)}: "
+                             "the frame has no time")  # fmt: skip
+        for j in triples or ():
+            seen = np.isnan(out[i, j : j + 3])
+            if seen.any() and not seen.all():
+                raise InputError(f"{path}: row {row}, columns {_column(j, header)}-"
+                                 f"{_column(j + 2, header)}: a marker with some coordinates "
+                                 "missing (empty or nan) and others not (an unseen marker is "
+                                 "empty in x, y and z)")  # fmt: skip
     return out
 
 
@@ -101,9 +149,8 @@ def _read_plain(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
         names.append(stems.pop())
     if not names:
         raise InputError(f"{path}: no marker columns after 'time'")
-    data = _frames(path, rows, 1, len(header))
-    if np.isnan(data[:, 0]).any():
-        raise InputError(f"{path}: a row has no time")
+    data = frame_rows(path, rows, 1, len(header), header=header, time_column=0,
+                   triples=list(range(1, len(header), 3)))  # fmt: skip
     scale = unit_scale(None, path, units)
     points = data[:, 1:].reshape(len(data), len(names), 3) * scale
     time = data[:, 0]
@@ -124,13 +171,16 @@ def _read_motive(path: Path, rows: list[list[str]], units: str | None) -> Marker
     ]  # fmt: skip
     if not cols or len(cols) % 3:
         raise InputError(f"{path}: no complete marker position columns (X, Y, Z) in the header")
+    unnamed = next((j for j in cols[::3] if j >= len(names) or not names[j].strip()), None)
+    if unnamed is not None:
+        raise InputError(f"{path}: row {head - 2}, column {unnamed + 1}: a marker column without "
+                         "its marker's name")  # fmt: skip
     labels = [names[j].strip() for j in cols[::3]]
     axes = [rows[head][j].strip().lower() for j in cols]
     if axes != list(AXES) * len(labels):
         raise InputError(f"{path}: marker columns are not X, Y, Z triples")
-    data = _frames(path, rows, head + 1, len(rows[head]))
-    if np.isnan(data[:, 1]).any():
-        raise InputError(f"{path}: a frame row has no time")
+    data = frame_rows(path, rows, head + 1, len(rows[head]), header=rows[head], time_column=1,
+                   triples=cols[::3])  # fmt: skip
     scale = unit_scale(meta.get("Length Units"), path, units)
     points = data[:, cols].reshape(len(data), len(labels), 3) * scale
     try:
@@ -155,6 +205,9 @@ def _read_vicon(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
         rate = float(section[1][0])
     except (ValueError, IndexError):
         raise InputError(f"{path}: 'Trajectories' section without its frame rate row") from None
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputError(f"{path}: row {start + 2}, column 1: frame rate {rate:g} Hz is not a "
+                         "positive number")  # fmt: skip
     names_row, axes_row, units_row = section[2], section[3], section[4]
     if [c.strip().lower() for c in axes_row[:2]] != ["frame", "sub frame"]:
         raise InputError(f"{path}: 'Trajectories' section without its 'Frame,Sub Frame' row")
@@ -170,9 +223,8 @@ def _read_vicon(path: Path, rows: list[list[str]], units: str | None) -> MarkerR
     if len(stated) > 1:
         raise InputError(f"{path}: marker columns in different units ({', '.join(sorted(stated))})")
     width = max(len(axes_row), cols[-1] + 1)
-    data = _frames(path, rows[:end], start + 5, width)
-    if np.isnan(data[:, 0]).any():
-        raise InputError(f"{path}: a frame row has no frame number")
+    data = frame_rows(path, rows[:end], start + 5, width, header=axes_row, time_column=0,
+                   triples=cols[::3])  # fmt: skip
     scale = unit_scale(stated.pop() if stated else None, path, units)
     points = data[:, cols].reshape(len(data), len(labels), 3) * scale
     time = (data[:, 0] - data[0, 0]) / rate

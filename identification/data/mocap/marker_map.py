@@ -17,12 +17,13 @@ track ids of the first frame. Without a map, markers named ``<rod>_<end>`` (e.g.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
-from tensegrity_env.io_utils import InputError
+from tensegrity_env.io_utils import InputError, parse_error
 from tensegrity_env.topology import Topology
 
 
@@ -48,7 +49,7 @@ def read_marker_map(path: str | Path, topology: Topology) -> MarkerMap:
     try:
         doc = yaml.safe_load(p.read_text())
     except yaml.YAMLError as e:
-        raise InputError(f"{p}: not valid YAML ({str(e).splitlines()[0]})") from None
+        raise InputError(f"{p}: not valid YAML ({parse_error(e)})") from None
     entries = doc.get("markers") if isinstance(doc, dict) else None
     if not isinstance(entries, dict) or not entries:
         raise InputError(f"{p}: needs a 'markers:' mapping of marker name -> {{rod, end}}")
@@ -66,10 +67,10 @@ def read_marker_map(path: str | Path, topology: Topology) -> MarkerMap:
                 f"{p}: marker {name!r}: offset must be one number along the rod's axis "
                 "(two markers per rod cannot see its roll, so an offset off the axis cannot be undone)"
             )
-        try:
-            offset = float(offset)
-        except (TypeError, ValueError):
-            raise InputError(f"{p}: marker {name!r}: offset {offset!r} is not a number") from None
+        if isinstance(offset, (str, bool)) or not isinstance(offset, (int, float)) \
+                or not math.isfinite(offset):
+            raise InputError(f"{p}: marker {name!r}: offset {offset!r} is not a finite number [m]")
+        offset = float(offset)
         cap = 2 * rod + int(e["end"])
         if cap in {c for c, _ in caps.values()}:
             raise InputError(f"{p}: two markers map to end {e['end']} of rod {e['rod']!r}")

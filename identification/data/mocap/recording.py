@@ -75,8 +75,18 @@ class MarkerRecording:
             raise InputError(f"{where}: frame times do not increase")
         if not np.isfinite(self.rate) or self.rate <= 0:
             raise InputError(f"{where}: frame rate {self.rate} is not positive")
-        if np.isinf(self.points).any():
-            raise InputError(f"{where}: marker positions contain inf")
+        inf = np.isinf(self.points).any(-1)
+        if inf.any():
+            f, m = np.argwhere(inf)[0]
+            raise InputError(f"{where}: marker positions contain inf (frame {f + 1}, marker "
+                             f"{self.names[m]!r}; {int(inf.sum())} samples)")  # fmt: skip
+        unseen = np.isnan(self.points)
+        partly = unseen.any(-1) & ~unseen.all(-1)
+        if partly.any():
+            f, m = np.argwhere(partly)[0]
+            raise InputError(f"{where}: frame {f + 1}, marker {self.names[m]!r}: some coordinates "
+                             f"NaN and others not ({int(partly.sum())} samples; an unseen "
+                             "marker is NaN in x, y and z)")  # fmt: skip
         return self
 
     def from_frame(self, k: int) -> MarkerRecording:

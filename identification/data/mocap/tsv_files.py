@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from identification.data.mocap.csv_files import frame_rows
 from identification.data.mocap.recording import MarkerRecording, unit_scale
 from tensegrity_env.io_utils import InputError, atomic_write_text
 
@@ -46,7 +47,7 @@ def read_qtm_tsv(path: Path, units: str | None = None) -> MarkerRecording:
         k += 1
     body = [r for r in rows[k:] if any(c.strip() for c in r)]
     if not body:
-        raise InputError(f"{path}: no frames")
+        raise InputError(f"{path}: no frames after the header (row {k})")
     width = 3 * len(names)
     lead = len(columns) - width if columns else len(body[0]) - width
     if lead not in (0, 2):
@@ -56,17 +57,11 @@ def read_qtm_tsv(path: Path, units: str | None = None) -> MarkerRecording:
         want = [f"{n} {a}" for n in names for a in "XYZ"]
         if columns[lead:] != want:
             raise InputError(f"{path}: coordinate columns are not each marker's X, Y, Z")
-    data = np.full((len(body), width + lead), np.nan)
-    for i, r in enumerate(body):
-        if len(r) < width + lead:
-            raise InputError(f"{path}: frame row {k + i + 1} has {len(r)} of {width + lead} columns")
-        try:
-            data[i] = [float(c) if c.strip() else np.nan for c in r[: width + lead]]
-        except ValueError:
-            raise InputError(f"{path}: frame row {k + i + 1} holds a cell that is not a number") from None
-    time = data[:, 1] - data[0, 1] if lead else np.arange(len(body)) / rate
+    data = frame_rows(path, rows, k, width + lead, header=columns, time_column=1 if lead else None,
+                   triples=list(range(lead, width + lead, 3)))  # fmt: skip
+    time = data[:, 1] - data[0, 1] if lead else np.arange(len(data)) / rate
     scale = unit_scale("mm" if units is None else units, path, None)
-    points = data[:, lead:].reshape(len(body), len(names), 3) * scale
+    points = data[:, lead:].reshape(len(data), len(names), 3) * scale
     return MarkerRecording(path, time, points, names, rate)
 
 

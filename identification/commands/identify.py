@@ -10,25 +10,14 @@ from typing import Any
 import numpy as np
 
 from identification.commands.durations import samples_of, seconds
-from identification.commands.identify_end_caps import run_end_caps
-from identification.data.dataset import read_dataset, read_ground_truth
-from identification.data.sample_grid import on_nominal_grid
-from identification.discovery.end_cap_data import FLOOR_WINDOWS
-from identification.linear.regression import SpringRodIdentifier, parse_anchor
-from identification.report.tables import (
-    error_text,
-    group_errors,
-    parameter_table,
-    relative_errors,
-)
-from tensegrity_env.engine import PHYSICS_DT
+from identification.defaults import FLOOR_WINDOWS
+from tensegrity_env.defaults import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
     check_number,
     check_output_file,
 )
-from tensegrity_env.model import Model
 
 
 def register(sub: Any) -> None:
@@ -64,8 +53,8 @@ def register(sub: Any) -> None:
     p.add_argument("--init", type=Path, help="starting params file (for --freeze)")
     p.add_argument(
         "--freeze", default="", metavar="FIELDS",
-        help="comma-separated fields kept from --init, e.g. "
-        "stiffness,damping,rest_length,mass,inertia to fit only control_gain",
+        help="comma-separated fields kept from --init, of stiffness, damping, rest_length, "
+        "mass, inertia and control_gain (all but control_gain: fit only control_gain)",
     )  # fmt: skip
     p.add_argument("--fraction", type=float, help="fit on this random fraction of training steps")
     p.add_argument("--seed", type=int, default=0, help="seed of the random subset")
@@ -90,6 +79,18 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from identification.commands.identify_end_caps import run_end_caps
+    from identification.data.dataset import read_dataset, read_ground_truth
+    from identification.data.sample_grid import on_nominal_grid
+    from identification.linear.regression import SpringRodIdentifier, parse_anchor
+    from identification.report.tables import (
+        error_text,
+        group_errors,
+        parameter_table,
+        relative_errors,
+    )
+    from tensegrity_env.model import Model
+
     check_output_file(args.output, args.force)
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)

@@ -45,14 +45,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from identification.data.dataset import Dataset
+from identification.defaults import DEFAULT_FRACTIONS
 from identification.linear.regression import SpringRodIdentifier
 from identification.report.plots import save_figure
 from identification.report.tables import group_errors
 from tensegrity_env.io_utils import InputError, atomic_write_text
 from tensegrity_env.params import Params
-
-#: The paper's fractions of the training transitions.
-DEFAULT_FRACTIONS: tuple[float, ...] = (1.0, 0.1, 0.01, 0.001, 0.0001)
 
 #: Parameter groups shown, in this order (``stiffness_rest`` = K·l0 is internal: its
 #: error shows up in ``rest_length``).

@@ -129,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
             "wall_s": ref.record.get("wall_s"),
             "timesteps": ref.record.get("timesteps"),
         }
+    written = [args.output / "transfer.md", args.output / "transfer.json"]
     if not args.no_video:
         from tensegrity_env.envs import RenderingUnavailable
 
@@ -138,13 +139,14 @@ def run(args: argparse.Namespace) -> int:
                 target=args.target,
             )  # fmt: skip
             report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
+            written.append(video)
         except RenderingUnavailable as e:
             print(f"no video: {e}")
     text = "\n".join(report) + "\n"
-    atomic_write_text(args.output / "transfer.md", text)
-    atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")
+    atomic_write_text(written[0], text)
+    atomic_write_text(written[1], json.dumps(doc, indent=2) + "\n")
     print(text)
-    print(f"wrote {args.output / 'transfer.md'} and transfer.json")
+    print(f"wrote {', '.join(str(w) for w in written[:-1])} and {written[-1]}")
     return 0
 
 
@@ -174,8 +176,9 @@ def run_several(args: argparse.Namespace) -> int:
     doc = {"seed": args.seed, "episodes": args.episodes, "runs": runs,
            "aggregate": to_dict(agg, len(results))}  # fmt: skip
     text = "\n".join(report) + "\n"
-    atomic_write_text(args.output / "transfer.md", text)
-    atomic_write_text(args.output / "transfer.json", json.dumps(doc, indent=2) + "\n")
+    md, js = args.output / "transfer.md", args.output / "transfer.json"
+    atomic_write_text(md, text)
+    atomic_write_text(js, json.dumps(doc, indent=2) + "\n")
     print(text)
-    print(f"wrote {args.output / 'transfer.md'} and transfer.json")
+    print(f"wrote {md} and {js}")
     return 0

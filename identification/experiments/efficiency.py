@@ -378,7 +378,8 @@ def plot_efficiency(result: EfficiencyResult, path: str | Path) -> Path:
     panels = [("rollout", "test-split rod position error [m]")]
     if result.has_truth:
         panels.insert(0, ("params", "largest relative parameter error"))
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False,
+                             layout="constrained")  # fmt: skip
     fracs = result.fractions()
     n = np.array([np.median([r.n_transitions for r in result.runs_of(f)]) for f in fracs])
     order = np.argsort(n)

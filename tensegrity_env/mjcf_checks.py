@@ -5,7 +5,7 @@
 :class:`~tensegrity_env.effects.ground_contact.GroundContact`.
 :func:`unsupported_features` lists every feature of a compiled model that changes
 the dynamics and that the spring-rod model does not have, each under the name the
-user passes to ``--ignore`` to simulate it anyway (:data:`FEATURES`). docs/mjcf.md
+user passes to ``--ignore`` to simulate it anyway (:data:`tensegrity_env.defaults.FEATURES`). docs/mjcf.md
 is the user-facing list.
 """
 
@@ -18,33 +18,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from tensegrity_env.defaults import FEATURES
 from tensegrity_env.io_utils import InputError
-
-#: every refusable feature and why the model cannot honour it (the ``--ignore`` names)
-FEATURES: dict[str, str] = {
-    "integrator": "the engine integrates with MuJoCo's semi-implicit Euler only",
-    "rod-collisions": "rod-rod contact is not part of the spring-rod model",
-    "end-cap-shape": "a cylinder end meets a floor along its rim; contact is modelled for"
-    " spherical ends (spheres, capsules)",
-    "contact-pairs": "explicit <contact><pair> contacts are not modelled",
-    "condim": "floor contact is modelled with sliding friction only (condim 3)",
-    "cone": "floor friction is modelled as MuJoCo's pyramidal cone",
-    "contact-solver": "the contact model assumes MuJoCo's default impratio, margin, gap and "
-    "solimp midpoint/power, and no noslip or global contact override",
-    "equality": "equality constraints are not modelled",
-    "tendon-limits": "tendon length limits are not modelled",
-    "tendon-friction": "tendon friction loss and armature are not modelled",
-    "nonlinear-springs": "springs are linear (stiffness/damping polynomials, yield or dead "
-    "bands other than tension-only are not modelled)",
-    "joint-dynamics": "free-joint armature, friction loss and springs are not modelled, nor "
-    "damping other than one value on every rod whose body frame is at its centre of mass",
-    "actuators": "control inputs are world-frame site forces and cable (tendon) actuators"
-    " with a fixed gain, no bias, no force or activation limits and at most a first-order"
-    " filter (dyntype none or filter, actearly false)",
-    "fluid": "fluid drag (density, viscosity, wind, fluid shapes) is not modelled",
-    "gravcomp": "gravity compensation is not modelled",
-    "disabled-physics": "disabling springs, dampers, actuation or constraints is not modelled",
-}
 
 
 class IgnoredFeatureWarning(UserWarning):

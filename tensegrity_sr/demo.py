@@ -317,7 +317,7 @@ def step_transfer(demo: Demo) -> None:
 
 def step_mocap(demo: Demo) -> None:
     banner("Motion capture in: an unlabelled C3D export (120 Hz, 1 mm noise, 1 % dropouts), "
-           "a y-up Motive CSV, a cable-driven prism with its command log")
+           "a y-up Motive CSV, a cable-driven icosahedron with its command logs")
     from identification.data.mocap.c3d_files import write_c3d
     from identification.simulation.mocap_takes import record_take, simulate_caps
 

@@ -9,37 +9,22 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 
 from identification.commands.declared import add_params_option, declared_model, declared_start
 from identification.commands.durations import describe, samples_of, seconds
-from identification.data.dataset import Dataset, read_dataset, read_ground_truth, write_dataset
-from identification.data.end_caps import check_caps_seen, with_measured_states
-from identification.data.sample_grid import on_nominal_grid
-from identification.discovery.end_cap_data import (
+from identification.defaults import (
     FINAL_FLOOR_WINDOWS,
     FINAL_ITERATIONS,
+    FLOOR_WINDOW_S,
     FLOOR_WINDOWS,
-    TrajectorySettings,
+    PLANTS,
+    STRENGTH_UNITS,
 )
-from identification.discovery.floor_fits import floor_steps, on_floor
-from identification.discovery.library import FitSettings
-from identification.discovery.loop import EffectDiscovery
-from identification.discovery.multi_step import MultiStepScorer
-from identification.discovery.one_step import OneStepScorer
-from identification.discovery.report import fmt_unit, ratio, write_params, write_report
-from identification.discovery.scorer import Scorer
-from identification.linear.regression import parse_anchor
-from identification.simulation.planted import PLANTS, STRENGTH_UNITS, PlantSpec, planted_dataset
-from identification.trajectory.floor_evidence import contact_evidence
-from identification.trajectory.floor_fit import FLOOR_WINDOW_S
 from identification.trajectory.forked import usable_cores, window_workers
-from tensegrity_env.effects import EFFECTS, GroundContact
-from tensegrity_env.effects.base import PhysicalEffect
-from tensegrity_env.engine import PHYSICS_DT
+from tensegrity_env.defaults import EFFECT_NAMES, PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
@@ -48,6 +33,12 @@ from tensegrity_env.io_utils import (
     check_output_dir,
     check_output_file,
 )
+
+if TYPE_CHECKING:  # the commands import torch, MuJoCo and SciPy when they run, not for --help
+    from identification.data.dataset import Dataset
+    from identification.discovery.end_cap_data import TrajectorySettings
+    from identification.discovery.multi_step import MultiStepScorer
+    from identification.discovery.one_step import OneStepScorer
 
 #: default window lengths of the trajectory method [s]: selection (``--window``) and the
 #: accepted models' fits (``--fit-window``). A fitted initial state absorbs the linear part
@@ -85,7 +76,8 @@ def register(sub: Any) -> None:
     p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
     p.add_argument("--horizon", type=seconds, default=1.0, help="rollout horizon (default 1s)")
     p.add_argument("--candidates", default="", metavar="NAMES",
-                   help=f"comma-separated subset of {','.join(EFFECTS)}")  # fmt: skip
+                   help=f"comma-separated subset of the effects (default: all of them: "
+                   f"{', '.join(EFFECT_NAMES)})")  # fmt: skip
     p.add_argument("--smoothing", type=seconds, default=0.01,
                    help="Gaussian smoothing std for --method regression on end-cap-only "
                    "data (default 0.01s)")  # fmt: skip
@@ -136,23 +128,35 @@ def register(sub: Any) -> None:
     q = sub.add_parser(
         "plant",
         help="MuJoCo data with an undeclared effect (contact, drag, slack cables, joint damping) to diagnose",
-        description="Write a planted dataset: " + "; ".join(
-            f"{k} ({STRENGTH_UNITS[k] or 'clean control'}: {v})" for k, v in PLANTS.items()),
+        description="Write a MuJoCo dataset of the icosahedron with one effect the model "
+        "does not declare, the effect and its strength recorded in the ground truth. "
+        "Strengths: " + "; ".join(
+            f"{k}: {STRENGTH_UNITS[k] or 'clean control'}"
+            + "".join(f", {name} {value:g}" for name, value in v.items() if k != "none")
+            for k, v in PLANTS.items()) + ".",
     )  # fmt: skip
-    q.add_argument("effect", choices=sorted(PLANTS), help="the planted effect")
-    q.add_argument("--strength", default="moderate", help="weak, moderate, strong or a number")
+    q.add_argument("effect", choices=list(PLANTS), metavar="EFFECT",
+                   help=f"the planted effect: {', '.join(PLANTS)}")  # fmt: skip
+    q.add_argument("--strength", default="moderate",
+                   help="weak, moderate, strong or a number in the effect's unit (default "
+                   "moderate)")  # fmt: skip
     q.add_argument("--noise", type=float, default=0.0, help="end-cap noise std [m] (e.g. 0.001)")
-    q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--n-train", type=int, default=8)
-    q.add_argument("--n-val", type=int, default=4)
-    q.add_argument("--n-test", type=int, default=4)
-    q.add_argument("--steps", type=int, default=1000)
+    q.add_argument("--seed", type=int, default=0,
+                   help="seed of the initial conditions and the noise (default 0)")  # fmt: skip
+    q.add_argument("--n-train", type=int, default=8, help="train trajectories (default 8)")
+    q.add_argument("--n-val", type=int, default=4, help="val trajectories (default 4)")
+    q.add_argument("--n-test", type=int, default=4, help="test trajectories (default 4)")
+    q.add_argument("--steps", type=int, default=1000,
+                   help="samples per trajectory (default 1000)")  # fmt: skip
     q.add_argument("-o", "--output", type=Path, required=True, help="dataset file to write")
     add_force_option(q)
     q.set_defaults(func=run_plant)
 
 
 def run_plant(args: argparse.Namespace) -> int:
+    from identification.data.dataset import write_dataset
+    from identification.simulation.planted import PlantSpec, planted_dataset
+
     check_output_file(args.output, args.force)
     try:
         strength: str | float = float(args.strength)
@@ -167,6 +171,17 @@ def run_plant(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from identification.data.dataset import read_dataset, read_ground_truth
+    from identification.data.end_caps import check_caps_seen, with_measured_states
+    from identification.data.sample_grid import on_nominal_grid
+    from identification.discovery.loop import EffectDiscovery
+    from identification.discovery.report import fmt_unit, ratio, write_params, write_report
+    from identification.discovery.scorer import Scorer
+    from identification.trajectory.floor_evidence import contact_evidence
+    from tensegrity_env.effects import GroundContact
+
     check_output_dir(args.output, args.force, inputs=[args.dataset, args.params])
     check_number("--max-effects", args.max_effects, 0)
     check_number("--horizon", args.horizon, 0, strict=True)
@@ -188,9 +203,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.dataset}: cable actuator commands: the trajectory method of "
                          "diagnose does not apply them (identify does, in free flight)")  # fmt: skip
     names = [n for n in args.candidates.split(",") if n] or None
-    bad = [n for n in names or [] if n not in EFFECTS]
+    bad = [n for n in names or [] if n not in EFFECT_NAMES]
     if bad:
-        raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECTS)})")
+        raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECT_NAMES)})")
     scorer: Scorer[Any]
     if multi_step:
         dataset, scorer = raw, multi_step_scorer(args, raw)
@@ -234,6 +249,11 @@ def run(args: argparse.Namespace) -> int:
 
 def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer:
     """Regressions on rod states, from ``--params``' effects if given."""
+    from identification.discovery.library import FitSettings
+    from identification.discovery.one_step import OneStepScorer
+    from identification.linear.regression import parse_anchor
+    from tensegrity_env.effects.base import PhysicalEffect
+
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start: list[PhysicalEffect] = []
     if args.params is not None:
@@ -245,6 +265,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
 
 def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
     """The windows the trajectory fits use on ``dataset``, as they will be cut (one line)."""
+    from identification.discovery.floor_fits import floor_steps, on_floor
     dt = dataset.dt
     if on_floor(dataset):
         floor = floor_steps(dt, s)
@@ -259,6 +280,10 @@ def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
 
 def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepScorer:
     """Windowed trajectory fits on end caps, from ``--params``' declared model if given."""
+    from identification.discovery.end_cap_data import TrajectorySettings
+    from identification.discovery.multi_step import MultiStepScorer
+    from identification.linear.regression import parse_anchor
+
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None
     if args.params is not None:

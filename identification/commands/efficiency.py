@@ -8,9 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from identification.commands.durations import samples_of, seconds
-from identification.data.dataset import read_dataset, read_ground_truth
-from identification.experiments.efficiency import DEFAULT_FRACTIONS, run_efficiency, write_outputs
-from identification.linear.regression import parse_anchor
+from identification.defaults import DEFAULT_FRACTIONS
 from tensegrity_env.io_utils import InputError, add_force_option, atomic_dir, check_output_dir
 
 
@@ -54,6 +52,10 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from identification.data.dataset import read_dataset, read_ground_truth
+    from identification.experiments.efficiency import run_efficiency, write_outputs
+    from identification.linear.regression import parse_anchor
+
     check_output_dir(args.output, args.force, inputs=[args.dataset])
     if args.horizon is not None and not args.horizon > 0:
         raise InputError(f"--horizon must be > 0 s, got {args.horizon}")

@@ -6,13 +6,6 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from identification.data.dataset import read_dataset
-from identification.experiments.long_horizon import (
-    checkpoint_table,
-    long_horizon_errors,
-    plot_long_horizon,
-)
-from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
@@ -20,7 +13,6 @@ from tensegrity_env.io_utils import (
     atomic_write_text,
     check_output_dir,
 )
-from tensegrity_env.model import Model
 
 
 def register(sub: Any) -> None:
@@ -48,6 +40,15 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from identification.data.dataset import read_dataset
+    from identification.experiments.long_horizon import (
+        checkpoint_table,
+        long_horizon_errors,
+        plot_long_horizon,
+    )
+    from tensegrity_env.engine import Engine
+    from tensegrity_env.model import Model
+
     check_output_dir(args.output, args.force, inputs=[args.dataset, *args.params])
     dataset = read_dataset(args.dataset, splits=(args.split,))
     split = dataset.split(args.split)

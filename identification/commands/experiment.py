@@ -6,10 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-import torch
-
-from identification.experiments.paper import SCALES, run_paper
-from identification.experiments.paper_report import claim_checks, write_results
+from identification.defaults import SCALE_NAMES
 from tensegrity_env.io_utils import (
     InputError,
     add_force_option,
@@ -29,7 +26,7 @@ def register(sub: Any) -> None:
             "MuJoCo ground truth, our identification (parameters against the truth), the "
             "three baselines trained on the same training split, rollout position error "
             "against horizon on the same test split for all four models, and the "
-            "data-efficiency sweep (10%%, 1%%, 0.1%%, 0.01%% of the training transitions). "
+            "data-efficiency sweep (10%, 1%, 0.1%, 0.01% of the training transitions). "
             "Writes errors_*.png, training_*.png, parameters_*.md, efficiency.*, "
             "results.json and results.md into the output folder. --scale small runs in "
             "about a minute or two; --scale full uses the paper's data (1000/200/100 x 736 "
@@ -37,7 +34,7 @@ def register(sub: Any) -> None:
         ),
     )
     p.add_argument("which", choices=("paper",), help="the experiment set (the paper's)")
-    p.add_argument("--scale", choices=sorted(SCALES), default="small",
+    p.add_argument("--scale", choices=sorted(SCALE_NAMES), default="small",
                    help="small (CI-sized, default) or full (the paper's data)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, required=True, help="output folder")
     p.add_argument("--seed", type=int, default=0, help="seed of the data and every model")
@@ -49,6 +46,11 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from identification.experiments.paper import run_paper
+    from identification.experiments.paper_report import claim_checks, write_results
+
     check_output_dir(args.output, args.force)
     check_number("--seed", args.seed, 0)
     if args.threads < 1:

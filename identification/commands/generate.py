@@ -8,12 +8,10 @@ import time
 import warnings
 from pathlib import Path
 
-from identification.data.dataset import write_dataset
-from identification.simulation.generate import PRESETS, GenerateSpec, generate
-from tensegrity_env.assemblies import ASSEMBLIES
+from identification.defaults import PRESETS
+from tensegrity_env.cli_options import add_end_caps_option
+from tensegrity_env.defaults import ASSEMBLY_NAMES, FEATURES
 from tensegrity_env.io_utils import add_force_option, check_output_file
-from tensegrity_env.mjcf.end_caps import add_end_caps_option
-from tensegrity_env.mjcf_checks import FEATURES
 
 EPILOG = """\
 presets:
@@ -43,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--preset", choices=sorted(PRESETS), default="small", help="(default: small)")
     src = p.add_mutually_exclusive_group()
     src.add_argument(
-        "--assembly", choices=sorted(ASSEMBLIES), help="built-in assembly (default: icosahedron)"
+        "--assembly", choices=sorted(ASSEMBLY_NAMES), help="built-in assembly (default: icosahedron)"
     )
     src.add_argument(
         "--mjcf",
@@ -89,6 +87,9 @@ def _count(n: int, noun: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from identification.data.dataset import write_dataset
+    from identification.simulation.generate import GenerateSpec, generate
+
     spec = GenerateSpec.from_preset(
         args.preset,
         assembly=args.assembly,

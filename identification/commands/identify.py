@@ -11,18 +11,8 @@ import numpy as np
 
 from identification.commands.declared import add_params_option, declared_model
 from identification.commands.durations import samples_of, seconds
-from identification.commands.identify_end_caps import run_end_caps
-from identification.data.dataset import read_dataset, read_ground_truth
-from identification.data.sample_grid import on_nominal_grid
-from identification.discovery.end_cap_data import FLOOR_WINDOWS
-from identification.linear.regression import SpringRodIdentifier, parse_anchor
-from identification.report.tables import (
-    error_text,
-    group_errors,
-    parameter_table,
-    relative_errors,
-)
-from tensegrity_env.engine import PHYSICS_DT
+from identification.defaults import FLOOR_WINDOWS
+from tensegrity_env.defaults import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
     StageError,
@@ -30,7 +20,6 @@ from tensegrity_env.io_utils import (
     check_number,
     check_output_file,
 )
-from tensegrity_env.model import Model
 
 
 def register(sub: Any) -> None:
@@ -94,7 +83,19 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file(args.output, args.force, inputs=[args.dataset, args.init])
+    from identification.commands.identify_end_caps import run_end_caps
+    from identification.data.dataset import read_dataset, read_ground_truth
+    from identification.data.sample_grid import on_nominal_grid
+    from identification.linear.regression import SpringRodIdentifier, parse_anchor
+    from identification.report.tables import (
+        error_text,
+        group_errors,
+        parameter_table,
+        relative_errors,
+    )
+    from tensegrity_env.model import Model
+
+    check_output_file(args.output, args.force, inputs=[args.dataset, args.params])
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
     check_number("--floor-windows", args.floor_windows, 1)

@@ -5,29 +5,16 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from tqdm import tqdm
 
-from identification.data.dataset import write_dataset
-from identification.data.mocap.commands import hold_commands, read_commands
-from identification.data.mocap.formats import read_recording
-from identification.data.mocap.importer import (
-    ImportedTake,
-    build_dataset,
-    check_take,
-    label_take,
-    parse_fractions,
-    read_robot,
-    tracking_report,
-    upright,
-)
-from identification.data.mocap.marker_map import read_marker_map
-from identification.data.mocap.recording import MarkerRecording
-from identification.data.quality import PLACEHOLDER_KINDS, REPEAT_TOL
+from tensegrity_env.cli_options import add_end_caps_option
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
-from tensegrity_env.mjcf.end_caps import add_end_caps_option
+
+if TYPE_CHECKING:  # imported where used: --help imports no torch, MuJoCo or SciPy
+    from identification.data.mocap.importer import ImportedTake
+    from identification.data.mocap.recording import MarkerRecording
 
 
 def register(sub: Any) -> None:
@@ -78,6 +65,8 @@ def command_logs(
 ) -> list[tuple[np.ndarray, np.ndarray] | None]:
     """Each take's ``--commands`` log, times (K,) [s] and values (K, C), read and checked
     against its take before any work; None for every take without files."""
+    from identification.data.mocap.commands import hold_commands, read_commands
+
     if not files:
         if n_cables:
             print(f"warning: the robot has {n_cables} cable actuators and no --commands were "
@@ -99,10 +88,28 @@ def command_logs(
 def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None) -> ImportedTake:
     """``take`` with its log's commands held onto its frames
     (:func:`~identification.data.mocap.commands.hold_commands`)."""
+    from identification.data.mocap.commands import hold_commands
+
     return take if log is None else replace(take, commands=hold_commands(*log, take.time, str(take.source)))
 
 
 def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from identification.data.dataset import write_dataset
+    from identification.data.mocap.formats import read_recording
+    from identification.data.mocap.importer import (
+        build_dataset,
+        check_take,
+        label_take,
+        parse_fractions,
+        read_robot,
+        tracking_report,
+        upright,
+    )
+    from identification.data.mocap.marker_map import read_marker_map
+    from identification.data.quality import PLACEHOLDER_KINDS, REPEAT_TOL
+
     check_output_file(args.output, args.force, inputs=[*args.files, args.robot, args.map,
                                                      *args.commands, *args.val, *args.test])
     fractions = parse_fractions(args.split)

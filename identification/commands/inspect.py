@@ -5,23 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from identification.data.dataset import (
-    SPLITS,
-    Dataset,
-    GroundTruth,
-    read_dataset,
-    read_ground_truth,
-)
-from identification.data.end_caps import cap_names
-from identification.data.mocap.formats import MOCAP_SUFFIXES, read_recording
-from identification.data.mocap.summary import recording_text
-from identification.data.quality import plot_quality, quality_text, sample_quality
-from identification.report.plots import check_figure_path
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
-from tensegrity_env.params import UNITS
+
+if TYPE_CHECKING:  # imported where used: --help imports no torch, MuJoCo or SciPy
+    from identification.data.dataset import Dataset, GroundTruth
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -50,6 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def summary(ds: Dataset, truth: GroundTruth | None) -> str:
     """The text that ``inspect`` prints, without the ground truth's values."""
+    from identification.data.dataset import SPLITS
+
     topo = ds.topology
     a = ds.attrs
     lines = [f"{ds.path}: {a.get('source', 'unknown source')}, created {a.get('created', '?')}"]
@@ -89,6 +82,8 @@ def summary(ds: Dataset, truth: GroundTruth | None) -> str:
 
 def ground_truth_text(truth: GroundTruth) -> str:
     """The ground truth, for ``--ground-truth``."""
+    from tensegrity_env.params import UNITS
+
     lines = ["ground truth parameters:"]
     with np.printoptions(precision=6, suppress=True, linewidth=100):
         for f, values in truth.params.numpy().items():
@@ -101,6 +96,13 @@ def ground_truth_text(truth: GroundTruth) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from identification.data.dataset import read_dataset, read_ground_truth
+    from identification.data.end_caps import cap_names
+    from identification.data.mocap.formats import MOCAP_SUFFIXES, read_recording
+    from identification.data.mocap.summary import recording_text
+    from identification.data.quality import plot_quality, quality_text, sample_quality
+    from identification.report.plots import check_figure_path
+
     if args.plot is not None:
         check_figure_path(args.plot, "--plot")
         check_output_file(args.plot, args.force, "--plot", inputs=[args.dataset])

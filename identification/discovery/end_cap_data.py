@@ -24,6 +24,7 @@ import torch
 
 from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
+from identification.defaults import FINAL_FLOOR_WINDOWS, FINAL_ITERATIONS, FLOOR_WINDOWS
 from identification.discovery.library import FittedModel, contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
 from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii
@@ -45,28 +46,6 @@ from tensegrity_env.topology import Topology
 #: where 100-step windows gave 42x and 258x; selection still compares on ``window``
 FIT_WINDOW = 300
 
-#: default windows of the floor fit of the declared model and contact (each window's
-#: initial state is fitted through every contact, which costs in proportion). More pin
-#: the declared model better, and also let it take up an undeclared effect: on the
-#: measured benchmark's floor cells (seed 0) 24 windows put the control's spring damping
-#: within 7.6 % (max) where 8 left 14 %, but the declared fit on 24 windows absorbed the
-#: force-field cell's field, which was then missed (named with 8)
-FLOOR_WINDOWS = 8
-#: windows of the training split for the final refit of the selected model on the floor:
-#: once selection is done, more windows only sharpen the parameters (spring damping
-#: above all), with nothing left for the declared fit to absorb. The spread of the
-#: fitted damping shrinks as the inverse square root of the windows kept. 96 windows of
-#: 0.25 s are every sample of the benchmark's 8 training trajectories of 3 s: on its
-#: floor cells with seed 1 (the seed the defaults were set on; ``python
-#: benchmarks/bench_measured.py --settings floor --seed0 1``) they put the spring damping
-#: within 8.7 % (max over 24 springs; control), 7.3 % (linear drag) and 11.2 %
-#: (quadratic drag) where 48 windows and 20 iterations gave 11.7, 11.4 and 14.8 %.
-#: Above one group's worth the windows run in the ``--jobs`` workers
-#: (:mod:`identification.trajectory.forked`)
-FINAL_FLOOR_WINDOWS = 96
-#: most Levenberg-Marquardt iterations of the final refit: on those cells the refit on
-#: 74-96 windows converged in 30-49 iterations, where 20 ran out on every cell
-FINAL_ITERATIONS = 60
 #: a window whose states, fitted at the selected model, stay above this multiple of the
 #: noise level is left out of the final floor refit (stuck in another basin through an
 #: impact; :func:`~identification.trajectory.windowed_fit.windows_within`)

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from identification.report.plots import plt, save_figure
+from tensegrity_env.plot_limits import set_robust_limits
 
 
 @dataclass(frozen=True)
@@ -128,6 +129,8 @@ def plot_window_residuals(r: WindowResiduals, path: Path, title: str, noise: flo
     for a in (ax[0], ax[2], ax[3]):
         a.set_ylabel("RMS end-cap error [mm]")
     for a in ax:
+        set_robust_limits(a, np.concatenate([np.ravel(line.get_ydata()) for line in a.lines]),
+                          what="bins")  # fmt: skip
         if noise > 0:
             a.axhline(noise * 1e3 * np.sqrt(3 if a is not ax[1] else 1), color="gray", ls=":",
                       label="noise")  # fmt: skip

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
+from identification.defaults import FLOOR_WINDOW_S
 from identification.discovery.end_cap_data import (
     EndCapData,
     TrajectorySettings,
@@ -36,7 +37,6 @@ from identification.linear.smoothed import parse_anchors
 from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
-    FLOOR_WINDOW_S,
     bounded,
     fit_on_floor,
     floor_contact,
@@ -87,7 +87,7 @@ def floor_fit(
 ) -> FloorFit:
     """The declared model and ground contact (and ``effects``) fitted together on
     ``s.floor_windows`` windows of the training split, each at most
-    :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S` long, half of them
+    :data:`~identification.defaults.FLOOR_WINDOW_S` long, half of them
     starting in the air where the data has such windows.
 
     The declared parameters start from ``values`` (a regression), else ``start`` (a

@@ -50,6 +50,7 @@ from identification.report.plots import save_figure
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine
 from tensegrity_env.params import Params
+from tensegrity_env.plot_limits import set_robust_limits
 
 DTYPE = torch.float64
 #: torque rows are divided by this lever [m] so that N and N*m weigh alike
@@ -71,6 +72,7 @@ class Residuals:
         spin: angular speed ``|ω|``, (n, R) [rad/s].
         tension: residual tension of each spring, (n, S) [N] (> 0 pulls).
         stretch: ``l - l0``, (n, S) [m].
+        length: spring length ``l``, (n, S) [m].
         rate: elongation rate ``l̇``, (n, S) [m/s].
         cap_force: residual force on each end cap, (n, 2R, 3) [N], world.
         cap_height: end-cap height above the floor ``z - r``, (n, 2R) [m].
@@ -87,6 +89,7 @@ class Residuals:
     spin: np.ndarray
     tension: np.ndarray
     stretch: np.ndarray
+    length: np.ndarray
     rate: np.ndarray
     cap_force: np.ndarray
     cap_height: np.ndarray
@@ -123,7 +126,7 @@ def compute_residuals(
     force = params.mass[None, :, None] * (feat.accel - acc)
     torque = torch.einsum("nrij,nrj->nri", rot, params.inertia * (feat.alpha_local - alpha_l))
     kin = engine.kinematics(s0)
-    tension, stretch, rate = _spring_split(kin, topology, params, force, torque)
+    tension, stretch, length, rate = _spring_split(kin, topology, params, force, torque)
     cap_force = _cap_split(kin.arms, force, torque)
     R = topology.n_rods
     radius = torch.tensor([r.radius for r in topology.rods], dtype=DTYPE)
@@ -142,6 +145,7 @@ def compute_residuals(
         spin=torch.linalg.vector_norm(s0.omega, dim=-1).numpy(),
         tension=tension,
         stretch=stretch,
+        length=length,
         rate=rate,
         cap_force=cap_force,
         cap_height=height.numpy(),
@@ -153,8 +157,9 @@ def compute_residuals(
 
 def _spring_split(
     kin: Any, topology: Any, params: Params, force: torch.Tensor, torque: torch.Tensor
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares spring tensions (n, S) explaining the residual wrenches."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares spring tensions (n, S) explaining the residual wrenches, with each
+    spring's stretch, length and elongation rate (n, S)."""
     f_u, t_u, length = spring_unit_wrench(kin, topology)  # (n, R, 3, S)
     n, R = force.shape[:2]
     design = torch.cat([f_u, t_u / TORQUE_LEVER], dim=2).reshape(n, 6 * R, -1)
@@ -169,7 +174,7 @@ def _spring_split(
     axis = d / length.unsqueeze(-1)
     rate = ((kin.xd[:, nodes[:, 1]] - kin.xd[:, nodes[:, 0]]) * axis).sum(-1)
     stretch = length - params.rest_length
-    return tension.numpy(), stretch.numpy(), rate.numpy()
+    return tension.numpy(), stretch.numpy(), length.numpy(), rate.numpy()
 
 
 def _cap_split(arms: torch.Tensor, force: torch.Tensor, torque: torch.Tensor) -> np.ndarray:
@@ -276,47 +281,63 @@ def plot_residuals(
         k = rng.choice(flat[0].size, size=min(points, flat[0].size), replace=False)
         return [f[k] for f in flat]
 
-    fig, axes = plt.subplots(2, 4, figsize=(18, 8))
+    fig, axes = plt.subplots(2, 4, figsize=(18, 8), layout="constrained")
     kw = {"s": 3, "alpha": 0.4}
+
+    def scaled(ax: Any, x: np.ndarray, y: np.ndarray, x_bound: float | None = None) -> None:
+        """Both axes scaled to the bulk of the points (``x_bound``: the x axis within ±)."""
+        bound = {} if x_bound is None else {"low": -x_bound, "high": x_bound}
+        set_robust_limits(ax, x, "x", what="points", **bound)
+        set_robust_limits(ax, y, "y", what="points")
+
     h, fz = pick(res.cap_height, res.cap_force[..., 2])
     axes[0, 0].scatter(h * 1e3, fz, **kw)
     axes[0, 0].axvline(0, color="k", lw=0.8)
+    scaled(axes[0, 0], h * 1e3, fz)
     axes[0, 0].set(xlabel="end-cap height z - r [mm]", ylabel="vertical residual force [N]",
                    title="end caps: contact?")  # fmt: skip
     s, ft, hh = pick(res.cap_slip, np.linalg.norm(res.cap_force[..., :2], axis=-1), res.cap_height)
     axes[0, 1].scatter(s, ft, c=hh <= 0, cmap="coolwarm", **kw)
+    scaled(axes[0, 1], s, ft)
     axes[0, 1].set(xlabel="end-cap slip speed [m/s]", ylabel="horizontal residual force [N]",
                    title="end caps: friction? (red: at/below floor)")  # fmt: skip
     x, t = pick(res.stretch, res.tension)
     axes[0, 2].scatter(x * 1e3, t, **kw)
     axes[0, 2].axvline(0, color="k", lw=0.8)
+    # a rest length between 0 and twice the spring's length: |l - l0| <= l
+    longest = float(np.nanmax(res.length)) * 1e3 if res.length.size else None
+    scaled(axes[0, 2], x * 1e3, t, longest)
     axes[0, 2].set(xlabel="spring stretch l - l0 [mm]", ylabel="residual tension [N]",
                    title="springs: slack / nonlinear?")  # fmt: skip
     r, tt = pick(res.rate, res.tension)
     axes[0, 3].scatter(r, tt, **kw)
+    scaled(axes[0, 3], r, tt)
     axes[0, 3].set(
         xlabel="spring rate [m/s]", ylabel="residual tension [N]", title="springs: damping?"
     )
     v, fv = pick(res.speed, res.along_v)
     axes[1, 0].scatter(v, fv, **kw)
+    scaled(axes[1, 0], v, fv)
     axes[1, 0].set(
         xlabel="rod speed [m/s]", ylabel="residual force along -v [N]", title="rods: drag?"
     )
     w, tw = pick(res.spin, res.along_w)
     axes[1, 1].scatter(w, tw, **kw)
+    scaled(axes[1, 1], w, tw)
     axes[1, 1].set(xlabel="angular speed [rad/s]", ylabel="residual torque along -ω [N*m]",
                    title="rods: rotational drag?")  # fmt: skip
     c, fc = pick(res.command.reshape(-1, 3)[:, 0], res.force.reshape(-1, 3)[:, 0])
     axes[1, 2].scatter(c, fc, **kw)
+    scaled(axes[1, 2], c, fc)
     axes[1, 2].set(xlabel="applied command h f_u, x [N]", ylabel="residual force, x [N]",
                    title="control: gain / lag?")  # fmt: skip
     order = np.argsort(res.time)
     mag = np.linalg.norm(res.force, axis=-1).mean(-1)[order]
     axes[1, 3].plot(res.time[order], mag, ".", ms=2, alpha=0.4)
+    set_robust_limits(axes[1, 3], mag, what="points")
     axes[1, 3].set(xlabel="time along trajectory [s]", ylabel="mean |residual force| [N]",
                    title="time: drift?")  # fmt: skip
     for a in axes.ravel():
         a.grid(True, alpha=0.3)
     fig.suptitle(title)
-    fig.tight_layout()
     return save_figure(fig, path)

@@ -45,14 +45,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from identification.data.dataset import Dataset
+from identification.defaults import DEFAULT_FRACTIONS
 from identification.linear.regression import SpringRodIdentifier
 from identification.report.plots import save_figure
 from identification.report.tables import group_errors
 from tensegrity_env.io_utils import InputError, atomic_write_text
 from tensegrity_env.params import Params
-
-#: The paper's fractions of the training transitions.
-DEFAULT_FRACTIONS: tuple[float, ...] = (1.0, 0.1, 0.01, 0.001, 0.0001)
 
 #: Parameter groups shown, in this order (``stiffness_rest`` = K·l0 is internal: its
 #: error shows up in ``rest_length``).
@@ -380,7 +378,8 @@ def plot_efficiency(result: EfficiencyResult, path: str | Path) -> Path:
     panels = [("rollout", "test-split rod position error [m]")]
     if result.has_truth:
         panels.insert(0, ("params", "largest relative parameter error"))
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.5 * len(panels), 4.2), squeeze=False,
+                             layout="constrained")  # fmt: skip
     fracs = result.fractions()
     n = np.array([np.median([r.n_transitions for r in result.runs_of(f)]) for f in fracs])
     order = np.argsort(n)

@@ -21,6 +21,7 @@ from identification.report.plots import save_figure
 from identification.report.tables import error_text
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.params import Params
+from tensegrity_env.plot_limits import set_robust_limits
 from tensegrity_env.rotations import quat_conj, quat_mul
 
 CHECKPOINTS = (100, 1000, 2000, 5000, 10000, 20000)
@@ -80,11 +81,17 @@ def plot_long_horizon(
     curves: dict[str, dict[str, np.ndarray]], dt: float, path: str | Path
 ) -> Path:
     """Position and orientation error against time for each named model (log scale)."""
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    pos, ori = [], []
     for name, c in curves.items():
         t = np.arange(len(c["position"])) * dt
-        a1.semilogy(t[1:], np.maximum(c["position"][1:], 1e-16), label=name)
-        a2.semilogy(t[1:], np.maximum(np.degrees(c["orientation"][1:]), 1e-14), label=name)
+        pos.append(np.maximum(c["position"][1:], 1e-16))
+        ori.append(np.maximum(np.degrees(c["orientation"][1:]), 1e-14))
+        a1.semilogy(t[1:], pos[-1], label=name)
+        a2.semilogy(t[1:], ori[-1], label=name)
+    if pos:
+        set_robust_limits(a1, np.concatenate(pos), what="errors")
+        set_robust_limits(a2, np.concatenate(ori), what="errors")
     a1.set(xlabel="time [s]", ylabel="mean rod position error [m]", title="long-horizon rollout")
     a2.set(xlabel="time [s]", ylabel="mean rod orientation error [deg]")
     for a in (a1, a2):

@@ -68,7 +68,7 @@ class Scale:
 
     Attributes:
         name: ``small`` (CI-sized) or ``full`` (the paper's data).
-        preset: the :data:`identification.simulation.generate.PRESETS` entry of both assemblies.
+        preset: the :data:`identification.defaults.PRESETS` entry of both assemblies.
         train: hyperparameters of the two MLP baselines.
         koopman: hyperparameters of Koopman+Int (the ablation uses them with the
             spring-law basis at degree 2).

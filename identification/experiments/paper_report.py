@@ -43,6 +43,7 @@ from identification.experiments.paper import (
 from identification.report.plots import save_figure
 from identification.report.tables import parameter_table
 from tensegrity_env.io_utils import atomic_write_text
+from tensegrity_env.plot_limits import set_robust_limits
 
 COLORS = {
     "Ours": "tab:blue",
@@ -70,11 +71,13 @@ def _e(x: float) -> str:
 # ---------------------------------------------------------------------- figures
 def plot_errors(res: AssemblyResult, path: str | Path) -> Path:
     """Mean rod position error [m] against horizon for every model, log y."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), layout="constrained")
+    shown = []
     for name in (*MODELS, REFERENCE):
         curve = res.curves[name]
         t = np.arange(len(curve)) * res.dt
         y = np.where(np.isfinite(curve), np.maximum(curve, 1e-17), np.nan)
+        shown.append(y[1:])
         ax.semilogy(
             t[1:], y[1:], label=name, color=COLORS[name], ls="--" if name == REFERENCE else "-",
             lw=1.0 if name == REFERENCE else 1.6,
@@ -84,6 +87,7 @@ def plot_errors(res: AssemblyResult, path: str | Path) -> Path:
         ylabel="mean rod position error [m]",
         title=f"{res.name}: fed-back rollouts on the test split ({res.counts['test']} trajectories)",
     )
+    set_robust_limits(ax, np.concatenate(shown), what="errors")
     ax.title.set_fontsize(10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
@@ -92,13 +96,15 @@ def plot_errors(res: AssemblyResult, path: str | Path) -> Path:
 
 def plot_training(res: AssemblyResult, path: str | Path) -> Path:
     """Training curves of the MLP baselines and the ridge curve of Koopman+Int."""
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+    losses: dict[Any, list[Any]] = {a1: [], a2: []}
     for name, rec in res.training.items():
         h = rec["history"]
         if "train_loss" in h:
             ep = np.arange(1, len(h["train_loss"]) + 1)
             a1.semilogy(ep, h["train_loss"], "--", color=COLORS[name], label=f"{name} train")
             a1.semilogy(ep, h["val_loss"], "-", color=COLORS[name], label=f"{name} val")
+            losses[a1] += [h["train_loss"], h["val_loss"]]
             if h["best_epoch"] >= 0:
                 a1.plot(
                     h["best_epoch"] + 1, h["val_loss"][h["best_epoch"]], "o", color=COLORS[name]
@@ -106,9 +112,12 @@ def plot_training(res: AssemblyResult, path: str | Path) -> Path:
         else:
             a2.loglog(h["ridge"], h["val_loss"], "-o", color=COLORS[name], label=f"{name} val")
             a2.axvline(h["best"], color=COLORS[name], ls=":", lw=1)
+            losses[a2].append(h["val_loss"])
     a1.set(xlabel="epoch", ylabel="standardised MSE", title="MLP baselines (dot: kept weights)")
     a2.set(xlabel="ridge weight", ylabel="standardised MSE", title="Koopman+Int (dotted: chosen)")
     for a in (a1, a2):
+        if losses[a]:
+            set_robust_limits(a, np.concatenate([np.ravel(v) for v in losses[a]]), what="losses")
         a.grid(True, which="both", alpha=0.3)
         a.legend(fontsize=8)
     fig.suptitle(f"{res.name}: training curves", fontsize=10)
@@ -132,7 +141,7 @@ def requirement_points(result: ExperimentResult) -> dict[str, list[tuple[int, fl
 
 def plot_requirement(result: ExperimentResult, path: str | Path) -> Path:
     """Final test rollout error against training transitions (log-log), ours vs Koopman."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.4))
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), layout="constrained")
     diverged = False
     for name, pts in requirement_points(result).items():
         n = np.array([p[0] for p in pts], dtype=float)

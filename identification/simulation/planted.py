@@ -37,28 +37,11 @@ from typing import Any
 import numpy as np
 
 from identification.data.dataset import Dataset, GroundTruth, Split
+from identification.defaults import PLANTS
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate
 from tensegrity_env import assemblies
 from tensegrity_env.io_utils import InputError, check_number
 from tensegrity_env.mjcf import SimOptions, to_mjcf
-
-#: plant -> strength name -> value (units in :data:`STRENGTH_UNITS`)
-PLANTS: dict[str, dict[str, float]] = {
-    "none": {"moderate": 0.0},
-    "ground_contact": {"weak": 0.3, "moderate": 1.0, "strong": 2.0},
-    "quadratic_drag": {"weak": 20.0, "moderate": 100.0, "strong": 500.0},
-    "linear_drag": {"weak": 0.1, "moderate": 0.5, "strong": 2.0},
-    "slack_springs": {"weak": 6, "moderate": 12, "strong": 24},
-    "joint_damping": {"weak": 0.05, "moderate": 0.4, "strong": 1.0},
-}
-STRENGTH_UNITS = {
-    "none": "",
-    "ground_contact": "friction coefficient",
-    "quadratic_drag": "fluid density [kg/m^3]",
-    "linear_drag": "fluid viscosity [Pa*s]",
-    "slack_springs": "cable springs",
-    "joint_damping": "free-joint damping [N*s/m and N*m*s]",
-}
 
 
 @dataclass(frozen=True)
@@ -68,7 +51,7 @@ class PlantSpec:
     Attributes:
         effect: a key of :data:`PLANTS`.
         strength: a strength name of that plant, or a number (its unit in
-            :data:`STRENGTH_UNITS`).
+            :data:`identification.defaults.STRENGTH_UNITS`).
         noise: end-cap position noise std [m] (0: clean rod states are kept).
         seed: seed of every random draw (initial states, which springs are cables, noise).
         n_train, n_val, n_test: trajectories per split.

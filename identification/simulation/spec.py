@@ -11,18 +11,10 @@ from typing import Any
 import numpy as np
 
 from identification.data.dataset import SPLITS
+from identification.defaults import PRESETS
 from tensegrity_env import assemblies
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf_checks import check_ignore_names
-
-#: Trajectory counts and length (transitions) of each preset.
-PRESETS: dict[str, dict[str, Any]] = {
-    "small": {"n_train": 16, "n_val": 4, "n_test": 4, "steps": 300},
-    "paper": {"n_train": 1000, "n_val": 200, "n_test": 100, "steps": 736},
-    # the paper's generalization data: 20,000-step trajectories under random directed
-    # perturbation forces h * f_u at each rod's arm r_u
-    "perturbed": {"n_train": 4, "n_val": 0, "n_test": 4, "steps": 20000, "control_std": 1.0},
-}
 
 
 @dataclass(frozen=True)
@@ -69,7 +61,7 @@ class GenerateSpec:
         threads: MuJoCo rollout threads (None: all CPU cores).
         chunk: trajectories per rollout call (None: automatic).
         ignore: MJCF features the model leaves out that the user accepts anyway
-            (names of :data:`tensegrity_env.mjcf_checks.FEATURES`; warned about).
+            (names of :data:`tensegrity_env.defaults.FEATURES`; warned about).
         end_caps: the end-cap sites of ``mjcf``, two per rod (empty: by convention).
     """
 

@@ -125,9 +125,6 @@ FIRST_ROUND_HELD = ("damping",)
 STATE_ITERS = 5
 #: Nelder-Mead runs per search
 SEARCH_RESTARTS = 1
-#: longest window on the floor [s]: each one's initial state is fitted, and a window
-#: spanning several impacts stalls that fit
-FLOOR_WINDOW_S = 0.25
 #: the declared groups one common scale moves (every parameter but the rest lengths;
 #: the anchors stay fixed)
 SCALED = ("stiffness", "damping", "mass", "inertia_perp", "control_gain")

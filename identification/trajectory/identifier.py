@@ -289,17 +289,17 @@ class TrajectoryIdentifier:
         notes = {
             f"inertia[{rod.name},{'xyz'[k]}]": (
                 "axial inertia: spin about the axis through both end caps is invisible in "
-                "end-cap data; not identifiable (value in params_ is the assumed solid "
-                "cylinder M r^2/2, for simulation only)"
+                "end-cap data (value in params_ is the assumed solid cylinder M r^2/2, for "
+                "simulation only)"
             )
             for rod, k in zip(topo.rods, axes.axis, strict=True)
         }
         if not has_control:
-            notes["control_gain"] = "no control in this data; not identifiable (assumed 1)"
+            notes["control_gain"] = "no control in this data (assumed 1)"
         if topo.n_cables and not has_cables:
             for c in topo.cable_actuators:
                 notes[f"cable_gain[{topo.springs[c].name}]"] = (
-                    "no cable commands in this data; not identifiable (assumed 1)"
+                    "no cable commands in this data (assumed 1)"
                 )
         return notes
 

@@ -130,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
             "wall_s": ref.record.get("wall_s"),
             "timesteps": ref.record.get("timesteps"),
         }
+    written = [args.output / "transfer.md", args.output / "transfer.json"]
     with atomic_dir(args.output) as out:  # moved to --output only when complete
         if not args.no_video:
             from tensegrity_env.envs import RenderingUnavailable
@@ -140,13 +141,14 @@ def run(args: argparse.Namespace) -> int:
                     target=args.target,
                 )  # fmt: skip
                 report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
+                written.append(args.output / video.name)
             except RenderingUnavailable as e:
                 print(f"no video: {e}")
         text = "\n".join(report) + "\n"
         atomic_write_text(out / "transfer.md", text)
         atomic_write_text(out / "transfer.json", json.dumps(doc, indent=2) + "\n")
     print(text)
-    print(f"wrote {args.output / 'transfer.md'} and transfer.json")
+    print(f"wrote {', '.join(str(w) for w in written[:-1])} and {written[-1]}")
     return 0
 
 
@@ -180,5 +182,5 @@ def run_several(args: argparse.Namespace) -> int:
         atomic_write_text(out / "transfer.md", text)
         atomic_write_text(out / "transfer.json", json.dumps(doc, indent=2) + "\n")
     print(text)
-    print(f"wrote {args.output / 'transfer.md'} and transfer.json")
+    print(f"wrote {args.output / 'transfer.md'} and {args.output / 'transfer.json'}")
     return 0

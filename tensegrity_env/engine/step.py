@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import torch
 
+from tensegrity_env.defaults import PHYSICS_DT
 from tensegrity_env.engine.acceleration import angular_acceleration_local, linear_acceleration
 from tensegrity_env.engine.effects import Effect
 from tensegrity_env.engine.forces import (
@@ -29,9 +30,6 @@ from tensegrity_env.native.engine_step import NativeEngineStep
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 from tensegrity_env.vec3 import rotate, rotate_t
-
-#: default physics step [s]: MuJoCo's usual timestep; the longest step the engine takes
-PHYSICS_DT = 1e-3
 
 
 def substeps_for(interval: float, physics_dt: float = PHYSICS_DT) -> int:

@@ -32,7 +32,7 @@ def touchdowns(mujoco_data):
     smooth = smooth_rod_states(split.nodes, ds.dt, RodAxes.of(topo), odd_window(0.1 / ds.dt))
     grid = {k: getattr(smooth, k) for k in STATE_KEYS}
     radius = np.repeat([r.radius for r in topo.rods], 2)
-    engine = Engine(topo, ds.dt)
+    engine = Engine(topo, ds.dt, native=True)  # as the contact search builds it
     touch = find_touchdowns(engine, vec, split.nodes, split.control, grid, radius)
     return data, engine, vec, touch, radius, split
 

@@ -43,7 +43,8 @@ def _quad_drag_engine() -> tuple[Assembly, ParamVector, Engine]:
     a = icosahedron()
     drag = QuadraticDrag(a.topology, translational=[1.44, 1.44, 0.04],
                          rotational=[0.05, 0.05, 0.0])  # fmt: skip
-    return a, ParamVector.at(a.topology, a.params), Engine(a.topology, 1e-3, effects=[drag])
+    engine = Engine(a.topology, 1e-3, effects=[drag], native=True)  # the C kernel: same physics
+    return a, ParamVector.at(a.topology, a.params), engine
 
 
 def _rolled(q: torch.Tensor, angle: torch.Tensor, axis: np.ndarray) -> torch.Tensor:

@@ -22,7 +22,7 @@ def _windows(n: int = 1, noise: float = 0.0) -> tuple[Engine, ParamVector, Windo
     stiffnesses free and started 30 % off."""
     a = icosahedron()
     dt = 1 / 120
-    engine = Engine(a.topology, dt, substeps=substeps_for(dt))
+    engine = Engine(a.topology, dt, substeps=substeps_for(dt), native=True)  # C kernel: same physics
     rng = np.random.default_rng(0)
     p = torch.as_tensor(a.pose_p[None] + rng.normal(0, 0.01, (n, 6, 3)))
     q = torch.as_tensor(np.repeat(a.pose_q[None], n, axis=0))

@@ -236,3 +236,20 @@ def test_both_backends_identify_the_same_parameters() -> None:
     for field in ("stiffness", "damping", "rest_length", "mass", "inertia", "control_gain"):
         a, b = getattr(native.params_, field), getattr(reference.params_, field)
         assert torch.allclose(a, b, rtol=1e-7, atol=0), field  # I_z is round-off sensitive
+
+
+def test_unidentifiable_reasons_say_why_once() -> None:
+    """The table's status already reads 'not identifiable': each reason says only why."""
+    from identification.data.end_caps import RodAxes
+    from identification.linear.regression import ParameterRow
+    from identification.report.tables import parameter_table
+    from identification.trajectory.identifier import TrajectoryIdentifier
+    from tensegrity_env.assemblies import icosahedron
+
+    topo = icosahedron().topology
+    notes = TrajectoryIdentifier.notes(topo, RodAxes.of(topo), has_control=False)
+    assert "control_gain" in notes and len(notes) == 1 + topo.n_rods
+    rows = [ParameterRow(name, "group", 0, 1.0, float("nan"), "unit", "not identifiable", note)
+            for name, note in notes.items()]  # fmt: skip
+    for line in parameter_table(rows).splitlines():
+        assert line.count("not identifiable") <= 1, line

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from identification.data.dataset import read_dataset
-from identification.data.mocap.optitrack_rows import write_optitrack_rows
 from identification.data.mocap.formats import read_recording
+from identification.data.mocap.optitrack_rows import write_optitrack_rows
 from identification.data.mocap.vertical import find_vertical, free_flight
 from identification.data.quality import repeated_frames
 from tensegrity_env.io_utils import InputError

@@ -139,12 +139,14 @@ def test_same_episodes_start_identically_in_both_envs() -> None:
 
 
 def test_transfer_command_trains_the_reference_with_the_same_budget(
-    trained: TrainResult, tmp_path: Path
+    trained: TrainResult, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out, ref = tmp_path / "transfer", tmp_path / "reference"
     code = cli(["transfer", str(trained.model_path), "--episodes", "2", "--no-video",
                 "--train-reference", str(ref), "-o", str(out)])  # fmt: skip
     assert code == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]  # every file with its folder
+    assert last == f"wrote {out / 'transfer.md'} and {out / 'transfer.json'}"
     doc = json.loads((out / "transfer.json").read_text())
     assert doc["ratio"] == pytest.approx(
         doc["target"]["mean_return"] / doc["source"]["mean_return"]

@@ -28,7 +28,7 @@ def _loop(jobs: int):
                                   n_val=1, n_test=1, steps=200))  # fmt: skip
     s = TrajectorySettings(anchors={"mass[rod0]": float(d.ground_truth.params.mass[0])},
                            train_windows=4, val_windows=4, test_windows=4, base_iter=4,
-                           candidate_iter=4, state_iter=6, seed=41)  # fmt: skip
+                           candidate_iter=4, state_iter=6, final_iter=4, seed=41)  # fmt: skip
     scorer = MultiStepScorer(s, horizon_s=0.3, start=d.ground_truth.params)
     loop = EffectDiscovery(scorer, 1, ["linear_drag", "force_field"], log=lambda m: None,
                            jobs=jobs)  # fmt: skip

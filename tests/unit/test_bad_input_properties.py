@@ -296,7 +296,7 @@ def mutated_text(text: str, sep: str, data: st.DataObject) -> str:
 @pytest.mark.parametrize("name", MOCAP_FILES)
 @given(data=st.data())
 def test_mocap_readers(name: str, tmp_path_factory: pytest.TempPathFactory, data: st.DataObject) -> None:
-    from identification.data.mocap.recording import read_recording
+    from identification.data.mocap.formats import read_recording
 
     tmp = tmp_path_factory.getbasetemp() / "takes"
     tmp.mkdir(exist_ok=True)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from identification.data.mocap.csv_files import write_motive_csv, write_plain_csv, write_vicon_csv
-from identification.data.mocap.recording import MarkerRecording, read_recording
+from identification.data.mocap.formats import read_recording
+from identification.data.mocap.recording import MarkerRecording
 from identification.data.mocap.tsv_files import write_qtm_tsv
 from identification.report.plots import check_figure_path
 from tensegrity_env.io_utils import InputError

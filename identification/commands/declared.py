@@ -5,12 +5,15 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from identification.data.dataset import Dataset
-from tensegrity_env.effects import GroundContact
 from tensegrity_env.io_utils import InputError
-from tensegrity_env.model import Model
-from tensegrity_env.params import Params
+
+if TYPE_CHECKING:  # imported where used: --help imports no torch, MuJoCo or SciPy
+    from identification.data.dataset import Dataset
+    from tensegrity_env.effects import GroundContact
+    from tensegrity_env.model import Model
+    from tensegrity_env.params import Params
 
 
 def add_params_option(parser: argparse.ArgumentParser, help: str) -> None:
@@ -24,6 +27,8 @@ def declared_model(path: Path, dataset: Dataset, source: Path) -> Model:
     """The model in ``path`` (:meth:`~tensegrity_env.model.Model.read`), at the dataset's
     sample interval; raises :class:`InputError` if its topology is not the dataset's
     (``source``: the dataset's file, for the message)."""
+    from tensegrity_env.model import Model
+
     model = Model.read(path, dt=dataset.dt)
     if not model.topology.same_as(dataset.topology):
         raise InputError(f"{path}: topology differs from {source}")
@@ -37,6 +42,8 @@ def declared_start(
     parameters and its floor contact (None: none). Its first rod's mass fixes the scale
     unless ``anchors`` (updated in place) already does; a model with effects other than
     one ground contact is refused (the fit starts from the declared model)."""
+    from tensegrity_env.effects import GroundContact
+
     model = declared_model(path, dataset, source)
     anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
     floors = [e for e in model.effects if isinstance(e, GroundContact)]

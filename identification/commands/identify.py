@@ -57,8 +57,8 @@ def register(sub: Any) -> None:
                       "trajectory fit starts (its floor contact too)")  # fmt: skip
     p.add_argument(
         "--freeze", default="", metavar="FIELDS",
-        help="comma-separated fields kept from --params, e.g. "
-        "stiffness,damping,rest_length,mass,inertia to fit only control_gain",
+        help="comma-separated fields kept from --params, of stiffness, damping, rest_length, "
+        "mass, inertia and control_gain (all but control_gain: fit only control_gain)",
     )  # fmt: skip
     p.add_argument("--fraction", type=float, help="fit on this random fraction of training steps")
     p.add_argument("--seed", type=int, default=0, help="seed of the random subset")

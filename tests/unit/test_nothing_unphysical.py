@@ -63,9 +63,9 @@ def test_diagnose_with_an_unknown_anchor_leaves_no_folder(
 def test_sigterm_while_the_report_is_written_leaves_no_folder(
     tiny: Path, tmp_path: Path, monkeypatch, capsys
 ) -> None:
-    import identification.commands.diagnose as diagnose
+    import identification.discovery.report as report
 
-    real = diagnose.write_params
+    real = report.write_params
     seen: list[list[str]] = []
 
     def params_then_sigterm(result, path: Path, extra):
@@ -74,7 +74,7 @@ def test_sigterm_while_the_report_is_written_leaves_no_folder(
         os.kill(os.getpid(), signal.SIGTERM)
         return path
 
-    monkeypatch.setattr(diagnose, "write_params", params_then_sigterm)
+    monkeypatch.setattr(report, "write_params", params_then_sigterm)
     out = tmp_path / "report"
     assert main(["diagnose", str(tiny), "--max-effects", "0", "-o", str(out)]) == 143
     assert capsys.readouterr().err.strip().endswith("terminated")

@@ -280,7 +280,7 @@ def evaluate_model(
     sample of the split is used); ``curve``: the rollout error per step (H+1,).
     """
     data = dataset.split(split)
-    engine = Engine(topology, dataset.dt, effects=effects)
+    engine = Engine(topology, dataset.dt, effects=effects, native=True)  # no gradient: C
     N, T = data.n_trajectories, data.n_transitions
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(N * T, size=min(N * T, max_one_step), replace=False))

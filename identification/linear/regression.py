@@ -432,7 +432,7 @@ def evaluate_params(
 ) -> dict[str, Any]:
     """One-step and rollout position errors of ``params`` on a split (see ``score``)."""
     data = dataset.split(split)
-    engine = Engine(topology, dataset.dt)
+    engine = Engine(topology, dataset.dt, native=True)  # no gradient: the C kernel
     total = data.n_trajectories * data.n_transitions
     rng = np.random.default_rng(seed)
     idx = np.sort(rng.choice(total, size=min(total, max_one_step), replace=False))

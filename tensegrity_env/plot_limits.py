@@ -2,8 +2,9 @@
 
 A diverged rollout (1e112 m), a handful of outlying residuals or a NaN would otherwise
 set a figure's axis and flatten what it is there to show. :func:`robust_limits` takes
-the bulk of the finite values (quantiles), widens it to the extremes that lie close
-to it, keeps it inside the quantity's physical bounds and pads it;
+the inner finite values (all but the most extreme :data:`TAIL` at each end), widens
+that to the extremes within :data:`REACH` of it, pads it and keeps it inside the
+quantity's physical bounds;
 :func:`set_robust_limits` applies that to one axis of a matplotlib ``Axes`` and marks
 what it leaves out with a note in the panel, so a clipped curve is never mistaken for
 the data.
@@ -48,7 +49,7 @@ def robust_limits(
     Args:
         values: the data the axis is scaled to.
         low, high: physical bounds of the quantity (e.g. a length is >= 0); the limits
-            never pass them.
+            pass them only where every value lies beyond them.
         log: a log axis: limits from the positive values, in their decades.
 
     Returns:
@@ -70,10 +71,9 @@ def robust_limits(
     lo, hi = lo - pad, hi + pad
     if log:
         lo, hi = 10.0**lo, 10.0**hi
-    if low is not None:
-        lo = max(lo, low)
-    if high is not None:
-        hi = min(hi, high)
+    bounded = (lo if low is None else max(lo, low), hi if high is None else min(hi, high))
+    if bounded[0] < bounded[1]:  # else every value lies outside the bounds: show them
+        lo, hi = bounded
     return float(lo), float(hi)
 
 

@@ -73,7 +73,7 @@ def one_step_bic(dataset: Dataset, model: FittedModel, max_transitions: int = 20
     s0, s1, u = transitions_of(acting, idx)
     cables = cable_commands_at(acting, idx)
     with torch.no_grad():
-        engine = Engine(dataset.topology, dataset.dt, effects=model.effects)
+        engine = Engine(dataset.topology, dataset.dt, effects=model.effects, native=True)
         pred = engine.step(s0, model.params, u, cables)
     err = (pred.p - s1.p).reshape(-1).numpy()
     n = err.size
@@ -93,7 +93,7 @@ def predicted_change(dataset: Dataset, a: FittedModel, b: FittedModel, split: st
         s0, _, u = transitions_of(acting, idx)
         cables = cable_commands_at(acting, idx)
         with torch.no_grad():
-            engine = Engine(dataset.topology, dataset.dt, effects=m.effects)
+            engine = Engine(dataset.topology, dataset.dt, effects=m.effects, native=True)
             out.append(engine.step(s0, m.params, u, cables).v)
     return (out[1] - out[0]).reshape(-1).numpy()
 

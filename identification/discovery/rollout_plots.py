@@ -47,7 +47,7 @@ def rod_state_rollout_plot(
         control = torch.as_tensor(acting.control[:1, :steps])
         cables = acting.cable_control
         cables_t = None if cables is None else torch.as_tensor(cables[:1, :steps])
-        engine = Engine(dataset.topology, dataset.dt, effects=m.effects)
+        engine = Engine(dataset.topology, dataset.dt, effects=m.effects, native=True)
         with torch.no_grad():
             roll = engine.rollout(init, m.params, steps, control, cables_t)
         models[label] = end_caps(engine, roll.p, roll.q)[0].numpy()

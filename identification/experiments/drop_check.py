@@ -83,7 +83,7 @@ def drop_check(
     s = ds.split("train")
     init = State.from_numpy(*(getattr(s, k)[:, 0] for k in ("p", "v", "q", "omega")))
     with torch.no_grad():
-        caps = rollout_caps(Engine(ds.topology, ds.dt, effects=list(effects)), params, init,
+        caps = rollout_caps(Engine(ds.topology, ds.dt, effects=list(effects), native=True), params, init,
                             torch.as_tensor(s.control))  # fmt: skip
     err = np.linalg.norm(caps.numpy() - s.nodes, axis=-1).mean(-1)
     return DropResult(error=err, lowest=float(s.nodes[..., 2].min()))

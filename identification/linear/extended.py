@@ -281,7 +281,7 @@ def evaluate_model(
     sample of the split is used); ``curve``: the rollout error per step (H+1,).
     """
     data = dataset.split(split)
-    engine = Engine(topology, dataset.dt, effects=effects)
+    engine = Engine(topology, dataset.dt, effects=effects, native=True)  # no gradient: C
     T = data.n_transitions
     idx = drawn_transitions(data, max_one_step, seed)
     lagged = acting_split(effects, data, dataset.dt)

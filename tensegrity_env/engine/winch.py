@@ -39,17 +39,38 @@ def initial_winch_state(topology: Topology, params: Params, batch: int) -> torch
 
 
 def winding_speed(
-    speed: torch.Tensor, params: Params, command: torch.Tensor, h: float
+    speed: torch.Tensor,
+    v_max: torch.Tensor,
+    lag: torch.Tensor,
+    command: torch.Tensor,
+    h: float,
 ) -> torch.Tensor:
     """Each motor's winding speed after one step ``h`` [s], (B, W) [m/s] (module doc, 3).
 
-    ``speed`` (B, W) [m/s] before the step, ``command`` (B, W) in command units.
+    ``speed`` (B, W) [m/s] before the step, ``v_max`` [m/s] and ``lag`` [s] (W,) or
+    (B, W), ``command`` (B, W) in command units (clipped to [-1, 1]).
     """
-    target = command.clamp(-1.0, 1.0) * params.winch_speed
-    lagged = params.winch_lag > 0
-    decay = torch.exp(-h / torch.where(lagged, params.winch_lag, torch.ones_like(params.winch_lag)))
+    target = command.clamp(-1.0, 1.0) * v_max
+    lagged = lag > 0
+    decay = torch.exp(-h / torch.where(lagged, lag, torch.ones_like(lag)))
     decay = torch.where(lagged, decay, torch.zeros_like(decay))
     return target + (speed - target) * decay
+
+
+def unit_winding(commands: torch.Tensor, lag: torch.Tensor, h: float) -> torch.Tensor:
+    """How far each rest length has moved per unit ``v_max``, from rest, ignoring the
+    range: (..., T + 1, W) [m per m/s] for commands (..., T, W) held ``h`` [s] each.
+
+    The winding is linear in ``v_max`` (module doc, step 3, without the clamp), so
+    ``l0(t) = l0(0) + v_max * unit_winding(t)`` while no range is reached.
+    """
+    one = torch.ones((), dtype=commands.dtype)
+    speed = torch.zeros_like(commands[..., 0, :])
+    moved = [torch.zeros_like(speed)]
+    for t in range(commands.shape[-2]):
+        speed = winding_speed(speed, one, lag, commands[..., t, :], h)
+        moved.append(moved[-1] + h * speed)
+    return torch.stack(moved, dim=-2)
 
 
 def winch_step(
@@ -64,7 +85,8 @@ def winch_step(
     """
     if command is None:
         command = torch.zeros_like(winch[..., REST])
-    speed = winding_speed(winch[..., SPEED], params, command.to(winch), h)
+    speed = winding_speed(winch[..., SPEED], params.winch_speed, params.winch_lag,
+                          command.to(winch), h)  # fmt: skip
     rest = torch.clamp(winch[..., REST] + h * speed, params.winch_min, params.winch_max)
     return torch.stack([rest, speed], dim=-1)
 
@@ -78,3 +100,18 @@ def wound_rest_lengths(params: Params, winches: torch.Tensor, winch: torch.Tenso
     batch, S = winch.shape[0], rest.shape[-1]
     rest = rest.expand(batch, S).index_copy(1, winches, winch[..., REST].to(rest))
     return params.replace(rest_length=rest)
+
+
+def winch_history(
+    topology: Topology, params: Params, commands: torch.Tensor, h: float
+) -> torch.Tensor:
+    """The winch state along a command log from rest, one :func:`winch_step` per
+    command: (..., T + 1, W, 2) [m, m/s] for commands (..., T, W) held ``h`` [s] each."""
+    lead = commands.shape[:-2]
+    flat = commands.reshape(-1, *commands.shape[-2:])
+    winch = initial_winch_state(topology, params, flat.shape[0]).to(commands)
+    out = [winch]
+    for t in range(flat.shape[1]):
+        winch = winch_step(winch, params, flat[:, t], h)
+        out.append(winch)
+    return torch.stack(out, dim=1).reshape(*lead, flat.shape[1] + 1, -1, 2)

@@ -5,13 +5,18 @@ from __future__ import annotations
 
 import json
 import logging
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from test_mjcf_lab import lab_mjcf, mj_random_state, mj_rod_state
 
-from tensegrity_env.engine import Engine
+from identification.linear.regression import SpringRodIdentifier
+from identification.report.tables import group_errors
+from identification.simulation.generate import GenerateSpec, generate_dataset
+from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.winch import REST, SPEED
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import from_mjcf, to_mjcf
@@ -179,3 +184,52 @@ def test_winch_speed_and_lag_have_gradients() -> None:
     roll.p[:, -1].sum().backward()
     assert torch.all(speed.grad != 0) and torch.all(torch.isfinite(speed.grad))
     assert lag.grad[0] != 0 and lag.grad[1] == 0 and torch.all(torch.isfinite(lag.grad))
+
+
+# ---------------------------------------------------------------------- identification
+@cache
+def _winch_data(tmp: str, lag: float) -> tuple:
+    """MuJoCo trajectories of the prism driven by its winches (ranges never reached)."""
+    path = Path(tmp) / f"lab_winches_{lag}.xml"
+    path.write_text(lab_mjcf("mid", extra=winch_xml((lag,) * 3, low=0.2, high=2.0)))
+    spec = GenerateSpec(mjcf=str(path), n_train=3, n_val=0, n_test=1, steps=600, seed=4,
+                        control_std=1.0, control_hold=0.05)  # fmt: skip
+    return generate_dataset(spec)
+
+
+def test_generate_drives_the_winches(tmp_path_factory: pytest.TempPathFactory) -> None:
+    ds, truth = _winch_data(str(tmp_path_factory.mktemp("winches")), 0.0)
+    train = ds.split("train")
+    assert train.winch_control.shape == (3, 600, 3)
+    assert np.abs(train.winch_control).max() <= 1.0 and train.winch_control.std() > 0.4
+    assert train.control.std() == 0.0  # no world-frame force actuators in this model
+    assert truth.params.winch_speed.tolist() == list(SPEEDS)
+    # the recorded motion is the engine's, winch state integrated from rest
+    engine = Engine(ds.topology, dt=ds.dt)
+    first = State.from_numpy(*(getattr(train, k)[:1, 0] for k in ("p", "v", "q", "omega")))
+    roll = engine.rollout(first, truth.params, 600, winches=torch.as_tensor(train.winch_control[:1]))
+    assert float((roll.p - torch.as_tensor(train.p[:1])).abs().max()) <= 1e-9
+
+
+@pytest.mark.parametrize("lag", [0.0, 0.04])
+def test_regression_recovers_winch_speeds_given_the_lag(
+    tmp_path_factory: pytest.TempPathFactory, lag: float
+) -> None:
+    """From exact rod states and the command log, ``K``, ``c`` and ``v_max`` to round-off."""
+    ds, truth = _winch_data(str(tmp_path_factory.mktemp("winches")), lag)
+    anchor = {"mass[r0]": float(truth.params.mass[0])}
+    est = SpringRodIdentifier(anchors=anchor, winch_lag=lag).fit(ds)
+    errors = group_errors(est.table_, truth.params)
+    assert {"stiffness", "damping", "winch_speed"} <= set(errors)
+    assert max(errors.values()) <= 1e-8, errors
+    assert [r.name for r in est.table_ if r.group == "winch_speed"] == [
+        f"winch_speed[c{c}]" for c in WOUND
+    ]
+    assert est.params_.winch_lag.tolist() == [lag] * 3
+    # the range is the span of rest lengths the training data wound through
+    assert torch.all(est.params_.winch_min < truth.params.rest_length[list(WOUND)])
+    assert torch.all(est.params_.winch_max > truth.params.rest_length[list(WOUND)])
+    assert est.score(ds, "train")["one_step_position_error"] <= 1e-12
+    if lag:  # a wrong lag biases the speeds
+        wrong = SpringRodIdentifier(anchors=anchor, winch_lag=0.0).fit(ds)
+        assert group_errors(wrong.table_, truth.params)["winch_speed"] > 1e-3

@@ -17,7 +17,7 @@ from tensegrity_env.model import Model
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
-ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "lab_prism.xml"
+ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "lab_prism_force_actuators.xml"
 
 
 def test_floor_contact_and_actuator_filter_found_together() -> None:

@@ -8,6 +8,7 @@ import logging
 from functools import cache
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -233,3 +234,38 @@ def test_regression_recovers_winch_speeds_given_the_lag(
     if lag:  # a wrong lag biases the speeds
         wrong = SpringRodIdentifier(anchors=anchor, winch_lag=0.0).fit(ds)
         assert group_errors(wrong.table_, truth.params)["winch_speed"] > 1e-3
+
+
+# ---------------------------------------------------------------------- the shipped robot
+LAB_PRISM = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "lab_prism.xml"
+
+
+def test_shipped_lab_prism_winds_its_triangles_on_the_floor() -> None:
+    """Six winches on the end-cap triangles, three passive diagonals; engine (floor
+    contact as the file declares it) and MuJoCo plant agree over 1000 steps."""
+    asm = from_mjcf(LAB_PRISM)
+    topo = asm.topology
+    wound = {frozenset(topo.spring_nodes[s] // 2) for s in topo.winches}
+    assert topo.n_winches == 6 and topo.cable_actuators == ()
+    for s in topo.winches:  # a triangle cable joins the same end of two rods
+        a, b = topo.spring_nodes[s]
+        assert a % 2 == b % 2
+    assert len(wound) == 3
+    assert asm.params.winch_lag.tolist() == [0.03] * 6
+    m = asm.model
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    plant = asm.mj_winches()
+    engine = Engine(topo, dt=m.opt.timestep, effects=asm.declared_effects())
+    state = mj_rod_state(asm, d)
+    u = np.random.default_rng(12).uniform(-1, 1, size=(10, 6)).repeat(100, axis=0)
+    worst, contacts = 0.0, 0
+    for t in range(len(u)):
+        plant.step(d, u[t])
+        contacts += d.ncon
+        state = engine.step(state, asm.params, winches=torch.as_tensor(u[t])[None])
+        ref = mj_rod_state(asm, d)
+        worst = max(worst, float((state.p - ref.p).abs().max()), float((state.q - ref.q).abs().max()))
+    assert contacts >= len(u)  # it stands on the floor throughout
+    assert np.ptp(plant.rest_lengths) > 0.05  # the commands wound the cables apart
+    assert worst <= 1e-9, worst

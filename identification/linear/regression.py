@@ -388,7 +388,25 @@ class SpringRodIdentifier:
                     "" if ok else "the data does not wind this cable",
                 )
             )  # fmt: skip
+        rows += self._winch_rows(topo, params)
         return params, rows
+
+    def _winch_rows(self, topo: Any, params: Params) -> list[ParameterRow]:
+        """Table rows of the winches' lag (taken as known) and range (not seen unless
+        reached)."""
+        given = self.init_params is not None and self.init_params.winch_min.numel() == topo.n_winches
+        note = ("kept from the starting params" if given else
+                "the range is not reached in this data: the span the fitted winding covers")  # fmt: skip
+        rows = []
+        for w, spring in enumerate(topo.winches):
+            name = topo.springs[spring].name
+            rows.append(ParameterRow(f"winch_lag[{name}]", "winch_lag", w,
+                                     float(params.winch_lag[w]), 0.0, UNITS["winch_lag"],
+                                     "frozen", "taken as known"))  # fmt: skip
+            for f in ("winch_min", "winch_max"):
+                rows.append(ParameterRow(f"{f}[{name}]", f, w, float(getattr(params, f)[w]),
+                                         float("nan"), UNITS[f], "not identifiable", note))  # fmt: skip
+        return rows
 
     def _winch_values(
         self, topo: Any, values: dict[str, np.ndarray], rest: np.ndarray

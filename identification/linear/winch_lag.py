@@ -10,6 +10,7 @@ motors (motors of one kind); "no lag" (``tau = 0``) is a candidate too.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -64,8 +65,9 @@ def fit_winch_lag(
             ``lambda tau: SpringRodIdentifier(anchors=..., winch_lag=tau)``).
         split: the split to fit.
 
-    Returns the best fitted identifier; its ``winch_lag_`` is the lag found and
-    ``lag_search_`` maps every lag tried [s] to its residual sum of squares.
+    Returns the best fitted identifier; its ``winch_lag_`` is the lag found (its table
+    rows ``identified``) and ``lag_search_`` maps every lag tried [s] to its residual sum
+    of squares.
     """
     if not dataset.topology.n_winches:
         raise ValueError(f"{dataset.path or 'dataset'}: the robot has no winches")
@@ -73,4 +75,9 @@ def fit_winch_lag(
         lambda tau: identifier(tau).fit(dataset, split), lambda f: float(f.solution_.rss)
     )
     best.lag_search_ = tried
+    best.table_ = [
+        dataclasses.replace(r, status="identified", note="the smallest regression residual")
+        if r.group == "winch_lag" else r
+        for r in best.table_
+    ]  # fmt: skip
     return best

@@ -29,7 +29,7 @@ def truth_value(row: ParameterRow, truth: Params, scale: float = 1.0) -> float:
         value = np.ravel(t["inertia"])[el]
     else:
         value = np.ravel(t[row.group])[el]
-    scale_free = row.group in ("rest_length", "winch_speed")  # ratios of scaled values
+    scale_free = row.group in ("rest_length", "winch_speed", "winch_lag", "winch_min", "winch_max")
     return float(value) if scale_free else float(value) / scale
 
 

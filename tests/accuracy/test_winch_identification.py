@@ -1,5 +1,5 @@
 """Winch speeds, the motors' lag and the wound cables' stiffness and damping from noisy end
-caps (0.1 mm) and the command log, on MuJoCo data of the lab-style prism driven by its
+caps (0.1 mm), or from rod states, and the command log, on MuJoCo data of the lab-style prism driven by its
 winches.
 
 The end caps are smoothed (30 ms Savitzky-Golay) and the one-step regression solved for
@@ -22,8 +22,10 @@ from test_winches import WOUND, winch_xml
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.linear.features import split_winding
+from identification.linear.regression import SpringRodIdentifier
 from identification.linear.smoothed import smoothed_regression
-from identification.linear.winch_lag import search_winch_lag
+from identification.linear.winch_lag import fit_winch_lag, search_winch_lag
+from identification.report.tables import group_errors
 from identification.simulation.generate import GenerateSpec, generate_dataset
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -63,3 +65,20 @@ def test_winch_speed_lag_and_wound_cables_from_end_caps(tmp_path: Path) -> None:
     assert rel("stiffness") <= 0.04
     # the wrong motor law (no lag) biases the speeds
     assert float(np.max(np.abs(fit(0.0)["winch_speed"] / truth_np["winch_speed"] - 1))) > 0.01
+
+
+def test_winch_lag_found_from_rod_states(tmp_path: Path) -> None:
+    """On exact rod states the residual search finds the lag to its tolerance, and with
+    it ``v_max`` and the cables to 1e-5."""
+    path = tmp_path / "lab_winches.xml"
+    path.write_text(lab_mjcf("mid", extra=winch_xml((0.04,) * 3, low=0.2, high=2.0)))
+    spec = GenerateSpec(mjcf=str(path), n_train=3, n_val=0, n_test=0, steps=600, seed=12,
+                        control_std=1.0, control_hold=0.05)  # fmt: skip
+    ds, truth = generate_dataset(spec)
+    anchors = {"mass[r0]": float(truth.params.mass[0])}
+    est = fit_winch_lag(ds, lambda tau: SpringRodIdentifier(anchors=anchors, winch_lag=tau))
+    assert abs(float(est.winch_lag_[0]) - 0.04) <= 2e-3 * 0.04, est.winch_lag_
+    errors = group_errors(est.table_, truth.params)
+    assert errors["winch_lag"] <= 2e-3
+    assert max(errors[g] for g in ("winch_speed", "stiffness", "damping", "mass")) <= 1e-5, errors
+    assert min(est.lag_search_.values()) < 1e-6 * est.lag_search_[0.0]

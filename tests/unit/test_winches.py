@@ -23,6 +23,7 @@ from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import from_mjcf, to_mjcf
 from tensegrity_env.model import Model
 from tensegrity_env.native.engine_step import WINCHES
+from tensegrity_sr.cli import main
 
 #: wound cables c0, c4, c8: v_max [m/s], range [m], lag [s] (c4 without lag)
 WOUND = (0, 4, 8)
@@ -269,3 +270,25 @@ def test_shipped_lab_prism_winds_its_triangles_on_the_floor() -> None:
     assert contacts >= len(u)  # it stands on the floor throughout
     assert np.ptp(plant.rest_lengths) > 0.05  # the commands wound the cables apart
     assert worst <= 1e-9, worst
+
+
+def test_identify_command_with_winches(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    robot = tmp_path / "robot.xml"
+    robot.write_text(lab_mjcf("mid", extra=winch_xml((0.04,) * 3, low=0.2, high=2.0)))
+    data, out = tmp_path / "d.h5", tmp_path / "params.json"
+    assert main(["generate", "--mjcf", str(robot), "--n-train", "2", "--n-val", "0", "--n-test",
+                 "1", "--steps", "400", "--seed", "5", "--control-std", "1", "--no-progress",
+                 "-o", str(data)]) == 0  # fmt: skip
+    base = ["identify", str(data), "--anchor", "mass[r0]=2.17", "-o", str(out)]
+    assert main([*base, "--winch-lag", "0.04"]) == 0
+    text = capsys.readouterr().out
+    assert "winch_speed[c4]" in text and "winch_max[c8]" in text
+    doc = json.loads(out.read_text())
+    assert np.allclose(doc["params"]["winch_speed"], SPEEDS, rtol=1e-6)
+    assert doc["params"]["winch_lag"] == [0.04] * 3
+    assert Model.load(out).topology.winches == WOUND
+    for bad, message in (("-1", "--winch-lag must be a finite number >= 0"),
+                         ("soon", "'soon' is neither")):
+        out.unlink(missing_ok=True)
+        assert main([*base, "--winch-lag", bad]) != 0
+        assert message in capsys.readouterr().err

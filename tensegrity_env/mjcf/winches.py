@@ -61,7 +61,7 @@ def winches_of(m: mujoco.MjModel, src: str) -> WinchDecl:
         name = mujoco.mj_id2name(m, NUM, k) or ""
         if not name.startswith(WINCH_PREFIX):
             continue
-        tendon = name[len(WINCH_PREFIX):]
+        tendon = name[len(WINCH_PREFIX) :]
         t = mujoco.mj_name2id(m, TEN, tendon)
         if t < 0:
             raise InputError(f"{src}: numeric '{name}': no tendon named '{tendon}'")
@@ -102,7 +102,9 @@ def winch_numerics(topology: Topology, params: Params) -> list[tuple[str, str]]:
     out = []
     for w, s in enumerate(topology.winches):
         data = [P[f][w] for f in WINCH_FIELDS]
-        out.append((WINCH_PREFIX + topology.springs[s].name, " ".join(repr(float(x)) for x in data)))
+        out.append(
+            (WINCH_PREFIX + topology.springs[s].name, " ".join(repr(float(x)) for x in data))
+        )
     return out
 
 

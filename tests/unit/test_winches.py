@@ -100,7 +100,9 @@ def test_bad_winch_parameters_are_refused_by_name(tmp_path) -> None:
     doc["params"]["winch_speed"][1] = 0.0
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(doc))
-    with pytest.raises(InputError, match=r"bad.json: 'winch_speed' of winch on spring 'c4' is 0\.0"):
+    with pytest.raises(
+        InputError, match=r"bad.json: 'winch_speed' of winch on spring 'c4' is 0\.0"
+    ):
         Model.load(path)
     doc["params"]["winch_speed"] = [0.1, 0.2]
     path.write_text(json.dumps(doc))
@@ -209,7 +211,9 @@ def test_generate_drives_the_winches(tmp_path_factory: pytest.TempPathFactory) -
     # the recorded motion is the engine's, winch state integrated from rest
     engine = Engine(ds.topology, dt=ds.dt)
     first = State.from_numpy(*(getattr(train, k)[:1, 0] for k in ("p", "v", "q", "omega")))
-    roll = engine.rollout(first, truth.params, 600, winches=torch.as_tensor(train.winch_control[:1]))
+    roll = engine.rollout(
+        first, truth.params, 600, winches=torch.as_tensor(train.winch_control[:1])
+    )
     assert float((roll.p - torch.as_tensor(train.p[:1])).abs().max()) <= 1e-9
 
 
@@ -266,7 +270,9 @@ def test_shipped_lab_prism_winds_its_triangles_on_the_floor() -> None:
         contacts += d.ncon
         state = engine.step(state, asm.params, winches=torch.as_tensor(u[t])[None])
         ref = mj_rod_state(asm, d)
-        worst = max(worst, float((state.p - ref.p).abs().max()), float((state.q - ref.q).abs().max()))
+        worst = max(
+            worst, float((state.p - ref.p).abs().max()), float((state.q - ref.q).abs().max())
+        )
     assert contacts >= len(u)  # it stands on the floor throughout
     assert np.ptp(plant.rest_lengths) > 0.05  # the commands wound the cables apart
     assert worst <= 1e-9, worst
@@ -287,8 +293,10 @@ def test_identify_command_with_winches(tmp_path: Path, capsys: pytest.CaptureFix
     assert np.allclose(doc["params"]["winch_speed"], SPEEDS, rtol=1e-6)
     assert doc["params"]["winch_lag"] == [0.04] * 3
     assert Model.load(out).topology.winches == WOUND
-    for bad, message in (("-1", "--winch-lag must be a finite number >= 0"),
-                         ("soon", "'soon' is neither")):
+    for bad, message in (
+        ("-1", "--winch-lag must be a finite number >= 0"),
+        ("soon", "'soon' is neither"),
+    ):
         out.unlink(missing_ok=True)
         assert main([*base, "--winch-lag", bad]) != 0
         assert message in capsys.readouterr().err

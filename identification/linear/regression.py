@@ -418,14 +418,20 @@ class SpringRodIdentifier:
             return {}
         springs = list(topo.winches)
         speed = values["stiffness_winch_speed"] / values["stiffness"][springs]
+        assert self._winding is not None
+        ends = rest[springs] + speed * np.stack(
+            [self._winding.min(0).values.numpy(), self._winding.max(0).values.numpy()]
+        )  # the rest lengths the fitted winding reaches in the data, (2, W) [m]
         if self.init_params is not None and self.init_params.winch_min.numel() == topo.n_winches:
             low = self.init_params.winch_min.detach().double().numpy()
             high = self.init_params.winch_max.detach().double().numpy()
+            out = [topo.springs[s].name for s, a, b, lo, hi in
+                   zip(springs, ends.min(0), ends.max(0), low, high, strict=True)
+                   if a < lo or b > hi]  # fmt: skip
+            if out:
+                warnings.warn(f"winches on {out} reach the end of their range in this data: "
+                              "the regression's winding (no range) is biased there", stacklevel=3)  # fmt: skip
         else:
-            assert self._winding is not None
-            ends = rest[springs] + speed * np.stack(
-                [self._winding.min(0).values.numpy(), self._winding.max(0).values.numpy()]
-            )
             low, high = np.clip(ends.min(0), 0.0, None), ends.max(0)
         return {"winch_speed": speed, "winch_min": low, "winch_max": high,
                 "winch_lag": self.winch_lag_.numpy()}  # fmt: skip

@@ -300,3 +300,16 @@ def test_identify_command_with_winches(tmp_path: Path, capsys: pytest.CaptureFix
         out.unlink(missing_ok=True)
         assert main([*base, "--winch-lag", bad]) != 0
         assert message in capsys.readouterr().err
+
+
+def test_regression_warns_where_the_data_reaches_a_range(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> None:
+    ds, truth = _winch_data(str(tmp_path_factory.mktemp("winches")), 0.0)
+    anchor = {"mass[r0]": float(truth.params.mass[0])}
+    est = SpringRodIdentifier(anchors=anchor, init_params=truth.params).fit(ds)
+    assert torch.equal(est.params_.winch_max, truth.params.winch_max)  # the range is kept
+    start = truth.params.rest_length[list(WOUND)]
+    narrow = truth.params.replace(winch_min=start - 1e-4, winch_max=start + 1e-4)
+    with pytest.warns(UserWarning, match=r"winches on \[.*'c0'.*\] reach the end of their range"):
+        SpringRodIdentifier(anchors=anchor, init_params=narrow).fit(ds)

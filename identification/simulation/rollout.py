@@ -74,7 +74,7 @@ class Roller:
     ) -> None:
         self.model = model
         self.winches = winches
-        self.threads = threads or default_threads()
+        self.threads = 1 if winches is not None else threads or default_threads()
         self.layout = StateLayout.of(model)
         self.seconds = 0.0  # wall time spent inside MuJoCo's rollout
         self._pool = mj_rollout.Rollout(nthread=self.threads)
@@ -132,13 +132,14 @@ class Roller:
         assert self.winches is not None
         m, d, nu = self.model, self._datas[0], self.model.nu
         full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        rest = self.winches.plan(ctrl[..., nu:])  # (n, T, W): winding needs the commands only
         for i in range(init.shape[0]):
             mujoco.mj_resetData(m, d)
             mujoco.mj_setState(m, d, np.ascontiguousarray(init[i]), full)
-            self.winches.reset()
             for t in range(ctrl.shape[1]):
                 d.ctrl[:] = ctrl[i, t, :nu]
-                self.winches.step(d, ctrl[i, t, nu:])
+                self.winches.apply(rest[i, t])
+                mujoco.mj_step(m, d)
                 mujoco.mj_getState(m, d, out[i, t], full)
 
     def check(self, states: np.ndarray, first: int = 0, where: str = "") -> None:

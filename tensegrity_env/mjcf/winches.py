@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 import torch
 
-from tensegrity_env.engine.winch import REST, initial_winch_state, winch_step
+from tensegrity_env.engine.winch import REST, initial_winch_state, winch_history, winch_step
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import WINCH_FIELDS, Params
 from tensegrity_env.topology import Topology
@@ -147,11 +147,23 @@ class MjWinches:
         """The wound springs' rest lengths now, (W,) [m]."""
         return self.state[0, :, REST].numpy().copy()
 
-    def apply(self) -> None:
-        """Write the rest lengths into ``model.tendon_lengthspring``."""
-        rest = self.rest_lengths
+    def apply(self, rest: np.ndarray | None = None) -> None:
+        """Write the rest lengths ``rest`` (W,) [m] (default: the winch state's) into
+        ``model.tendon_lengthspring``."""
+        rest = self.rest_lengths if rest is None else rest
         self.model.tendon_lengthspring[self.tendons, 0] = np.where(self.slack, 0.0, rest)
         self.model.tendon_lengthspring[self.tendons, 1] = rest
+
+    def plan(self, commands: np.ndarray) -> np.ndarray:
+        """The rest lengths before each step of command logs (n, T, W) from rest, (n, T, W)
+        [m]: the winding depends on the commands alone, so a rollout can integrate it
+        first (:func:`~tensegrity_env.engine.winch.winch_history`, the same steps as
+        :meth:`step`) and only :meth:`apply` them between ``mj_step`` calls."""
+        h = float(self.model.opt.timestep)
+        history = winch_history(
+            self.topology, self.params, torch.as_tensor(commands, dtype=torch.float64), h
+        )
+        return history[:, :-1, :, REST].numpy()
 
     def step(self, data: mujoco.MjData, command: np.ndarray | None = None) -> None:
         """One ``mj_step`` with the winches' rest lengths, then wind by ``command`` (W,)."""

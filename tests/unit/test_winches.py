@@ -135,6 +135,8 @@ def test_engine_equals_mujoco_with_winches(lags: tuple[float, ...]) -> None:
         assert np.array_equal(state.winch[0, :, REST].numpy(), plant.rest_lengths)
         rests.append(plant.rest_lengths)
     rests = np.array(rests)
+    planned = plant.plan(u[None])[0]  # the same winding integrated ahead of the rollout
+    assert np.array_equal(planned[1:], rests[:-1])
     start = asm.params.rest_length[list(WOUND)].numpy()
     assert np.all(np.ptp(rests, axis=0) > 0.004)  # every cable is wound
     assert np.any(rests == 0.825) and np.any(rests == 0.96)  # both ends of the range are reached

@@ -178,6 +178,9 @@ class SpringRodIdentifier:
         layout = ParameterLayout.build(topology, self.shared, self.fit_rest_length)
         self.winch_lag_ = self._winch_lags(topology)
         self._winding = winding_at(data, self.winch_lag_, dataset.dt)  # (N*T, W) or None
+        if self._winding is None and topology.n_winches:  # no command log: the motors at rest
+            n = data.n_trajectories * data.n_transitions
+            self._winding = torch.zeros(n, topology.n_winches, dtype=torch.float64)
         index = self._subset(data)
         normal, n_rows = self._normal_equations(dataset, data, layout, index)
         fixed, mode = self._constraints(layout)
@@ -418,6 +421,9 @@ class SpringRodIdentifier:
             return {}
         springs = list(topo.winches)
         speed = values["stiffness_winch_speed"] / values["stiffness"][springs]
+        init = self.init_params
+        if init is not None and init.winch_speed.numel() == topo.n_winches:  # where not wound
+            speed = np.where(np.isfinite(speed), speed, init.winch_speed.detach().double().numpy())
         assert self._winding is not None
         ends = rest[springs] + speed * np.stack(
             [self._winding.min(0).values.numpy(), self._winding.max(0).values.numpy()]

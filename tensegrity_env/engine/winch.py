@@ -33,7 +33,7 @@ def initial_winch_state(topology: Topology, params: Params, batch: int) -> torch
     """The winch state at rest: each wound spring's declared ``rest_length`` and speed 0,
     (batch, W, 2) [m, m/s]."""
     idx = torch.as_tensor(topology.winches, dtype=torch.long, device=params.rest_length.device)
-    rest = params.rest_length[..., idx].detach()
+    rest = params.rest_length[..., idx]  # differentiable: the start is a fitted rest length
     rest = rest.expand(batch, -1) if rest.dim() == 1 else rest
     return torch.stack([rest, torch.zeros_like(rest)], dim=-1)
 

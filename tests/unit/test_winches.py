@@ -184,12 +184,14 @@ def test_winch_speed_and_lag_have_gradients() -> None:
     _m, d = mj_random_state(asm, seed=7)
     speed = asm.params.winch_speed.clone().requires_grad_(True)
     lag = asm.params.winch_lag.clone().requires_grad_(True)
-    params = asm.params.replace(winch_speed=speed, winch_lag=lag)
+    rest = asm.params.rest_length.clone().requires_grad_(True)
+    params = asm.params.replace(winch_speed=speed, winch_lag=lag, rest_length=rest)
     u = torch.as_tensor(motor_commands(40, seed=8, hold=10))[None]
     roll = Engine(asm.topology, dt=1e-3).rollout(mj_rod_state(asm, d), params, 40, winches=u)
     roll.p[:, -1].sum().backward()
     assert torch.all(speed.grad != 0) and torch.all(torch.isfinite(speed.grad))
     assert lag.grad[0] != 0 and lag.grad[1] == 0 and torch.all(torch.isfinite(lag.grad))
+    assert torch.all(rest.grad[list(WOUND)] != 0)  # the wound springs' starting rest lengths
 
 
 # ---------------------------------------------------------------------- identification
@@ -315,3 +317,20 @@ def test_regression_warns_where_the_data_reaches_a_range(
     narrow = truth.params.replace(winch_min=start - 1e-4, winch_max=start + 1e-4)
     with pytest.warns(UserWarning, match=r"winches on \[.*'c0'.*\] reach the end of their range"):
         SpringRodIdentifier(anchors=anchor, init_params=narrow).fit(ds)
+
+
+def test_unwound_winches_are_reported_not_identifiable(tmp_path: Path) -> None:
+    """Without winding in the data, ``v_max`` is not identifiable: named, never a number
+    (or the starting params' value where given)."""
+    path = tmp_path / "robot.xml"
+    path.write_text(lab_mjcf("mid", extra=winch_xml()))
+    spec = GenerateSpec(mjcf=str(path), n_train=2, n_val=0, n_test=0, steps=300, seed=6,
+                        control_std=0.0)  # fmt: skip
+    ds, truth = generate_dataset(spec)
+    assert not ds.split("train").has_winch_commands
+    anchor = {"mass[r0]": float(truth.params.mass[0])}
+    est = SpringRodIdentifier(anchors=anchor).fit(ds)
+    assert {f"winch_speed[c{c}]" for c in WOUND} <= set(est.unidentifiable())
+    assert torch.isnan(est.params_.winch_speed).all()
+    given = SpringRodIdentifier(anchors=anchor, init_params=truth.params).fit(ds)
+    assert torch.equal(given.params_.winch_speed, truth.params.winch_speed)

@@ -1,4 +1,4 @@
-"""The shipped lab prism (sphere end caps, cables on the cap surfaces, filtered cable
+"""The lab prism with force actuators (sphere end caps, cables on the cap surfaces, filtered cable
 actuators, a floor): the residual loop finds both the floor contact and the filter from
 the data and recovers what the file says."""
 

@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # the same initial states and controls the tool draws for its train split
     truth = load_truth(spec)
-    states, commands, cables = split_inputs(truth, spec, "train", args.trajectories)
+    states, commands, cables, winches = split_inputs(truth, spec, "train", args.trajectories)
     qpos, qvel = rod_state_to_mj(truth.asm, **states)
     m = truth.model
     data = mujoco.MjData(m)
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     mujoco.mj_getState(m, data, template, mujoco.mjtState.mjSTATE_FULLPHYSICS)
     init = np.tile(template, (args.trajectories, 1))
     init[:, 1 : 1 + m.nq], init[:, 1 + m.nq : 1 + m.nq + m.nv] = qpos, qvel
-    ctrl = ctrl_vectors(truth, commands, cables)
+    ctrl = ctrl_vectors(truth, commands, cables, winches)
     datas = [mujoco.MjData(m) for _ in range(threads)]
 
     bare_s, tool_s, bare_cpu, tool_cpu, bare_state, result = [], [], [], [], None, None

@@ -4,7 +4,8 @@
 
 :class:`Params` is a frozen dataclass of torch tensors so it can be differentiated
 through the engine (make any field ``requires_grad``) and moved between devices and
-dtypes. Shapes use ``S = n_springs``, ``R = n_rods`` and ``C`` cable actuators.
+dtypes. Shapes use ``S = n_springs``, ``R = n_rods``, ``C`` cable actuators and ``W``
+winches.
 """
 
 from __future__ import annotations
@@ -35,9 +36,22 @@ UNITS: dict[str, str] = {
     "control_gain": "N per command unit",
     "gravity": "m/s^2",
     "cable_gain": "N per command unit",
+    "winch_speed": "m/s at command 1",
+    "winch_min": "m",
+    "winch_max": "m",
+    "winch_lag": "s",
 }
 
 FIELDS: tuple[str, ...] = tuple(UNITS)
+#: fields sized by the topology's actuators, absent from ``params.json`` when empty
+OPTIONAL_FIELDS: tuple[str, ...] = ("cable_gain", "winch_speed", "winch_min", "winch_max",
+                                    "winch_lag")  # fmt: skip
+#: the winch fields, each (W,)
+WINCH_FIELDS: tuple[str, ...] = ("winch_speed", "winch_min", "winch_max", "winch_lag")
+
+
+def _empty() -> torch.Tensor:
+    return torch.zeros(0, dtype=torch.float64)
 
 
 @dataclass(frozen=True)
@@ -55,6 +69,12 @@ class Params:
         cable_gain: the gain h_c of each cable actuator, (C,) [N/unit]: a command u
             changes the driven spring's tension by ``-h_c u`` (empty without cable
             actuators; see :class:`tensegrity_env.topology.Topology`).
+        winch_speed: each winch's ``v_max``, the rate of its spring's rest length at
+            command 1 (the winch radius inside), (W,) [m/s].
+        winch_min, winch_max: the range of each wound spring's rest length, (W,) [m].
+        winch_lag: each winch motor's first-order lag on its winding speed, (W,) [s]; 0
+            for none. The wound springs' ``rest_length`` is their rest length at the
+            start (see :mod:`tensegrity_env.engine.winch`).
     """
 
     stiffness: torch.Tensor
@@ -64,9 +84,11 @@ class Params:
     inertia: torch.Tensor
     control_gain: torch.Tensor
     gravity: torch.Tensor
-    cable_gain: torch.Tensor = field(
-        default_factory=lambda: torch.zeros(0, dtype=torch.float64)
-    )
+    cable_gain: torch.Tensor = field(default_factory=_empty)
+    winch_speed: torch.Tensor = field(default_factory=_empty)
+    winch_min: torch.Tensor = field(default_factory=_empty)
+    winch_max: torch.Tensor = field(default_factory=_empty)
+    winch_lag: torch.Tensor = field(default_factory=_empty)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -80,6 +102,10 @@ class Params:
         control_gain: Any = 1.0,
         gravity: Any = (0.0, 0.0, -9.81),
         cable_gain: Any = (),
+        winch_speed: Any = (),
+        winch_min: Any = (),
+        winch_max: Any = (),
+        winch_lag: Any = (),
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
     ) -> Params:
@@ -97,6 +123,10 @@ class Params:
             control_gain=t(control_gain).reshape(()),
             gravity=t(gravity).reshape(3),
             cable_gain=t(cable_gain).reshape(-1),
+            winch_speed=t(winch_speed).reshape(-1),
+            winch_min=t(winch_min).reshape(-1),
+            winch_max=t(winch_max).reshape(-1),
+            winch_lag=t(winch_lag).reshape(-1),
         )
 
     def replace(self, **changes: Any) -> Params:
@@ -137,6 +167,7 @@ class Params:
             "control_gain": (),
             "gravity": (3,),
             "cable_gain": (topology.n_cables,),
+            **{f: (topology.n_winches,) for f in WINCH_FIELDS},
         }
         springs = [sp.name for sp in topology.springs]
         rods = [r.name for r in topology.rods]
@@ -178,15 +209,31 @@ class Params:
         if (self.rest_length < 0).any():
             raise InputError(f"{source}: rest lengths must be >= 0: "
                              f"{where('rest_length', self.rest_length < 0)}")  # fmt: skip
+        self._validate_winches(topology, source)
         return self
+
+    def _validate_winches(self, topology: Topology, source: str) -> None:
+        """Winch speeds > 0, ranges ``0 <= l_min <= l_max``, lags >= 0, named by spring."""
+        names = [topology.springs[s].name for s in topology.winches]
+        checks = (
+            ("winch_speed", self.winch_speed <= 0, "must be > 0 m/s"),
+            ("winch_min", self.winch_min < 0, "must be >= 0 m"),
+            ("winch_max", self.winch_max < self.winch_min, "must be >= winch_min"),
+            ("winch_lag", self.winch_lag < 0, "must be >= 0 s"),
+        )
+        for f, bad, what in checks:
+            for w in torch.nonzero(bad).flatten().tolist():
+                value = float(getattr(self, f)[w])
+                raise InputError(f"{source}: '{f}' of winch on spring '{names[w]}' is {value}: {what}")
+
 
     def relative_error(self, truth: Params) -> dict[str, np.ndarray]:
         """Element-wise |self - truth| / |truth| for every field (0/0 counts as 0);
-        ``cable_gain`` only where there are cable actuators."""
+        the actuator fields only where there are such actuators."""
         a, b = self.numpy(), truth.numpy()
         out = {}
         for f in FIELDS:
-            if f == "cable_gain" and b[f].size == 0:
+            if f in OPTIONAL_FIELDS and b[f].size == 0:
                 continue
             den = np.abs(b[f])
             out[f] = np.where(den > 0, np.abs(a[f] - b[f]) / np.where(den > 0, den, 1.0), 0.0)
@@ -195,10 +242,10 @@ class Params:
 
 # ---------------------------------------------------------------------- params.json
 def params_to_dict(params: Params) -> dict[str, Any]:
-    """The ``params`` section: field -> nested lists (units in :data:`UNITS`);
-    ``cable_gain`` only where there are cable actuators."""
+    """The ``params`` section: field -> nested lists (units in :data:`UNITS`); the
+    actuator fields (:data:`OPTIONAL_FIELDS`) only where there are such actuators."""
     return {
-        f: v.tolist() for f, v in params.numpy().items() if f != "cable_gain" or v.size
+        f: v.tolist() for f, v in params.numpy().items() if f not in OPTIONAL_FIELDS or v.size
     }
 
 
@@ -217,10 +264,10 @@ def check_numbers(value: Any, where: str, source: str) -> None:
 def params_from_dict(d: Mapping[str, Any], source: str = "params") -> Params:
     """:class:`Params` from a ``params`` section; raises :class:`InputError` naming ``source``.
 
-    ``cable_gain`` may be absent (no cable actuators)."""
+    The actuator fields (:data:`OPTIONAL_FIELDS`) may be absent (no such actuators)."""
     if not isinstance(d, Mapping):
         raise InputError(f"{source}: 'params' must be a mapping of field to values")
-    d = {"cable_gain": [], **d}
+    d = {**{f: [] for f in OPTIONAL_FIELDS}, **d}
     missing = [f for f in FIELDS if f not in d]
     if missing:
         raise InputError(f"{source}: missing parameter(s) {missing}")

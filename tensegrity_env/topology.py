@@ -15,6 +15,10 @@ A :class:`Topology` is the fixed description of an assembly, never differentiate
   ``u`` changes that spring's tension by ``-h_c u`` (MuJoCo's tendon actuator, whose
   force ``h_c u`` acts to lengthen the tendon), with ``h_c`` the actuator's gain
   (``Params.cable_gain``).
+* **winches** (``Topology.winches``) each wind one spring: a motor command ``u`` in
+  [-1, 1] changes that spring's rest length at ``u * v_max`` [m/s], within its range
+  ``[l_min, l_max]``, optionally through a first-order motor lag (``Params.winch_*``;
+  :mod:`tensegrity_env.engine.winch`). The rest length is then part of the state.
 
 The graph has one vertex per rod and per spring and directed edges
 ``rod -> spring`` (the rod's end-cap motion feeds the spring's compression
@@ -99,6 +103,8 @@ class Topology:
         name: a label for the assembly (MJCF model name).
         cable_actuators: the spring each cable actuator drives, by spring index, in
             actuator order (at most one actuator per spring).
+        winches: the spring each winch winds, by spring index, in motor order (at most
+            one winch per spring, none on a spring a cable actuator drives).
     """
 
     rods: tuple[Rod, ...]
@@ -106,6 +112,7 @@ class Topology:
     anchors: tuple[Vec3, ...] = ()
     name: str = "assembly"
     cable_actuators: tuple[int, ...] = ()
+    winches: tuple[int, ...] = ()
     _cache: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -113,6 +120,7 @@ class Topology:
         object.__setattr__(self, "springs", tuple(self.springs))
         object.__setattr__(self, "anchors", tuple(tuple(map(float, a)) for a in self.anchors))
         object.__setattr__(self, "cable_actuators", tuple(int(c) for c in self.cable_actuators))
+        object.__setattr__(self, "winches", tuple(int(w) for w in self.winches))
         self._validate()
 
     # ------------------------------------------------------------------ validation
@@ -168,6 +176,17 @@ class Topology:
                 )
         if len(set(self.cable_actuators)) != len(self.cable_actuators):
             raise TopologyError(f"{self.name}: two cable actuators drive the same spring")
+        for w in self.winches:
+            if not 0 <= w < self.n_springs:
+                raise TopologyError(f"{self.name}: winch winds spring {w}, which does not exist")
+        if len(set(self.winches)) != len(self.winches):
+            raise TopologyError(f"{self.name}: two winches wind the same spring")
+        both = sorted(set(self.winches) & set(self.cable_actuators))
+        if both:
+            raise TopologyError(
+                f"{self.name}: spring(s) {[self.springs[s].name for s in both]} have both a"
+                " winch and a cable actuator"
+            )
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -182,6 +201,11 @@ class Topology:
     def n_cables(self) -> int:
         """Cable actuators (control inputs that scale a spring's tension)."""
         return len(self.cable_actuators)
+
+    @property
+    def n_winches(self) -> int:
+        """Winches (motors that wind a spring, changing its rest length)."""
+        return len(self.winches)
 
     @property
     def n_anchors(self) -> int:
@@ -328,6 +352,8 @@ class Topology:
         }
         if self.cable_actuators:
             out["cable_actuators"] = list(self.cable_actuators)
+        if self.winches:
+            out["winches"] = list(self.winches)
         return out
 
     @classmethod
@@ -352,9 +378,10 @@ class Topology:
             anchors = tuple(tuple(map(float, a)) for a in d.get("anchors", []))
             name = str(d.get("name", "assembly"))
             cables = tuple(int(c) for c in d.get("cable_actuators", []))
+            winches = tuple(int(w) for w in d.get("winches", []))
             return cls(
                 rods=rods, springs=springs, anchors=anchors, name=name,  # type: ignore[arg-type]
-                cable_actuators=cables,
+                cable_actuators=cables, winches=winches,
             )  # fmt: skip
         except TopologyError:
             raise
@@ -378,7 +405,7 @@ class Topology:
             return False
         if not np.array_equal(self.spring_nodes, other.spring_nodes):
             return False
-        if self.cable_actuators != other.cable_actuators:
+        if self.cable_actuators != other.cable_actuators or self.winches != other.winches:
             return False
         return all(
             np.allclose(getattr(self, f), getattr(other, f), atol=atol)

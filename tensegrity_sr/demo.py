@@ -213,7 +213,7 @@ def step_lab_robot(demo: Demo) -> None:
            "cable actuators, on a floor")  # fmt: skip
     from tensegrity_env.model import Model
 
-    robot = Path(__file__).resolve().parent.parent / "tensegrity_env" / "assets" / "lab_prism.xml"
+    robot = Path(__file__).resolve().parent.parent / "tensegrity_env" / "assets" / "lab_prism_force_actuators.xml"
     path = demo.out / "lab_prism.h5"
     demo.cli("generate", "--mjcf", robot, "--n-train", demo.size(4, 8), "--n-val", 1,
              "--n-test", 1, "--steps", 1000, "--seed", 11, "--control-std", 1,

@@ -63,6 +63,9 @@ def register(sub: Any) -> None:
     p.add_argument("--fraction", type=float, help="fit on this random fraction of training steps")
     p.add_argument("--seed", type=int, default=0, help="seed of the random subset")
     p.add_argument("--split", default="train", help="split to fit on (default train)")
+    p.add_argument("--winch-lag", default=None, metavar="SECONDS|auto",
+                   help="the winch motors' lag [s] (a robot with winches): a value, or 'auto' to "
+                        "search it on the regression's residual; default: --init's, else 0")  # fmt: skip
     p.add_argument("--horizon", type=seconds, default=2.0,
                    help="rollout horizon of the test-split error, e.g. 2s (default 2s)")  # fmt: skip
     q = p.add_argument_group("end-cap-only data (trajectory identification through the engine)")
@@ -82,11 +85,28 @@ def register(sub: Any) -> None:
     p.set_defaults(func=run)
 
 
+def winch_lag_option(text: str | None, dataset: Any) -> float | str | None:
+    """``--winch-lag``: None (not given), ``"auto"`` or a lag >= 0 [s]; one-line errors."""
+    if text is None:
+        return None
+    if not dataset.topology.n_winches:
+        raise InputError(f"--winch-lag: the robot of {dataset.path} has no winches")
+    if text == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"--winch-lag: {text!r} is neither a time in seconds nor 'auto'") from None
+    check_number("--winch-lag", value, 0)
+    return value
+
+
 def run(args: argparse.Namespace) -> int:
     from identification.commands.identify_end_caps import run_end_caps
     from identification.data.dataset import read_dataset, read_ground_truth
     from identification.data.sample_grid import on_nominal_grid
     from identification.linear.regression import SpringRodIdentifier, parse_anchor
+    from identification.linear.winch_lag import fit_winch_lag
     from identification.report.tables import (
         error_text,
         group_errors,
@@ -111,11 +131,22 @@ def run(args: argparse.Namespace) -> int:
     freeze = tuple(f for f in args.freeze.split(",") if f)
     if args.fraction is not None and not 0 < args.fraction <= 1:
         raise InputError(f"--fraction must be in (0, 1], got {args.fraction}")
+    lag = winch_lag_option(args.winch_lag, dataset)
     t0 = time.perf_counter()
-    est = SpringRodIdentifier(
-        solver=args.solver, shared=args.shared, anchors=anchors, init_params=init, freeze=freeze,
-        fraction=args.fraction, seed=args.seed, progress=True,
-    ).fit(dataset, args.split)  # fmt: skip
+
+    def identifier(tau: float | None) -> SpringRodIdentifier:
+        return SpringRodIdentifier(
+            solver=args.solver, shared=args.shared, anchors=anchors, init_params=init,
+            freeze=freeze, fraction=args.fraction, seed=args.seed, progress=lag != "auto",
+            winch_lag=tau,
+        )  # fmt: skip
+
+    if lag == "auto":
+        est = fit_winch_lag(dataset, identifier, args.split)
+        print(f"winch lag {float(est.winch_lag_[0]):.4g} s: the smallest residual of "
+              f"{len(est.lag_search_)} lags tried")  # fmt: skip
+    else:
+        est = identifier(lag).fit(dataset, args.split)
     fit_time = time.perf_counter() - t0
     try:  # nothing outside the physical domain is written
         est.params_.validate(dataset.topology, source="identified parameters")

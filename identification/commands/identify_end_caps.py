@@ -103,7 +103,12 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     """Identify from end caps only, print the table, write params.json."""
     used = [o for o, v in (("--solver network", args.solver == "network"),
                            ("--shared", args.shared), ("--freeze", bool(args.freeze)),
-                           ("--fraction", args.fraction is not None)) if v]  # fmt: skip
+                           ("--fraction", args.fraction is not None),
+                           ("--winch-lag", args.winch_lag is not None)) if v]  # fmt: skip
+    if dataset.topology.n_winches:
+        raise InputError(f"{args.dataset}: the robot has winches; identify takes them from rod "
+                         "states only (end caps: identification.linear.smoothed_regression "
+                         "with the winding of the command log)")  # fmt: skip
     if used:
         raise InputError(f"{args.dataset}: end caps only; {', '.join(used)} need rod states "
                          "(the trajectory identification fits end caps directly)")  # fmt: skip

@@ -24,6 +24,11 @@ path                                  shape                meaning
 ``/splits/<split>/cable_control``     (N, T, C)            optional: command of each cable
                                                            actuator during step t (zero if
                                                            absent)
+``/splits/<split>/winch_control``     (N, T, W)            optional: command of each winch
+                                                           motor during step t, in [-1, 1]
+                                                           (zero if absent); each trajectory
+                                                           starts with the winches at rest at
+                                                           their declared rest lengths
 ``/splits/<split>/time``              (N, T+1)             optional: time of each sample [s]
                                                            from the trajectory's start; may be
                                                            non-uniform; NaN after a shorter
@@ -77,6 +82,7 @@ class Split:
     omega: np.ndarray | None = None
     time: np.ndarray | None = None
     cable_control: np.ndarray | None = None
+    winch_control: np.ndarray | None = None
 
     @property
     def n_trajectories(self) -> int:
@@ -91,6 +97,11 @@ class Split:
     def has_cable_commands(self) -> bool:
         """Whether this split drives cable actuators (non-zero ``cable_control``)."""
         return self.cable_control is not None and bool(np.any(self.cable_control != 0))
+
+    @property
+    def has_winch_commands(self) -> bool:
+        """Whether this split drives winch motors (non-zero ``winch_control``)."""
+        return self.winch_control is not None and bool(np.any(self.winch_control != 0))
 
     @property
     def has_states(self) -> bool:
@@ -117,7 +128,7 @@ class Split:
         """The trajectories ``idx`` of this split."""
         pick = {
             k: (None if getattr(self, k) is None else getattr(self, k)[idx])
-            for k in (*STATE_KEYS, "time", "cable_control")
+            for k in (*STATE_KEYS, "time", "cable_control", "winch_control")
         }
         return Split(nodes=self.nodes[idx], control=self.control[idx], **pick)
 
@@ -186,7 +197,7 @@ def write_dataset(
             f.create_group("topology").attrs["json"] = dataset.topology.to_json()
             for name, split in dataset.splits.items():
                 g = f.create_group(f"splits/{name}")
-                for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control"):
+                for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control", "winch_control"):
                     arr = getattr(split, k)
                     if arr is not None:
                         g.create_dataset(k, data=np.asarray(arr, dtype=np.float64), chunks=True)
@@ -246,7 +257,7 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
                 g = f[f"splits/{name}"]
                 arrays = {
                     k: (g[k][()] if k in g else None)
-                    for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control")
+                    for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control", "winch_control")
                 }
                 if arrays["nodes"] is None:
                     raise InputError(f"{p}: split '{name}' has no 'nodes'")
@@ -256,6 +267,9 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
                 if arrays["cable_control"] is None and topology.n_cables:
                     n, t1 = arrays["nodes"].shape[:2]
                     arrays["cable_control"] = np.zeros((n, t1 - 1, topology.n_cables))
+                if arrays["winch_control"] is None and topology.n_winches:
+                    n, t1 = arrays["nodes"].shape[:2]
+                    arrays["winch_control"] = np.zeros((n, t1 - 1, topology.n_winches))
                 out[name] = Split(**arrays)
         except InputError:
             raise
@@ -306,13 +320,13 @@ def check_dataset(ds: Dataset, where: str) -> None:
                 f"{where}: split '{name}' control has shape {s.control.shape}, "
                 f"expected {(N, T1 - 1, R, 3)}"
             )
-        cables = (N, T1 - 1, ds.topology.n_cables)
-        if s.cable_control is not None and s.cable_control.shape != cables:
-            raise InputError(
-                f"{where}: split '{name}' cable_control has shape {s.cable_control.shape}, "
-                f"expected {cables}"
-            )
-        for k in ("control", "cable_control", *STATE_KEYS):
+        for k, n in (("cable_control", ds.topology.n_cables), ("winch_control", ds.topology.n_winches)):
+            arr = getattr(s, k)
+            if arr is not None and arr.shape != (N, T1 - 1, n):
+                raise InputError(
+                    f"{where}: split '{name}' {k} has shape {arr.shape}, expected {(N, T1 - 1, n)}"
+                )
+        for k in ("control", "cable_control", "winch_control", *STATE_KEYS):
             arr = getattr(s, k)
             if arr is None:
                 continue

@@ -11,7 +11,11 @@ rod rotation, the paper's decomposition gives six homogeneous linear equations::
 The unknowns are ``θ = [M, I, K, K·l0, c, h, h_c]`` (``K·l0`` is a separate linear unknown so
 rest lengths are identified too; ``l0 = (K·l0)/K``; ``h_c`` is one gain per cable actuator,
 whose command ``u`` adds ``-h_c u`` to its spring's tension, so its column is the
-spring's unit-tension wrench times ``u``; present only with cable actuators). Each rod only touches its own
+spring's unit-tension wrench times ``u``; present only with cable actuators; ``K·v`` is one unknown per winch, its spring's
+stiffness times the winch's ``v_max``: a wound spring's rest length is
+``l0 + v_max w(t)`` with ``w`` the winding per unit speed
+(:func:`tensegrity_env.engine.winch.unit_winding`), so its column is the spring's
+unit-tension wrench times ``w``; present only with winches). Each rod only touches its own
 ``M, I``, the springs attached to it and ``h``, so the design is built per rod on a
 small set of *local* columns and accumulated into the normal matrix ``AᵀA`` in chunks.
 """
@@ -87,6 +91,8 @@ class ParameterLayout:
         add("control_gain", [""], [-1])
         driven = [topology.springs[c].name for c in topology.cable_actuators]
         add("cable_gain", [f"[{n}]" for n in driven], list(range(len(driven))))
+        wound = [topology.springs[w].name for w in topology.winches]
+        add("stiffness_winch_speed", [f"[{n}]" for n in wound], list(range(len(wound))))
         return cls(topology, shared, fit_rest_length, names, groups, elements)
 
     @property
@@ -122,6 +128,8 @@ class RodSlots:
             actuators) one ``h_c`` per slot.
         cable: the cable actuator driving each slot's spring, (R, J), -1 where none; None
             without cable actuators.
+        winch: the winch winding each slot's spring, (R, J), -1 where none; None without
+            winches. Its ``K·v`` columns follow the cable columns, one per slot.
     """
 
     spring: torch.Tensor
@@ -129,6 +137,7 @@ class RodSlots:
     sign: torch.Tensor
     columns: torch.Tensor
     cable: torch.Tensor | None = None
+    winch: torch.Tensor | None = None
 
     @property
     def n_local(self) -> int:
@@ -147,9 +156,12 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
     node_rod = topo.node_rod
     discard = layout.n_params
     driven = {s: c for c, s in enumerate(topo.cable_actuators)}
-    L = 4 + 3 * J + 1 + (J if driven else 0)
+    wound = {s: w for w, s in enumerate(topo.winches)}
+    first_winch = 4 + 3 * J + 1 + (J if driven else 0)
+    L = first_winch + (J if wound else 0)
     columns = np.full((R, L), discard, dtype=np.int64)
     cable = -np.ones((R, J), dtype=np.int64)
+    winch = -np.ones((R, J), dtype=np.int64)
     for r in range(R):
         columns[r, 0] = layout.index("mass", r)
         for k in range(3):
@@ -165,6 +177,9 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
             if s in driven:
                 cable[r, j] = driven[s]
                 columns[r, 5 + 3 * J + j] = layout.index("cable_gain", driven[s])
+            if s in wound:
+                winch[r, j] = wound[s]
+                columns[r, first_winch + j] = layout.index("stiffness_winch_speed", wound[s])
         columns[r, 4 + 3 * J] = layout.index("control_gain")
     return RodSlots(
         spring=torch.as_tensor(spring),
@@ -172,6 +187,7 @@ def rod_slots(layout: ParameterLayout) -> RodSlots:
         sign=torch.as_tensor(sign),
         columns=torch.as_tensor(columns),
         cable=torch.as_tensor(cable) if driven else None,
+        winch=torch.as_tensor(winch) if wound else None,
     )
 
 
@@ -229,6 +245,10 @@ def rod_blocks(
     if slots.cable is not None:  # -σ (-h_c u) e: the unit-tension wrench times u
         u = feat.cables[:, slots.cable.clamp_min(0)] * (slots.cable >= 0)  # (n, R, J)
         A[..., h + 1 : h + 1 + J] = unit * u.transpose(0, 1).unsqueeze(2)
+    if slots.winch is not None:  # +σ (K v) w e, as the K·l0 column with w for 1
+        first = h + 1 + (J if slots.cable is not None else 0)
+        w = feat.winding[:, slots.winch.clamp_min(0)] * (slots.winch >= 0)  # (n, R, J)
+        A[..., first : first + J] = unit * w.transpose(0, 1).unsqueeze(2)
     return A.permute(1, 0, 2, 3)
 
 
@@ -261,7 +281,8 @@ def with_hinges(slots: RodSlots, n_params: int, n_springs: int) -> RodSlots:
     padded = slots.sign == 0
     hinge = torch.where(padded, n_params + n_springs, n_params + slots.spring)
     return RodSlots(slots.spring, slots.node, slots.sign,
-                    torch.cat([cols, hinge.reshape(-1, J)], dim=1), slots.cable)  # fmt: skip
+                    torch.cat([cols, hinge.reshape(-1, J)], dim=1), slots.cable,
+                    slots.winch)  # fmt: skip
 
 
 def hinge_blocks(feat: TransitionFeatures, slots: RodSlots, knots: torch.Tensor) -> torch.Tensor:

@@ -48,6 +48,7 @@ from tensegrity_env.effects import ControlLag, GroundContact, LinearEffect, Slac
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import Params
 
 DTYPE = torch.float64
@@ -93,6 +94,9 @@ class ExtendedIdentifier(SpringRodIdentifier):
 
     # ------------------------------------------------------------------ fitting
     def fit(self, dataset: Dataset, split: str = "train") -> ExtendedIdentifier:
+        if dataset.topology.n_winches:  # its design has no winding columns
+            raise InputError(f"{dataset.path or 'dataset'}: the robot has winches; the effect "
+                             "regression does not take them (SpringRodIdentifier does)")  # fmt: skip
         needs_reference = (
             any(isinstance(e, (SlackSprings, LinearEffect)) for e in self.effects)
             or self.compression_columns

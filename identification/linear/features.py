@@ -21,6 +21,7 @@ from tensegrity_env.engine.forces import SpringFrame, spring_frames
 from tensegrity_env.engine.integration import step_accelerations
 from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.winch import unit_winding
 from tensegrity_env.topology import Topology
 
 
@@ -39,6 +40,9 @@ class TransitionFeatures:
         control: commands f_u at t, (n, R, 3), world.
         control_arm: control arm r_u at t, (n, R, 3) [m], world.
         cables: acting cable commands at t, (n, C); None without cable actuators.
+        winding: how far each winch has wound its rest length at t per unit ``v_max``,
+            from the trajectory's start, (n, W) [m per m/s]
+            (:func:`tensegrity_env.engine.winch.unit_winding`); None without winches.
     """
 
     accel: torch.Tensor
@@ -50,6 +54,7 @@ class TransitionFeatures:
     control: torch.Tensor
     control_arm: torch.Tensor
     cables: torch.Tensor | None = None
+    winding: torch.Tensor | None = None
 
     @property
     def n(self) -> int:
@@ -105,6 +110,29 @@ def cable_commands_at(split: Split, index: np.ndarray | None = None) -> torch.Te
     return torch.as_tensor(split.cable_control[flat // T, flat % T])
 
 
+def split_winding(split: Split, lag: torch.Tensor, dt: float) -> torch.Tensor | None:
+    """:func:`~tensegrity_env.engine.winch.unit_winding` of a split's winch commands,
+    (N, T+1, W) [m per m/s], from each trajectory's start (winches at rest) with the
+    motors' lag ``lag`` (W,) [s], one command per sample interval ``dt`` [s]; None
+    without winches."""
+    if split.winch_control is None or split.winch_control.shape[-1] == 0:
+        return None
+    return unit_winding(torch.as_tensor(split.winch_control), lag.double(), dt)
+
+
+def winding_at(
+    split: Split, lag: torch.Tensor, dt: float, index: np.ndarray | None = None
+) -> torch.Tensor | None:
+    """:func:`split_winding` (n, W) [m per m/s] at the flat transitions ``index`` (all
+    when None); None without winches."""
+    moved = split_winding(split, lag, dt)
+    if moved is None:
+        return None
+    T = split.n_transitions
+    flat = np.arange(split.n_trajectories * T) if index is None else np.asarray(index)
+    return moved[flat // T, flat % T]
+
+
 def transition_features(
     topology: Topology,
     s0: State,
@@ -112,9 +140,13 @@ def transition_features(
     control: torch.Tensor,
     dt: float,
     cables: torch.Tensor | None = None,
+    winding: torch.Tensor | None = None,
 ) -> TransitionFeatures:
     """Compute :class:`TransitionFeatures` for a batch of transitions (``cables``: the
-    acting cable commands (n, C), needed when the topology has cable actuators)."""
+    acting cable commands (n, C), needed when the topology has cable actuators;
+    ``winding``: :func:`winding_at`, zero when None and the topology has winches)."""
+    if topology.n_winches and winding is None:
+        winding = torch.zeros(s0.p.shape[0], topology.n_winches, dtype=s0.p.dtype)
     if topology.n_cables and cables is None:
         cables = torch.zeros(s0.p.shape[0], topology.n_cables, dtype=s0.p.dtype)
     dtype = s0.p.dtype
@@ -140,4 +172,5 @@ def transition_features(
         control=control.to(dtype),
         control_arm=arm_u,
         cables=None if cables is None else cables.to(dtype),
+        winding=None if winding is None else winding.to(dtype),
     )

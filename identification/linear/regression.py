@@ -39,15 +39,18 @@ from identification.linear.features import (
     drawn_transitions,
     transition_features,
     transitions_of,
+    winding_at,
 )
 from identification.linear.native_normal import NativeUnavailable, local_gram_native
 from identification.linear.solve import Solution, fit_linear_network, solve_constrained
 from tensegrity_env.assemblies import cylinder_inertia
 from tensegrity_env.engine import Engine, State
+from tensegrity_env.engine.winch import winch_history
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.params import FIELDS, UNITS, Params
 
-GROUP_UNITS = {**UNITS, "stiffness_rest": "N", "inertia": "kg*m^2"}
+GROUP_UNITS = {**UNITS, "stiffness_rest": "N", "inertia": "kg*m^2",
+               "stiffness_winch_speed": "N/s at command 1"}  # fmt: skip
 FREEZABLE = (
     "stiffness", "damping", "rest_length", "mass", "inertia", "control_gain", "cable_gain"
 )  # fmt: skip
@@ -101,6 +104,13 @@ class SpringRodIdentifier:
         backend: how the normal matrix is built: ``"native"`` (one C pass over the
             states, :mod:`identification.linear.native_normal`), ``"torch"`` (design blocks in
             PyTorch, chunked) or ``"auto"`` (native where a C compiler works).
+        winch_lag: the winch motors' lag [s], one value or one per winch, taken as known
+            (:func:`~identification.linear.winch_lag.fit_winch_lag` searches it); None:
+            ``init_params``' ``winch_lag``, else 0. With winches, each trajectory must
+            start with them at rest at the declared rest lengths, and their rest lengths
+            must stay within range in the data (the winding is linear in ``v_max`` there);
+            ``v_max = (K·v)/K`` per winch. Their range is ``init_params``', else the span
+            of rest lengths the fitted winding covers in the data.
     """
 
     def __init__(
@@ -118,6 +128,7 @@ class SpringRodIdentifier:
         seed: int = 0,
         progress: bool = False,
         backend: str = "auto",
+        winch_lag: float | Sequence[float] | None = None,
     ) -> None:
         if backend not in ("auto", "native", "torch"):
             raise ValueError(f"backend must be 'auto', 'native' or 'torch', got {backend!r}")
@@ -141,6 +152,20 @@ class SpringRodIdentifier:
         self.seed = seed
         self.progress = progress
         self.backend = backend
+        self.winch_lag = winch_lag
+
+    def _winch_lags(self, topology: Any) -> torch.Tensor:
+        """The motors' lag (W,) [s] the fit takes as known (see ``winch_lag``)."""
+        W = topology.n_winches
+        if self.winch_lag is not None:
+            lag = torch.as_tensor(np.broadcast_to(np.asarray(self.winch_lag, float), (W,)).copy())
+        elif self.init_params is not None and self.init_params.winch_lag.numel() == W:
+            lag = self.init_params.winch_lag.detach().double().clone()
+        else:
+            lag = torch.zeros(W, dtype=torch.float64)
+        if not (torch.isfinite(lag).all() and (lag >= 0).all()):
+            raise InputError(f"winch_lag must be finite and >= 0 s, got {lag.tolist()}")
+        return lag
 
     # ------------------------------------------------------------------ fitting
     def fit(self, dataset: Dataset, split: str = "train") -> SpringRodIdentifier:
@@ -153,6 +178,11 @@ class SpringRodIdentifier:
             )
         topology = dataset.topology
         layout = ParameterLayout.build(topology, self.shared, self.fit_rest_length)
+        self.winch_lag_ = self._winch_lags(topology)
+        self._winding = winding_at(data, self.winch_lag_, dataset.dt)  # (N*T, W) or None
+        if self._winding is None and topology.n_winches:  # no command log: the motors at rest
+            n = data.n_trajectories * data.n_transitions
+            self._winding = torch.zeros(n, topology.n_winches, dtype=torch.float64)
         index = self._subset(data)
         normal, n_rows = self._normal_equations(dataset, data, layout, index)
         fixed, mode = self._constraints(layout)
@@ -200,9 +230,10 @@ class SpringRodIdentifier:
         P = layout.n_params
         normal = torch.zeros(P + 1, P + 1, dtype=torch.float64)
         n_rows = len(index) * dataset.topology.n_rods * 6
-        if self.backend == "native" and dataset.topology.n_cables:
-            raise NativeUnavailable("the C normal equations have no cable actuator columns")
-        if self.backend != "torch" and not dataset.topology.n_cables:
+        actuated = dataset.topology.n_cables or dataset.topology.n_winches
+        if self.backend == "native" and actuated:
+            raise NativeUnavailable("the C normal equations have no cable actuator or winch columns")
+        if self.backend != "torch" and not actuated:
             try:
                 gram = local_gram_native(dataset.topology, data, index, slots, g, dataset.dt, rest)
             except NativeUnavailable as e:
@@ -219,7 +250,8 @@ class SpringRodIdentifier:
             chunk = index[start : start + self.chunk_size]
             s0, s1, u = transitions_of(data, chunk)
             cables = cable_commands_at(data, chunk)
-            feat = transition_features(dataset.topology, s0, s1, u, dataset.dt, cables)
+            winding = None if self._winding is None else self._winding[chunk]
+            feat = transition_features(dataset.topology, s0, s1, u, dataset.dt, cables, winding)
             accumulate_normal(rod_blocks(feat, slots, g, rest), slots, P, normal)
         return normal, n_rows
 
@@ -263,6 +295,7 @@ class SpringRodIdentifier:
             "inertia": np.full(3 * R, np.nan),
             "control_gain": np.full(1, np.nan),
             "cable_gain": np.full(topo.n_cables, np.nan),
+            "stiffness_winch_speed": np.full(topo.n_winches, np.nan),
         }
         sizes = {k: len(v) for k, v in values.items()}
         for i, (grp, el) in enumerate(zip(layout.groups, layout.elements, strict=True)):
@@ -302,6 +335,7 @@ class SpringRodIdentifier:
             control_gain=fill["control_gain"][0],
             gravity=self.gravity,
             cable_gain=fill["cable_gain"],
+            **self._winch_values(topo, values, rest),
         )
         rows = []
         for i, (name, grp, el) in enumerate(
@@ -342,7 +376,70 @@ class SpringRodIdentifier:
                 )  # fmt: skip
                 if layout.shared:
                     break
+        for w, spring in enumerate(topo.winches):  # derived winch speeds get their own rows
+            k_i = layout.index("stiffness", spring)
+            kv_i = layout.index("stiffness_winch_speed", w)
+            ok = sol.identifiable[k_i] and sol.identifiable[kv_i]
+            v = float(params.winch_speed[w]) if ok else np.nan
+            rel = np.hypot(stderr[k_i] / theta[k_i], stderr[kv_i] / theta[kv_i]) if ok else np.nan
+            rows.append(
+                ParameterRow(
+                    f"winch_speed[{topo.springs[spring].name}]", "winch_speed", w, v,
+                    float(abs(v) * rel), UNITS["winch_speed"],
+                    "identified" if ok else "not identifiable",
+                    "" if ok else "the data does not wind this cable",
+                )
+            )  # fmt: skip
+        rows += self._winch_rows(topo, params)
         return params, rows
+
+    def _winch_rows(self, topo: Any, params: Params) -> list[ParameterRow]:
+        """Table rows of the winches' lag (taken as known) and range (not seen unless
+        reached)."""
+        given = self.init_params is not None and self.init_params.winch_min.numel() == topo.n_winches
+        note = ("kept from the starting params" if given else
+                "the range is not reached in this data: the span the fitted winding covers")  # fmt: skip
+        rows = []
+        for w, spring in enumerate(topo.winches):
+            name = topo.springs[spring].name
+            rows.append(ParameterRow(f"winch_lag[{name}]", "winch_lag", w,
+                                     float(params.winch_lag[w]), 0.0, UNITS["winch_lag"],
+                                     "frozen", "taken as known"))  # fmt: skip
+            for f in ("winch_min", "winch_max"):
+                rows.append(ParameterRow(f"{f}[{name}]", f, w, float(getattr(params, f)[w]),
+                                         float("nan"), UNITS[f], "not identifiable", note))  # fmt: skip
+        return rows
+
+    def _winch_values(
+        self, topo: Any, values: dict[str, np.ndarray], rest: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """``winch_*`` parameters: ``v_max = (K·v)/K``, the lag taken as known, the range
+        from ``init_params`` or the span the winding covers in the fit data (see the
+        class doc)."""
+        if not topo.n_winches:
+            return {}
+        springs = list(topo.winches)
+        speed = values["stiffness_winch_speed"] / values["stiffness"][springs]
+        init = self.init_params
+        if init is not None and init.winch_speed.numel() == topo.n_winches:  # where not wound
+            speed = np.where(np.isfinite(speed), speed, init.winch_speed.detach().double().numpy())
+        assert self._winding is not None
+        ends = rest[springs] + speed * np.stack(
+            [self._winding.min(0).values.numpy(), self._winding.max(0).values.numpy()]
+        )  # the rest lengths the fitted winding reaches in the data, (2, W) [m]
+        if self.init_params is not None and self.init_params.winch_min.numel() == topo.n_winches:
+            low = self.init_params.winch_min.detach().double().numpy()
+            high = self.init_params.winch_max.detach().double().numpy()
+            out = [topo.springs[s].name for s, a, b, lo, hi in
+                   zip(springs, ends.min(0), ends.max(0), low, high, strict=True)
+                   if a < lo or b > hi]  # fmt: skip
+            if out:
+                warnings.warn(f"winches on {out} reach the end of their range in this data: "
+                              "the regression's winding (no range) is biased there", stacklevel=3)  # fmt: skip
+        else:
+            low, high = np.clip(ends.min(0), 0.0, None), ends.max(0)
+        return {"winch_speed": speed, "winch_min": low, "winch_max": high,
+                "winch_lag": self.winch_lag_.numpy()}  # fmt: skip
 
     def _assumed_values(
         self, topology: Any, mass: np.ndarray
@@ -435,8 +532,15 @@ def evaluate_params(
     idx = drawn_transitions(data, max_one_step, seed)
     s0, s1, u = transitions_of(data, idx)
     cables = cable_commands_at(data, idx)
+    winch_ctrl = None
+    if topology.n_winches:  # each transition starts from the winch state the log gives
+        winch_ctrl = torch.as_tensor(data.winch_control)
+        history = winch_history(topology, params, winch_ctrl, dataset.dt)  # (N, T+1, W, 2)
+        T_all = data.n_transitions
+        s0 = s0.with_winch(history[idx // T_all, idx % T_all])
     with torch.no_grad():
-        pred = engine.step(s0, params, u, cables)
+        pred = engine.step(s0, params, u, cables, None if winch_ctrl is None else
+                           winch_ctrl[idx // data.n_transitions, idx % data.n_transitions])
         one_step = float(torch.linalg.vector_norm(pred.p - s1.p, dim=-1).mean())
         T = data.n_transitions if horizon is None else min(horizon, data.n_transitions)
         init = State.from_numpy(*(getattr(data, k)[:, 0] for k in ("p", "v", "q", "omega")))
@@ -444,7 +548,8 @@ def evaluate_params(
         cable_ctrl = (
             None if data.cable_control is None else torch.as_tensor(data.cable_control[:, :T])
         )
-        roll = engine.rollout(init, params, T, ctrl, cable_ctrl)
+        roll = engine.rollout(init, params, T, ctrl, cable_ctrl,
+                              None if winch_ctrl is None else winch_ctrl[:, :T])  # fmt: skip
         err = torch.linalg.vector_norm(roll.p - torch.as_tensor(data.p[:, : T + 1]), dim=-1)
         curve = err.nanmean(dim=(0, 2)).numpy()  # (samples in a gap: left out)
     return {

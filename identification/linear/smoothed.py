@@ -79,13 +79,16 @@ def parse_anchors(topology: Topology, anchors: Mapping[str, float]) -> dict[tupl
 
 def smoothed_features(
     topology: Topology, s: SmoothedStates, control: np.ndarray, keep: np.ndarray | None = None,
-    cables: np.ndarray | None = None,
+    cables: np.ndarray | None = None, winding: np.ndarray | None = None,
 ) -> TransitionFeatures:  # fmt: skip
     """:class:`TransitionFeatures` at every sample ``t < T`` away from the ends (``s.margin``).
 
     Continuous-time accelerations from the smoothing replace the transition's finite
     differences; ``control`` is (N, T, R, 3), ``cables`` the cable actuators' commands
-    (N, T, C) (None: without cable actuators); ``keep`` (N, T) selects samples (None: all).
+    (N, T, C) (None: without cable actuators), ``winding`` the winches' winding per unit
+    speed at each sample (N, T, W) [m per m/s]
+    (:func:`~tensegrity_env.engine.winch.unit_winding`; None: without winches); ``keep``
+    (N, T) selects samples (None: all).
     Samples whose filter window holds a gap (``s.whole`` False) are never used: their
     accelerations would come from a polynomial fitted across the gap.
     """
@@ -132,6 +135,7 @@ def smoothed_features(
         control=u,
         control_arm=arm_u,
         cables=None if cables is None else pick(cables),
+        winding=None if winding is None else pick(winding),
     )
 
 
@@ -171,6 +175,7 @@ def smoothed_regression(
     cables: np.ndarray | None = None,
     pivots: np.ndarray | None = None,
     radius: np.ndarray | None = None,
+    winding: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
     """Stage 1: linear regression on end caps smoothed by
     :func:`~identification.data.end_caps.smooth_rod_states`.
@@ -188,9 +193,13 @@ def smoothed_regression(
     (:func:`~identification.linear.design.hinge_blocks`), returned as ``compression_stiffness``
     with its standard error ``compression_stiffness_se`` (S,) [N/m].
     ``cables`` (N, T, C): the cable actuators' commands (a robot with cable actuators).
-    Returns natural-unit values: ``stiffness``, ``damping``, ``rest_length`` (S,),
-    ``mass``, ``inertia_perp`` (R,), ``control_gain`` (1,) and ``cable_gain`` (C,); NaN
-    where the regression cannot tell. Samples near the ends, where the filter extrapolates, are not used.
+    ``winding`` (N, T, W) [m per m/s]: how far each winch has wound at each sample per
+    unit ``v_max`` (:func:`~tensegrity_env.engine.winch.unit_winding` of the command log
+    with the motors' lag; a robot with winches, whose rest lengths stay within range).
+    Returns natural-unit values: ``stiffness``, ``damping``, ``rest_length`` (S,; a wound
+    spring's at the start), ``mass``, ``inertia_perp`` (R,), ``control_gain`` (1,),
+    ``cable_gain`` (C,), ``winch_speed`` (W,) [m/s] and the residual sum of squares
+    ``rss`` (1,); NaN where the regression cannot tell. Samples near the ends, where the filter extrapolates, are not used.
     Anchors (see :func:`parse_anchors`) fix the scale; without one it is ``mass`` of the
     first rod = 1.
     """
@@ -203,7 +212,9 @@ def smoothed_regression(
         keep = used_rods.any(-1) if keep is None else keep & used_rods.any(-1)
     if topo.n_cables and cables is None:
         cables = np.zeros((*control.shape[:2], topo.n_cables))
-    feat = smoothed_features(topo, smooth, control, keep, cables)
+    if topo.n_winches and winding is None:
+        raise InputError(f"{topo.name}: the robot has winches; give their winding (the command log)")
+    feat = smoothed_features(topo, smooth, control, keep, cables, winding)
     P = layout.n_params
     S = topo.n_springs if knots is not None else 0
     blocks = rod_blocks(feat, slots, torch.tensor(gravity, dtype=DTYPE))
@@ -246,7 +257,8 @@ def smoothed_regression(
     sol = solve_constrained(normal[:-1, :-1], fixed, n_rows)
     th: dict[str, list[float]] = {
         g: []
-        for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain", "cable_gain")
+        for g in ("mass", "inertia", "stiffness", "stiffness_rest", "damping", "control_gain",
+                  "cable_gain", "stiffness_winch_speed")
     }
     for value, group in zip(sol.theta[:P], layout.groups, strict=True):
         th[group].append(value)
@@ -263,4 +275,7 @@ def smoothed_regression(
             "inertia_perp": np.where(count > 0, np.where(perp, inertia, 0).sum(1) / count, np.nan),
             "control_gain": np.array(th["control_gain"]),
             "cable_gain": np.array(th["cable_gain"]),
+            "winch_speed": np.array(th["stiffness_winch_speed"])
+            / np.array(th["stiffness"])[list(topo.winches)],
+            "rss": np.array([sol.rss]),
         } | (hinge if S else {})

@@ -17,16 +17,20 @@ def error_text(x: float, spec: str = ".3g", unit: str = "m", scale: float = 1.0)
 
 
 def truth_value(row: ParameterRow, truth: Params, scale: float = 1.0) -> float:
-    """The true value of a table row (divided by ``scale`` for ratio results)."""
+    """The true value of a table row (divided by ``scale`` for ratio results); NaN for
+    ``K·v`` of a winch (compared through its ``winch_speed`` row)."""
     t = truth.numpy()
     el = max(row.element, 0)
+    if row.group == "stiffness_winch_speed":
+        return float("nan")
     if row.group == "stiffness_rest":
         value = t["stiffness"][el] * t["rest_length"][el]
     elif row.group == "inertia":
         value = np.ravel(t["inertia"])[el]
     else:
         value = np.ravel(t[row.group])[el]
-    return float(value) if row.group == "rest_length" else float(value) / scale
+    scale_free = row.group in ("rest_length", "winch_speed", "winch_lag", "winch_min", "winch_max")
+    return float(value) if scale_free else float(value) / scale
 
 
 def relative_errors(

@@ -50,6 +50,7 @@ from identification.simulation.truth import (
     sample_cable_commands,
     sample_controls,
     sample_initial_conditions,
+    sample_winch_commands,
 )
 from tensegrity_env import assemblies
 from tensegrity_env.mujoco_state import rod_state_to_mj
@@ -58,16 +59,24 @@ from tensegrity_env.topology import Topology
 
 # ---------------------------------------------------------------------- rollout
 def ctrl_vectors(
-    truth: Truth, commands: np.ndarray, cables: np.ndarray | None = None
+    truth: Truth,
+    commands: np.ndarray,
+    cables: np.ndarray | None = None,
+    winches: np.ndarray | None = None,
 ) -> np.ndarray:
     """MuJoCo ``ctrl`` arrays (n, T, nu) from per-rod commands (n, T, R, 3) and cable
-    commands (n, T, C)."""
+    commands (n, T, C); with winch commands (n, T, W), those follow: (n, T, nu + W) (what
+    :meth:`~identification.simulation.rollout.Roller.run` takes)."""
     act = truth.asm.actuators
-    ctrl = np.zeros((*commands.shape[:2], truth.model.nu))
+    nu = truth.model.nu
+    W = 0 if winches is None else winches.shape[-1]
+    ctrl = np.zeros((*commands.shape[:2], nu + W))
     has = act >= 0
     ctrl[:, :, act[has]] = commands[:, :, has]
     if cables is not None:
         ctrl[:, :, truth.asm.cable_actuators] = cables
+    if winches is not None:
+        ctrl[:, :, nu:] = winches
     return ctrl
 
 
@@ -87,6 +96,7 @@ def rollout_split(
     bar: Any = None,
     where: str = "",
     cables: np.ndarray | None = None,
+    winches: np.ndarray | None = None,
 ) -> Split:
     """Roll out one split and convert it to rod states and end caps.
 
@@ -99,6 +109,8 @@ def rollout_split(
         bar: a tqdm bar updated with the steps done.
         where: label for error messages.
         cables: cable commands (n, T, C), or None without cable actuators.
+        winches: winch commands (n, T, W), or None without winches (then ``roller``
+            needs the model's winch plant).
     """
     n, steps = commands.shape[:2]
     R = truth.topology.n_rods
@@ -113,10 +125,13 @@ def rollout_split(
             bar.update(k * steps)
 
     def controls(lo: int, hi: int) -> np.ndarray:
-        return ctrl_vectors(truth, commands[lo:hi], None if cables is None else cables[lo:hi])
+        return ctrl_vectors(
+            truth, commands[lo:hi], None if cables is None else cables[lo:hi],
+            None if winches is None else winches[lo:hi],
+        )  # fmt: skip
 
     roll_and_convert(roller, frames, init, controls, arrays, chunk, done, where)
-    return Split(control=commands, cable_control=cables, **arrays)
+    return Split(control=commands, cable_control=cables, winch_control=winches, **arrays)
 
 
 # ---------------------------------------------------------------------- checks
@@ -200,14 +215,16 @@ def split_rng(seed: int, split: str) -> np.random.Generator:
 
 def split_inputs(
     truth: Truth, spec: GenerateSpec, split: str, n: int
-) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray | None]:
-    """Initial rod states, control commands and cable commands (None without cable
-    actuators) of one split, seeded by (seed, split)."""
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Initial rod states, control commands, cable commands (None without cable
+    actuators) and winch commands (None without winches) of one split, seeded by
+    (seed, split)."""
     rng = split_rng(spec.seed, split)
     states = sample_initial_conditions(truth, n, rng, spec.initial)
     commands = sample_controls(truth, n, spec.steps, spec.control_std, spec.control_hold, rng)
     cables = sample_cable_commands(truth, n, spec.steps, spec.control_std, spec.control_hold, rng)
-    return states, commands, cables
+    winches = sample_winch_commands(truth, n, spec.steps, spec.control_std, spec.control_hold, rng)
+    return states, commands, cables, winches
 
 
 def generate(spec: GenerateSpec, progress: bool = False) -> GenerateResult:
@@ -218,15 +235,16 @@ def generate(spec: GenerateSpec, progress: bool = False) -> GenerateResult:
     total = sum(counts.values()) * spec.steps
     splits: dict[str, Split] = {}
     with (
-        Roller(truth.model, spec.threads) as roller,
+        Roller(truth.model, spec.threads, truth.asm.mj_winches() if truth.topology.n_winches
+               else None) as roller,
         tqdm(total=total, unit="step", unit_scale=True, disable=None if progress else True) as bar,
     ):
         for name, n in counts.items():
             bar.set_description(name)
-            states, commands, cables = split_inputs(truth, spec, name, n)
+            states, commands, cables, winches = split_inputs(truth, spec, name, n)
             splits[name] = rollout_split(
                 truth, roller, states, commands, spec.chunk, bar, f"{spec.source_name} {name}",
-                cables,
+                cables, winches,
             )  # fmt: skip
         threads, rollout_s = roller.threads, roller.seconds
     spring_std, spring_ratio = spring_excitation(truth, splits)

@@ -1,7 +1,9 @@
 """MuJoCo's multi-threaded batched rollout, converted to rod states and end caps.
 
 :class:`Roller` wraps :mod:`mujoco.rollout` (a thread pool and one ``MjData`` per
-thread, reused across calls). :class:`RodFrames` turns MuJoCo's free-joint
+thread, reused across calls; a model with winches is stepped one ``mj_step`` at a time
+instead, by its winch plant :class:`~tensegrity_env.mjcf.winches.MjWinches`, since MuJoCo
+cannot wind a rest length itself). :class:`RodFrames` turns MuJoCo's free-joint
 ``(qpos, qvel)`` into rod states in each rod's principal frame and end-cap
 positions, vectorized over any leading dimensions; it computes exactly what
 :func:`tensegrity_env.mujoco_state.mj_to_rod_state` and
@@ -25,6 +27,7 @@ from mujoco import rollout as mj_rollout
 
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly
+from tensegrity_env.mjcf.winches import MjWinches
 from tensegrity_env.rotations import np_quat_mul, np_quat_to_matrix
 
 
@@ -62,11 +65,16 @@ class Roller:
     Args:
         model: the compiled model.
         threads: rollout threads (None: every available core).
+        winches: the model's winch plant (it sets ``tendon_lengthspring`` of ``model``
+            each step); with it, :meth:`run` steps in one thread, in Python.
     """
 
-    def __init__(self, model: mujoco.MjModel, threads: int | None = None) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, threads: int | None = None, winches: MjWinches | None = None
+    ) -> None:
         self.model = model
-        self.threads = threads or default_threads()
+        self.winches = winches
+        self.threads = 1 if winches is not None else threads or default_threads()
         self.layout = StateLayout.of(model)
         self.seconds = 0.0  # wall time spent inside MuJoCo's rollout
         self._pool = mj_rollout.Rollout(nthread=self.threads)
@@ -93,14 +101,19 @@ class Roller:
     def run(self, init: np.ndarray, ctrl: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """States after steps 1..T, (n, T, nstate), from initial states (n, nstate).
 
-        ``ctrl`` is (n, T, nu); ``out``, if given, must be C-contiguous (n, T, nstate).
-        Warm starts are reset to zero for every trajectory, so a trajectory does not
-        depend on which thread ran it before.
+        ``ctrl`` is (n, T, nu), followed by the W winch commands (n, T, nu + W) with
+        winches (each trajectory starts with its winches at rest); ``out``, if given,
+        must be C-contiguous (n, T, nstate). Warm starts are reset to zero for every
+        trajectory, so a trajectory does not depend on which thread ran it before.
         """
         n, steps = ctrl.shape[:2]
         if out is None:
             out = np.empty((n, steps, self.layout.size))
         t0 = time.perf_counter()
+        if self.winches is not None:
+            self._run_winches(init, ctrl, out)
+            self.seconds += time.perf_counter() - t0
+            return out
         state, _ = self._pool.rollout(
             self.model,
             self._datas,
@@ -113,6 +126,21 @@ class Roller:
         )
         self.seconds += time.perf_counter() - t0
         return state
+
+    def _run_winches(self, init: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`run` one ``mj_step`` at a time, the winches winding between steps."""
+        assert self.winches is not None
+        m, d, nu = self.model, self._datas[0], self.model.nu
+        full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        rest = self.winches.plan(ctrl[..., nu:])  # (n, T, W): winding needs the commands only
+        for i in range(init.shape[0]):
+            mujoco.mj_resetData(m, d)
+            mujoco.mj_setState(m, d, np.ascontiguousarray(init[i]), full)
+            for t in range(ctrl.shape[1]):
+                d.ctrl[:] = ctrl[i, t, :nu]
+                self.winches.apply(rest[i, t])
+                mujoco.mj_step(m, d)
+                mujoco.mj_getState(m, d, out[i, t], full)
 
     def check(self, states: np.ndarray, first: int = 0, where: str = "") -> None:
         """Raise :class:`InputError` if a trajectory diverged.

@@ -213,11 +213,12 @@ def sample_controls(
     Each command is Gaussian (a random direction and size per rod). Axes without an
     actuator get 0, and commands are clipped to actuator control ranges, so the
     array is exactly what was applied. A model whose only actuators are cable
-    actuators gets zero f_u (its commands come from :func:`sample_cable_commands`).
+    actuators or winches gets zero f_u (its commands come from
+    :func:`sample_cable_commands` and :func:`sample_winch_commands`).
     """
     R = truth.topology.n_rods
     act = truth.asm.actuators
-    if std == 0 or (np.all(act < 0) and truth.topology.n_cables):
+    if std == 0 or (np.all(act < 0) and (truth.topology.n_cables or truth.topology.n_winches)):
         return np.zeros((n, steps, R, 3))
     if np.all(act < 0):
         raise InputError(
@@ -243,6 +244,20 @@ def sample_cable_commands(
     cmd = held_normal(truth, (n, steps, C), std, hold, rng)
     clip_to_ctrlrange(truth.model, cmd, truth.asm.cable_actuators)
     return cmd
+
+
+def sample_winch_commands(
+    truth: Truth, n: int, steps: int, std: float, hold: float, rng: np.random.Generator
+) -> np.ndarray | None:
+    """Piecewise-constant random winch commands, (n, steps, W), like
+    :func:`sample_cable_commands`, clipped to the motors' range [-1, 1]; None without
+    winches (no random numbers drawn then)."""
+    W = truth.topology.n_winches
+    if W == 0:
+        return None
+    if std == 0:
+        return np.zeros((n, steps, W))
+    return np.clip(held_normal(truth, (n, steps, W), std, hold, rng), -1.0, 1.0)
 
 
 def held_normal(

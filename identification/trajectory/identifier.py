@@ -158,6 +158,9 @@ class TrajectoryIdentifier:
 
     def fit(self, dataset: Dataset, split: str = "train") -> TrajectoryIdentifier:
         """Identify the parameters from the end caps (and control) of ``split``."""
+        if dataset.topology.n_winches:  # the windows do not carry a winch state
+            raise InputError(f"{dataset.path or 'dataset'}: the robot has winches; the "
+                             "trajectory fit does not take them yet")  # fmt: skip
         threads = torch.get_num_threads()
         try:
             if self.threads is not None:

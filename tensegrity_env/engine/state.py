@@ -20,12 +20,16 @@ class State:
         q: orientations of each rod's principal frame, unit quaternions (w, x, y, z),
             (B, R, 4); ``x_world = R(q) x_rod``.
         omega: angular velocities, (B, R, 3) [rad/s], **world frame**.
+        winch: the winches' state, (B, W, 2): each wound spring's rest length [m] and its
+            motor's winding speed [m/s] (:mod:`tensegrity_env.engine.winch`); None
+            without winches, or for winches at rest at their declared rest lengths.
     """
 
     p: torch.Tensor
     v: torch.Tensor
     q: torch.Tensor
     omega: torch.Tensor
+    winch: torch.Tensor | None = None
 
     @classmethod
     def from_numpy(
@@ -52,7 +56,8 @@ class State:
     def to(
         self, dtype: torch.dtype | None = None, device: str | torch.device | None = None
     ) -> State:
-        return State(*(x.to(dtype=dtype, device=device) for x in self.tensors()))
+        winch = None if self.winch is None else self.winch.to(dtype=dtype, device=device)
+        return State(*(x.to(dtype=dtype, device=device) for x in self.tensors()), winch=winch)
 
     def rotation(self) -> torch.Tensor:
         """``R(q)``, (B, R, 3, 3): the matrix the integrator computed for this state
@@ -66,16 +71,28 @@ class State:
         object.__setattr__(self, "_rotation", rot)
         return self
 
+    def with_winch(self, winch: torch.Tensor | None) -> State:
+        """This rod state with the winch state ``winch`` (B, W, 2) (keeps :meth:`rotation`)."""
+        out = State(*self.tensors(), winch=winch)
+        rot = self.__dict__.get("_rotation")
+        return out if rot is None else out.remember_rotation(rot)
+
     def tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The rod tensors ``(p, v, q, omega)`` (not the winch state)."""
         return (self.p, self.v, self.q, self.omega)
 
     def index(self, idx: torch.Tensor | slice | int) -> State:
         """Select batch entries (keeps the batch dimension for tensor/slice indices)."""
-        return State(*(x[idx] for x in self.tensors()))
+        winch = None if self.winch is None else self.winch[idx]
+        return State(*(x[idx] for x in self.tensors()), winch=winch)
 
     @staticmethod
     def stack(states: list[State], dim: int = 1) -> State:
-        """Stack a sequence of states along a new time dimension: (B, T, R, ·)."""
+        """Stack a sequence of states along a new time dimension: (B, T, R, ·); the winch
+        states too where every state has one."""
+        winches = [s.winch for s in states]
+        winch = None if any(w is None for w in winches) else torch.stack(winches, dim=dim)  # type: ignore[arg-type]
         return State(
-            *(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=False))
+            *(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=False)),
+            winch=winch,
         )

@@ -26,6 +26,7 @@ from tensegrity_env.engine.forces import (
 from tensegrity_env.engine.integration import semi_implicit_euler
 from tensegrity_env.engine.kinematics import AttachmentPoints, Kinematics, node_kinematics
 from tensegrity_env.engine.state import State
+from tensegrity_env.engine.winch import initial_winch_state, winch_step, wound_rest_lengths
 from tensegrity_env.native.engine_step import NativeEngineStep
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -104,10 +105,14 @@ class Engine:
         self.cable_springs = torch.as_tensor(
             topology.cable_actuators, dtype=torch.long, device=self.device
         )  # (C,): the spring each cable actuator drives
+        self.winch_springs = torch.as_tensor(
+            topology.winches, dtype=torch.long, device=self.device
+        )  # (W,): the spring each winch winds
         # the step by the C kernel where it applies, with its cache of packed models
         self.native_step = (
             NativeEngineStep(topology, self.effects, self.substeps, self.physics_dt,
-                             bool(self.cable_springs.numel()))
+                             bool(self.cable_springs.numel()),
+                             has_winches=bool(self.winch_springs.numel()))
             if self.native
             else None
         )  # fmt: skip
@@ -208,19 +213,34 @@ class Engine:
         params: Params,
         control: torch.Tensor | None = None,
         cables: torch.Tensor | None = None,
+        winches: torch.Tensor | None = None,
     ) -> State:
-        """Advance every assembly in the batch by ``dt``, in ``substeps`` physics steps."""
+        """Advance every assembly in the batch by ``dt``, in ``substeps`` physics steps.
+
+        ``winches``: the winch motors' commands, (B, W) in [-1, 1] (clipped; None holds
+        them at 0). With winches the returned state carries the winch state
+        (:attr:`State.winch`); a state without one starts from
+        :func:`~tensegrity_env.engine.winch.initial_winch_state`.
+        """
         if self.native_step is not None:
             x = self.native_step(state.tensors(), params, control, cables)
             if x is not None:
                 return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
+        winch = state.winch
+        if winch is None and self.winch_springs.numel():
+            winch = initial_winch_state(self.topology, params, state.batch_size)
         for _ in range(self.substeps):
-            accel, alpha_l, omega_l = self.accelerations(state, params, control, cables)
+            # forces with the rest lengths at the step's start (wound springs from the winch state)
+            acting = params if winch is None else wound_rest_lengths(params, self.winch_springs, winch)
+            accel, alpha_l, omega_l = self.accelerations(state, acting, control, cables)
             # integration: semi-implicit Euler (MuJoCo's Euler integrator)
             state = semi_implicit_euler(
                 state, accel, alpha_l, omega_l, self.physics_dt, self.frame_origins
             )
-        return state
+            # winding: the rest lengths follow the motors
+            if winch is not None:
+                winch = winch_step(winch, params, winches, self.physics_dt)
+        return state if winch is None else state.with_winch(winch)
 
     def rollout(
         self,
@@ -229,12 +249,16 @@ class Engine:
         n_steps: int,
         control: torch.Tensor | None = None,
         cables: torch.Tensor | None = None,
+        winches: torch.Tensor | None = None,
     ) -> State:
         """States at steps 0..n_steps, stacked on dim 1: (B, n_steps + 1, R, ·).
 
         ``control`` is (B, n_steps, R, 3) or None; ``cables`` the acting cable commands
-        (B, n_steps, C) or None.
+        (B, n_steps, C) or None; ``winches`` the winch motors' commands (B, n_steps, W)
+        or None. With winches, the stacked winch states are (B, n_steps + 1, W, 2).
         """
+        if self.winch_springs.numel() and state.winch is None:
+            state = state.with_winch(initial_winch_state(self.topology, params, state.batch_size))
         states = [state]
         for t in range(n_steps):
             state = self.step(
@@ -242,6 +266,7 @@ class Engine:
                 params,
                 None if control is None else control[:, t],
                 None if cables is None else cables[:, t],
+                None if winches is None else winches[:, t],
             )
             states.append(state)
         return State.stack(states, dim=1)

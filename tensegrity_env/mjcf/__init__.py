@@ -14,7 +14,10 @@ The convention (DESIGN.md) that any MJCF must follow to be read:
 * optional **control**: ``general`` actuators with a site transmission on a rod site
   (the arm ``r_u``) and a ``refsite`` on the world body (so the force direction is fixed
   in the world); the actuator gain is the control gain ``h`` and belongs to the ground
-  truth only.
+  truth only;
+* optional **winches**: a custom numeric ``winch:<tendon>`` with ``v_max l_min l_max
+  [tau]`` makes that spring a winch cable whose rest length its motor winds
+  (:mod:`.winches`).
 
 Rods are written with an explicit ``<inertial>`` (principal axes = body axes), so
 ``M`` and ``I`` are exactly the parameters. Reading takes each rod's mass, centre of

@@ -22,6 +22,7 @@ from tensegrity_env.mjcf.end_caps import (
     mj_name,
     named_sites,
 )
+from tensegrity_env.mjcf.winches import MjWinches, winches_of
 from tensegrity_env.mjcf.writer import SimOptions
 from tensegrity_env.mjcf_checks import (
     Unsupported,
@@ -100,6 +101,11 @@ class MjcfAssembly:
             effects.append(ImplicitLinearDrag(self.topology, translational=d, rotational=d))
         return effects
 
+    def mj_winches(self) -> MjWinches:
+        """The MuJoCo plant of the file's winches (sets ``tendon_lengthspring`` of
+        :attr:`model` each step; see :mod:`tensegrity_env.mjcf.winches`)."""
+        return MjWinches(self.model, self.topology, self.params, self.slack_springs)
+
 
 def mujoco_error(e: ValueError) -> str:
     """MuJoCo's error on loading a model, on one line, led by the line of the file it
@@ -161,6 +167,7 @@ def from_mjcf(
     actuators = -np.ones((len(rod_bodies), 3), dtype=int)
     gains: list[float] = []
     cables = cable_actuators_of(m, src)
+    winches = winches_of(m, src)
     for a in range(m.nu):
         if m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_SITE:
             continue
@@ -284,6 +291,7 @@ def from_mjcf(
             anchors=tuple(anchors),  # type: ignore[arg-type]
             name=m.names[: m.names.index(b"\0")].decode() or "assembly",
             cable_actuators=tuple(int(m.actuator_trnid[a, 0]) for a in cables.ids),
+            winches=tuple(winches.tendons),
         )
     except TopologyError as e:
         raise InputError(f"{src}: {e}") from None
@@ -317,6 +325,7 @@ def from_mjcf(
         control_gain=gains[0] if gains else 1.0,
         gravity=m.opt.gravity.copy(),
         cable_gain=[m.actuator_gainprm[a, 0] * m.actuator_gear[a, 0] for a in cables.ids],
+        **winches.values,
     )
     bad = [f for f, v in params.numpy().items() if not np.all(np.isfinite(v))]
     if not (np.isfinite(m.opt.timestep) and m.opt.timestep > 0):

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from tensegrity_env.mjcf.winches import winch_numerics
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_env.topology import Topology
@@ -159,6 +160,10 @@ def to_mjcf(
                 act, "general", name=f"{topology.springs[s].name}_cable",
                 tendon=topology.springs[s].name, gainprm=_f(P["cable_gain"][c]), **lag,
             )  # fmt: skip
+    if topology.winches:  # the winch convention of tensegrity_env.mjcf.winches
+        custom = ET.SubElement(root, "custom")
+        for name, data in winch_numerics(topology, params):
+            ET.SubElement(custom, "numeric", name=name, data=data)
     ET.indent(root)
     return ET.tostring(root, encoding="unicode")
 

@@ -4,7 +4,7 @@ An :class:`~tensegrity_env.engine.Engine` built with ``native=True`` hands a ste
 :class:`NativeEngineStep` (the kernel ``native_step.c``: the engine's physics written out
 per assembly) when the kernel computes the same thing: no gradient wanted through the
 state, the parameters or the effects, float64 on the CPU, no cable commands, a kernel
-that builds, and a model :func:`~tensegrity_env.native.pack.pack_model` packs (only
+that builds, no winches, and a model :func:`~tensegrity_env.native.pack.pack_model` packs (only
 effects the kernel has, each with the shapes it takes). Parameters with a batch
 dimension (a forward-difference Jacobian's perturbed copies) are stepped in runs of
 consecutive assemblies that share them, one model per run. Otherwise the step runs in
@@ -37,6 +37,8 @@ from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 LOG = logging.getLogger("tensegrity_env.native")
+#: the fallback reason of a model with winches: the kernel has no winch state
+WINCHES = "winch cables (the kernel does not wind rest lengths)"
 
 __all__ = ["FallbackLog", "ModelCache", "NativeEngineStep"]
 
@@ -99,6 +101,7 @@ class NativeEngineStep:
         substeps: physics steps per step, each ``physics_dt`` [s] long.
         has_cables: whether the topology has cable actuators (their commands are
             stepped in PyTorch).
+        has_winches: whether the topology has winches (stepped in PyTorch).
     """
 
     def __init__(
@@ -108,11 +111,13 @@ class NativeEngineStep:
         substeps: int,
         physics_dt: float,
         has_cables: bool,
+        has_winches: bool = False,
     ) -> None:
         self.topology = topology
         self.effects = tuple(effects)
         self.substeps, self.physics_dt = int(substeps), float(physics_dt)
         self.has_cables = bool(has_cables)
+        self.has_winches = bool(has_winches)
         self.cache = ModelCache()
         self.fallbacks = FALLBACKS
         # the springs' node pairs (S, 2) as the kernel takes them
@@ -141,6 +146,8 @@ class NativeEngineStep:
         control: torch.Tensor | None,
         cables: torch.Tensor | None,
     ) -> torch.Tensor:
+        if self.has_winches:
+            raise NotNative(WINCHES)
         if cables is not None and self.has_cables:
             raise NotNative("cable commands")
         B, R = state[0].shape[:2]

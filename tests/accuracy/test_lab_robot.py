@@ -1,4 +1,4 @@
-"""The shipped lab prism (sphere end caps, cables on the cap surfaces, filtered cable
+"""The lab prism with force actuators (sphere end caps, cables on the cap surfaces, filtered cable
 actuators, a floor): the residual loop finds both the floor contact and the filter from
 the data and recovers what the file says."""
 
@@ -17,7 +17,7 @@ from tensegrity_env.model import Model
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
-ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "lab_prism.xml"
+ROBOT = Path(__file__).resolve().parents[2] / "tensegrity_env" / "assets" / "lab_prism_force_actuators.xml"
 
 
 def test_floor_contact_and_actuator_filter_found_together() -> None:

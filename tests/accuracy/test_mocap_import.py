@@ -218,7 +218,7 @@ def test_logged_cable_commands_drive_the_robot_along_its_imported_end_caps(tmp_p
     hold one frame late, or no commands, does not."""
     import re
 
-    xml = re.sub(r'<geom name="floor"[^>]*/>', "", (ROBOT.parent / "lab_prism.xml").read_text())
+    xml = re.sub(r'<geom name="floor"[^>]*/>', "", (ROBOT.parent / "lab_prism_force_actuators.xml").read_text())
     xml = xml.replace(' dyntype="filter" dynprm="0.03"', "")  # force actuators, no lag
     rng = np.random.default_rng(9)
     log_t = np.arange(40) / 40.0

@@ -76,7 +76,7 @@ from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.negligible import NEGLIGIBLE
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
-from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
+from identification.discovery.scorer import CandidateSkipped, LoopScorer, Residual
 from identification.discovery.slack_hypothesis import fit_slack, slack_hypothesis
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
@@ -115,7 +115,7 @@ SECOND_LOOKS = 2
 RIVALS = {"linear_drag": "quadratic_drag", "quadratic_drag": "linear_drag"}
 
 
-class MultiStepScorer(Scorer[EndCapFits]):
+class MultiStepScorer(LoopScorer[EndCapFits]):
     """Scores candidates by multi-step prediction of end caps (see the module docstring).
 
     Args:

@@ -368,10 +368,10 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         assert proposal.effect is not None
         left_out = {proposal.name, *drop}
         others = [e for e in now.effects
-                  if not isinstance(e, GroundContact) and e.name not in left_out]  # fmt: skip
+                  if not e.constraint and e.name not in left_out]  # fmt: skip
         contact = self.contact
         if proposal.start is not None:
-            contact = next((e for e in now.effects if isinstance(e, GroundContact)), contact)
+            contact = next((e for e in now.effects if e.constraint), contact)
         floor = floor_fit(data, s, self.start, [*others, proposal.effect], values=proposal.start,
                           contact=contact)  # fmt: skip
         fit = fit_trajectory(data, floor.fit.vec, now.windows, floor.fit.theta, s.candidate_iter)
@@ -488,7 +488,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         (:meth:`fitted_on`) where it stopped short of fitting the data.
         """
         data, s = self.data, self.settings
-        effects = [e for e in screened.effects if not isinstance(e, GroundContact)]
+        effects = [e for e in screened.effects if not e.constraint]
         tasks: list[Callable[[], Any]] = [
             lambda: fit_many(data, screened.vec, screened.theta, s, s.base_iter)
         ]

@@ -184,6 +184,9 @@ class PhysicalEffect(EffectBase):
     native: ClassVar[NativeForm | None] = None
     #: why the kernel does not compute it (logged once when a step falls back to PyTorch)
     no_native: ClassVar[str] = "its class declares none"
+    #: whether it acts on the command sequence before a rollout (``filter_commands``,
+    #: control lag) rather than through a wrench in each step
+    filters_commands: ClassVar[bool] = False
     #: how a MuJoCo model carries it; None: not by one attribute (see the planted data)
     plant: ClassVar[MujocoPlant | None] = None
 

@@ -35,6 +35,7 @@ class ControlLag(PhysicalEffect):
     gate: ClassVar[Gate] = Gate("control commands are applied", needs="commands")
     #: given τ the model is linear: a search over τ, the regression refitting the rest
     fit_form: ClassVar[FitForm] = FitForm(route="search")
+    filters_commands: ClassVar[bool] = True
     no_native: ClassVar[str] = "it filters the commands before a rollout, not inside a step"
 
     def filter_commands(

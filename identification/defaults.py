@@ -57,6 +57,7 @@ PLANTS: dict[str, dict[str, float]] = {
     "linear_drag": {"weak": 0.1, "moderate": 0.5, "strong": 2.0},
     "slack_springs": {"weak": 6, "moderate": 12, "strong": 24},
     "joint_damping": {"weak": 0.05, "moderate": 0.4, "strong": 1.0},
+    "spring_friction": {"weak": 0.2, "moderate": 1.0, "strong": 3.0},
 }
 STRENGTH_UNITS = {
     "none": "",
@@ -65,6 +66,7 @@ STRENGTH_UNITS = {
     "linear_drag": "fluid viscosity [Pa*s]",
     "slack_springs": "cable springs",
     "joint_damping": "free-joint damping [N*s/m and N*m*s]",
+    "spring_friction": "tendon friction loss [N]",
 }
 
 #: the sizes of the paper's experiments, the keys of

@@ -17,13 +17,14 @@ ASSEMBLY_NAMES: tuple[str, ...] = ("icosahedron", "element")
 #: the candidate effects, the keys of :data:`tensegrity_env.effects.EFFECTS` in its order
 EFFECT_NAMES: tuple[str, ...] = (
     "ground_contact",
+    "slack_springs",
     "linear_drag",
     "quadratic_drag",
-    "slack_springs",
     "force_field",
     "cubic_stiffness",
     "rest_length_offset",
     "control_lag",
+    "spring_friction",
 )
 
 #: every refusable feature and why the model cannot honour it (the ``--ignore`` names)

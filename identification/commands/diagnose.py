@@ -174,11 +174,11 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from identification.data.dataset import read_dataset, read_ground_truth
-    from identification.data.end_caps import check_caps_seen, with_measured_states
+    from identification.data.end_caps import check_caps_seen
     from identification.data.sample_grid import on_nominal_grid
+    from identification.discovery.choose import choose_scorer, uses_trajectories
     from identification.discovery.loop import EffectDiscovery
     from identification.discovery.report import fmt_unit, ratio, write_params, write_report
-    from identification.discovery.scorer import Scorer
     from identification.trajectory.floor_evidence import contact_evidence
     from tensegrity_env.effects import GroundContact
 
@@ -197,8 +197,7 @@ def run(args: argparse.Namespace) -> int:
         print(grid.text(raw.dt))
     for name, split in raw.splits.items():
         check_caps_seen(split.nodes, raw.topology, f"{args.dataset}: split '{name}'")
-    end_caps_only = not all(s.has_states for s in raw.splits.values())
-    multi_step = args.method == "trajectory" or (args.method == "auto" and end_caps_only)
+    multi_step = uses_trajectories(raw, args.method)
     if multi_step and any(s.has_cable_commands for s in raw.splits.values()):
         raise InputError(f"{args.dataset}: cable actuator commands: the trajectory method of "
                          "diagnose does not apply them (identify does, in free flight)")  # fmt: skip
@@ -206,12 +205,8 @@ def run(args: argparse.Namespace) -> int:
     bad = [n for n in names or [] if n not in EFFECT_NAMES]
     if bad:
         raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECT_NAMES)})")
-    scorer: Scorer[Any]
-    if multi_step:
-        dataset, scorer = raw, multi_step_scorer(args, raw)
-    else:
-        dataset = with_measured_states(raw, args.smoothing)
-        scorer = one_step_scorer(args, dataset)
+    dataset, scorer = choose_scorer(raw, args.method, lambda d: one_step_scorer(args, d),
+                                    lambda d: multi_step_scorer(args, d), args.smoothing)  # fmt: skip
     t0 = time.perf_counter()
     # the report is assembled in a temporary folder, moved to --output only when complete
     with atomic_dir(args.output) as out:

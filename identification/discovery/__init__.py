@@ -13,7 +13,7 @@ from identification.discovery.loop import DiscoveryResult, EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import write_params, write_report
-from identification.discovery.scorer import Scorer
+from identification.discovery.scorer import LoopScorer, Scorer
 
 __all__ = [
     "LIBRARY",
@@ -21,6 +21,7 @@ __all__ = [
     "EffectDiscovery",
     "FitSettings",
     "FittedModel",
+    "LoopScorer",
     "MultiStepScorer",
     "OneStepScorer",
     "Scorer",

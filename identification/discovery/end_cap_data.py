@@ -41,9 +41,9 @@ from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
-#: steps per window of the final fits (declared model's many-window fit excepted): on
-#: noisy linear drag (seed 0) 300-step windows gave one-step 563x and rollout 5810x
-#: where 100-step windows gave 42x and 258x; selection still compares on ``window``
+#: steps per window of the final fits (declared model's many-window fit excepted): long
+#: windows fit a drag better than short ones (docs/decisions.md); selection still
+#: compares on ``window``
 FIT_WINDOW = 300
 
 #: a window whose states, fitted at the selected model, stay above this multiple of the

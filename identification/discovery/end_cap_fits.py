@@ -201,8 +201,8 @@ def fit_with(
     the missing effect drifts to compensate for it, and from there the effect may
     no longer pay. The windows start from ``current``'s fitted states.
     """
-    ordered = [e for e in effects if not isinstance(e, GroundContact)]
-    ordered += [e for e in effects if isinstance(e, GroundContact)]
+    ordered = [e for e in effects if not e.constraint]  # the contact last, as the engine
+    ordered += [e for e in effects if e.constraint]
     origin = current.theta if current.origin is None else current.origin
     axis = held_drag_axis(data)
     vec = replace(current.vec, start=current.vec.full(origin.detach()),
@@ -254,8 +254,8 @@ def screen_with(
     candidate is refitted jointly from it and the BIC counts every parameter of the
     joint model. ``current``'s vector holds the contact as its last effect.
     """
-    ordered = [e for e in effects if not isinstance(e, GroundContact)]
-    contact = [e for e in effects if isinstance(e, GroundContact)]
+    ordered = [e for e in effects if not e.constraint]
+    contact = [e for e in effects if e.constraint]
     axis = held_drag_axis(data)
     theta = current.theta.detach()
     n = current.vec.n_free

@@ -99,8 +99,8 @@ def floor_fit(
     data.on_floor = True
     vec = declared_start(data, s.anchors, start, values, rod_keep=floor_rows(data))
     data.declared_k = int(vec.free.sum())
-    others = [e for e in effects if not isinstance(e, GroundContact)]
-    given = [e for e in effects if isinstance(e, GroundContact)]
+    others = [e for e in effects if not e.constraint]
+    given = [e for e in effects if e.constraint]
     begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE

@@ -62,7 +62,7 @@ class Criteria:
         min_gain: the gain a candidate must reach.
         relative: the gain is a fraction (printed as a percentage), else a number.
         max_separation: a passing runner-up closer than this to the chosen candidate
-            (see :meth:`~identification.discovery.scorer.Scorer.separation`), with
+            (see :meth:`~identification.discovery.scorer.Judged.separation`), with
             correlated predicted changes, cannot be told apart from it.
     """
 

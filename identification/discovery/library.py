@@ -6,8 +6,9 @@ linear effects and slack cables inside the regression
 linear in its parameters) through the engine on short trajectory windows
 (:func:`~identification.trajectory.effect_fit.fit_effect_params`) with the regression's
 parameters held. :func:`propose` lists the candidates of the effect library
-(:data:`LIBRARY`) with their physical gates; :func:`slack_probe` names slack cables
-from the regression on rod states.
+(:data:`LIBRARY`, the registry :data:`tensegrity_env.effects.EFFECTS`) with the physical
+gates their classes declare; :func:`slack_probe` names slack cables from the
+regression on rod states.
 """
 
 from __future__ import annotations
@@ -20,18 +21,8 @@ from scipy.optimize import minimize_scalar
 
 from identification.data.dataset import Dataset, Split
 from identification.linear.extended import ExtendedIdentifier, acting_split
-from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
 from identification.trajectory.effect_fit import fit_effect_params, sample_windows
-from tensegrity_env.effects import (
-    ControlLag,
-    CubicStiffness,
-    ForceField,
-    GroundContact,
-    LinearDrag,
-    QuadraticDrag,
-    RestLengthOffset,
-    SlackSprings,
-)
+from tensegrity_env.effects import EFFECTS, ControlLag, SlackSprings
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
@@ -44,14 +35,6 @@ SLACK_SIGNIFICANCE = 5.0
 #: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
 #: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
 FLOOR_DEPTH = 0.3
-#: the contact fit frees its parameters in stages: the impedance is held at its start
-#: until stiffness, damping and friction are near, then all are fitted. Freed at once from
-#: a far start, the impedance runs to its bound of 1 (where its logit coordinate has no
-#: gradient left) and stiffness and friction settle 10-25 % off.
-CONTACT_STAGES: tuple[tuple[str, ...], ...] = (
-    tuple(k for k in CONTACT_FREE if k != "impedance"),
-    CONTACT_FREE,
-)
 #: control lag time constants tried first [s]
 LAG_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 #: the lag search ends when log τ is known to this (a relative tolerance on τ)
@@ -111,10 +94,16 @@ class FittedModel:
         return self.model.effect_names
 
 
+def _through_engine(e: PhysicalEffect) -> bool:
+    """Whether ``e`` is fitted through the engine after the regression (contact)."""
+    return e.fit_form.route == "engine"
+
+
 def _ordered(effects: Sequence[PhysicalEffect]) -> list[PhysicalEffect]:
-    """Contact last: it reads the springs' tensions after every other effect."""
-    return [e for e in effects if not isinstance(e, GroundContact)] + [
-        e for e in effects if isinstance(e, GroundContact)
+    """Effects fitted through the engine last: contact reads the springs' tensions after
+    every other effect."""
+    return [e for e in effects if not _through_engine(e)] + [
+        e for e in effects if _through_engine(e)
     ]
 
 
@@ -132,14 +121,10 @@ def fit_model(
     fitted = list(est.effects_)
     n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable))
     notes: dict[str, str] = {}
-    contacts = [i for i, e in enumerate(fitted) if isinstance(e, GroundContact)]
-    for i in contacts:
-        fitted, extra = _fit_contact(dataset, est.params_, fitted, i, settings)
-        n += len(CONTACT_FREE)
+    for i in [i for i, e in enumerate(fitted) if _through_engine(e)]:
+        fitted, extra = _fit_through_engine(dataset, est.params_, fitted, i, settings)
         notes[fitted[i].name] = extra
-    for e in fitted:
-        if isinstance(e, ControlLag):
-            n += 1
+    n += sum(e.fit_form.n_extra for e in fitted)
     model = Model(dataset.topology, est.params_, fitted, dataset.dt)
     return FittedModel(model, n, notes, regression_uncertainty(est))
 
@@ -154,7 +139,7 @@ def regression_uncertainty(est: ExtendedIdentifier) -> dict[str, float]:
     }
 
 
-def _fit_contact(
+def _fit_through_engine(
     dataset: Dataset,
     params: Params,
     effects: list[PhysicalEffect],
@@ -165,9 +150,10 @@ def _fit_contact(
     # from the trajectory's start, not at rest
     split = acting_split(effects, dataset.split("train"), dataset.dt)
     fit = None
+    form = effects[i].fit_form
     for length, count in settings.contact_windows:
         windows = sample_windows(split, length, count, seed=settings.seed + length)
-        for names in CONTACT_STAGES:
+        for names in form.stages or (form.free,):
             fit = fit_effect_params(
                 dataset.topology, dataset.dt, params, effects, [(i, k) for k in names], windows,
                 max_iter=settings.contact_iterations,
@@ -186,17 +172,8 @@ def _fit_contact(
 
 
 # ---------------------------------------------------------------------- proposals
-#: the effect library, in the order its candidates are proposed
-LIBRARY = (
-    "ground_contact",
-    "slack_springs",
-    "linear_drag",
-    "quadratic_drag",
-    "force_field",
-    "cubic_stiffness",
-    "rest_length_offset",
-    "control_lag",
-)
+#: the effect library, in the order its candidates are proposed (the registry's)
+LIBRARY: tuple[str, ...] = tuple(EFFECTS)
 
 
 @dataclass
@@ -232,46 +209,53 @@ def propose(
     has none here (each scorer names cables its own way). ``again``: proposed even
     when in the model (more cables may show once the first are slack).
     """
-    standard: dict[str, Callable[[], Proposal]] = {
-        "ground_contact": lambda: contact_proposal(split, topology),
-        "linear_drag": lambda: Proposal(
-            "linear_drag", LinearDrag(topology), "acts everywhere, opposing v and ω"
-        ),
-        "quadratic_drag": lambda: Proposal(
-            "quadratic_drag", QuadraticDrag(topology), "acts everywhere, opposing v|v| and ω|ω|"
-        ),
-        "force_field": lambda: Proposal(
-            "force_field", ForceField(topology), "acts on every rod, always"
-        ),
-        "cubic_stiffness": lambda: Proposal(
-            "cubic_stiffness",
-            CubicStiffness(topology),
-            "acts along every spring, grows with (l - l0)^3",
-        ),
-        "rest_length_offset": lambda: Proposal(
-            "rest_length_offset", RestLengthOffset(topology), "rest lengths are given, not fitted"
-        ),
-        "control_lag": lambda: (
-            Proposal("control_lag", ControlLag(topology), "control commands are applied")
-            if has_commands(split)
-            else Proposal("control_lag", None, "no control in this data")
-        ),
-    }
-    every = {**standard, **gates}
+    standard = {name: _gated(name, split, topology) for name in LIBRARY}
     out: list[Proposal] = []
     for name in LIBRARY:
         if (name in have and name not in again) or (names is not None and name not in names):
             continue
-        if name not in every:
+        gate = gates.get(name, standard[name])
+        if gate is None:
             raise ValueError(f"no gate for library effect {name!r}")
-        out.append(every[name]())
+        out.append(gate())
     return out
+
+
+def _gated(name: str, split: Split, topology: Topology) -> Callable[[], Proposal] | None:
+    """The standard gate of library effect ``name``, as its class declares it (None: the
+    scorer's own, ``needs="scorer"``)."""
+    cls = EFFECTS[name]
+    needs = cls.gate.needs
+    if needs == "scorer":
+        return None
+    if needs == "floor":
+        return lambda: floor_proposal(name, split, topology)
+    if needs == "commands":
+        return lambda: (
+            Proposal(name, cls(topology), cls.gate.text)
+            if has_commands(split)
+            else Proposal(name, None, "no control in this data")
+        )
+    if needs:
+        raise ValueError(f"effect {name!r}: unknown gate need {needs!r}")
+    return lambda: Proposal(name, cls(topology), cls.gate.text)
+
+
+def _start(name: str, topology: Topology) -> PhysicalEffect:
+    """Library effect ``name`` at the start its class declares for an engine fit."""
+    cls = EFFECTS[name]
+    return cls(topology, **dict(cls.fit_form.start or {}))
+
+
+def floor_proposal(name: str, split: Split, topology: Topology) -> Proposal:
+    """An effect that needs a floor (contact) where end caps reach one that stops them."""
+    ok, why = contact_gate(split, topology)
+    return Proposal(name, _start(name, topology) if ok else None, why)
 
 
 def contact_proposal(split: Split, topology: Topology) -> Proposal:
     """Ground contact where end caps reach the floor and the floor stops them."""
-    ok, why = contact_gate(split, topology)
-    return Proposal("ground_contact", GroundContact(topology, **CONTACT_START) if ok else None, why)
+    return floor_proposal("ground_contact", split, topology)
 
 
 def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
@@ -298,10 +282,11 @@ def slack_probe(
     dataset: Dataset, current: FittedModel, settings: FitSettings
 ) -> tuple[list[int], str]:
     """Springs whose stiffness drops when compressed: ``ΔK_s (l - l0) [l < l0]`` per spring."""
-    if any(isinstance(e, SlackSprings) for e in current.effects):
+    if SlackSprings.name in current.names:
         return [], "already in the model"
+    regressed = [e for e in current.effects if isinstance(e, LinearEffect) or _through_engine(e)]
     est = ExtendedIdentifier(
-        effects=[e for e in current.effects if isinstance(e, (LinearEffect, GroundContact))],
+        effects=regressed,
         anchors=settings.anchors, init_params=settings.init_params,
         fit_rest_length=settings.fit_rest_length, compression_columns=True,
         reference=current.params,
@@ -339,11 +324,11 @@ def fit_lag(dataset: Dataset, base: Sequence[PhysicalEffect], settings: FitSetti
     contact, and the contact refitted once more.
     """
     best = search_lag(dataset, base, settings)
-    if not any(isinstance(e, GroundContact) for e in base):
+    if not any(_through_engine(e) for e in base):
         return best
     refit = fit_model(dataset, best.effects, settings)
-    lag = next(e for e in refit.effects if isinstance(e, ControlLag))
-    rest = [e for e in refit.effects if not isinstance(e, ControlLag)]
+    lag = next(e for e in refit.effects if e.fit_form.route == "search")
+    rest = [e for e in refit.effects if e.fit_form.route != "search"]
     best = search_lag(dataset, rest, settings, near=float(lag.values["time_constant"]))
     return fit_model(dataset, best.effects, settings)
 
@@ -395,6 +380,6 @@ def fit_proposal(
     """A candidate's whole model, fitted jointly: ``current``'s effects plus the proposed one."""
     if proposal.effect is None:
         raise ValueError(f"{proposal.name}: not proposed ({proposal.gate})")
-    if proposal.name == "control_lag":
+    if proposal.effect.fit_form.route == "search":  # the one searched effect: control lag
         return fit_lag(dataset, current.effects, settings)
     return fit_model(dataset, [*current.effects, proposal.effect], settings)

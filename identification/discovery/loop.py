@@ -4,7 +4,7 @@
 library times an optimizer). Each iteration
 
 1. looks at the current model's **residuals**
-   (:meth:`~identification.discovery.scorer.Scorer.residual`);
+   (:meth:`~identification.discovery.scorer.Reported.residual`);
 2. fits every **candidate** of the effect library whose physical gate the data passes
    (:func:`~identification.discovery.library.propose`), each jointly with everything
    already in the model, and scores it against "nothing is missing" (the current
@@ -22,7 +22,7 @@ library times an optimizer). Each iteration
    effect the loop added before is fitted out of the new model and removed where the
    model without it does as well (it would not pass as a candidate against that model);
 5. stops when no candidate is accepted: the residual is noise, or nothing in the
-   library explains it (:meth:`~identification.discovery.scorer.Scorer.leftover` says which).
+   library explains it (:meth:`~identification.discovery.scorer.Reported.leftover` says which).
 
 Two scorers: :class:`~identification.discovery.one_step.OneStepScorer` (one-step
 regressions on rod states) and :class:`~identification.discovery.multi_step.MultiStepScorer`
@@ -52,7 +52,7 @@ from identification.discovery.judge import (
 from identification.discovery.library import FittedModel, Proposal
 from identification.discovery.negligible import force_ratio, group_power
 from identification.discovery.residual_network import ResidualFit
-from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
+from identification.discovery.scorer import CandidateSkipped, LoopScorer, Residual
 from identification.discovery.side_by_side import fit_side_by_side, fitted
 from identification.linear.regression import NotFittedError
 from tensegrity_env.engine import State
@@ -164,7 +164,7 @@ class EffectDiscovery:
 
     def __init__(
         self,
-        scorer: Scorer[Any],
+        scorer: LoopScorer[Any],
         max_effects: int = 3,
         candidates: Sequence[str] | None = None,
         plots: Path | None = None,
@@ -370,7 +370,7 @@ class EffectDiscovery:
 
     def refit(self, c: Candidate[Any], before: Candidate[Any]) -> Candidate[Any]:
         """``c`` as the next current model (the scorer's refit); a refit outside the
-        physical domain, or one the scorer refuses (:meth:`Scorer.refusal`), overrules
+        physical domain, or one the scorer refuses (:meth:`~identification.discovery.scorer.Refined.refusal`), overrules
         ``c`` (``c.accepted`` turns False, logged, the scorer's data as before)."""
         added = self.scorer.accept(c)
         reason = unphysical(added.model, before.model)

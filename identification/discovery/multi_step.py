@@ -76,7 +76,7 @@ from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.negligible import NEGLIGIBLE
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
-from identification.discovery.scorer import CandidateSkipped, Residual, Scorer
+from identification.discovery.scorer import CandidateSkipped, LoopScorer, Residual
 from identification.discovery.slack_hypothesis import fit_slack, slack_hypothesis
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
@@ -115,7 +115,7 @@ SECOND_LOOKS = 2
 RIVALS = {"linear_drag": "quadratic_drag", "quadratic_drag": "linear_drag"}
 
 
-class MultiStepScorer(Scorer[EndCapFits]):
+class MultiStepScorer(LoopScorer[EndCapFits]):
     """Scores candidates by multi-step prediction of end caps (see the module docstring).
 
     Args:
@@ -368,10 +368,10 @@ class MultiStepScorer(Scorer[EndCapFits]):
         assert proposal.effect is not None
         left_out = {proposal.name, *drop}
         others = [e for e in now.effects
-                  if not isinstance(e, GroundContact) and e.name not in left_out]  # fmt: skip
+                  if not e.constraint and e.name not in left_out]  # fmt: skip
         contact = self.contact
         if proposal.start is not None:
-            contact = next((e for e in now.effects if isinstance(e, GroundContact)), contact)
+            contact = next((e for e in now.effects if e.constraint), contact)
         floor = floor_fit(data, s, self.start, [*others, proposal.effect], values=proposal.start,
                           contact=contact)  # fmt: skip
         fit = fit_trajectory(data, floor.fit.vec, now.windows, floor.fit.theta, s.candidate_iter)
@@ -488,7 +488,7 @@ class MultiStepScorer(Scorer[EndCapFits]):
         (:meth:`fitted_on`) where it stopped short of fitting the data.
         """
         data, s = self.data, self.settings
-        effects = [e for e in screened.effects if not isinstance(e, GroundContact)]
+        effects = [e for e in screened.effects if not e.constraint]
         tasks: list[Callable[[], Any]] = [
             lambda: fit_many(data, screened.vec, screened.theta, s, s.base_iter)
         ]

@@ -19,7 +19,6 @@ from collections.abc import Sequence
 import torch
 
 from identification.discovery.library import FittedModel
-from tensegrity_env.effects import ControlLag
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT, Engine, State
 from tensegrity_env.params import Params
@@ -69,7 +68,7 @@ def force_ratio(candidate: FittedModel, current: FittedModel, states: State) -> 
         current: the model it is compared with.
         states: rod states sampled from the data, batch B.
     """
-    if any(isinstance(e, ControlLag) for e in candidate.effects):
+    if any(e.filters_commands for e in candidate.effects):
         return math.nan
     params, topo = candidate.params, candidate.model.topology
     d_force, d_torque, _ = force_change(topo, params, candidate.effects, current.effects, states)

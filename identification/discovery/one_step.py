@@ -51,7 +51,7 @@ from identification.discovery.residuals import (
     summary_table,
 )
 from identification.discovery.rollout_plots import rod_state_rollout_plot
-from identification.discovery.scorer import Residual, Scorer
+from identification.discovery.scorer import LoopScorer, Residual
 from identification.linear.extended import acting_split, evaluate_model
 from identification.linear.features import cable_commands_at, drawn_transitions, transitions_of
 from identification.report.tables import error_text
@@ -103,7 +103,7 @@ def label(model: FittedModel) -> str:
     return "declared model" + "".join(f" + {n}" for n in model.names)
 
 
-class OneStepScorer(Scorer[FittedModel]):
+class OneStepScorer(LoopScorer[FittedModel]):
     """Scores candidates by one-step regressions on rod states (see the module docstring).
 
     Args:

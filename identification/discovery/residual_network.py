@@ -52,7 +52,6 @@ from identification.linear.features import (
     transition_features,
     transitions_of,
 )
-from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import ResidualMLP, ResidualNetwork, rod_features
 from tensegrity_env.engine import Engine
@@ -211,8 +210,8 @@ def fit_residual_network(
         net.readout.weight.zero_()
         net.readout.bias.zero_()
     start = ResidualNetwork(topo, net)
-    others = [e for e in model.effects if not isinstance(e, GroundContact)]
-    contact = [e for e in model.effects if isinstance(e, GroundContact)]
+    others = [e for e in model.effects if not e.constraint]
+    contact = [e for e in model.effects if e.constraint]
     est = ExtendedIdentifier(
         effects=[*others, start, *contact], reference=model.params, anchors=settings.anchors,
         init_params=settings.init_params, fit_rest_length=settings.fit_rest_length,

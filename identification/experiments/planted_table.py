@@ -25,19 +25,18 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TypedDict
 
 import numpy as np
 import torch
 
-from identification.data.end_caps import with_measured_states
+from identification.discovery.choose import choose_scorer, uses_trajectories
 from identification.discovery.end_cap_data import FIT_WINDOW, TrajectorySettings
 from identification.discovery.library import FitSettings
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_err, ratio, write_params
-from identification.discovery.scorer import Scorer
 from identification.experiments.drop_check import drop_check
 from identification.simulation.planted import PLANTS, PlantSpec, planted_dataset
 from tensegrity_env.effects import GroundContact
@@ -88,15 +87,17 @@ def run_case(
     data = planted_dataset(spec)
     anchors = {"mass[rod0]": float(data.ground_truth.params.mass[0])}
     t0 = time.perf_counter()
-    scorer: Scorer[Any]
-    if spec.noise > 0:
-        ts = replace(settings or TrajectorySettings(), anchors=anchors, seed=spec.seed)
-        truth = data.ground_truth.params if start == "truth" else None
-        scorer = MultiStepScorer(ts, horizon_s=1.0, start=truth, clean=data.clean)
-        dataset, loop = data.dataset, EffectDiscovery(scorer, max_effects, log=log)
+    ts = replace(settings or TrajectorySettings(), anchors=anchors, seed=spec.seed)
+    truth = data.ground_truth.params if start == "truth" else None
+    dataset, scorer = choose_scorer(
+        data.dataset, "auto",
+        lambda d: OneStepScorer(FitSettings(anchors=anchors), horizon_s=1.0),
+        lambda d: MultiStepScorer(ts, horizon_s=1.0, start=truth, clean=data.clean),
+        smoothing,
+    )  # fmt: skip
+    if uses_trajectories(data.dataset):  # noisy: end caps only
+        loop = EffectDiscovery(scorer, max_effects, log=log)
     else:
-        scorer = OneStepScorer(FitSettings(anchors=anchors), horizon_s=1.0)
-        dataset = with_measured_states(data.dataset, smoothing)
         loop = EffectDiscovery(scorer, max_effects=3, log=lambda s: None)
     with np.errstate(invalid="ignore", divide="ignore"):
         r = loop.fit(dataset).result_

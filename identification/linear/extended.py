@@ -44,7 +44,7 @@ from identification.linear.features import (
     transitions_of,
 )
 from identification.linear.regression import SpringRodIdentifier
-from tensegrity_env.effects import ControlLag, GroundContact, LinearEffect, SlackSprings
+from tensegrity_env.effects import GroundContact, LinearEffect, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
@@ -128,7 +128,7 @@ class ExtendedIdentifier(SpringRodIdentifier):
 
     def _lagged(self, dataset: Dataset) -> Dataset:
         """The dataset with lagged commands where the model has a control lag."""
-        lag = next((e for e in self.effects if isinstance(e, ControlLag)), None)
+        lag = next((e for e in self.effects if e.filters_commands), None)
         if lag is None:
             return dataset
         splits = {}
@@ -240,7 +240,7 @@ def commands_for(
 ) -> torch.Tensor:
     """The commands that act, (B, T, R, 3): lagged where the model has a control lag."""
     for e in effects:
-        if isinstance(e, ControlLag):
+        if e.filters_commands:
             control = e.filter_commands(control, dt)
     return control
 
@@ -250,7 +250,7 @@ def cable_commands_for(
 ) -> np.ndarray | None:
     """The cable commands that act, (N, T, C): through MuJoCo's actuator filter where
     the model has a control lag (None stays None)."""
-    lag = next((e for e in effects if isinstance(e, ControlLag)), None)
+    lag = next((e for e in effects if e.filters_commands), None)
     if cables is None or lag is None:
         return cables
     return lag.filter_commands(torch.as_tensor(cables), dt, explicit=True).numpy()
@@ -259,7 +259,7 @@ def cable_commands_for(
 def acting_split(effects: Sequence[PhysicalEffect], data: Split, dt: float) -> Split:
     """``data`` with the commands that act: control forces (B, T, R, 3) and cable
     commands (B, T, C) through the model's control lag, if it has one (else ``data``)."""
-    if not any(isinstance(e, ControlLag) for e in effects):
+    if not any(e.filters_commands for e in effects):
         return data
     control = commands_for(effects, torch.as_tensor(data.control), dt).numpy()
     cables = cable_commands_for(effects, data.cable_control, dt)

@@ -18,7 +18,14 @@ plant                         in MuJoCo                                         
 ``joint_damping``             free-joint ``damping`` on every rod (implicit        damping b = β
                               under MuJoCo's Euler: ``linear_drag`` in its
                               implicit form)
+``spring_friction``           tendon ``frictionloss`` on every spring (MuJoCo's    friction force [N]
+                              soft dry-friction constraint)
 ============================  =================================================  ====================
+
+Drag and spring friction are planted as their effect classes declare (their ``plant``,
+:class:`~tensegrity_env.effects.base.MujocoPlant`: one MJCF attribute set to the
+strength); a floor, slack cables and joint damping change the model's structure and
+are planted here.
 
 ``noise`` adds i.i.d. Gaussian noise [m] to every end-cap coordinate and drops the
 rod states, as motion capture would (the clean states stay in the ground truth's
@@ -40,6 +47,8 @@ from identification.data.dataset import Dataset, GroundTruth, Split
 from identification.defaults import PLANTS
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate
 from tensegrity_env import assemblies
+from tensegrity_env.effects import EFFECTS
+from tensegrity_env.effects.base import MujocoPlant
 from tensegrity_env.io_utils import InputError, check_number
 from tensegrity_env.mjcf import SimOptions, to_mjcf
 
@@ -130,10 +139,6 @@ def planted_mjcf(spec: PlantSpec) -> tuple[str, dict[str, Any]]:
                 geom.set("friction", f"{friction!r} 0.005 0.0001")
         record["params"] = {"friction": friction, "height": 0.0}
         record["mujoco"] = {"solref": [0.02, 1.0], "solimp": [0.9, 0.95, 0.001, 0.5, 2.0]}
-    elif spec.effect in ("quadratic_drag", "linear_drag"):
-        key = "density" if spec.effect == "quadratic_drag" else "viscosity"
-        root.find("option").set(key, repr(spec.value))  # type: ignore[union-attr]
-        record["mujoco"] = {key: spec.value, "model": "inertia-box fluid"}
     elif spec.effect == "slack_springs":
         n = int(spec.value)
         S = a.topology.n_springs
@@ -152,8 +157,33 @@ def planted_mjcf(spec: PlantSpec) -> tuple[str, dict[str, Any]]:
             joint.set("damping", repr(spec.value))
         record = {"name": "linear_drag", "form": "implicit", "strength": spec.strength,
                   "value": spec.value, "mujoco": {"joint_damping": spec.value}}  # fmt: skip
+    elif (plant := declared_plant(spec.effect)) is not None:
+        record.update(plant_attribute(root, plant, spec.value))
     ET.indent(root)
     return ET.tostring(root, encoding="unicode"), record
+
+
+def declared_plant(effect: str) -> MujocoPlant | None:
+    """The MuJoCo form effect ``effect``'s class declares (None: not an effect, or none)."""
+    cls = EFFECTS.get(effect)
+    return None if cls is None else cls.plant
+
+
+def plant_attribute(root: ET.Element, plant: MujocoPlant, value: float) -> dict[str, Any]:
+    """Write ``value`` to ``plant``'s MJCF attribute in ``root`` (the model, changed in
+    place); the ground-truth record's ``mujoco`` (and ``params``) entries."""
+    if plant.element == "option":
+        targets = [root.find("option")]
+    elif plant.element == "tendon":
+        targets = list(root.iter("spatial"))
+    else:
+        raise ValueError(f"unknown MJCF element {plant.element!r} to plant in")
+    for t in targets:
+        t.set(plant.attribute, repr(value))  # type: ignore[union-attr]
+    out: dict[str, Any] = {"mujoco": {plant.attribute: value, "model": plant.note}}
+    if plant.params:
+        out["params"] = {k: value for k in plant.params}
+    return out
 
 
 def planted_dataset(spec: PlantSpec) -> PlantedData:
@@ -168,7 +198,7 @@ def planted_dataset(spec: PlantSpec) -> PlantedData:
             mjcf=str(path), n_train=spec.n_train, n_val=spec.n_val, n_test=spec.n_test,
             steps=spec.steps, seed=spec.seed, ground=ground, control_std=spec.control_std,
             initial=initial, preset="planted",
-            ignore=("fluid",) if spec.effect in ("quadratic_drag", "linear_drag") else (),
+            ignore=plant.ignore if (plant := declared_plant(spec.effect)) else (),
         )  # fmt: skip
         import warnings
 

@@ -1,14 +1,17 @@
 """Effect parameters as free coordinates of the trajectory fit (:mod:`identification.trajectory.identifier`).
 
 The windowed trajectory fit minimises end-cap errors over a vector ``theta`` of free
-coordinates. :class:`EffectCoords` appends the parameters of a list of effects to it:
+coordinates. :class:`EffectCoords` appends the parameters of a list of effects to it,
+as each effect's class declares (its ``fit_form``,
+:class:`~tensegrity_env.effects.base.FitForm`):
 
 * a :class:`~tensegrity_env.effects.base.LinearEffect` (drag, force field, cubic or
-  compression stiffness) contributes every entry of its ``theta()`` as is (linear: its
-  wrench is linear in them), bounded below by its physical domain (drag coefficients
-  >= 0: the fit's steps are projected onto the bound, see :meth:`EffectCoords.bounds`);
-* a :class:`~tensegrity_env.effects.GroundContact` contributes
-  :data:`CONTACT_FREE` in the unconstrained coordinates of
+  compression stiffness, spring friction) contributes every entry of its ``theta()``
+  as is (linear: its wrench is linear in them), bounded below by its physical domain
+  (drag coefficients >= 0: the fit's steps are projected onto the bound, see
+  :meth:`EffectCoords.bounds`), less the entry its ``roll_entry`` declares unseen;
+* an effect fitted through the engine (ground contact) contributes its declared
+  ``free`` parameters in the unconstrained coordinates of
   :func:`~identification.trajectory.effect_fit.to_free` (log, logit);
 * index-only effects (slack cables) contribute nothing.
 """
@@ -22,19 +25,14 @@ import numpy as np
 import torch
 
 from identification.trajectory.effect_fit import from_free, to_free
-from tensegrity_env.effects import GroundContact, LinearDrag, QuadraticDrag
+from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
 
 DTYPE = torch.float64
-#: where a contact fit starts: a generic soft floor, not MuJoCo's values
-CONTACT_START: dict[str, float] = {
-    "stiffness": 1000.0,
-    "damping": 50.0,
-    "friction": 0.5,
-    "impedance": 0.9,
-}
-#: contact parameters fitted through the engine
-CONTACT_FREE = ("stiffness", "damping", "friction", "impedance")
+#: where a contact fit starts (the contact's declared start)
+CONTACT_START: dict[str, float] = dict(GroundContact.fit_form.start or {})
+#: contact parameters fitted through the engine (the contact's declared coordinates)
+CONTACT_FREE: tuple[str, ...] = GroundContact.fit_form.free
 #: unconstrained contact coordinates stay within this of their start (log/logit units)
 CONTACT_BOX = 5.0
 
@@ -61,30 +59,33 @@ class EffectCoords:
         cls,
         effects: Sequence[PhysicalEffect],
         axial: int | None = None,
-        contact_free: tuple[str, ...] = CONTACT_FREE,
+        contact_free: tuple[str, ...] | None = None,
         box: Mapping[str, tuple[float, float]] | None = None,
     ) -> EffectCoords:
         """Coordinates of ``effects``; ``axial``: the rods' common end-cap axis (rod frame).
 
-        ``contact_free``: the contact parameters that are coordinates (``()``: contact
-        held at its values, e.g. found by :mod:`identification.trajectory.touchdown`).
+        ``contact_free``: the parameters of effects fitted through the engine that are
+        coordinates (None: those each declares; ``()``: held at their values, e.g. a
+        contact found by :mod:`identification.trajectory.touchdown`).
         ``box``: absolute limits (lo, hi) of contact coordinates in the fit's coordinates
         (log, logit or as is; see
         :func:`~identification.trajectory.floor_fit.contact_box`), for the parameters named.
 
-        Rotational drag about that axis is held (at its value, 0 to start): the spin
-        about it is invisible in end-cap data, so the data cannot see that drag.
+        A per-axis rotational entry about that axis (an effect's declared ``roll_entry``:
+        rotational drag) is held (at its value, 0 to start): the spin about it is
+        invisible in end-cap data, so the data cannot see it.
         """
         slots: list[tuple[str, ...] | None] = []
         held: list[tuple[int, ...]] = []
         for e in effects:
             hold: tuple[int, ...] = ()
-            if isinstance(e, LinearEffect):
+            form = e.fit_form
+            if isinstance(e, LinearEffect):  # the abstract base: theta() is its coordinates
                 slots.append(None)
-                if isinstance(e, (LinearDrag, QuadraticDrag)) and axial is not None:
-                    hold = (3 + axial,)
-            elif isinstance(e, GroundContact):
-                slots.append(contact_free)
+                if form.roll_entry is not None and axial is not None:
+                    hold = (form.roll_entry + axial,)
+            elif form.route == "engine":
+                slots.append(form.free if contact_free is None else contact_free)
             else:
                 slots.append(())
             held.append(hold)

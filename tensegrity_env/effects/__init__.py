@@ -29,22 +29,26 @@ from tensegrity_env.effects.drag import ImplicitLinearDrag, LinearDrag, Quadrati
 from tensegrity_env.effects.force_field import ForceField
 from tensegrity_env.effects.ground_contact import GroundContact
 from tensegrity_env.effects.residual_network import ResidualNetwork
+from tensegrity_env.effects.spring_friction import SpringFriction
 from tensegrity_env.effects.springs import CubicStiffness, RestLengthOffset, SlackSprings
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.topology import Topology
 
-#: effect name -> class, every candidate the residual loop may add
+#: effect name -> class, every candidate the residual loop may add, in the order the
+#: loop proposes them; its library, the trajectory fit's coordinates, the kernel packing
+#: and the planted benchmarks read each class's declarations
 EFFECTS: dict[str, type[PhysicalEffect]] = {
     cls.name: cls
     for cls in (
         GroundContact,
+        SlackSprings,
         LinearDrag,
         QuadraticDrag,
-        SlackSprings,
         ForceField,
         CubicStiffness,
         RestLengthOffset,
         ControlLag,
+        SpringFriction,
     )
 }
 
@@ -100,6 +104,7 @@ __all__ = [
     "ResidualNetwork",
     "RestLengthOffset",
     "SlackSprings",
+    "SpringFriction",
     "effect_from_dict",
     "effects_from_document",
     "effects_to_document",

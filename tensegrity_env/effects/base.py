@@ -13,6 +13,15 @@ An effect serialises to the params file's ``effects`` list as::
      "params": {"stiffness": 3.1e4, ...},
      "units": {"stiffness": "N/m", ...},
      "uncertainty": {"stiffness": 120.0, ...}}
+
+Beside its force, a class declares, as data the rest of the project reads without
+knowing the class: its :attr:`~PhysicalEffect.gate` (where in the data it can act),
+its :attr:`~PhysicalEffect.fit_form` (fit coordinates, bounds and start), its
+:attr:`~PhysicalEffect.native` form in the C kernel's effects block (or
+:attr:`~PhysicalEffect.no_native`, the reason it has none) and its
+:attr:`~PhysicalEffect.plant` (how a MuJoCo model carries it). The residual loop's
+library, the trajectory fit's coordinates, the kernel packing and the planted
+benchmarks are generated from :data:`tensegrity_env.effects.EFFECTS`.
 """
 
 from __future__ import annotations
@@ -57,6 +66,92 @@ class ParamSpec:
     unit_interval: bool = False
 
 
+@dataclass(frozen=True)
+class Gate:
+    """Where in the data an effect can act (read by the residual loop's library).
+
+    Attributes:
+        text: why it may act, one line (shown when ``needs`` is ``""``).
+        needs: what the data must show: ``""`` nothing (it may act everywhere),
+            ``"commands"`` control commands, ``"floor"`` end caps on a floor that stops
+            them, ``"scorer"`` a test each scorer makes its own way.
+    """
+
+    text: str
+    needs: str = ""
+
+
+@dataclass(frozen=True)
+class FitForm:
+    """How fits see an effect's parameters.
+
+    Attributes:
+        route: ``"regression"`` (linear in its parameters, or index-only: inside the
+            one-step regression), ``"engine"`` (fitted through the engine on trajectory
+            windows after the regression, coordinates ``free``) or ``"search"`` (a
+            one-dimensional search over its single parameter around the regression).
+        free: the parameters an engine fit moves, in their unconstrained coordinates
+            (log, logit); the last stage frees them all.
+        stages: the parameters freed in each stage of an engine fit (empty: ``free`` at once).
+        start: parameter values an engine fit starts from (natural units).
+        roll_entry: the index in ``theta()`` of the first of three per-rod-axis rotational
+            entries; in end-cap fits the one about the end-cap axis is held (the spin about
+            it is invisible). None: no such entries.
+    """
+
+    route: str = "regression"
+    free: tuple[str, ...] = ()
+    stages: tuple[tuple[str, ...], ...] = ()
+    start: Mapping[str, float] | None = None
+    roll_entry: int | None = None
+
+    @property
+    def n_extra(self) -> int:
+        """Parameters fitted outside the regression (for an information criterion)."""
+        return {"engine": len(self.free), "search": 1}.get(self.route, 0)
+
+
+@dataclass(frozen=True)
+class NativeForm:
+    """How the C kernel holds an effect (read by :mod:`tensegrity_env.native.pack`).
+
+    Attributes:
+        kind: ``"block"`` (the values of ``keys``, flattened one after the other, added
+            into each slot of ``slots``), ``"mask"`` (1 at the indices in ``keys[0]`` of
+            each slot) or ``"contact"`` (the kernel's contact law and end-cap radii).
+        slots: names of slots of the kernel's effects block
+            (:data:`tensegrity_env.native.pack.EFFECT_SLOTS`).
+        keys: the parameters packed.
+    """
+
+    kind: str
+    slots: tuple[str, ...] = ()
+    keys: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class MujocoPlant:
+    """How a MuJoCo model carries an effect (read by
+    :mod:`identification.simulation.planted`).
+
+    Attributes:
+        element: ``"option"`` (an attribute of ``<option>``) or ``"tendon"`` (an attribute
+            of every spatial tendon).
+        attribute: the MJCF attribute the strength is written to.
+        ignore: the model check's feature names that the plant deliberately uses
+            (:data:`tensegrity_env.defaults.FEATURES`).
+        params: the effect's parameters in the ground-truth record, each equal to the
+            strength (empty: the record names MuJoCo's attribute instead).
+        note: the MuJoCo model it stands for, for the ground-truth record.
+    """
+
+    element: str
+    attribute: str
+    ignore: tuple[str, ...] = ()
+    params: tuple[str, ...] = ()
+    note: str = ""
+
+
 class PhysicalEffect(EffectBase):
     """An effect with named physical parameters (see the module docstring).
 
@@ -80,6 +175,20 @@ class PhysicalEffect(EffectBase):
     #: whether the effect can only remove energy from the rods (drag): a fit in which it
     #: adds energy over the data is unphysical, whatever its standard errors
     dissipative: ClassVar[bool] = False
+    #: where in the data it can act (see :class:`Gate`)
+    gate: ClassVar[Gate] = Gate("acts everywhere")
+    #: how fits see its parameters (see :class:`FitForm`)
+    fit_form: ClassVar[FitForm] = FitForm()
+    #: its form in the C kernel, read from the class itself (a subclass that changes the
+    #: force declares its own); None: it has none, for the reason :attr:`no_native`
+    native: ClassVar[NativeForm | None] = None
+    #: why the kernel does not compute it (logged once when a step falls back to PyTorch)
+    no_native: ClassVar[str] = "its class declares none"
+    #: whether it acts on the command sequence before a rollout (``filter_commands``,
+    #: control lag) rather than through a wrench in each step
+    filters_commands: ClassVar[bool] = False
+    #: how a MuJoCo model carries it; None: not by one attribute (see the planted data)
+    plant: ClassVar[MujocoPlant | None] = None
 
     def __init__(
         self,
@@ -143,6 +252,23 @@ class PhysicalEffect(EffectBase):
 
     def check(self) -> None:
         """Physical sign checks of the values; raise :class:`InputError`. Override."""
+
+    def check_nonnegative(self, why: str) -> None:
+        """Raise :class:`InputError` where a value is below 0 by more than 3 of its standard
+        errors (none given: any negative value; an infinite one, the data cannot see it:
+        none). ``why``: the physical reason, for the message."""
+        for k, v in self.values.items():
+            se = np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float), nan=0.0,
+                               posinf=np.inf, neginf=np.inf)  # fmt: skip
+            x = v.detach().cpu().numpy()
+            se = np.broadcast_to(se, x.shape)
+            bad = np.flatnonzero(x < -3 * se)
+            if bad.size:
+                i = int(bad[0])
+                raise InputError(
+                    f"effect '{self.name}': '{k}' must be >= 0 ({why}), got "
+                    f"[{i}] = {x.reshape(-1)[i]:.4g} ± {se.reshape(-1)[i]:.2g} {self.PARAMS[k].unit}"
+                )
 
     def violation(self) -> str:
         """Why the values fail :meth:`check` (its message), or ``""`` when they pass."""

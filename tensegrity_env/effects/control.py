@@ -21,7 +21,7 @@ from typing import ClassVar
 
 import torch
 
-from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
+from tensegrity_env.effects.base import FitForm, Gate, ParamSpec, PhysicalEffect
 
 
 class ControlLag(PhysicalEffect):
@@ -32,6 +32,11 @@ class ControlLag(PhysicalEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "time_constant": ParamSpec("s", 0.0),
     }
+    gate: ClassVar[Gate] = Gate("control commands are applied", needs="commands")
+    #: given τ the model is linear: a search over τ, the regression refitting the rest
+    fit_form: ClassVar[FitForm] = FitForm(route="search")
+    filters_commands: ClassVar[bool] = True
+    no_native: ClassVar[str] = "it filters the commands before a rollout, not inside a step"
 
     def filter_commands(
         self, control: torch.Tensor, dt: float, explicit: bool = False

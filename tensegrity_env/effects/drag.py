@@ -29,10 +29,16 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-import numpy as np
 import torch
 
-from tensegrity_env.effects.base import LinearEffect, ParamSpec
+from tensegrity_env.effects.base import (
+    FitForm,
+    Gate,
+    LinearEffect,
+    MujocoPlant,
+    NativeForm,
+    ParamSpec,
+)
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.io_utils import InputError
@@ -54,6 +60,8 @@ def _axis_basis(rot: torch.Tensor, rate_local: torch.Tensor, quadratic: bool) ->
 class _Drag(LinearEffect):
     quadratic: ClassVar[bool] = False
     dissipative: ClassVar[bool] = True
+    #: theta = translational (3) then rotational (3): rotational entries start at 3
+    fit_form: ClassVar[FitForm] = FitForm(roll_entry=3)
 
     def basis(
         self, state: State, kin: Kinematics, params: Params
@@ -68,19 +76,7 @@ class _Drag(LinearEffect):
 
     def check(self) -> None:
         """Drag opposes motion: coefficients >= 0 (or within 3 standard errors of 0)."""
-        for k, v in self.values.items():
-            # no standard error: none; an infinite one (the data cannot see it): any value
-            se = np.nan_to_num(np.asarray(self.uncertainty.get(k, 0.0), float), nan=0.0,
-                               posinf=np.inf, neginf=np.inf)  # fmt: skip
-            x = v.detach().cpu().numpy()
-            se = np.broadcast_to(se, x.shape)
-            bad = np.flatnonzero(x < -3 * se)
-            if bad.size:
-                i = int(bad[0])
-                raise InputError(
-                    f"effect '{self.name}': '{k}' must be >= 0 (drag opposes motion), got "
-                    f"[{i}] = {x[i]:.4g} ± {se[i]:.2g} {self.PARAMS[k].unit}"
-                )
+        self.check_nonnegative("drag opposes motion")
 
 
 class LinearDrag(_Drag):
@@ -92,6 +88,13 @@ class LinearDrag(_Drag):
         "translational": ParamSpec("N*s/m", 0.0, shape=(3,)),
         "rotational": ParamSpec("N*m*s", 0.0, shape=(3,)),
     }
+    gate: ClassVar[Gate] = Gate("acts everywhere, opposing v and ω")
+    native: ClassVar[NativeForm | None] = NativeForm(
+        "block", ("linear_drag",), ("translational", "rotational")
+    )
+    plant: ClassVar[MujocoPlant | None] = MujocoPlant(
+        "option", "viscosity", ignore=("fluid",), note="inertia-box fluid"
+    )
     #: how the engine integrates it (see the module docstring)
     form: ClassVar[str] = "explicit"
 
@@ -125,6 +128,12 @@ class ImplicitLinearDrag(LinearDrag):
     """
 
     form: ClassVar[str] = "implicit"
+    #: its wrench, and the same coefficients integrated implicitly
+    native: ClassVar[NativeForm | None] = NativeForm(
+        "block", ("linear_drag", "implicit_damping"), ("translational", "rotational")
+    )
+    #: MuJoCo's free-joint damping is planted as a plant of its own (``joint_damping``)
+    plant: ClassVar[MujocoPlant | None] = None
 
     def implicit_damping(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Translational b (3,) [N*s/m] and rotational β (3,) [N*m*s] per rod axis."""
@@ -156,3 +165,10 @@ class QuadraticDrag(_Drag):
         "translational": ParamSpec("N*s^2/m^2", 0.0, shape=(3,)),
         "rotational": ParamSpec("N*m*s^2", 0.0, shape=(3,)),
     }
+    gate: ClassVar[Gate] = Gate("acts everywhere, opposing v|v| and ω|ω|")
+    native: ClassVar[NativeForm | None] = NativeForm(
+        "block", ("quadratic_drag",), ("translational", "rotational")
+    )
+    plant: ClassVar[MujocoPlant | None] = MujocoPlant(
+        "option", "density", ignore=("fluid",), note="inertia-box fluid"
+    )

@@ -11,7 +11,7 @@ from typing import ClassVar
 
 import torch
 
-from tensegrity_env.effects.base import LinearEffect, ParamSpec
+from tensegrity_env.effects.base import Gate, LinearEffect, NativeForm, ParamSpec
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
 from tensegrity_env.params import Params
@@ -25,6 +25,8 @@ class ForceField(LinearEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "force": ParamSpec("N", 0.0, shape=(3,), positive=False),
     }
+    gate: ClassVar[Gate] = Gate("acts on every rod, always")
+    native: ClassVar[NativeForm | None] = NativeForm("block", ("force_field",), ("force",))
 
     def basis(
         self, state: State, kin: Kinematics, params: Params

@@ -51,7 +51,7 @@ from typing import Any, ClassVar
 
 import torch
 
-from tensegrity_env.effects.base import ParamSpec, PhysicalEffect
+from tensegrity_env.effects.base import FitForm, Gate, NativeForm, ParamSpec, PhysicalEffect
 from tensegrity_env.engine.forces import (
     SpringFrame,
     hooke_tension,
@@ -77,6 +77,16 @@ MUJOCO_DEFAULT: dict[str, float] = {
     "friction": 1.0,
     "height": 0.0,
 }
+
+#: where a contact fit starts: a generic soft floor, not MuJoCo's values
+CONTACT_START: dict[str, float] = {
+    "stiffness": 1000.0,
+    "damping": 50.0,
+    "friction": 0.5,
+    "impedance": 0.9,
+}
+#: contact parameters fitted through the engine
+CONTACT_FREE = ("stiffness", "damping", "friction", "impedance")
 
 #: the :meth:`GroundContact.contact_geometry` entries the contact law reads per touching rod
 ROW_GEOMETRY = ("dist", "arm", "vel", "tangent")
@@ -118,6 +128,17 @@ class GroundContact(PhysicalEffect):
         "friction": ParamSpec("1", MUJOCO_DEFAULT["friction"]),
         "height": ParamSpec("m", MUJOCO_DEFAULT["height"], positive=False),
     }
+    gate: ClassVar[Gate] = Gate("end caps reach a floor that stops them", needs="floor")
+    #: fitted through the engine in two stages: the impedance is held at its start until
+    #: stiffness, damping and friction are near, then all are freed (freed at once from a
+    #: far start, the impedance runs to its bound of 1, where its logit has no gradient)
+    fit_form: ClassVar[FitForm] = FitForm(
+        route="engine",
+        free=CONTACT_FREE,
+        stages=(tuple(k for k in CONTACT_FREE if k != "impedance"), CONTACT_FREE),
+        start=CONTACT_START,
+    )
+    native: ClassVar[NativeForm | None] = NativeForm("contact")
 
     def __init__(
         self, topology: Topology, uncertainty: Any = None, *, validate: bool = True, **values: Any

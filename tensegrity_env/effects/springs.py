@@ -19,6 +19,8 @@ from typing import ClassVar
 import torch
 
 from tensegrity_env.effects.base import (
+    Gate,
+    NativeForm,
     ParamSpec,
     PhysicalEffect,
     SpringLawEffect,
@@ -39,6 +41,8 @@ class CubicStiffness(SpringLawEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "stiffness": ParamSpec("N/m^3", 0.0, per="spring", positive=False),
     }
+    gate: ClassVar[Gate] = Gate("acts along every spring, grows with (l - l0)^3")
+    native: ClassVar[NativeForm | None] = NativeForm("block", ("cubic_stiffness",), ("stiffness",))
 
     def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
         length, _ = spring_lengths(kin, self.topology)
@@ -54,6 +58,8 @@ class RestLengthOffset(SpringLawEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "offset": ParamSpec("m", 0.0, per="spring", positive=False),
     }
+    gate: ClassVar[Gate] = Gate("rest lengths are given, not fitted")
+    native: ClassVar[NativeForm | None] = NativeForm("block", ("rest_length_offset",), ("offset",))
 
     def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
         return -params.stiffness.to(kin.x).expand(kin.x.shape[0], -1)
@@ -67,6 +73,9 @@ class SlackSprings(PhysicalEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "springs": ParamSpec("spring index", [], integer=True),
     }
+    #: each scorer names cables its own way (from rod states or from end caps)
+    gate: ClassVar[Gate] = Gate("springs lose their stiffness when compressed", needs="scorer")
+    native: ClassVar[NativeForm | None] = NativeForm("mask", ("slack",), ("springs",))
 
     def check(self) -> None:
         idx = self.values["springs"]
@@ -105,6 +114,7 @@ class CompressionStiffness(SpringLawEffect):
     PARAMS: ClassVar[dict[str, ParamSpec]] = {
         "stiffness": ParamSpec("N/m", 0.0, per="spring", positive=False),
     }
+    no_native: ClassVar[str] = "it is the slack-cable probe of a regression, never stepped"
 
     def factor(self, state: State, kin: Kinematics, params: Params) -> torch.Tensor:
         length, _ = spring_lengths(kin, self.topology)

@@ -2,10 +2,10 @@
 
 The environments' stepper and the engine's no-gradient step both pack their model here:
 the topology, the parameters (one set, or one per run of assemblies that share them)
-and the effects the kernel has (:func:`effects_block`: ground contact, linear drag
-(explicit or implicit), quadratic drag, a force field, cubic stiffness, rest-length
-offsets, slack springs), in ``native_step.c``'s layout. A model the kernel does not
-compute raises :class:`NotNative` with the reason.
+and the effects, each as its class declares (its ``native`` form: slots of the
+effects block, :data:`EFFECT_SLOTS`, or the contact law), in ``native_step.c``'s
+layout. A model the kernel does not compute raises :class:`NotNative` with the
+reason (an effect's declared ``no_native``).
 """
 
 from __future__ import annotations
@@ -16,16 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from tensegrity_env.effects import (
-    CubicStiffness,
-    ForceField,
-    GroundContact,
-    ImplicitLinearDrag,
-    LinearDrag,
-    QuadraticDrag,
-    RestLengthOffset,
-    SlackSprings,
-)
+from tensegrity_env.effects.base import NativeForm
 from tensegrity_env.native.kernel import CONTACT_LAW
 from tensegrity_env.topology import Topology
 
@@ -34,6 +25,21 @@ from tensegrity_env.topology import Topology
 #: integrated implicitly b, β (3 each)
 EFFECT_HEAD = 21
 
+
+def effect_slots(n_springs: int) -> dict[str, tuple[int, int]]:
+    """The effects block's slots, name -> (offset, width), for ``n_springs`` springs:
+    ``native_step.c``'s layout (:data:`EFFECT_HEAD` entries, then three per spring)."""
+    S = n_springs
+    return {
+        "linear_drag": (0, 6), "quadratic_drag": (6, 6), "force_field": (12, 3),
+        "implicit_damping": (15, 6), "cubic_stiffness": (EFFECT_HEAD, S),
+        "rest_length_offset": (EFFECT_HEAD + S, S), "slack": (EFFECT_HEAD + 2 * S, S),
+    }  # fmt: skip
+
+
+#: the slots' names (:func:`effect_slots`), for effects to declare theirs against
+EFFECT_SLOTS = tuple(effect_slots(0))
+
 #: the parameters a batch dimension may vary, with their unbatched number of dimensions
 BATCHED = {"stiffness": 1, "damping": 1, "rest_length": 1, "mass": 1, "inertia": 2,
            "control_gain": 0}  # fmt: skip
@@ -41,8 +47,9 @@ BATCHED = {"stiffness": 1, "damping": 1, "rest_length": 1, "mass": 1, "inertia":
 #: the parameters the kernel's model holds (the batched ones and gravity (3,))
 PACKED_PARAMS = (*BATCHED, "gravity")
 
-__all__ = ["BATCHED", "EFFECT_HEAD", "PACKED_PARAMS", "NotNative",
-           "PackedModel", "effects_block", "model_vector", "pack_model"]  # fmt: skip
+__all__ = ["BATCHED", "EFFECT_HEAD", "EFFECT_SLOTS", "PACKED_PARAMS", "NotNative",
+           "PackedModel", "effect_slots", "effects_block", "model_vector",
+           "pack_model"]  # fmt: skip
 
 
 class NotNative(ValueError):
@@ -118,39 +125,35 @@ def effects_block(
     """
     S = topology.n_springs
     block = np.zeros(EFFECT_HEAD + 3 * S)
+    slots = effect_slots(S)
     contact, radius = None, None
-    where = {LinearDrag: (0, ("translational", "rotational")),
-             QuadraticDrag: (6, ("translational", "rotational")), ForceField: (12, ("force",)),
-             CubicStiffness: (EFFECT_HEAD, ("stiffness",)),
-             RestLengthOffset: (EFFECT_HEAD + S, ("offset",))}  # fmt: skip
     for e in effects:
         values: dict[str, torch.Tensor] = getattr(e, "values", {})
-        kind = type(e)
-        name = getattr(e, "name", kind.__name__)
-        if kind is GroundContact:
+        name = getattr(e, "name", type(e).__name__)
+        # declared on the effect's own class: a subclass that changes the force (a
+        # different law) must declare its form again, or it steps in PyTorch
+        form: NativeForm | None = vars(type(e)).get("native")
+        if form is None:
+            why = vars(type(e)).get("no_native", "its class declares none")
+            raise NotNative(f"effect '{name}' has no native form: {why}")
+        if form.kind == "contact":
             if contact is not None:
-                raise NotNative("more than one ground_contact effect")
+                raise NotNative(f"more than one {name} effect")
             if not all(v.numel() == 1 for v in values.values()):
-                raise NotNative("ground_contact: the kernel takes one value per parameter")
+                raise NotNative(f"{name}: the kernel takes one value per parameter")
             contact = {k: float(v.detach()) for k, v in values.items()}
-            radius = e.radius.detach().cpu().double().numpy()
-        elif kind is ImplicitLinearDrag:  # its wrench, and its damping implicitly
-            flat = _flat(values, ("translational", "rotational"))
-            if flat.size != 6:
-                raise NotNative(f"{name}: the kernel takes one value per rod axis")
-            block[0:6] += flat
-            block[15:21] += flat
-        elif kind in where:
-            at, keys = where[kind]
-            flat = _flat(values, keys)
-            width = 6 if kind in (LinearDrag, QuadraticDrag) else (3 if kind is ForceField else S)
-            if flat.size != width:
-                raise NotNative(f"{name}: the kernel takes {width} values, got {flat.size}")
-            block[at : at + width] += flat
-        elif kind is SlackSprings:
-            block[EFFECT_HEAD + 2 * S + values["springs"].cpu().numpy().astype(int)] = 1.0
+            radius = e.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]
+        elif form.kind == "mask":
+            idx = values[form.keys[0]].cpu().numpy().astype(int)
+            for slot in form.slots:
+                block[slots[slot][0] + idx] = 1.0
         else:
-            raise NotNative(f"effect '{name}' has no native form")
+            flat = _flat(values, form.keys)
+            for slot in form.slots:
+                at, width = slots[slot]
+                if flat.size != width:
+                    raise NotNative(f"{name}: the kernel takes {width} values, got {flat.size}")
+                block[at : at + width] += flat
     if radius is None:
         radius = np.zeros(topology.n_rods)
     return contact, block, radius

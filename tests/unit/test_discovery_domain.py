@@ -16,7 +16,7 @@ from identification.discovery import EffectDiscovery, FittedModel
 from identification.discovery.judge import MIN_CHI2_GAIN, MULTI_STEP, Candidate
 from identification.discovery.library import Proposal
 from identification.discovery.residual_network import ResidualFit
-from identification.discovery.scorer import Residual, Scorer
+from identification.discovery.scorer import LoopScorer, Residual
 from tensegrity_env import assemblies
 from tensegrity_env.effects import ForceField, LinearDrag, QuadraticDrag
 from tensegrity_env.effects.base import PhysicalEffect
@@ -35,7 +35,7 @@ def drag(cls: type[LinearDrag] | type[QuadraticDrag], axial: float, se: float) -
                uncertainty={"translational": [0.01, 0.01, se]})  # fmt: skip
 
 
-class StubScorer(Scorer[None]):
+class StubScorer(LoopScorer[None]):
     """Candidates with given fits, held-out gains and refits."""
 
     criteria = MULTI_STEP
@@ -181,7 +181,7 @@ def test_an_earlier_effect_driven_out_of_its_domain_is_replaced(gain_alone):
 
 
 # A second look: a scorer may fit the most promising screened candidates again with
-# everything free (Scorer.second_look, Scorer.fit_jointly); they are judged on that fit.
+# everything free (Refined.second_look, Refined.fit_jointly); they are judged on that fit.
 
 FORCE_FIELD = model_with(ForceField(ICO.topology, force=[0.0, 0.0, 0.1]))
 

@@ -23,6 +23,7 @@ from tensegrity_env.effects import (
     QuadraticDrag,
     RestLengthOffset,
     SlackSprings,
+    SpringFriction,
     effect_from_dict,
     effects_from_document,
 )
@@ -52,6 +53,7 @@ def _examples(topology):
         CubicStiffness(topology, stiffness=np.linspace(0, 50, S)),
         RestLengthOffset(topology, offset=np.linspace(-0.01, 0.01, S)),
         ControlLag(topology, time_constant=0.02),
+        SpringFriction(topology, friction=np.linspace(0.1, 1.0, S)),
     ]
 
 

@@ -18,7 +18,8 @@ from tensegrity_env.effects import GroundContact
 
 
 def _effect(name: str) -> SimpleNamespace:
-    return SimpleNamespace(name=name)
+    """A stand-in effect: its name, and that it is no constraint (not the contact)."""
+    return SimpleNamespace(name=name, constraint=False)
 
 
 def _scorer(

@@ -65,7 +65,7 @@ def register(sub: Any) -> None:
     p.add_argument("--split", default="train", help="split to fit on (default train)")
     p.add_argument("--winch-lag", default=None, metavar="SECONDS|auto",
                    help="the winch motors' lag [s] (a robot with winches): a value, or 'auto' to "
-                        "search it on the regression's residual; default: --init's, else 0")  # fmt: skip
+                        "search it on the regression's residual; default: the lag of --params, else 0")  # fmt: skip
     p.add_argument("--horizon", type=seconds, default=2.0,
                    help="rollout horizon of the test-split error, e.g. 2s (default 2s)")  # fmt: skip
     q = p.add_argument_group("end-cap-only data (trajectory identification through the engine)")

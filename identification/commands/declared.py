@@ -35,12 +35,18 @@ def declared_start(
 ) -> tuple[Params, GroundContact | None]:
     """Where a trajectory fit on end caps starts from the model in ``path``: its
     parameters and its floor contact (None: none). Its first rod's mass fixes the scale
-    unless ``anchors`` (updated in place) already does; a model with effects other than
-    one ground contact is refused (the fit starts from the declared model)."""
+    unless ``anchors`` (updated in place) already does. The fit starts from the declared
+    springs and rods and one floor: a model with two floors is refused; its other effects
+    (an NTRT model's tension-only springs) are left out of the start, saying so
+    (``diagnose`` tests them as candidates)."""
     model = declared_model(path, dataset, source)
     anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
     floors = [e for e in model.effects if isinstance(e, GroundContact)]
-    if len(floors) < len(model.effects) or len(floors) > 1:
+    if len(floors) > 1:
         raise InputError(f"{path}: a trajectory fit starts from the declared model and at "
-                         "most one ground_contact (remove its other 'effects')")  # fmt: skip
+                         "most one ground_contact (remove the others from its 'effects')")  # fmt: skip
+    others = sorted({type(e).__name__ for e in model.effects if not isinstance(e, GroundContact)})
+    if others:
+        print(f"{path}: the fit starts from its springs, rods and floor; its other effects "
+              f"({', '.join(others)}) are left out of the start")  # fmt: skip
     return model.params, floors[0] if floors else None

@@ -61,7 +61,7 @@ START_EVERY = 0.25
 SMOOTHING = 0.01
 #: a model's rest shape is where it settles after this [s] from a measured resting state
 SETTLE = 2.0
-#: targets the issue sets: identified at 0.25 s <= 1/3 of nominal and <= 1 cm; rest shape <= 3 mm
+#: targets of a model worth using: identified at 0.25 s <= 1/3 of nominal and <= 1 cm; rest shape <= 3 mm
 TARGET_RATIO, TARGET_RMS, TARGET_REST = 1 / 3, 0.01, 0.003
 #: the takes: key -> (file under the data folder, robot under it)
 TAKES = {

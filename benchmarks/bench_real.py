@@ -248,7 +248,7 @@ def _cm(x: float | None) -> str:
 def markdown(results: dict[str, Any]) -> str:
     """``real.md`` from ``real.json``'s ``results``: per take the held-out open-loop
     errors, the rest shapes, the stretches, what each command did; the cross-take check;
-    the targets met or missed with the reasons recorded."""
+    each target, met or missed, with the reasons recorded."""
     meta = results.get("meta", {})
     lines = ["# Real robots: held-out prediction", "",
              f"Generated from `real.json` by `benchmarks/bench_real.py` (`{meta.get('command', '')}`, "

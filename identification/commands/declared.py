@@ -8,6 +8,7 @@ from pathlib import Path
 
 from identification.data.dataset import Dataset
 from tensegrity_env.effects import GroundContact
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
@@ -32,21 +33,26 @@ def declared_model(path: Path, dataset: Dataset, source: Path) -> Model:
 
 def declared_start(
     path: Path, dataset: Dataset, source: Path, anchors: dict[str, float]
-) -> tuple[Params, GroundContact | None]:
+) -> tuple[Params, GroundContact | None, list[PhysicalEffect]]:
     """Where a trajectory fit on end caps starts from the model in ``path``: its
-    parameters and its floor contact (None: none). Its first rod's mass fixes the scale
-    unless ``anchors`` (updated in place) already does. The fit starts from the declared
-    springs and rods and one floor: a model with two floors is refused; its other effects
-    (an NTRT model's tension-only springs) are left out of the start, saying so
-    (``diagnose`` tests them as candidates)."""
+    parameters, its floor contact (None: none) and its other effects (an NTRT model's
+    tension-only springs), which a fit on the floor keeps as declared. Its first rod's
+    mass fixes the scale unless ``anchors`` (updated in place) already does; a model with
+    two floors is refused."""
     model = declared_model(path, dataset, source)
     anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
     floors = [e for e in model.effects if isinstance(e, GroundContact)]
     if len(floors) > 1:
         raise InputError(f"{path}: a trajectory fit starts from the declared model and at "
                          "most one ground_contact (remove the others from its 'effects')")  # fmt: skip
-    others = sorted({type(e).__name__ for e in model.effects if not isinstance(e, GroundContact)})
+    others = [e for e in model.effects if not isinstance(e, GroundContact)]
+    return model.params, floors[0] if floors else None, others
+
+
+def no_other_effects(path: Path, others: list[PhysicalEffect], what: str) -> None:
+    """Refuse in one line a declared model whose effects besides a floor (``others``)
+    ``what`` (a fit that starts from the declared model and a floor only) cannot keep."""
     if others:
-        print(f"{path}: the fit starts from its springs, rods and floor; its other effects "
-              f"({', '.join(others)}) are left out of the start")  # fmt: skip
-    return model.params, floors[0] if floors else None
+        raise InputError(f"{path}: {what} starts from the declared model and at most one "
+                         f"ground_contact; it cannot keep its {', '.join(e.name for e in others)} "
+                         "(remove them from its 'effects')")  # fmt: skip

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from identification.commands.declared import declared_start
+from identification.commands.declared import declared_start, no_other_effects
 from identification.data.dataset import Dataset, Split
-from tensegrity_env.effects import GroundContact
+from tensegrity_env.effects import GroundContact, SlackSprings
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.ntrt import from_ntrt
 
 PRISM = """
@@ -29,15 +30,18 @@ pair_groups:
 """
 
 
-def test_an_ntrt_model_starts_the_fit_with_its_floor_and_rod_mass(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_an_ntrt_model_starts_the_fit_with_its_floor_rod_mass_and_slack_springs(tmp_path: Path) -> None:
     path = tmp_path / "prism.yaml"
     path.write_text(PRISM)
     robot = from_ntrt(path)
     caps = np.tile(robot.rest_caps, (1, 4, 1, 1))
     data = Dataset(robot.topology, 1 / 120, {"train": Split(nodes=caps, control=np.zeros((1, 3, 3, 3)))})
     anchors: dict[str, float] = {}
-    params, contact = declared_start(path, data, tmp_path / "take.h5", anchors)
+    params, contact, others = declared_start(path, data, tmp_path / "take.h5", anchors)
     assert isinstance(contact, GroundContact)
+    (slack,) = others  # every NTRT cable is tension-only
+    assert isinstance(slack, SlackSprings) and slack.values["springs"].tolist() == list(range(9))
     assert anchors == {f"mass[{robot.topology.rods[0].name}]": pytest.approx(float(robot.params.mass[0]))}
     np.testing.assert_allclose(params.stiffness.numpy(), robot.params.stiffness.numpy())
-    assert "its other effects (SlackSprings) are left out of the start" in capsys.readouterr().out
+    with pytest.raises(InputError, match="cannot keep its slack_springs"):
+        no_other_effects(path, others, "the trajectory fit off the floor")

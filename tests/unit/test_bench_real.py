@@ -9,7 +9,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
-from bench_real import _kabsch_rms, main, markdown  # noqa: E402
+from bench_real import _kabsch_rms, main, markdown
 
 
 def _record(identified: list[float] | None) -> dict:

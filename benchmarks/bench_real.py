@@ -101,8 +101,13 @@ def open_loop(model: Model, nodes: np.ndarray, dt: float, horizons: tuple[float,
     _, st = measured_rod_states(nodes, model.topology, dt, "gaussian", SMOOTHING)
     steps = [round(h / dt) for h in horizons]
     every = max(1, round(START_EVERY / dt))
-    starts = [(n, t) for n in range(nodes.shape[0]) for t in range(0, nodes.shape[1] - steps[0], every)
-              if np.isfinite(st["p"][n, t]).all() and np.isfinite(st["omega"][n, t]).all()]  # fmt: skip
+    known = np.isfinite(st["p"]).all((-1, -2)) & np.isfinite(st["omega"]).all((-1, -2))  # (N, T)
+    starts = []  # the first measured state in each slot of START_EVERY
+    for n in range(nodes.shape[0]):
+        for a in range(0, nodes.shape[1] - steps[0], every):
+            hit = np.flatnonzero(known[n, a : min(a + every, nodes.shape[1] - steps[0])])
+            if hit.size:
+                starts.append((n, a + int(hit[0])))
     if not starts:
         return [float("nan")] * len(horizons)
     idx = tuple(np.array(x) for x in zip(*starts, strict=True))
@@ -187,13 +192,25 @@ def parameter_summary(model: Model) -> dict[str, list[float]]:
     return out
 
 
-def run_take(key: str, data_dir: Path, work: Path, quick: bool, timeout: float) -> dict[str, Any]:
-    """Import, identify, diagnose and evaluate one take; its JSON record."""
+def run_take(key: str, data_dir: Path, work: Path, quick: bool, timeout: float, reuse: bool = False) -> dict[str, Any]:
+    """Import, identify, diagnose and evaluate one take; its JSON record. ``reuse``: the
+    commands' outputs in ``work`` from an earlier run are evaluated again, not rerun."""
     file, robot = (data_dir / p for p in TAKES[key])
     folder = work / key
     folder.mkdir(parents=True, exist_ok=True)
     h5 = folder / "take.h5"
     rec: dict[str, Any] = {"file": TAKES[key][0], "robot": TAKES[key][1], "runs": {}}
+    if reuse and (folder / "runs.json").is_file():
+        rec["runs"] = json.loads((folder / "runs.json").read_text())
+        return evaluate(rec, h5, folder, robot) if h5.is_file() else rec
+    rec = run_commands(rec, file, robot, h5, folder, quick, timeout)
+    (folder / "runs.json").write_text(json.dumps(rec["runs"]))
+    return evaluate(rec, h5, folder, robot) if h5.is_file() and not rec["runs"]["import"]["returncode"] else rec
+
+
+def run_commands(rec: dict[str, Any], file: Path, robot: Path, h5: Path, folder: Path, quick: bool,
+                 timeout: float) -> dict[str, Any]:  # fmt: skip
+    """``import-mocap``, ``identify`` and ``diagnose`` on one take, recorded in ``rec``."""
     rec["runs"]["import"] = run_cli(["import-mocap", str(file), "--robot", str(robot), "-o", str(h5), "--force"],
                                     folder / "import.log", timeout)  # fmt: skip
     if rec["runs"]["import"]["returncode"]:
@@ -205,9 +222,15 @@ def run_take(key: str, data_dir: Path, work: Path, quick: bool, timeout: float) 
     diag = ["--max-effects", "1", "--windows", "4", "--fit-windows", "8", "--floor-windows", "4"] if quick else []
     rec["runs"]["diagnose"] = run_cli(["diagnose", str(h5), "--params", str(robot), "-o", str(folder / "diagnose"),
                                        *diag], folder / "diagnose.log", timeout)  # fmt: skip
+    return rec
+
+
+def evaluate(rec: dict[str, Any], h5: Path, folder: Path, robot: Path) -> dict[str, Any]:
+    """``rec`` with the take's stretches, pieces, held-out errors, rest shapes and
+    parameters of the models the commands wrote."""
     data, _ = on_nominal_grid(read_dataset(h5))
     rec["stretches"] = json.loads(data.attrs["stretches"]) if "stretches" in data.attrs else {}
-    rec["stretches"] = rec["stretches"].get(Path(TAKES[key][0]).name, [])
+    rec["stretches"] = rec["stretches"].get(Path(rec["file"]).name, [])
     rec["pieces"] = json.loads(data.attrs["pieces"]) if "pieces" in data.attrs else {}
     nodes = held_out(data)
     rec["heldout"] = {"horizon_s": list(HORIZONS), "pieces": int(nodes.shape[0]),
@@ -327,6 +350,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=ROOT / "docs" / "results" / "real.json")
     ap.add_argument("--note", action="append", default=[], help="a note for real.md (repeatable)")
     ap.add_argument("--report-only", action="store_true", help="rewrite real.md from real.json")
+    ap.add_argument("--reuse", action="store_true",
+                    help="evaluate again what an earlier run left in --workdir, without rerunning the commands")  # fmt: skip
     args = ap.parse_args(argv)
     md = args.json.with_suffix(".md")
     if args.report_only:
@@ -341,11 +366,12 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {}
     for key in args.takes.split(","):
         print(f"{key}: import, identify, diagnose, evaluate in {work / key}", flush=True)
-        results[key] = run_take(key, args.data, work, args.quick, args.timeout)
+        results[key] = run_take(key, args.data, work, args.quick, args.timeout, args.reuse)
         print(json.dumps(results[key].get("heldout", {})), flush=True)
     if len(results) > 1:
         results["cross_take"] = cross_take(results, args.data, work)
-    command = "python benchmarks/bench_real.py --data ../shared/real" + (" --quick" if args.quick else "")
+    command = ("python benchmarks/bench_real.py --data ../shared/real" + (" --quick" if args.quick else "")
+               + (" (its commands' outputs evaluated again with --reuse)" if args.reuse else ""))  # fmt: skip
     results["meta"] = {"command": command, "seconds": round(time.perf_counter() - t0, 1), "notes": args.note}
     atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
     atomic_write_text(md, markdown(results))

@@ -129,3 +129,13 @@ def test_stretch_text_names_its_kind_and_times() -> None:
     s = Stretch(6.37, 11.3, "external", (7.28, 11.3))
     assert str(s) == "external 6.37-11.30 s (off the floor and not falling freely 7.28-11.30 s)"
     assert s.to_dict()["held_s"] == [7.28, 11.3]
+
+
+def test_end_caps_that_repeat_their_frame_are_read_as_unseen() -> None:
+    from identification.data.mocap.importer import without_placeholders
+
+    rng = np.random.default_rng(3)
+    caps = rng.normal(size=(10, 12, 3))
+    caps[5] = caps[4] + 1e-8  # the caps copied from the frame before (a ghost kept the frame apart)
+    out, n = without_placeholders(caps)
+    assert n == 12 and np.isnan(out[5]).all() and np.isfinite(np.delete(out, 5, axis=0)).all()

@@ -14,7 +14,7 @@ from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
 from identification.data.mocap.stretches import Stretch, assign_splits, pieces
 from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
-from identification.data.quality import longest_run, third_difference_noise
+from identification.data.quality import longest_run, placeholder_samples, third_difference_noise
 from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
@@ -286,10 +286,23 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
     lengths = np.where(np.isfinite(usual), usual, lengths)
     lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
     caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
+    caps, held = without_placeholders(caps)
+    rejected += held
     return ImportedTake(
         rec.source, rec.time, caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap,
         rejected=rejected, reacquired=lab.reacquired, ids=rec.ids,
     )  # fmt: skip
+
+
+def without_placeholders(caps: np.ndarray) -> tuple[np.ndarray, int]:
+    """End caps ``caps`` (F, 2R, 3) [m] with the samples that read as placeholders
+    (:func:`~identification.data.quality.placeholder_samples`: every seen cap repeating
+    the frame before within a micrometre, where a ghost point that did not repeat kept
+    the cloud's frame from reading as repeated) read as unseen, and how many."""
+    mask = placeholder_samples(caps) & np.isfinite(caps).all(-1)
+    out = caps.copy()
+    out[mask] = np.nan
+    return out, int(mask.sum())
 
 
 def marker_distances(first: np.ndarray, lengths: np.ndarray) -> np.ndarray:

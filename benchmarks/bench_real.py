@@ -307,6 +307,8 @@ def markdown(results: dict[str, Any]) -> str:
                 lines.append(f"| {g} | " + " | ".join(" / ".join(f"{x:.4g}" for x in v[g]) for v in params.values()) + " |")
         lines += ["", *targets(rec), ""]
     cross = results.get("cross_take", {})
+    if "cross_take" in results and not cross:
+        lines += ["## Cross-take", "", "Not evaluated: no take has an identified model.", ""]
     if cross:
         lines += ["## Cross-take", "", "| fitted on -> predicted | model | " + " | ".join(f"{t:g} s" for t in HORIZONS) + " |",
                   "| --- | --- |" + " --- |" * len(HORIZONS)]  # fmt: skip

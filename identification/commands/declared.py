@@ -12,6 +12,7 @@ from tensegrity_env.io_utils import InputError
 if TYPE_CHECKING:  # imported where used: --help imports no torch, MuJoCo or SciPy
     from identification.data.dataset import Dataset
     from tensegrity_env.effects import GroundContact
+    from tensegrity_env.effects.base import PhysicalEffect
     from tensegrity_env.model import Model
     from tensegrity_env.params import Params
 
@@ -37,17 +38,28 @@ def declared_model(path: Path, dataset: Dataset, source: Path) -> Model:
 
 def declared_start(
     path: Path, dataset: Dataset, source: Path, anchors: dict[str, float]
-) -> tuple[Params, GroundContact | None]:
+) -> tuple[Params, GroundContact | None, list[PhysicalEffect]]:
     """Where a trajectory fit on end caps starts from the model in ``path``: its
-    parameters and its floor contact (None: none). Its first rod's mass fixes the scale
-    unless ``anchors`` (updated in place) already does; a model with effects other than
-    one ground contact is refused (the fit starts from the declared model)."""
+    parameters, its floor contact (None: none) and its other effects (an NTRT model's
+    tension-only springs), which a fit on the floor keeps as declared. Its first rod's
+    mass fixes the scale unless ``anchors`` (updated in place) already does; a model with
+    two floors is refused."""
     from tensegrity_env.effects import GroundContact
 
     model = declared_model(path, dataset, source)
     anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
     floors = [e for e in model.effects if isinstance(e, GroundContact)]
-    if len(floors) < len(model.effects) or len(floors) > 1:
+    if len(floors) > 1:
         raise InputError(f"{path}: a trajectory fit starts from the declared model and at "
-                         "most one ground_contact (remove its other 'effects')")  # fmt: skip
-    return model.params, floors[0] if floors else None
+                         "most one ground_contact (remove the others from its 'effects')")  # fmt: skip
+    others = [e for e in model.effects if not isinstance(e, GroundContact)]
+    return model.params, floors[0] if floors else None, others
+
+
+def no_other_effects(path: Path, others: list[PhysicalEffect], what: str) -> None:
+    """Refuse in one line a declared model whose effects besides a floor (``others``)
+    ``what`` (a fit that starts from the declared model and a floor only) cannot keep."""
+    if others:
+        raise InputError(f"{path}: {what} starts from the declared model and at most one "
+                         f"ground_contact; it cannot keep its {', '.join(e.name for e in others)} "
+                         "(remove them from its 'effects')")  # fmt: skip

@@ -13,7 +13,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from identification.commands.declared import add_params_option, declared_model, declared_start
+from identification.commands.declared import (
+    add_params_option,
+    declared_model,
+    declared_start,
+    no_other_effects,
+)
 from identification.commands.durations import describe, samples_of, seconds
 from identification.defaults import (
     FINAL_FLOOR_WINDOWS,
@@ -282,7 +287,8 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None
     if args.params is not None:
-        start, contact = declared_start(args.params, dataset, args.dataset, anchors)
+        start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
+        no_other_effects(args.params, others, "diagnose's trajectory fit")
     dt = dataset.dt
     span = WINDOW_S if args.window is None else args.window
     if span < 2 * dt or args.windows < 1 or args.fit_windows < 1:

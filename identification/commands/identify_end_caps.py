@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from identification.commands.declared import declared_start
+from identification.commands.declared import declared_start, no_other_effects
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.data.end_caps import check_caps_seen
@@ -133,10 +133,11 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
                f"{describe(args.first_window, dt)} to {describe(window, dt)}")  # fmt: skip
     print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: {how}, physics step "
           f"<= {args.physics_dt:g} s")  # fmt: skip
-    start, contact = None, None
+    start, contact, others = None, None, []
     if args.params is not None:
-        start, contact = declared_start(args.params, dataset, args.dataset, anchors)
-        print(f"starting from the model in {args.params}")
+        start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
+        print(f"starting from the model in {args.params}"
+              + (f", keeping its {', '.join(e.name for e in others)}" if others else ""))  # fmt: skip
     noise = noise_level(split.nodes)
     print(f"noise level estimated from the end caps: {noise * 1e3:.3g} mm")
     t0 = time.perf_counter()
@@ -150,10 +151,12 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     if floor:
         print(f"end caps reach a floor ({why}): ground contact is fitted with the declared "
               "model")  # fmt: skip
-        est = identify_on_floor(dataset, settings, args.split, start=start, contact=contact)
-        effects = [est.contact_]
+        est = identify_on_floor(dataset, settings, args.split, start=start, contact=contact,
+                                effects=others)  # fmt: skip
+        effects = [*est.effects_, est.contact_]
         evidence = contact_evidence(split.nodes, dt, dataset.topology, est.contact_)
     else:
+        no_other_effects(args.params, others, "the trajectory fit off the floor")
         est = TrajectoryIdentifier(
             anchors=anchors, window=samples_of(window, dt, 2),
             first_window=samples_of(args.first_window, dt, 2), smoothing=args.smoothing,

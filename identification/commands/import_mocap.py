@@ -46,8 +46,15 @@ def register(sub: Any) -> None:
                         "from free flight where there is any, else from the floor its lowest "
                         "end caps rest on; a named axis the data contradicts is refused)")  # fmt: skip
     p.add_argument("--split", default="0.7,0.15,0.15", metavar="TRAIN,VAL,TEST",
-                   help="fractions of the takes (of each take's duration with fewer than 3 takes); "
-                        "default 0.7,0.15,0.15")  # fmt: skip
+                   help="fractions of the takes (of each take's pieces of its stretches with "
+                        "fewer than 3 takes); default 0.7,0.15,0.15")  # fmt: skip
+    p.add_argument("--segments", metavar="START-END,...",
+                   help="the stretches a fit uses, in seconds of each take (e.g. 0-7,11.5-20); "
+                        "default: found in each take (at rest and free; not where something "
+                        "outside the model, such as a person, acts on the robot)")  # fmt: skip
+    p.add_argument("--piece", type=float, default=2.0, metavar="SECONDS",
+                   help="the stretches are cut into trajectories of this length [s], each "
+                        "whole in one split (default 2; 0: each stretch whole)")  # fmt: skip
     p.add_argument("--val", type=Path, action="append", default=[],
                    help="a file for the val split (repeatable; the split then goes by file)")  # fmt: skip
     p.add_argument("--test", type=Path, action="append", default=[],
@@ -93,6 +100,25 @@ def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None)
     return take if log is None else replace(take, commands=hold_commands(*log, take.time, str(take.source)))
 
 
+def with_stretches(take: ImportedTake, segments: str | None) -> ImportedTake:
+    """``take`` (z-up) with the stretches a fit uses: the user's ``segments``
+    (``--segments``), else those found in it when something outside the model acts in
+    it (else none: the whole take is used), printed with their times."""
+    from identification.data.mocap.stretches import find_stretches, named_stretches, parse_segments
+
+    found = find_stretches(take.caps, take.time)
+    print(f"{take.source}: stretches " + ", ".join(map(str, found)))
+    if segments is None:
+        if not any(s.kind == "external" for s in found):
+            return take
+        print(f"{take.source}: the fit leaves out what acts from outside the model (--segments "
+              "names the stretches to use instead)")  # fmt: skip
+        return replace(take, stretches=tuple(found))
+    named = named_stretches(parse_segments(segments), take.time, str(take.source))
+    print(f"{take.source}: --segments: the fit uses " + ", ".join(f"{s.start:.2f}-{s.end:.2f} s" for s in named))
+    return replace(take, stretches=tuple(named))
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -113,6 +139,12 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force, inputs=[*args.files, args.robot, args.map,
                                                      *args.commands, *args.val, *args.test])
     fractions = parse_fractions(args.split)
+    if args.segments is not None:
+        from identification.data.mocap.stretches import parse_segments
+
+        parse_segments(args.segments)  # refused before any work
+    if not args.piece >= 0:
+        raise InputError(f"--piece: {args.piece:g} s must be positive, or 0 (each stretch whole)")
     named = {f.name for f in args.files}
     assign = {f.name: "val" for f in args.val} | {f.name: "test" for f in args.test}
     for f in [*args.val, *args.test]:
@@ -129,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     turned = [upright(t, args.up) for t in takes]  # every take checked before one is written
     for _, line in turned:
         print(line)
-    takes = [t for t, _ in turned]
+    takes = [with_stretches(t, args.segments) for t, _ in turned]
     for take in takes:
         if take.reacquired is not None:
             print(tracking_report(take, robot.topology))
@@ -138,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{rec.source}: tracking starts at frame {rec.n_frames - len(take.time)} "
                   f"({take.time[0]:.3g} s), the first that shows every end cap; the frames "
                   "before it are left out")  # fmt: skip
-    dataset = build_dataset(takes, robot, fractions, assign or None)
+    dataset = build_dataset(takes, robot, fractions, assign or None, args.piece)
     write_dataset(args.output, dataset)
     frames = sum(len(t.time) for t in takes)
     seen = np.mean([np.isfinite(t.caps).all(-1).mean() for t in takes])

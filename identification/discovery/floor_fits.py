@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -184,7 +184,8 @@ class FloorIdentification:
     The attributes mirror :class:`~identification.trajectory.identifier.TrajectoryIdentifier`'s
     (``params_``, ``topology_``, ``stderr_`` relative per free parameter, ``mode_``,
     ``notes_``, ``rms_`` [m], ``converged_``, ``stages_``), plus ``contact_`` (the fitted
-    :class:`GroundContact`, standard errors as its ``uncertainty``).
+    :class:`GroundContact`, standard errors as its ``uncertainty``) and ``effects_`` (the
+    declared effects fitted with it, such as tension-only springs).
     """
 
     params_: Params
@@ -196,6 +197,7 @@ class FloorIdentification:
     converged_: bool
     stages_: list[dict[str, Any]]
     contact_: GroundContact
+    effects_: list[PhysicalEffect] = field(default_factory=list)
 
 
 def identify_on_floor(
@@ -205,17 +207,19 @@ def identify_on_floor(
     log: Callable[[str], None] = print,
     start: Params | None = None,
     contact: GroundContact | None = None,
+    effects: Sequence[PhysicalEffect] = (),
 ) -> FloorIdentification:
     """The declared model and ground contact fitted on ``split``'s end caps
     (:func:`fit_declared_on_floor`: ``settings.floor_windows`` windows of
     :func:`floor_steps`), as ``identify`` reports it; from ``start`` and ``contact``
-    (a params file's) where given, as :func:`floor_fit`."""
+    (a params file's) where given, as :func:`floor_fit`, with the declared ``effects``
+    (tension-only springs) in the model."""
     if split != "train":
         splits = {**dataset.splits, "train": dataset.split(split)}
         dataset = Dataset(dataset.topology, dataset.dt, splits, dataset.attrs)
     data = EndCapData(dataset, settings)
     data.log = log
-    many, _ = fit_declared_on_floor(data, settings, start=start, contact=contact,
+    many, _ = fit_declared_on_floor(data, settings, start=start, effects=effects, contact=contact,
                                     selection=False)  # fmt: skip
     vec, topo = many.vec, dataset.topology
     ident = TrajectoryIdentifier(anchors=settings.anchors)
@@ -232,5 +236,5 @@ def identify_on_floor(
     return FloorIdentification(
         params_=many.params, topology_=topo, stderr_=stderr, mode_=ident.mode_,
         notes_=TrajectoryIdentifier.notes(topo, data.axes, has_control), rms_=many.rms,
-        converged_=True, stages_=stages, contact_=contact,
+        converged_=True, stages_=stages, contact_=contact, effects_=list(many.effects[:-1]),
     )  # fmt: skip

@@ -3,6 +3,7 @@ jumping 6-bar's raw OptiTrack exports imported with its NTRT model, nothing else
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -20,7 +21,8 @@ ROBOT = REAL / "robot_ntrt" / "isodrop3Aext.yaml"
 
 def imported(take: str, out: Path) -> tuple[np.ndarray, np.ndarray, str]:
     r = subprocess.run([sys.executable, "-m", "tensegrity_sr.cli", "import-mocap", str(REAL / "raw" / take),
-                        "--robot", str(ROBOT), "--split", "1,0,0", "-o", str(out)],
+                        "--robot", str(ROBOT), "--split", "1,0,0", "--segments", "0-30", "--piece", "0",
+                        "-o", str(out)],
                        capture_output=True, text=True, check=False)  # fmt: skip
     assert r.returncode == 0, r.stderr
     split = read_dataset(out).split("train")
@@ -31,6 +33,14 @@ def imported(take: str, out: Path) -> tuple[np.ndarray, np.ndarray, str]:
 def test_the_drop_is_labelled_set_upright_and_its_rods_keep_their_length(tmp_path: Path) -> None:
     caps, time, out = imported("T2_drop_newnodes_.csv", tmp_path / "drop.h5")
     assert "up is y (free flight" in out
+    # the person's stretch: the resting robot starts to move when touched, leaves the floor
+    # held (about 7 s) and is let go (about 11.5 s, the impact 0.3 s later)
+    found = re.search(r"external ([\d.]+)-([\d.]+) s \(off the floor and not falling freely "
+                      r"([\d.]+)-([\d.]+) s\)", out)  # fmt: skip
+    assert found is not None, out
+    touched, released, lifted, let_go = map(float, found.groups())
+    assert abs(lifted - 7.0) < 0.5 and abs(let_go - 11.5) < 0.5 and abs(released - 11.5) < 0.5
+    assert 6.0 < touched <= lifted
     seen = np.isfinite(caps).all(-1)
     # one cap lies hidden under the robot after the drop (11 markers from 13.8 s on):
     # 95.9 % of the samples are tracked, 90.5 % within 2 mm of their rod's usual length

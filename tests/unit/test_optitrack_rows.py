@@ -115,9 +115,11 @@ def test_row_format_is_read_with_its_ids_and_repeated_frames_become_gaps(tmp_pat
 def test_an_unlabelled_take_is_labelled_up_to_symmetry_and_set_upright(tmp_path: Path) -> None:
     planted = export(tmp_path, np.random.default_rng(1))
     r = cli("import-mocap", tmp_path / "take.csv", "--robot", tmp_path / "prism.yaml", "--split", "1,0,0",
-            "-o", tmp_path / "take.h5")  # fmt: skip
+            "--segments", "0-2", "--piece", "0", "-o", tmp_path / "take.h5")  # fmt: skip
     assert r.returncode == 0, r.stderr
     assert "up is y (free flight" in r.stdout and "tracking per end cap" in r.stdout
+    # the hand's lift (0.8-1.2 s) is found, the whole take kept as --segments names it
+    assert "external 0.7" in r.stdout and "the fit uses 0.01-2.00 s" in r.stdout
     caps = read_dataset(tmp_path / "take.h5").split("train").nodes[0]  # tracking starts at frame 1
     truth, visible, repeated = planted["truth"][1:], planted["visible"][1:], planted["repeated"][1:]  # type: ignore[index]
     # one labelling of the robot's symmetric ones: a permutation of the caps keeping rods whole

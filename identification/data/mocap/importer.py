@@ -12,8 +12,9 @@ from identification.data.end_caps import cap_names
 from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
 from identification.data.mocap.recording import MarkerRecording
+from identification.data.mocap.stretches import Stretch, assign_splits, pieces
 from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
-from identification.data.quality import longest_run, third_difference_noise
+from identification.data.quality import longest_run, placeholder_samples, third_difference_noise
 from identification.data.sample_grid import check_span, grid_index
 from tensegrity_env.assemblies import node_positions
 from tensegrity_env.io_utils import InputError
@@ -88,7 +89,9 @@ class ImportedTake:
     [command units] (None: not logged, zero); ``rejected``: labelled samples read as
     unseen (:func:`checked_labels`, :func:`rods_off_their_length`); ``reacquired``
     (2R,): times each cap was found again after being lost (unlabelled takes);
-    ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`)."""
+    ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`);
+    ``stretches``: the take's stretches of which a fit uses those at rest, free or named
+    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used)."""
 
     source: Path
     time: np.ndarray
@@ -101,6 +104,7 @@ class ImportedTake:
     rejected: int = 0
     reacquired: np.ndarray | None = None
     ids: np.ndarray | None = None
+    stretches: tuple[Stretch, ...] | None = None
 
     def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
@@ -282,10 +286,23 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
     lengths = np.where(np.isfinite(usual), usual, lengths)
     lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
     caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
+    caps, held = without_placeholders(caps)
+    rejected += held
     return ImportedTake(
         rec.source, rec.time, caps, rec.rate, lab.relabelled_frames, lab.ghosts, lab.track_of_cap,
         rejected=rejected, reacquired=lab.reacquired, ids=rec.ids,
     )  # fmt: skip
+
+
+def without_placeholders(caps: np.ndarray) -> tuple[np.ndarray, int]:
+    """End caps ``caps`` (F, 2R, 3) [m] with the samples that read as placeholders
+    (:func:`~identification.data.quality.placeholder_samples`: every seen cap repeating
+    the frame before within a micrometre, where a ghost point that did not repeat kept
+    the cloud's frame from reading as repeated) read as unseen, and how many."""
+    mask = placeholder_samples(caps) & np.isfinite(caps).all(-1)
+    out = caps.copy()
+    out[mask] = np.nan
+    return out, int(mask.sum())
 
 
 def marker_distances(first: np.ndarray, lengths: np.ndarray) -> np.ndarray:
@@ -411,40 +428,67 @@ def _stack(pieces: list[Piece], n_rods: int) -> Split:
 
 def build_dataset(
     takes: list[ImportedTake], robot: Robot, fractions: tuple[float, float, float],
-    assign: dict[str, str] | None = None,
+    assign: dict[str, str] | None = None, piece: float = 2.0,
 ) -> Dataset:  # fmt: skip
     """Takes to splits: ``assign`` (file name -> split) where given, else ``fractions``
-    of the takes (or, with fewer takes than splits, of each take's duration)."""
+    of the takes (or, with fewer takes than splits, of each take's pieces, or of its
+    duration when it has no stretches). A take with stretches gives only pieces of
+    ``piece`` [s] cut from the stretches a fit uses (:func:`~identification.data.mocap.
+    stretches.pieces`), each whole in one split; the attrs record the stretches and
+    each split's pieces (file, start, end [s])."""
     rates = np.array([t.rate for t in takes])
     if np.ptp(rates) > RATE_TOL * rates.min():
         raise InputError(f"takes have different frame rates ({sorted(set(rates.round(3)))} Hz); import them separately")
     groups: dict[str, list[Piece]] = {"train": [], "val": [], "test": []}
+    where: dict[str, list[list[object]]] = {"train": [], "val": [], "test": []}
     C = robot.topology.n_cables
-    if assign:
-        for t in takes:
-            groups[assign.get(t.source.name, "train")].append(t.piece(n_cables=C))
-    elif len(takes) >= 3:
-        n = len(takes)
-        n_val = round(fractions[1] * n) if fractions[1] > 0 else 0
-        n_test = round(fractions[2] * n) if fractions[2] > 0 else 0
-        n_val, n_test = max(n_val, fractions[1] > 0), max(n_test, fractions[2] > 0)
-        names = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
+
+    def add(t: ImportedTake, split: str, a: int = 0, b: int | None = None) -> None:
+        groups[split].append(t.piece(a, b, C))
+        end = len(t.time) if b is None else b
+        where[split].append([t.source.name, round(float(t.time[a]), 4), round(float(t.time[end - 1]), 4)])
+
+    def cut(t: ImportedTake) -> list[tuple[int, int | None]]:
+        ranges = pieces(list(t.stretches), t.time, piece) if t.stretches is not None else [(0, None)]
+        if not ranges:
+            raise InputError(f"{t.source}: no stretch a fit can use lasts {piece:g} s "
+                             f"({', '.join(map(str, t.stretches or ()))})")  # fmt: skip
+        return ranges  # type: ignore[return-value]
+
+    if assign or len(takes) >= 3:
+        if assign:
+            names = [assign.get(t.source.name, "train") for t in takes]
+        else:
+            n = len(takes)
+            n_val = round(fractions[1] * n) if fractions[1] > 0 else 0
+            n_test = round(fractions[2] * n) if fractions[2] > 0 else 0
+            n_val, n_test = max(n_val, fractions[1] > 0), max(n_test, fractions[2] > 0)
+            names = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
         for t, s in zip(takes, names, strict=True):
-            groups[s].append(t.piece(n_cables=C))
+            for a, b in cut(t):
+                add(t, s, a, b)
     else:
         for t in takes:
-            edges = np.round(np.cumsum((0.0, *fractions)) * len(t.time)).astype(int)
-            for s, a, b in zip(("train", "val", "test"), edges[:-1], edges[1:], strict=True):
-                if b - a >= 2:
-                    groups[s].append(t.piece(a, b, C))
+            if t.stretches is None:  # fractions of the take's duration
+                edges = np.round(np.cumsum((0.0, *fractions)) * len(t.time)).astype(int)
+                for s, a, b in zip(("train", "val", "test"), edges[:-1], edges[1:], strict=True):
+                    if b - a >= 2:
+                        add(t, s, int(a), int(b))
+                continue
+            ranges = cut(t)
+            for (a, b), s in zip(ranges, assign_splits(len(ranges), fractions), strict=True):
+                add(t, s, a, b)
     if not groups["train"]:
         raise InputError("no take left for the training split")
     splits = {s: _stack(p, robot.topology.n_rods) for s, p in groups.items() if p}
-    attrs = {
+    attrs: dict[str, object] = {
         "source": "import-mocap",
         "files": [str(t.source) for t in takes],
         "relabelled_frames": int(sum(t.relabelled_frames for t in takes)),
         "ghost_points": int(sum(t.ghosts for t in takes)),
         "rejected_samples": int(sum(t.rejected for t in takes)),
     }
+    if any(t.stretches is not None for t in takes):
+        attrs["stretches"] = {t.source.name: [x.to_dict() for x in t.stretches or ()] for t in takes}
+        attrs["pieces"] = {s: w for s, w in where.items() if w}
     return Dataset(topology=robot.topology, dt=float(1.0 / np.median(rates)), splits=splits, attrs=attrs)

@@ -75,11 +75,12 @@ def _nearest_axis(up: np.ndarray) -> tuple[str, float]:
     return ("-" if up[k] < 0 else "") + AXES[k], angle
 
 
-def free_flight(caps: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Gravity's direction (3,) (unit, pointing down) from the stretches where the
-    centre of the end caps ``caps`` (F, N, 3) [m] at ``time`` (F,) [s] accelerates at
-    g, and their total duration [s]; None without such stretches. Frames that see
-    fewer than all but two caps are skipped (second differences over uneven steps)."""
+def centre_acceleration(caps: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The acceleration of the centre of the end caps ``caps`` (F, N, 3) [m] at ``time``
+    (F,) [s]: per frame (second differences over the caps seen in all three frames),
+    and that averaged over :data:`FLIGHT_SMOOTH` where at least half the span is
+    measured; both (F, 3) [m/s^2], NaN where not measured. Frames that see fewer than
+    all but two caps are skipped (second differences over uneven steps)."""
     F, N = caps.shape[:2]
     seen = np.isfinite(caps).all(-1)
     usable = np.flatnonzero(seen.sum(-1) >= max(N - 2, 1))
@@ -100,6 +101,18 @@ def free_flight(caps: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, float] 
     for f in np.flatnonzero(ok):
         if ok[lo[f] : hi[f]].mean() >= 0.5:  # at least half the span measured
             smooth[f] = acc[lo[f] : hi[f]][ok[lo[f] : hi[f]]].mean(0)
+    return acc, smooth
+
+
+def free_flight(caps: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Gravity's direction (3,) (unit, pointing down) from the stretches where the
+    centre of the end caps ``caps`` (F, N, 3) [m] at ``time`` (F,) [s] accelerates at
+    g, and their total duration [s]; None without such stretches
+    (:func:`centre_acceleration`)."""
+    F = caps.shape[0]
+    dt = float(np.median(np.diff(time)))
+    acc, smooth = centre_acceleration(caps, time)
+    ok = np.isfinite(acc).all(-1)
     norm = np.linalg.norm(smooth, axis=-1)
     fly = np.isfinite(norm) & (np.abs(norm - G) < FLIGHT_TOL * G)
     keep = np.zeros(F, dtype=bool)  # runs of at least FLIGHT_MIN, unmeasured frames bridged

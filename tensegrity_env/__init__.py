@@ -25,12 +25,14 @@ def _register_envs() -> None:
     for name, single, vector in (
         ("IcosahedronSR-v0", "sr_env:IcosahedronSREnv", "vector:IcosahedronSRVectorEnv"),
         ("IcosahedronMJ-v0", "mj_env:IcosahedronMJEnv", "vector:IcosahedronMJVectorEnv"),
+        ("TensegritySR-v0", "robot_env:TensegritySREnv", None),
+        ("TensegrityMJ-v0", "robot_env:TensegrityMJEnv", None),
     ):
         if name not in registry:
             register(
                 id=name,
                 entry_point=f"tensegrity_env.envs.{single}",
-                vector_entry_point=f"tensegrity_env.envs.{vector}",
+                vector_entry_point=None if vector is None else f"tensegrity_env.envs.{vector}",
                 max_episode_steps=300,
             )
 

@@ -42,10 +42,18 @@ class Simulator(Protocol):
     def render_assembly(self) -> MjcfAssembly: ...
 
 
-def settle(sim: Simulator, x0: np.ndarray, seconds: float = SETTLE_SECONDS) -> np.ndarray:
-    """The state after ``seconds`` without control from ``x0`` (R, 13): the resting pose."""
+def settle(
+    sim: Simulator,
+    x0: np.ndarray,
+    seconds: float = SETTLE_SECONDS,
+    zero: np.ndarray | None = None,
+) -> np.ndarray:
+    """The state after ``seconds`` without control from ``x0`` (R, 13): the resting pose.
+
+    ``zero`` is the simulator's command for "no control" (default: no force, (R, 3)).
+    """
     sim.set_state(x0)
-    zero = np.zeros((sim.topology.n_rods, 3))
+    zero = np.zeros((sim.topology.n_rods, 3)) if zero is None else zero
     for _ in range(max(1, round(seconds / sim.control_dt))):
         sim.step(zero)
     rest = sim.get_state()

@@ -221,6 +221,21 @@ class TorchStepper:
                 state = self.engine.step(state, self.params, u)
             x[...] = pack_states(state)
 
+    def wind(self, x: np.ndarray, winch: np.ndarray, commands: np.ndarray) -> None:
+        """Advance rod states ``x`` (B, R, 13) and winch states ``winch`` (B, W, 2) [m, m/s]
+        in place by ``frame_skip`` physics steps, the winch motors' commands ``commands``
+        (B, W) in [-1, 1] held (:meth:`Engine.step <tensegrity_env.engine.Engine.step>`)."""
+        with torch.no_grad():
+            kw = {"dtype": self.dtype, "device": self.device}
+            state = unpack_states(x, self.dtype, self.device).with_winch(
+                torch.as_tensor(winch, **kw)
+            )
+            u = torch.as_tensor(np.asarray(commands), **kw)
+            for _ in range(self.frame_skip):
+                state = self.engine.step(state, self.params, winches=u)
+            x[...] = pack_states(state)
+            winch[...] = state.winch.cpu().numpy()  # type: ignore[union-attr]
+
 
 def make_stepper(
     topology: Topology,

@@ -2,7 +2,8 @@
 
 Importing the package registers the Gymnasium environments ``IcosahedronSR-v0`` (the
 identified engine) and ``IcosahedronMJ-v0`` (its MuJoCo twin), each with a natively
-batched ``vector_entry_point`` (see :mod:`tensegrity_env.envs`). On a Linux machine
+batched ``vector_entry_point``, and ``TensegritySR-v0`` / ``TensegrityMJ-v0`` (any
+winch-driven robot, identified and in MuJoCo; see :mod:`tensegrity_env.envs`). On a Linux machine
 without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
 imported) so that rendering works headless, or to ``osmesa`` where only that library
 is found, and leaves it unset where neither is
@@ -25,7 +26,7 @@ def _register_envs() -> None:
     for name, single, vector in (
         ("IcosahedronSR-v0", "sr_env:IcosahedronSREnv", "vector:IcosahedronSRVectorEnv"),
         ("IcosahedronMJ-v0", "mj_env:IcosahedronMJEnv", "vector:IcosahedronMJVectorEnv"),
-        ("TensegritySR-v0", "robot_env:TensegritySREnv", None),
+        ("TensegritySR-v0", "robot_env:TensegritySREnv", "robot_vector:TensegritySRVectorEnv"),
         ("TensegrityMJ-v0", "robot_env:TensegrityMJEnv", None),
     ):
         if name not in registry:

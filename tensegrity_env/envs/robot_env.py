@@ -143,7 +143,10 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         if self._renderer is None:
             self._renderer = SceneRenderer(
-                self.sim.render_assembly(), self.width, self.height, max(self.task.goal_radius, 1e-3)
+                self.sim.render_assembly(),
+                self.width,
+                self.height,
+                max(self.task.goal_radius, 1e-3),
             )
         marker = self._marker()
         if self.render_mode == "rgb_array":

@@ -244,6 +244,8 @@ def make_robot_task(
     if name == "shape":
         unknown = sorted(set(options) - set(SHAPE_OPTIONS))
         if unknown:
-            raise TypeError(f"unknown shape-task option(s) {unknown}; it takes {list(SHAPE_OPTIONS)}")
+            raise TypeError(
+                f"unknown shape-task option(s) {unknown}; it takes {list(SHAPE_OPTIONS)}"
+            )
         return ShapeTask(sensors, control_dt=control_dt, **options)
     raise ValueError(f"task must be one of {TASKS}, got {name!r}")

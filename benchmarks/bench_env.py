@@ -162,7 +162,7 @@ def fidelity(episodes: int) -> None:
             print(f"   {label:<48} {med[0]:10.3f} {mx[0]:9.3f} {med[1]:11.3f} {mx[1]:9.3f}")
 
 
-def robot(num_envs: int, steps: int, repeats: int) -> None:
+def robot(num_envs: int, steps: int, threads: int, repeats: int) -> None:
     sr, mj = TensegritySREnv(), TensegrityMJEnv()
     W = sr.action_space.shape[0]
     rng = np.random.default_rng(2)
@@ -183,7 +183,7 @@ def robot(num_envs: int, steps: int, repeats: int) -> None:
     print(f"   TensegritySR-v0 (PyTorch engine): {t_sr * 1e3:8.3f} ms")
     print(f"   TensegrityMJ-v0 (MuJoCo):         {t_mj * 1e3:8.3f} ms")
     print(f"   ratio MJ / SR latency: {t_mj / t_sr:.2f}x")
-    venv = TensegritySRVectorEnv(num_envs)
+    venv = TensegritySRVectorEnv(num_envs, threads=threads)
     twins = [TensegrityMJEnv() for _ in range(num_envs)]
     venv.reset(seed=0)
     for i, t in enumerate(twins):
@@ -203,7 +203,7 @@ def robot(num_envs: int, steps: int, repeats: int) -> None:
         return (time.perf_counter() - t0) / steps
 
     b_sr, b_mj = best_of([batch_sr, batch_mj], repeats)
-    print(f"   batched, N = {num_envs} (env-steps/s): TensegritySR-v0 vector env "
+    print(f"   batched, N = {num_envs}, {threads} thread(s) (env-steps/s): TensegritySR-v0 vector env "
           f"{num_envs / b_sr:10,.0f}, N TensegrityMJ-v0 {num_envs / b_mj:10,.0f}, "
           f"ratio SR / MJ {b_mj / b_sr:.2f}x")  # fmt: skip
 
@@ -232,7 +232,7 @@ def main(argv: list[str] | None = None) -> int:
     if "fidelity" in sections:
         fidelity(args.episodes)
     if "robot" in sections:
-        robot(args.robot_num_envs, args.robot_steps, args.repeats)
+        robot(args.robot_num_envs, args.robot_steps, threads, args.repeats)
     return 0
 
 

@@ -188,7 +188,7 @@ class TensegritySREnv(RobotEnv):
     floor). The physics is the identified model of a params file (``model``; default:
     the robot file's own parameters and floor contact), stepped by the PyTorch engine in
     float64 at the file's physics step (1 ms), ``frame_skip`` steps per action (20 Hz by
-    default). ``TensegrityMJ-v0`` is the same robot and task in MuJoCo.
+    default), on one CPU thread. ``TensegrityMJ-v0`` is the same robot and task in MuJoCo.
 
     **Action space** ``Box(-1, 1, (W,), float32)``: the motor command of each winch, in
     the file's winch order: the cable's rest length changes at ``u * v_max`` [m/s]
@@ -256,7 +256,7 @@ class TensegritySREnv(RobotEnv):
         height: int = 480,
         **options: Any,
     ) -> None:
-        sim = SRRobotSimulator(model, robot, frame_skip)
+        sim = SRRobotSimulator(model, robot, frame_skip, threads=1)
         super().__init__(sim, task, render_mode, width, height, **options)
 
 

@@ -66,6 +66,7 @@ class SRRobotSimulator:
         frame_skip: physics steps per control step (the physics step is the file's
             ``timestep``).
         batch: number of copies stepped together.
+        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting).
     """
 
     def __init__(
@@ -74,6 +75,7 @@ class SRRobotSimulator:
         robot: str | Path | None = None,
         frame_skip: int = 50,
         batch: int = 1,
+        threads: int | None = None,
     ) -> None:
         self.robot_path = Path(robot) if robot is not None else DEFAULT_ROBOT
         self.asm = from_mjcf(self.robot_path)
@@ -95,7 +97,9 @@ class SRRobotSimulator:
         self.dt, self.frame_skip = self.model.dt, int(frame_skip)
         self.control_dt = self.dt * self.frame_skip
         self.command_shape = (t.n_winches,)
-        self.stepper = TorchStepper(t, self.params, self.effects, self.dt, self.frame_skip)
+        self.stepper = TorchStepper(
+            t, self.params, self.effects, self.dt, self.frame_skip, threads=threads
+        )
         self.rest_winch = initial_winch_state(t, self.params.to(dtype=torch.float64), 1)[0].numpy()
         self.x = np.zeros((batch, t.n_rods, 13))
         self.winch = np.repeat(self.rest_winch[None], batch, axis=0)

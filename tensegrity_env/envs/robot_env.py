@@ -204,7 +204,8 @@ class TensegritySREnv(RobotEnv):
     6R                   height of c above the floor                          m
     6R+1 .. 6R+S         every cable's length                                 m
     6R+S+1 .. 6R+S+W     each winch's rest length (motor encoder)             m
-    the last k           goal: goal minus c (x, y), k = 2; shape: target      m
+    the last k           goal: goal minus the rods' centre (mean of their     m
+                         centres of mass; x, y), k = 2; shape: target
                          minus length of each wound cable, k = W
     ===================  ===================================================  =====
 

@@ -30,7 +30,7 @@ from tensegrity_env.envs.robot_env import GOAL_DEFAULTS, ROBOT_REWARD_TERMS
 from tensegrity_env.envs.robot_physics import SRRobotSimulator
 from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
 from tensegrity_env.envs.task import check_action
-from tensegrity_env.envs.vector import MAX_EPISODE_STEPS
+from tensegrity_env.envs.vector import MAX_EPISODE_STEPS, env_seeds, record_final
 
 
 class TensegritySRVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
@@ -88,13 +88,7 @@ class TensegritySRVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every env; ``seed`` an int (env i gets ``seed + i``) or one per env."""
-        if isinstance(seed, int):
-            seeds: list[int | None] = [seed + i for i in range(self.num_envs)]
-        else:
-            seeds = [None] * self.num_envs if seed is None else list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
-        for i, s in enumerate(seeds):
+        for i, s in enumerate(env_seeds(seed, self.num_envs)):
             if s is not None:
                 self._rngs[i] = seeding.np_random(s)[0]
         self._reset_envs(np.arange(self.num_envs))
@@ -132,13 +126,7 @@ class TensegritySRVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         infos["is_success"], infos["physics_diverged"] = success & ~bad, bad
         done = terminated | truncated
         if done.any():
-            ended = np.flatnonzero(done)
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            for i in ended:
-                final_obs[i] = obs[i].copy()
-            infos["final_info"] = {k: np.array(v, copy=True) for k, v in infos.items()}
-            infos["_final_info"] = done.copy()
-            infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+            ended = record_final(obs, infos, done)
             self._reset_envs(ended)
             obs[ended] = self._observe()[ended]
         self._last_obs = obs

@@ -59,6 +59,27 @@ def test_spaces_are_the_motors_and_the_sensors(envs: tuple[gym.Env, gym.Env]) ->
     assert shape.observation_space.shape == (6 * R + 1 + S + W + W,)
 
 
+def test_observation_is_what_the_sensors_read() -> None:
+    """End caps, MuJoCo's own tendon lengths and the winches' rest lengths."""
+    import mujoco
+
+    env = TensegrityMJEnv()
+    env.reset(seed=4)
+    for _ in range(5):
+        obs, *_ = env.step(np.ones(W, np.float32))
+    sim = env.sim
+    mujoco.mj_forward(sim.model, sim.data)
+    caps = np.array([sim.data.site(f"r{r}_end{k}").xpos for r in range(R) for k in (0, 1)])
+    centre = caps.mean(axis=0)
+    np.testing.assert_allclose(obs[: 6 * R], (caps - centre).ravel(), atol=1e-6)
+    assert obs[6 * R] == pytest.approx(centre[2], abs=1e-6)
+    np.testing.assert_allclose(obs[6 * R + 1 : 6 * R + 1 + S], sim.data.ten_length, atol=1e-6)
+    np.testing.assert_allclose(obs[6 * R + 1 + S : 6 * R + 1 + S + W],
+                               sim.plant.rest_lengths, atol=1e-6)  # fmt: skip
+    goal = env.target - env.state[:, 0:2].mean(axis=0)
+    np.testing.assert_allclose(obs[-2:], goal, atol=1e-6)
+
+
 def test_identified_env_and_twin_agree_under_random_winch_commands(
     envs: tuple[gym.Env, gym.Env],
 ) -> None:

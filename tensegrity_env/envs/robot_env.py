@@ -15,7 +15,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from tensegrity_env.envs.rendering import SceneRenderer
+from tensegrity_env.envs.base import SceneEnv
 from tensegrity_env.envs.robot_physics import MJRobotSimulator, SRRobotSimulator
 from tensegrity_env.envs.robot_task import GoalTask, ShapeTask, make_robot_task
 from tensegrity_env.envs.task import REWARD_TERMS, check_action
@@ -49,7 +49,7 @@ class RobotSimulator(Protocol):
     def render_assembly(self) -> MjcfAssembly: ...
 
 
-class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
+class RobotEnv(SceneEnv):
     """A robot task on one simulator (tables: :class:`TensegritySREnv`).
 
     Args:
@@ -57,8 +57,6 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         render_mode: ``"rgb_array"``, ``"human"`` or None. width, height: image size [px].
         **options: the task's options (:func:`~tensegrity_env.envs.robot_task.make_robot_task`).
     """
-
-    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012
 
     def __init__(
         self,
@@ -69,16 +67,13 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         height: int = 480,
         **options: Any,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
         if task == "goal":
             options = {**GOAL_DEFAULTS, **options}
         self.sim = sim
         self.task: GoalTask | ShapeTask = make_robot_task(task, sim.topology, sim.control_dt,
                                                           options)  # fmt: skip
         self.rest = sim.rest_pose()
-        self.metadata = {**self.metadata, "render_fps": round(1.0 / sim.control_dt)}
-        self.render_mode, self.width, self.height = render_mode, int(width), int(height)
+        self._init_scene(sim, render_mode, width, height, max(self.task.goal_radius, 1e-3))
         n_motors = sim.command_shape[0]
         self.action_space = spaces.Box(-1.0, 1.0, (n_motors,), np.float32)
         n_obs = self.task.observation_size()
@@ -88,7 +83,6 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         self.winch = sim.get_winch()
         self.target = np.zeros(self.task.target_size())
         self._error = 0.0
-        self._renderer: SceneRenderer | None = None
         self._needs_reset = True
 
     # ------------------------------------------------------------------ gym API
@@ -136,28 +130,6 @@ class RobotEnv(gym.Env[np.ndarray, np.ndarray]):
         if self.render_mode == "human":
             self.render()
         return self._obs(), float(reward[0]), terminated, False, info
-
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode (pass render_mode=...)")
-            return None
-        if self._renderer is None:
-            self._renderer = SceneRenderer(
-                self.sim.render_assembly(),
-                self.width,
-                self.height,
-                max(self.task.goal_radius, 1e-3),
-            )
-        marker = self._marker()
-        if self.render_mode == "rgb_array":
-            return self._renderer.rgb_array(self.state, marker)
-        self._renderer.human(self.state, marker)
-        return None
-
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
 
     # ------------------------------------------------------------------ helpers
     def _marker(self) -> np.ndarray:

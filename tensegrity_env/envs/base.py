@@ -87,6 +87,10 @@ class SceneEnv(gym.Env[np.ndarray, np.ndarray]):
         """Where the goal disc is drawn, (2,) [m]."""
         raise NotImplementedError
 
+    def start_options(self) -> dict[str, np.ndarray]:
+        """``reset`` options that start an env (this one or its twin) where this one is."""
+        raise NotImplementedError
+
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode (pass render_mode=...)")
@@ -191,6 +195,9 @@ class RollingEnv(SceneEnv):
 
     def _marker(self) -> np.ndarray:
         return self.goal
+
+    def start_options(self) -> dict[str, np.ndarray]:
+        return {"state": self.state.copy(), "goal": self.goal.copy()}
 
     @property
     def distance_to_goal(self) -> float:

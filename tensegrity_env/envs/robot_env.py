@@ -131,6 +131,13 @@ class RobotEnv(SceneEnv):
             self.render()
         return self._obs(), float(reward[0]), terminated, False, info
 
+    def start_options(self) -> dict[str, np.ndarray]:
+        return {
+            "state": self.state.copy(),
+            "winch": self.winch.copy(),
+            "target": self.target.copy(),
+        }
+
     # ------------------------------------------------------------------ helpers
     def _marker(self) -> np.ndarray:
         """Where the renderer draws the goal disc: the goal, or under the centre (shape)."""

@@ -19,7 +19,7 @@ from tensegrity_env.envs import (
     TensegritySREnv,
     TensegritySRVectorEnv,
 )
-from tensegrity_env.envs.rendering import RenderingUnavailable
+from tensegrity_env.envs.rendering import RenderingUnavailable, record_side_by_side
 from tensegrity_env.envs.robot_physics import DEFAULT_ROBOT
 from tensegrity_env.envs.robot_task import GoalTask, RobotSensors, ShapeTask, make_robot_task
 from tensegrity_env.envs.sr_env import ASSETS, DEFAULT_PARAMS
@@ -241,3 +241,14 @@ def test_rendered_frame_shows_the_robot(cls: type) -> None:
     changed = np.abs(frame.astype(int) - empty.astype(int)).max(axis=-1) > 10
     assert changed.sum() > 2000, "the robot does not show in the frame"
     env.close()
+
+
+def test_side_by_side_clip_of_the_identified_robot_and_its_twin(tmp_path: Path) -> None:
+    sr = TensegritySREnv(render_mode="rgb_array", width=160, height=120)
+    mj = TensegrityMJEnv(render_mode="rgb_array", width=160, height=120)
+    try:
+        path = record_side_by_side(sr, mj, tmp_path / "both.gif", max_steps=3)
+    except RenderingUnavailable as e:
+        pytest.skip(f"no headless OpenGL here: {e}")
+    assert path.stat().st_size > 0
+    np.testing.assert_allclose(sr.state, mj.state, atol=TWIN_ATOL)  # started together

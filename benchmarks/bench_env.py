@@ -49,6 +49,7 @@ from tensegrity_env.envs import (
     IcosahedronSREnv,
     IcosahedronSRVectorEnv,
     TensegrityMJEnv,
+    TensegrityMJVectorEnv,
     TensegritySREnv,
     TensegritySRVectorEnv,
 )
@@ -184,10 +185,9 @@ def robot(num_envs: int, steps: int, threads: int, repeats: int) -> None:
     print(f"   TensegrityMJ-v0 (MuJoCo):         {t_mj * 1e3:8.3f} ms")
     print(f"   ratio MJ / SR latency: {t_mj / t_sr:.2f}x")
     venv = TensegritySRVectorEnv(num_envs, threads=threads)
-    twins = [TensegrityMJEnv() for _ in range(num_envs)]
+    twins = TensegrityMJVectorEnv(num_envs)
     venv.reset(seed=0)
-    for i, t in enumerate(twins):
-        t.reset(seed=i)
+    twins.reset(seed=0)
 
     def batch_sr() -> float:
         t0 = time.perf_counter()
@@ -198,13 +198,12 @@ def robot(num_envs: int, steps: int, threads: int, repeats: int) -> None:
     def batch_mj() -> float:
         t0 = time.perf_counter()
         for a in actions:
-            for t, ai in zip(twins, a, strict=True):
-                t.step(ai)
+            twins.step(a)
         return (time.perf_counter() - t0) / steps
 
     b_sr, b_mj = best_of([batch_sr, batch_mj], repeats)
     print(f"   batched, N = {num_envs}, {threads} thread(s) (env-steps/s): TensegritySR-v0 vector env "
-          f"{num_envs / b_sr:10,.0f}, N TensegrityMJ-v0 {num_envs / b_mj:10,.0f}, "
+          f"{num_envs / b_sr:10,.0f}, TensegrityMJ-v0 vector env {num_envs / b_mj:10,.0f}, "
           f"ratio SR / MJ {b_mj / b_sr:.2f}x")  # fmt: skip
 
 

@@ -27,7 +27,7 @@ def _register_envs() -> None:
         ("IcosahedronSR-v0", "sr_env:IcosahedronSREnv", "vector:IcosahedronSRVectorEnv"),
         ("IcosahedronMJ-v0", "mj_env:IcosahedronMJEnv", "vector:IcosahedronMJVectorEnv"),
         ("TensegritySR-v0", "robot_env:TensegritySREnv", "robot_vector:TensegritySRVectorEnv"),
-        ("TensegrityMJ-v0", "robot_env:TensegrityMJEnv", None),
+        ("TensegrityMJ-v0", "robot_env:TensegrityMJEnv", "robot_vector:TensegrityMJVectorEnv"),
     ):
         if name not in registry:
             register(

@@ -7,7 +7,8 @@
 ``TensegritySR-v0``         :class:`TensegritySREnv`: any winch-driven robot on its
                             identified model (PyTorch engine); batched:
                             :class:`TensegritySRVectorEnv`
-``TensegrityMJ-v0``         :class:`TensegrityMJEnv`: that robot in MuJoCo (its twin)
+``TensegrityMJ-v0``         :class:`TensegrityMJEnv`: that robot in MuJoCo (its twin);
+                            batched: :class:`TensegrityMJVectorEnv`
 ``gym.make_vec(...)``       :class:`IcosahedronSRVectorEnv` /
                             :class:`IcosahedronMJVectorEnv`: N envs, one batched step
 :class:`SB3VecEnv`          Stable-Baselines3 ``VecEnv`` adapter
@@ -29,7 +30,7 @@ from tensegrity_env.envs.rendering import (
     write_video,
 )
 from tensegrity_env.envs.robot_env import TensegrityMJEnv, TensegritySREnv
-from tensegrity_env.envs.robot_vector import TensegritySRVectorEnv
+from tensegrity_env.envs.robot_vector import TensegrityMJVectorEnv, TensegritySRVectorEnv
 from tensegrity_env.envs.sr_env import DEFAULT_PARAMS, IcosahedronSREnv, load_env_model
 from tensegrity_env.envs.task import RollingTask
 from tensegrity_env.envs.vector import IcosahedronMJVectorEnv, IcosahedronSRVectorEnv
@@ -53,6 +54,7 @@ __all__ = [
     "RollingTask",
     "SB3VecEnv",
     "TensegrityMJEnv",
+    "TensegrityMJVectorEnv",
     "TensegritySREnv",
     "TensegritySRVectorEnv",
     "load_env_model",

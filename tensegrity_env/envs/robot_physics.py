@@ -104,10 +104,10 @@ class SRRobotSimulator:
         self.x = np.zeros((batch, t.n_rods, 13))
         self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
 
-    def set_state(self, x: np.ndarray, winch: np.ndarray | None = None) -> None:
-        """Set copy 0: rod state (R, 13), winch state (W, 2) (None: at rest)."""
-        self.x[0] = x
-        self.winch[0] = self.rest_winch if winch is None else winch
+    def set_state(self, x: np.ndarray, winch: np.ndarray | None = None, i: int = 0) -> None:
+        """Set copy ``i``: rod state (R, 13), winch state (W, 2) (None: at rest)."""
+        self.x[i] = x
+        self.winch[i] = self.rest_winch if winch is None else winch
 
     def get_state(self) -> np.ndarray:
         return self.x[0].copy()
@@ -214,3 +214,36 @@ class MJRobotSimulator:
 def _mj_rest(xml_path: str, mtime: float, frame_skip: int) -> np.ndarray:
     sim = MJRobotSimulator(xml_path, frame_skip)
     return settle(sim, initial_pose(sim.asm), ROBOT_SETTLE_SECONDS, np.zeros(sim.command_shape))
+
+
+class MJRobotBatch:
+    """N twins (:class:`MJRobotSimulator`) stepped one after another, with the batch
+    interface of :class:`SRRobotSimulator`: ``x`` (N, R, 13), ``winch`` (N, W, 2),
+    ``set_state(x, winch, i)``, ``step_batch(commands)``. ``mujoco.rollout`` cannot step
+    them: the winches change the model's rest lengths between ``mj_step`` calls.
+
+    Args:
+        robot, frame_skip: as :class:`MJRobotSimulator`. batch: N.
+    """
+
+    def __init__(self, robot: str | Path | None = None, frame_skip: int = 50, batch: int = 1):
+        self.sims = [MJRobotSimulator(robot, frame_skip) for _ in range(batch)]
+        first = self.sims[0]
+        self.topology, self.control_dt = first.topology, first.control_dt
+        self.command_shape, self.asm = first.command_shape, first.asm
+        self.rest_winch = first.get_winch()
+        self.x = np.zeros((batch, self.topology.n_rods, 13))
+        self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
+
+    def set_state(self, x: np.ndarray, winch: np.ndarray | None = None, i: int = 0) -> None:
+        self.sims[i].set_state(x, winch)
+        self.x[i], self.winch[i] = self.sims[i].get_state(), self.sims[i].get_winch()
+
+    def step_batch(self, commands: np.ndarray) -> None:
+        """Every twin ``frame_skip`` steps under its motor commands (N, W)."""
+        for i, (sim, u) in enumerate(zip(self.sims, commands, strict=True)):
+            sim.step(u)
+            self.x[i], self.winch[i] = sim.get_state(), sim.get_winch()
+
+    def rest_pose(self) -> np.ndarray:
+        return self.sims[0].rest_pose()

@@ -1,11 +1,13 @@
-"""N ``TensegritySR-v0`` robots in one batch: one engine call steps them all.
+"""N generic robots in one batch: ``TensegritySR-v0`` in one engine call, and its twins.
 
 :class:`TensegritySRVectorEnv` holds N rod states (N, R, 13) and winch states (N, W, 2)
 and advances them with one batched :meth:`TorchStepper.wind
-<tensegrity_env.envs.physics.TorchStepper.wind>` per env step. It is a Gymnasium
-:class:`~gymnasium.vector.VectorEnv` with the single env's task code, reachable as::
+<tensegrity_env.envs.physics.TorchStepper.wind>` per env step;
+:class:`TensegrityMJVectorEnv` steps N MuJoCo twins one after another. Both are
+Gymnasium :class:`~gymnasium.vector.VectorEnv` s with the single env's task code::
 
     gym.make_vec("TensegritySR-v0", num_envs=64, vectorization_mode="vector_entry_point")
+    gym.make_vec("TensegrityMJ-v0", num_envs=64, vectorization_mode="vector_entry_point")
 
 and wraps into Stable-Baselines3 with :class:`~tensegrity_env.envs.sb3.SB3VecEnv`.
 Autoreset, seeding (env ``i`` gets ``seed + i``), ``final_obs``/``final_info`` and the
@@ -27,22 +29,15 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from tensegrity_env.envs.robot_env import GOAL_DEFAULTS, ROBOT_REWARD_TERMS
-from tensegrity_env.envs.robot_physics import SRRobotSimulator
+from tensegrity_env.envs.robot_physics import MJRobotBatch, SRRobotSimulator
 from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
 from tensegrity_env.envs.task import check_action
 from tensegrity_env.envs.vector import MAX_EPISODE_STEPS, env_seeds, record_final
 
 
-class TensegritySRVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
-    """N :class:`~tensegrity_env.envs.robot_env.TensegritySREnv` in one batch.
-
-    Args:
-        num_envs: N.
-        model, robot, task, frame_skip, **options: as ``TensegritySR-v0``.
-        max_episode_steps: time limit (truncation) per episode, None for none.
-        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting). One
-            by default: at N = 64 on two cores, two threads stepped 8x slower than one.
-    """
+class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
+    """A robot task on N copies of a batch simulator (:class:`SRRobotSimulator` or
+    :class:`MJRobotBatch`); subclasses build it and call :meth:`_setup`."""
 
     metadata: dict[str, Any] = {  # noqa: RUF012
         "render_modes": [],
@@ -50,22 +45,13 @@ class TensegritySRVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         "autoreset_mode": AutoresetMode.SAME_STEP,
     }
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        model: str | Path | None = None,
-        robot: str | Path | None = None,
-        task: str = "goal",
-        frame_skip: int = 50,
-        max_episode_steps: int | None = MAX_EPISODE_STEPS,
-        threads: int | None = 1,
-        **options: Any,
+    sim: SRRobotSimulator | MJRobotBatch
+
+    def _setup(
+        self, num_envs: int, task: str, max_episode_steps: int | None, options: dict[str, Any]
     ) -> None:
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         if task == "goal":
             options = {**GOAL_DEFAULTS, **options}
-        self.sim = SRRobotSimulator(model, robot, frame_skip, num_envs, threads)
         self.task = make_robot_task(task, self.sim.topology, self.sim.control_dt, options)
         self.num_envs, self.max_episode_steps = int(num_envs), max_episode_steps
         self.render_mode = None
@@ -137,13 +123,69 @@ class TensegritySRVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
 
     def _reset_envs(self, idx: np.ndarray) -> None:
         for i in idx:
-            self.sim.x[i], self.targets[i] = self.task.sample_reset(
+            x, self.targets[i] = self.task.sample_reset(
                 self._rngs[i], self.rest, self.sim.rest_winch
             )
-            self.sim.winch[i] = self.sim.rest_winch
+            self.sim.set_state(x, None, int(i))
         self._elapsed[idx] = 0
         self._error[idx] = self.task.error(self.sim.x[idx], self.targets[idx])
 
     def _base_info(self) -> dict[str, Any]:
         c = self.sim.x[..., 0:3].mean(axis=1)
         return {"task_error": self._error.copy(), "x_position": c[:, 0], "y_position": c[:, 1]}
+
+
+def _batch_size(num_envs: int) -> int:
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    return int(num_envs)
+
+
+class TensegritySRVectorEnv(RobotVectorEnv):
+    """N :class:`~tensegrity_env.envs.robot_env.TensegritySREnv` in one engine call.
+
+    Args:
+        num_envs: N.
+        model, robot, task, frame_skip, **options: as ``TensegritySR-v0``.
+        max_episode_steps: time limit (truncation) per episode, None for none.
+        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting). One
+            by default: at N = 64 on two cores, two threads stepped 8x slower than one.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        model: str | Path | None = None,
+        robot: str | Path | None = None,
+        task: str = "goal",
+        frame_skip: int = 50,
+        max_episode_steps: int | None = MAX_EPISODE_STEPS,
+        threads: int | None = 1,
+        **options: Any,
+    ) -> None:
+        n = _batch_size(num_envs)
+        self.sim = SRRobotSimulator(model, robot, frame_skip, n, threads)
+        self._setup(n, task, max_episode_steps, options)
+
+
+class TensegrityMJVectorEnv(RobotVectorEnv):
+    """N :class:`~tensegrity_env.envs.robot_env.TensegrityMJEnv` twins, stepped one after
+    another (:class:`~tensegrity_env.envs.robot_physics.MJRobotBatch`).
+
+    Args:
+        num_envs: N. robot, task, frame_skip, **options: as ``TensegrityMJ-v0``.
+        max_episode_steps: time limit (truncation) per episode, None for none.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        robot: str | Path | None = None,
+        task: str = "goal",
+        frame_skip: int = 50,
+        max_episode_steps: int | None = MAX_EPISODE_STEPS,
+        **options: Any,
+    ) -> None:
+        n = _batch_size(num_envs)
+        self.sim = MJRobotBatch(robot, frame_skip, n)
+        self._setup(n, task, max_episode_steps, options)

@@ -16,6 +16,7 @@ import tensegrity_env  # noqa: F401  (registers the envs)
 from tensegrity_env.envs import (
     SB3VecEnv,
     TensegrityMJEnv,
+    TensegrityMJVectorEnv,
     TensegritySREnv,
     TensegritySRVectorEnv,
 )
@@ -201,11 +202,18 @@ def test_bad_actions_are_refused_before_physics() -> None:
     np.testing.assert_array_equal(env.sim.get_state(), before)
 
 
-def test_vector_env_equals_single_envs_and_trains_through_sb3() -> None:
-    venv = gym.make_vec("TensegritySR-v0", num_envs=2, vectorization_mode="vector_entry_point",
+@pytest.mark.parametrize(
+    ("env_id", "vector", "single"),
+    [
+        ("TensegritySR-v0", TensegritySRVectorEnv, TensegritySREnv),
+        ("TensegrityMJ-v0", TensegrityMJVectorEnv, TensegrityMJEnv),
+    ],
+)
+def test_vector_env_equals_single_envs(env_id: str, vector: type, single: type) -> None:
+    venv = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point",
                         task="shape")  # fmt: skip
-    assert isinstance(venv.unwrapped, TensegritySRVectorEnv)
-    singles = [TensegritySREnv(task="shape") for _ in range(2)]
+    assert isinstance(venv.unwrapped, vector)
+    singles = [single(task="shape") for _ in range(2)]
     obs, _ = venv.reset(seed=10)
     for i, e in enumerate(singles):
         np.testing.assert_allclose(obs[i], e.reset(seed=10 + i)[0], atol=1e-6)
@@ -217,11 +225,17 @@ def test_vector_env_equals_single_envs_and_trains_through_sb3() -> None:
             o, r, *_ = e.step(a[i])
             np.testing.assert_allclose(obs[i], o, atol=1e-5)
             assert reward[i] == pytest.approx(r, abs=1e-9)
+
+
+def test_sb3_adapter_on_the_batched_robot() -> None:
     sb3 = SB3VecEnv(TensegritySRVectorEnv(num_envs=2, max_episode_steps=2))
     sb3.reset()
     for _ in range(2):
         obs, reward, done, infos = sb3.step(np.zeros((2, W), np.float32))
     assert obs.shape == (2, 6 * R + 1 + S + W + 2) and done.all()
+    assert reward.dtype == np.float32
+    np.testing.assert_allclose(reward, [i["reward_progress"] + i["reward_control"] for i in infos],
+                               rtol=1e-5, atol=1e-6)  # fmt: skip
     assert all(i["TimeLimit.truncated"] and "terminal_observation" in i for i in infos)
 
 

@@ -22,9 +22,6 @@ from tensegrity_env.envs.task import REWARD_TERMS, check_action
 from tensegrity_env.mjcf import MjcfAssembly
 from tensegrity_env.topology import Topology
 
-#: the goal task's defaults for a robot that crawls by winding its cables (a prism
-#: winding at 0.1 m/s moves its centre a few cm/s: goals within reach of a 15 s episode)
-GOAL_DEFAULTS: dict[str, Any] = {"goal_distance": (0.5, 1.0), "goal_radius": 0.2}
 #: reward terms of either task, each in ``info`` (0 where the task has none)
 ROBOT_REWARD_TERMS = (*REWARD_TERMS, "reward_shape")
 
@@ -67,8 +64,6 @@ class RobotEnv(SceneEnv):
         height: int = 480,
         **options: Any,
     ) -> None:
-        if task == "goal":
-            options = {**GOAL_DEFAULTS, **options}
         self.sim = sim
         self.task: GoalTask | ShapeTask = make_robot_task(task, sim.topology, sim.control_dt,
                                                           options)  # fmt: skip

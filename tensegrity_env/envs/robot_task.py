@@ -29,6 +29,9 @@ from tensegrity_env.topology import Topology
 
 #: the task names the generic environments take
 TASKS = ("goal", "shape")
+#: the goal task's defaults for a robot that crawls by winding its cables (a prism
+#: winding at 0.1 m/s moves its centre a few cm/s: goals within reach of a 15 s episode)
+GOAL_DEFAULTS: dict[str, Any] = {"goal_distance": (0.5, 1.0), "goal_radius": 0.2}
 
 
 @dataclass(frozen=True)
@@ -225,7 +228,8 @@ SHAPE_OPTIONS = ("shape_range", "shape_tolerance", "shape_weight", "control_weig
 def make_robot_task(
     name: str, topology: Topology, control_dt: float, options: Mapping[str, Any]
 ) -> GoalTask | ShapeTask:
-    """The task ``name`` (``"goal"`` or ``"shape"``) for a robot, with its options.
+    """The task ``name`` (``"goal"`` or ``"shape"``) for a robot, with its options (the
+    goal task's defaults: :data:`GOAL_DEFAULTS`).
 
     Raises:
         ValueError: an unknown task name. TypeError: an option the task does not take.
@@ -236,7 +240,7 @@ def make_robot_task(
         unknown = sorted(set(options) - known)
         if unknown:
             raise TypeError(f"unknown goal-task option(s) {unknown}; it takes {sorted(known)}")
-        opts = dict(options)
+        opts = {**GOAL_DEFAULTS, **options}
         if "goal_distance" in opts:
             opts["goal_distance"] = tuple(float(d) for d in opts["goal_distance"])
         rolling = RollingTask(control_dt=control_dt, max_command=1.0, **opts)

@@ -28,7 +28,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from tensegrity_env.envs.robot_env import GOAL_DEFAULTS, ROBOT_REWARD_TERMS
+from tensegrity_env.envs.robot_env import ROBOT_REWARD_TERMS
 from tensegrity_env.envs.robot_physics import MJRobotBatch, SRRobotSimulator
 from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
 from tensegrity_env.envs.task import check_action
@@ -50,8 +50,6 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     def _setup(
         self, num_envs: int, task: str, max_episode_steps: int | None, options: dict[str, Any]
     ) -> None:
-        if task == "goal":
-            options = {**GOAL_DEFAULTS, **options}
         self.task = make_robot_task(task, self.sim.topology, self.sim.control_dt, options)
         self.num_envs, self.max_episode_steps = int(num_envs), max_episode_steps
         self.render_mode = None

@@ -18,10 +18,17 @@ the best of ``--repeats`` kept per side, so background load hits both alike:
    separates identification error from what the model leaves out, and with no
    control at all.
 
+4. **Generic robot**: ``TensegritySR-v0`` (the shipped lab 3-bar with six winches, the
+   PyTorch engine: the C kernel has no winch form) against ``TensegrityMJ-v0``: the
+   single-env ``env.step`` latency, and a batch of N robots (one batched engine call)
+   against N twins stepped one after the other (the twin winds its cables from Python
+   between ``mj_step`` calls, so ``mujoco.rollout`` cannot step it).
+
 Ratios are printed, never asserted::
 
     .venv/bin/python benchmarks/bench_env.py
     .venv/bin/python benchmarks/bench_env.py --num-envs 1024 --repeats 2
+    .venv/bin/python benchmarks/bench_env.py --sections robot --robot-num-envs 64
 """
 
 from __future__ import annotations
@@ -41,6 +48,10 @@ from tensegrity_env.envs import (
     IcosahedronMJVectorEnv,
     IcosahedronSREnv,
     IcosahedronSRVectorEnv,
+    TensegrityMJEnv,
+    TensegrityMJVectorEnv,
+    TensegritySREnv,
+    TensegritySRVectorEnv,
 )
 from tensegrity_env.envs.physics import default_threads
 from tensegrity_env.envs.twin import twin_assembly
@@ -152,6 +163,50 @@ def fidelity(episodes: int) -> None:
             print(f"   {label:<48} {med[0]:10.3f} {mx[0]:9.3f} {med[1]:11.3f} {mx[1]:9.3f}")
 
 
+def robot(num_envs: int, steps: int, threads: int, repeats: int) -> None:
+    sr, mj = TensegritySREnv(), TensegrityMJEnv()
+    W = sr.action_space.shape[0]
+    rng = np.random.default_rng(2)
+    actions = rng.uniform(-1, 1, (steps, num_envs, W)).astype(np.float32)
+
+    def run(env: TensegritySREnv | TensegrityMJEnv) -> Callable[[], float]:
+        def timed() -> float:
+            env.reset(seed=0)
+            t0 = time.perf_counter()
+            for a in actions[:, 0]:
+                env.step(a)
+            return (time.perf_counter() - t0) / steps
+
+        return timed
+
+    t_sr, t_mj = best_of([run(sr), run(mj)], repeats)
+    print("\n4. Generic robot (lab 3-bar, 6 winches), env.step latency (50 physics steps)")
+    print(f"   TensegritySR-v0 (PyTorch engine): {t_sr * 1e3:8.3f} ms")
+    print(f"   TensegrityMJ-v0 (MuJoCo):         {t_mj * 1e3:8.3f} ms")
+    print(f"   ratio MJ / SR latency: {t_mj / t_sr:.2f}x")
+    venv = TensegritySRVectorEnv(num_envs, threads=threads)
+    twins = TensegrityMJVectorEnv(num_envs)
+    venv.reset(seed=0)
+    twins.reset(seed=0)
+
+    def batch_sr() -> float:
+        t0 = time.perf_counter()
+        for a in actions:
+            venv.step(a)
+        return (time.perf_counter() - t0) / steps
+
+    def batch_mj() -> float:
+        t0 = time.perf_counter()
+        for a in actions:
+            twins.step(a)
+        return (time.perf_counter() - t0) / steps
+
+    b_sr, b_mj = best_of([batch_sr, batch_mj], repeats)
+    print(f"   batched, N = {num_envs}, {threads} thread(s) (env-steps/s): TensegritySR-v0 vector env "
+          f"{num_envs / b_sr:10,.0f}, TensegrityMJ-v0 vector env {num_envs / b_mj:10,.0f}, "
+          f"ratio SR / MJ {b_mj / b_sr:.2f}x")  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--num-envs", type=int, default=4096, help="batch size N (default 4096)")
@@ -161,12 +216,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--single-steps", type=int, default=200, help="timed single-env steps")
     ap.add_argument("--repeats", type=int, default=3, help="alternating timed runs (default 3)")
     ap.add_argument("--episodes", type=int, default=16, help="fidelity episodes (default 16)")
+    ap.add_argument("--robot-num-envs", type=int, default=64, help="generic robot batch N")
+    ap.add_argument("--robot-steps", type=int, default=5, help="timed generic robot steps")
+    ap.add_argument("--sections", default="batched,single,fidelity,robot",
+                    help="comma-separated sections to run (default: all four)")  # fmt: skip
     args = ap.parse_args(argv)
     threads = args.threads or default_threads()
+    sections = set(args.sections.split(","))
     print(f"bench_env: {default_threads()} CPU core(s) available, physics dt 1 ms, 20 Hz control")
-    batched(args.num_envs, args.steps, args.mj_steps, threads, args.repeats)
-    single(args.single_steps, args.repeats)
-    fidelity(args.episodes)
+    if "batched" in sections:
+        batched(args.num_envs, args.steps, args.mj_steps, threads, args.repeats)
+    if "single" in sections:
+        single(args.single_steps, args.repeats)
+    if "fidelity" in sections:
+        fidelity(args.episodes)
+    if "robot" in sections:
+        robot(args.robot_num_envs, args.robot_steps, threads, args.repeats)
     return 0
 
 

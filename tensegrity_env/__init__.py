@@ -2,7 +2,8 @@
 
 Importing the package registers the Gymnasium environments ``IcosahedronSR-v0`` (the
 identified engine) and ``IcosahedronMJ-v0`` (its MuJoCo twin), each with a natively
-batched ``vector_entry_point`` (see :mod:`tensegrity_env.envs`). On a Linux machine
+batched ``vector_entry_point``, and ``TensegritySR-v0`` / ``TensegrityMJ-v0`` (any
+winch-driven robot, identified and in MuJoCo; see :mod:`tensegrity_env.envs`). On a Linux machine
 without a display it also defaults ``MUJOCO_GL`` to ``egl`` (before MuJoCo is
 imported) so that rendering works headless, or to ``osmesa`` where only that library
 is found, and leaves it unset where neither is
@@ -25,12 +26,14 @@ def _register_envs() -> None:
     for name, single, vector in (
         ("IcosahedronSR-v0", "sr_env:IcosahedronSREnv", "vector:IcosahedronSRVectorEnv"),
         ("IcosahedronMJ-v0", "mj_env:IcosahedronMJEnv", "vector:IcosahedronMJVectorEnv"),
+        ("TensegritySR-v0", "robot_env:TensegritySREnv", "robot_vector:TensegritySRVectorEnv"),
+        ("TensegrityMJ-v0", "robot_env:TensegrityMJEnv", "robot_vector:TensegrityMJVectorEnv"),
     ):
         if name not in registry:
             register(
                 id=name,
                 entry_point=f"tensegrity_env.envs.{single}",
-                vector_entry_point=f"tensegrity_env.envs.{vector}",
+                vector_entry_point=None if vector is None else f"tensegrity_env.envs.{vector}",
                 max_episode_steps=300,
             )
 

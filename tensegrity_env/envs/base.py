@@ -42,10 +42,18 @@ class Simulator(Protocol):
     def render_assembly(self) -> MjcfAssembly: ...
 
 
-def settle(sim: Simulator, x0: np.ndarray, seconds: float = SETTLE_SECONDS) -> np.ndarray:
-    """The state after ``seconds`` without control from ``x0`` (R, 13): the resting pose."""
+def settle(
+    sim: Simulator,
+    x0: np.ndarray,
+    seconds: float = SETTLE_SECONDS,
+    zero: np.ndarray | None = None,
+) -> np.ndarray:
+    """The state after ``seconds`` without control from ``x0`` (R, 13): the resting pose.
+
+    ``zero`` is the simulator's command for "no control" (default: no force, (R, 3)).
+    """
     sim.set_state(x0)
-    zero = np.zeros((sim.topology.n_rods, 3))
+    zero = np.zeros((sim.topology.n_rods, 3)) if zero is None else zero
     for _ in range(max(1, round(seconds / sim.control_dt))):
         sim.step(zero)
     rest = sim.get_state()
@@ -54,7 +62,55 @@ def settle(sim: Simulator, x0: np.ndarray, seconds: float = SETTLE_SECONDS) -> n
     return rest
 
 
-class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
+class SceneEnv(gym.Env[np.ndarray, np.ndarray]):
+    """A single environment drawn by MuJoCo's renderer: render modes and the renderer.
+
+    Subclasses call :meth:`_init_scene`, keep the packed rod states (R, 13) in ``state``
+    and say where the goal disc goes (:meth:`_marker`) and how large it is.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012
+    state: np.ndarray
+
+    def _init_scene(
+        self, sim: Simulator, render_mode: str | None, width: int, height: int, radius: float
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / sim.control_dt)}
+        self.render_mode = render_mode
+        self.width, self.height = int(width), int(height)
+        self._scene_sim, self._marker_radius = sim, float(radius)
+        self._renderer: SceneRenderer | None = None
+
+    def _marker(self) -> np.ndarray:
+        """Where the goal disc is drawn, (2,) [m]."""
+        raise NotImplementedError
+
+    def start_options(self) -> dict[str, np.ndarray]:
+        """``reset`` options that start an env (this one or its twin) where this one is."""
+        raise NotImplementedError
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode (pass render_mode=...)")
+            return None
+        if self._renderer is None:
+            self._renderer = SceneRenderer(
+                self._scene_sim.render_assembly(), self.width, self.height, self._marker_radius
+            )
+        if self.render_mode == "rgb_array":
+            return self._renderer.rgb_array(self.state, self._marker())
+        self._renderer.human(self.state, self._marker())
+        return None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+class RollingEnv(SceneEnv):
     """A :class:`RollingTask` on one :class:`Simulator` (see the concrete envs' docs).
 
     ``step`` before the first ``reset`` raises :class:`gymnasium.error.ResetNeeded`.
@@ -71,8 +127,6 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
         width, height: rendered image size [px].
     """
 
-    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array"], "render_fps": 20}  # noqa: RUF012
-
     def __init__(
         self,
         sim: Simulator,
@@ -82,13 +136,9 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
         width: int = 640,
         height: int = 480,
     ) -> None:
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None")
+        self._init_scene(sim, render_mode, width, height, task.goal_radius)
         self.sim, self.task, self.rest = sim, task, np.array(rest, dtype=np.float64)
         self.n_rods = sim.topology.n_rods
-        self.metadata = {**self.metadata, "render_fps": round(1.0 / sim.control_dt)}
-        self.render_mode = render_mode
-        self.width, self.height = int(width), int(height)
         self.action_space = spaces.Box(-1.0, 1.0, (3 * self.n_rods,), np.float32)
         n_obs = task.observation_size(self.n_rods)
         self.observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
@@ -96,7 +146,6 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
         self.state = self.rest.copy()
         self.goal = np.zeros(2)
         self._distance = 0.0
-        self._renderer: SceneRenderer | None = None
         self._needs_reset = True
 
     # ------------------------------------------------------------------ gym API
@@ -144,23 +193,11 @@ class RollingEnv(gym.Env[np.ndarray, np.ndarray]):
             self.render()
         return self._obs(), float(reward[0]), bool(reached[0]), False, info
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode (pass render_mode=...)")
-            return None
-        if self._renderer is None:
-            self._renderer = SceneRenderer(
-                self.sim.render_assembly(), self.width, self.height, self.task.goal_radius
-            )
-        if self.render_mode == "rgb_array":
-            return self._renderer.rgb_array(self.state, self.goal)
-        self._renderer.human(self.state, self.goal)
-        return None
+    def _marker(self) -> np.ndarray:
+        return self.goal
 
-    def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+    def start_options(self) -> dict[str, np.ndarray]:
+        return {"state": self.state.copy(), "goal": self.goal.copy()}
 
     @property
     def distance_to_goal(self) -> float:

@@ -28,7 +28,8 @@ from __future__ import annotations
 import ctypes
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Literal, Protocol
 
 import numpy as np
@@ -187,6 +188,23 @@ class NativeStepper:
             raise RuntimeError(f"native kernel failed with code {code}")
 
 
+@contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """PyTorch's intra-op CPU threads set to ``threads`` inside (None: left as they are).
+
+    A few rods are tensors of a few dozen numbers: extra threads only add
+    synchronisation, which costs most on a loaded machine.
+    """
+    before = torch.get_num_threads()
+    if threads is not None:
+        torch.set_num_threads(int(threads))
+    try:
+        yield
+    finally:
+        if threads is not None:
+            torch.set_num_threads(before)
+
+
 class TorchStepper:
     """:class:`Engine` with any effects (eager PyTorch, any device).
 
@@ -194,6 +212,7 @@ class TorchStepper:
         topology, params, effects: the identified model.
         dt: physics step [s]. frame_skip: physics steps per call.
         dtype, device: where the engine runs.
+        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting).
     """
 
     backend = "torch"
@@ -207,19 +226,36 @@ class TorchStepper:
         frame_skip: int,
         dtype: torch.dtype = torch.float64,
         device: str | torch.device = "cpu",
+        threads: int | None = None,
     ) -> None:
+        self.threads = threads
         self.engine = Engine(topology, dt, effects, dtype=dtype, device=device)
         self.params = params.to(dtype=dtype, device=device)
         self.dt, self.frame_skip = float(dt), int(frame_skip)
         self.dtype, self.device = dtype, torch.device(device)
 
     def __call__(self, x: np.ndarray, control: np.ndarray) -> None:
-        with torch.no_grad():
+        with torch.no_grad(), torch_threads(self.threads):
             state = unpack_states(x, self.dtype, self.device)
             u = torch.as_tensor(np.asarray(control), dtype=self.dtype, device=self.device)
             for _ in range(self.frame_skip):
                 state = self.engine.step(state, self.params, u)
             x[...] = pack_states(state)
+
+    def wind(self, x: np.ndarray, winch: np.ndarray, commands: np.ndarray) -> None:
+        """Advance rod states ``x`` (B, R, 13) and winch states ``winch`` (B, W, 2) [m, m/s]
+        in place by ``frame_skip`` physics steps, the winch motors' commands ``commands``
+        (B, W) in [-1, 1] held (:meth:`Engine.step <tensegrity_env.engine.Engine.step>`)."""
+        with torch.no_grad(), torch_threads(self.threads):
+            kw = {"dtype": self.dtype, "device": self.device}
+            state = unpack_states(x, self.dtype, self.device).with_winch(
+                torch.as_tensor(winch, **kw)
+            )
+            u = torch.as_tensor(np.asarray(commands), **kw)
+            for _ in range(self.frame_skip):
+                state = self.engine.step(state, self.params, winches=u)
+            x[...] = pack_states(state)
+            winch[...] = state.winch.cpu().numpy()  # type: ignore[union-attr]
 
 
 def make_stepper(

@@ -277,9 +277,9 @@ def record_side_by_side(
     labelled with :func:`env_label`.
     """
     left.reset(seed=seed)
-    state, goal = left.unwrapped.state.copy(), left.unwrapped.goal.copy()
-    obs, _ = left.reset(options={"state": state, "goal": goal})
-    right.reset(options={"state": state, "goal": goal})
+    start = left.unwrapped.start_options()
+    obs, _ = left.reset(options=start)
+    right.reset(options=start)
     rng = np.random.default_rng(seed)
     names = env_label(left), env_label(right)
     frames = [side_by_side(left.render(), right.render(), *names)]

@@ -5,7 +5,8 @@ observation in ``infos[i]["terminal_observation"]`` (the returned observation is
 already the next episode's first) and ``infos[i]["TimeLimit.truncated"]`` when the
 episode was cut by the time limit rather than ended by the task, so that it
 bootstraps from the last value. :class:`SB3VecEnv` gives exactly that on top of a
-:class:`~tensegrity_env.envs.vector.RollingVectorEnv` (whose ``SAME_STEP``
+:class:`~tensegrity_env.envs.vector.RollingVectorEnv` or
+:class:`~tensegrity_env.envs.robot_vector.TensegritySRVectorEnv` (whose ``SAME_STEP``
 autoreset matches SB3's)::
 
     from stable_baselines3 import PPO
@@ -25,6 +26,7 @@ import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
+from tensegrity_env.envs.robot_vector import TensegritySRVectorEnv
 from tensegrity_env.envs.vector import RollingVectorEnv
 
 #: per-env info entries copied from the vector env's info arrays
@@ -36,6 +38,8 @@ INFO_KEYS = (
     "x_position",
     "y_position",
     "is_success",
+    "reward_shape",
+    "task_error",
 )
 
 
@@ -43,10 +47,11 @@ class SB3VecEnv(VecEnv):
     """A natively batched rolling env as an SB3 ``VecEnv`` (see the module docstring).
 
     Args:
-        venv: the batched environment (``IcosahedronSRVectorEnv`` or the MuJoCo one).
+        venv: the batched environment (``IcosahedronSRVectorEnv``, the MuJoCo one, or
+            ``TensegritySRVectorEnv``).
     """
 
-    def __init__(self, venv: RollingVectorEnv) -> None:
+    def __init__(self, venv: RollingVectorEnv | TensegritySRVectorEnv) -> None:
         self.venv = venv
         self.render_mode = venv.render_mode
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)

@@ -29,19 +29,22 @@ ACTION_POLICY = (
 )
 
 
-def check_action(action: Any, shape: tuple[int, ...]) -> np.ndarray:
+def check_action(
+    action: Any, shape: tuple[int, ...], what: str = "3 force commands per rod"
+) -> np.ndarray:
     """``action`` as float64 of ``shape``, else ValueError (see :data:`ACTION_POLICY`).
 
     Args:
         action: the action(s) given to ``step``.
         shape: the expected shape: ``(3R,)`` for one env, ``(N, 3R)`` for N envs.
+        what: what the action's entries are, for the message.
     """
     try:
         a = np.asarray(action, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"action must be numbers of shape {shape}") from None
     if a.shape != shape:
-        raise ValueError(f"action has shape {a.shape}, expected {shape} (3 force commands per rod)")
+        raise ValueError(f"action has shape {a.shape}, expected {shape} ({what})")
     bad = np.argwhere(~np.isfinite(a))
     if bad.size:
         entries = [int(i[0]) if a.ndim == 1 else tuple(int(j) for j in i) for i in bad[:6]]

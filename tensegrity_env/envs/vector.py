@@ -49,6 +49,32 @@ from tensegrity_env.topology import Topology
 MAX_EPISODE_STEPS = 300
 
 
+def env_seeds(seed: int | list[int | None] | None, num_envs: int) -> list[int | None]:
+    """One seed per env from ``reset``'s ``seed``: an int gives env i ``seed + i`` (as
+    ``SyncVectorEnv`` seeds N single envs), a list is taken as it is, None seeds none."""
+    if seed is None:
+        return [None] * num_envs
+    if isinstance(seed, int):
+        return [seed + i for i in range(num_envs)]
+    seeds = list(seed)
+    if len(seeds) != num_envs:
+        raise ValueError(f"{len(seeds)} seeds for {num_envs} envs")
+    return seeds
+
+
+def record_final(obs: np.ndarray, infos: dict[str, Any], done: np.ndarray) -> np.ndarray:
+    """Put the ending envs' last observations and infos into ``infos`` (``SAME_STEP``
+    autoreset: ``final_obs``, ``final_info`` and their masks) and return their indices."""
+    ended = np.flatnonzero(done)
+    final_obs = np.full(len(done), None, dtype=object)
+    for i in ended:
+        final_obs[i] = obs[i].copy()
+    infos["final_info"] = {k: np.array(v, copy=True) for k, v in infos.items()}
+    infos["_final_info"] = done.copy()
+    infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
+    return ended
+
+
 class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     """The rolling task on N assemblies at once (subclasses supply the physics).
 
@@ -120,15 +146,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
 
         ``options`` may give ``"state"`` (N, R, 13) and ``"goal"`` (N, 2).
         """
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} envs")
-        for i, s in enumerate(seeds):
+        for i, s in enumerate(env_seeds(seed, self.num_envs)):
             if s is not None:  # unseeded envs keep their generator, as single envs do
                 self._rngs[i] = seeding.np_random(s)[0]
         idx = np.arange(self.num_envs)
@@ -175,14 +193,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         infos["physics_diverged"] = bad
         done = terminated | truncated
         if done.any():
-            ended = np.flatnonzero(done)
-            final_obs = np.full(self.num_envs, None, dtype=object)
-            for i in ended:
-                final_obs[i] = obs[i].copy()
-            infos["final_obs"], infos["_final_obs"] = final_obs, done.copy()
-            infos["final_info"] = {k: np.array(v, copy=True) for k, v in infos.items()
-                                   if k not in ("final_obs", "_final_obs")}  # fmt: skip
-            infos["_final_info"] = done.copy()
+            ended = record_final(obs, infos, done)
             self._reset_envs(ended)
             x = self._get_states()
             obs[ended] = self.task.observe(x[ended], self.goals[ended], self._axes)

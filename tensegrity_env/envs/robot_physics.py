@@ -1,0 +1,249 @@
+"""The physics of the generic robot environments: an identified model and its MuJoCo twin.
+
+A robot is an MJCF file whose cables are wound by winches
+(:mod:`tensegrity_env.mjcf.winches`); its identified model is a params file the
+pipeline wrote for it (or, by default, the file's own parameters). Both simulators
+hold packed rod states (R, 13) (rows ``p``, ``v``, ``q`` (w x y z), ``omega``, world
+frame) and winch states (W, 2) (rest length [m], winding speed [m/s]) and advance them
+``frame_skip`` physics steps per control step under motor commands (W,) in [-1, 1]:
+
+* :class:`SRRobotSimulator`: :class:`~tensegrity_env.engine.Engine` in float64 on the
+  CPU (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`): the
+  native kernel has no winch form, so every step is the PyTorch engine's.
+* :class:`MJRobotSimulator`: MuJoCo with :class:`~tensegrity_env.mjcf.winches.MjWinches`
+  setting ``tendon_lengthspring`` from the winch state before every ``mj_step``.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+
+from tensegrity_env.engine.winch import initial_winch_state
+from tensegrity_env.envs.base import settle
+from tensegrity_env.envs.mj_env import pack_mj, unpack_mj
+from tensegrity_env.envs.physics import TorchStepper, make_stepper
+from tensegrity_env.envs.sr_env import ASSETS
+from tensegrity_env.io_utils import InputError
+from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
+from tensegrity_env.model import Model
+from tensegrity_env.topology import Topology
+
+#: the robot the generic environments move by default: the lab 3-bar with six winches
+DEFAULT_ROBOT = ASSETS / "lab_prism.xml"
+#: how long the resting pose is settled from the file's initial pose [s]
+ROBOT_SETTLE_SECONDS = 5.0
+
+
+def require_winches(topology: Topology, src: str | Path) -> None:
+    """Raise :class:`InputError` unless the robot is driven by winches only."""
+    if topology.n_cables:
+        raise InputError(
+            f"{src}: {topology.n_cables} force cable actuator(s): the generic environments "
+            "drive winch cables (declare them with winch:<tendon> numerics, docs/mjcf.md)"
+        )
+    if not topology.n_winches:
+        raise InputError(f"{src}: no winch cables (winch:<tendon> numerics): nothing to command")
+
+
+def initial_pose(asm: MjcfAssembly) -> np.ndarray:
+    """The file's own initial pose (``qpos0``) at rest, packed (R, 13)."""
+    return pack_mj(asm, asm.model.qpos0.copy(), np.zeros(asm.model.nv))
+
+
+class SRRobotSimulator:
+    """B copies of a robot's identified model on the engine (see the module docstring).
+
+    Args:
+        model: the identified params file (None: the robot file's own parameters,
+            floor contact and tension-only cables as it declares them).
+        robot: the robot's MJCF (None: :data:`DEFAULT_ROBOT`): its pose to start from
+            and its geometry to draw; the model must have its topology.
+        frame_skip: physics steps per control step (the physics step is the file's
+            ``timestep``).
+        batch: number of copies stepped together.
+        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting).
+    """
+
+    def __init__(
+        self,
+        model: str | Path | None = None,
+        robot: str | Path | None = None,
+        frame_skip: int = 50,
+        batch: int = 1,
+        threads: int | None = None,
+    ) -> None:
+        self.robot_path = Path(robot) if robot is not None else DEFAULT_ROBOT
+        self.asm = from_mjcf(self.robot_path)
+        self.model_path = Path(model) if model is not None else self.robot_path
+        self.model = Model.read(self.model_path, dt=float(self.asm.model.opt.timestep))
+        t = self.topology = self.model.topology
+        if not t.same_as(self.asm.topology, atol=1e-9):
+            raise InputError(
+                f"{self.model_path}: its topology is not the robot's ({self.robot_path}: "
+                f"{self.asm.topology.n_rods} rods, {self.asm.topology.n_springs} cables)"
+            )
+        require_winches(t, self.model_path)
+        if "ground_contact" not in self.model.effect_names:
+            raise InputError(
+                f"{self.model_path}: no 'ground_contact' effect: identify it first (the "
+                "robot would fall through the floor)"
+            )
+        self.params, self.effects = self.model.params, self.model.effects
+        self.dt, self.frame_skip = self.model.dt, int(frame_skip)
+        self.control_dt = self.dt * self.frame_skip
+        self.command_shape = (t.n_winches,)
+        self.stepper = TorchStepper(
+            t, self.params, self.effects, self.dt, self.frame_skip, threads=threads
+        )
+        self.rest_winch = initial_winch_state(t, self.params.to(dtype=torch.float64), 1)[0].numpy()
+        self.x = np.zeros((batch, t.n_rods, 13))
+        self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
+
+    def set_state(self, x: np.ndarray, winch: np.ndarray | None = None, i: int = 0) -> None:
+        """Set copy ``i``: rod state (R, 13), winch state (W, 2) (None: at rest)."""
+        self.x[i] = x
+        self.winch[i] = self.rest_winch if winch is None else winch
+
+    def get_state(self) -> np.ndarray:
+        return self.x[0].copy()
+
+    def get_winch(self) -> np.ndarray:
+        return self.winch[0].copy()
+
+    def step(self, command: np.ndarray) -> None:
+        """Advance copy 0 under motor commands (W,)."""
+        x, w = self.x[:1].copy(), self.winch[:1].copy()
+        self.stepper.wind(x, w, np.asarray(command, dtype=np.float64)[None])
+        self.x[:1], self.winch[:1] = x, w
+
+    def step_batch(self, commands: np.ndarray) -> None:
+        """Advance every copy under motor commands (B, W)."""
+        self.stepper.wind(self.x, self.winch, commands)
+
+    def rest_pose(self) -> np.ndarray:
+        """The model's resting pose on the floor from the robot file's pose, (R, 13)
+        (cached per file pair)."""
+        m, r = self.model_path.resolve(), self.robot_path.resolve()
+        return _sr_rest(str(m), m.stat().st_mtime, str(r), r.stat().st_mtime).copy()
+
+    def render_assembly(self) -> MjcfAssembly:
+        return self.asm
+
+
+@lru_cache(maxsize=8)
+def _sr_rest(model: str, model_mtime: float, robot: str, robot_mtime: float) -> np.ndarray:
+    """Settled with the winches at rest and no command: no cable winds, so the model is
+    the same without its winch state, and the native kernel steps it where it builds."""
+    sim = SRRobotSimulator(model, robot)
+    x = initial_pose(sim.asm)[None].copy()
+    stepper = make_stepper(sim.topology, sim.params, sim.effects, sim.dt, sim.frame_skip,
+                           threads=1)  # fmt: skip
+    zero = np.zeros((1, sim.topology.n_rods, 3))
+    for _ in range(max(1, round(ROBOT_SETTLE_SECONDS / sim.control_dt))):
+        stepper(x, zero)
+    if not np.all(np.isfinite(x)):
+        raise RuntimeError(f"{model}: the model diverged while settling on the floor")
+    return x[0]
+
+
+class MJRobotSimulator:
+    """One robot in MuJoCo, its winches wound by :class:`~tensegrity_env.mjcf.winches.MjWinches`.
+
+    Args:
+        robot: the robot's MJCF (None: :data:`DEFAULT_ROBOT`).
+        frame_skip: MuJoCo steps per control step.
+    """
+
+    def __init__(self, robot: str | Path | None = None, frame_skip: int = 50) -> None:
+        self.xml_path = Path(robot) if robot is not None else DEFAULT_ROBOT
+        self.asm = from_mjcf(self.xml_path)
+        self.topology, self.model = self.asm.topology, self.asm.model
+        require_winches(self.topology, self.xml_path)
+        self.data = mujoco.MjData(self.model)
+        self.plant = self.asm.mj_winches()
+        self.frame_skip = int(frame_skip)
+        self.control_dt = float(self.model.opt.timestep) * self.frame_skip
+        self.command_shape = (self.topology.n_winches,)
+        self.diverged = False
+
+    def set_state(self, x: np.ndarray, winch: np.ndarray | None = None) -> None:
+        """Rod state (R, 13) and winch state (W, 2) (None: at rest)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.plant.reset(winch)
+        self.plant.apply()
+        qpos, qvel = unpack_mj(self.asm, x)
+        self.data.qpos[:] = qpos
+        self.data.qvel[:] = qvel
+        mujoco.mj_forward(self.model, self.data)
+        self.diverged = False
+
+    def get_state(self) -> np.ndarray:
+        """Packed rod states (R, 13); NaN once MuJoCo has declared the simulation unstable."""
+        if self.diverged:
+            return np.full((self.topology.n_rods, 13), np.nan)
+        return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
+
+    def get_winch(self) -> np.ndarray:
+        return self.plant.state[0].numpy().copy()
+
+    def step(self, command: np.ndarray) -> None:
+        """``frame_skip`` MuJoCo steps under motor commands (W,)."""
+        bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
+        before = bad.number
+        u = np.asarray(command, dtype=np.float64)
+        for _ in range(self.frame_skip):
+            self.plant.step(self.data, u)
+        # MuJoCo resets an unstable simulation to qpos0 and goes on; report it instead
+        self.diverged |= bad.number > before
+
+    def rest_pose(self) -> np.ndarray:
+        """The twin's resting pose, settled in MuJoCo from the file's pose (cached per file)."""
+        p = self.xml_path.resolve()
+        return _mj_rest(str(p), p.stat().st_mtime, self.frame_skip).copy()
+
+    def render_assembly(self) -> MjcfAssembly:
+        return self.asm
+
+
+@lru_cache(maxsize=8)
+def _mj_rest(xml_path: str, mtime: float, frame_skip: int) -> np.ndarray:
+    sim = MJRobotSimulator(xml_path, frame_skip)
+    return settle(sim, initial_pose(sim.asm), ROBOT_SETTLE_SECONDS, np.zeros(sim.command_shape))
+
+
+class MJRobotBatch:
+    """N twins (:class:`MJRobotSimulator`) stepped one after another, with the batch
+    interface of :class:`SRRobotSimulator`: ``x`` (N, R, 13), ``winch`` (N, W, 2),
+    ``set_state(x, winch, i)``, ``step_batch(commands)``. ``mujoco.rollout`` cannot step
+    them: the winches change the model's rest lengths between ``mj_step`` calls.
+
+    Args:
+        robot, frame_skip: as :class:`MJRobotSimulator`. batch: N.
+    """
+
+    def __init__(self, robot: str | Path | None = None, frame_skip: int = 50, batch: int = 1):
+        self.sims = [MJRobotSimulator(robot, frame_skip) for _ in range(batch)]
+        first = self.sims[0]
+        self.topology, self.control_dt = first.topology, first.control_dt
+        self.command_shape, self.asm = first.command_shape, first.asm
+        self.rest_winch = first.get_winch()
+        self.x = np.zeros((batch, self.topology.n_rods, 13))
+        self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
+
+    def set_state(self, x: np.ndarray, winch: np.ndarray | None = None, i: int = 0) -> None:
+        self.sims[i].set_state(x, winch)
+        self.x[i], self.winch[i] = self.sims[i].get_state(), self.sims[i].get_winch()
+
+    def step_batch(self, commands: np.ndarray) -> None:
+        """Every twin ``frame_skip`` steps under its motor commands (N, W)."""
+        for i, (sim, u) in enumerate(zip(self.sims, commands, strict=True)):
+            sim.step(u)
+            self.x[i], self.winch[i] = sim.get_state(), sim.get_winch()
+
+    def rest_pose(self) -> np.ndarray:
+        return self.sims[0].rest_pose()

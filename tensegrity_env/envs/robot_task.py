@@ -1,0 +1,255 @@
+"""Tasks of the generic robot environments: what the robot senses, and what it is asked.
+
+A cable-driven robot senses its end caps (a camera or motion capture), the lengths of
+its cables (length sensors) and its motors' rest lengths (encoders); it never sees its
+rods' velocities or orientations. :class:`RobotSensors` turns packed rod states ``x``
+(B, R, 13) (rows ``p``, ``v``, ``q`` (w x y z), ``omega``, world frame) and winch states
+(B, W, 2) into those readings. Two tasks share them:
+
+* :class:`GoalTask`: move the structure's centre to a goal on the floor; it reuses
+  :class:`~tensegrity_env.envs.task.RollingTask`'s reset distribution, distance, reward
+  and success test, with motor commands in place of force commands.
+* :class:`ShapeTask`: hold target lengths of the wound cables.
+
+Both take motor commands in [-1, 1] (one per winch, or per cable actuator) and work on
+any batch size, so the single envs and their twins run the same code.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from tensegrity_env.assemblies import node_positions
+from tensegrity_env.envs.task import RollingTask, TaskOptions
+from tensegrity_env.topology import Topology
+
+#: the task names the generic environments take
+TASKS = ("goal", "shape")
+#: the goal task's defaults for a robot that crawls by winding its cables (a prism
+#: winding at 0.1 m/s moves its centre a few cm/s: goals within reach of a 15 s episode)
+GOAL_DEFAULTS: dict[str, Any] = {"goal_distance": (0.5, 1.0), "goal_radius": 0.2}
+
+
+@dataclass(frozen=True)
+class RobotSensors:
+    """What the robot measures, from packed rod states (B, R, 13) and winch states (B, W, 2).
+
+    Attributes:
+        topology: the robot's graph (end caps, cables, winches).
+    """
+
+    topology: Topology
+
+    def end_caps(self, x: np.ndarray) -> np.ndarray:
+        """End-cap positions, (B, 2R, 3) [m], rod r's caps at 2r and 2r + 1."""
+        nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
+        return nodes[..., : 2 * self.topology.n_rods, :]
+
+    def cable_lengths(self, x: np.ndarray) -> np.ndarray:
+        """Every cable's length between its attachment points, (B, S) [m]."""
+        nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
+        a, b = self.topology.spring_nodes[:, 0], self.topology.spring_nodes[:, 1]
+        return np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
+
+    def size(self) -> int:
+        """Length of :meth:`read`'s output per robot."""
+        t = self.topology
+        return 6 * t.n_rods + 1 + t.n_springs + t.n_winches
+
+    def read(self, x: np.ndarray, winch: np.ndarray) -> np.ndarray:
+        """Sensor readings (B, 6R + 1 + S + W) [m]: end caps minus the centre (mean of the
+        end caps), the centre's height, the cable lengths, the motors' rest lengths."""
+        caps = self.end_caps(x)
+        c = caps.mean(axis=-2, keepdims=True)
+        B = x.shape[0]
+        parts = [(caps - c).reshape(B, -1), c[:, 0, 2:3], self.cable_lengths(x), winch[..., 0]]
+        return np.concatenate(parts, axis=1)
+
+
+class RobotTask(Protocol):
+    """What a generic environment asks of its task (batched over B)."""
+
+    sensors: RobotSensors
+    control_dt: float
+    goal_radius: float
+
+    def observation_size(self) -> int: ...
+
+    def target_size(self) -> int: ...
+
+    def sample_reset(
+        self, rng: np.random.Generator, rest: np.ndarray, winch: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def observe(self, x: np.ndarray, winch: np.ndarray, target: np.ndarray) -> np.ndarray: ...
+
+    def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray: ...
+
+    def reward(
+        self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]: ...
+
+
+@dataclass(frozen=True)
+class GoalTask:
+    """Move the centre (mean of the rod centres) to a goal on the floor.
+
+    The reset distribution, distance, reward terms (``reward_progress``,
+    ``reward_control``, ``reward_goal``) and success test are
+    :class:`~tensegrity_env.envs.task.RollingTask`'s with ``max_command = 1``: the
+    commands are the motors' own, in [-1, 1]. The target is the goal (B, 2) [m].
+    """
+
+    sensors: RobotSensors
+    rolling: RollingTask
+
+    @property
+    def control_dt(self) -> float:
+        return self.rolling.control_dt
+
+    @property
+    def goal_radius(self) -> float:
+        return self.rolling.goal_radius
+
+    def observation_size(self) -> int:
+        return self.sensors.size() + 2
+
+    def target_size(self) -> int:
+        return 2
+
+    def sample_reset(
+        self, rng: np.random.Generator, rest: np.ndarray, winch: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Initial rod state (R, 13) and goal (2,) [m] (``RollingTask.sample_reset``)."""
+        return self.rolling.sample_reset(rng, rest)
+
+    def observe(self, x: np.ndarray, winch: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Sensor readings and the goal minus the centre (x, y) [m], (B, n_obs) float32."""
+        c = self.rolling.centre(x)
+        return np.concatenate([self.sensors.read(x, winch), target - c[:, :2]], 1).astype(
+            np.float32
+        )
+
+    def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Horizontal distance from the centre to the goal, (B,) [m]."""
+        return self.rolling.distance(x, target)
+
+    def reward(
+        self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Reward (B,), success (B,) and terms from distances before/after and commands (B, W)."""
+        return self.rolling.reward(prev, error, commands[..., None])
+
+
+@dataclass(frozen=True)
+class ShapeTask:
+    """Hold target lengths of the wound cables (a shape).
+
+    At reset each wound cable's target is its length in the resting pose times a factor
+    drawn uniformly in ``1 ± shape_range``. The observation ends with the targets minus
+    the wound cables' lengths (W,) [m]. Reward terms: ``reward_shape`` = -``shape_weight``
+    x the largest absolute length error [m]; ``reward_control`` = -``control_weight`` x the
+    mean squared command. ``info["is_success"]`` while every error is within
+    ``shape_tolerance``; the episode does not end on success (the shape is to be held).
+
+    Attributes:
+        shape_range: relative spread of the targets around the resting lengths.
+        shape_tolerance: largest length error that counts as holding the shape [m].
+        shape_weight: penalty per m of the largest length error.
+        control_weight: penalty for using the whole command range on every motor.
+        reset_noise_scale: perturbation of the resting pose at reset (as
+            :class:`~tensegrity_env.envs.task.RollingTask`).
+        control_dt: seconds per env step.
+    """
+
+    sensors: RobotSensors
+    shape_range: float = 0.1
+    shape_tolerance: float = 0.01
+    shape_weight: float = 10.0
+    control_weight: float = 0.1
+    reset_noise_scale: float = 5e-3
+    control_dt: float = 0.05
+    goal_radius: float = field(default=0.0, init=False)
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.shape_range < 1 and self.shape_tolerance > 0 and self.control_dt > 0):
+            raise ValueError(
+                "shape_range must be in [0, 1), shape_tolerance and control_dt positive"
+            )
+
+    def _wound(self, x: np.ndarray) -> np.ndarray:
+        return self.sensors.cable_lengths(x)[..., list(self.sensors.topology.winches)]
+
+    def observation_size(self) -> int:
+        return self.sensors.size() + self.sensors.topology.n_winches
+
+    def target_size(self) -> int:
+        return self.sensors.topology.n_winches
+
+    def sample_reset(
+        self, rng: np.random.Generator, rest: np.ndarray, winch: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Initial rod state (R, 13) (the resting pose, perturbed) and targets (W,) [m]."""
+        still = RollingTask(goal_distance=(0.0, 0.0), reset_noise_scale=self.reset_noise_scale)
+        x, _ = still.sample_reset(rng, rest)
+        factor = rng.uniform(1 - self.shape_range, 1 + self.shape_range, winch.shape[0])
+        return x, self._wound(rest[None])[0] * factor
+
+    def observe(self, x: np.ndarray, winch: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Sensor readings and the targets minus the wound lengths, (B, n_obs) float32."""
+        gap = target - self._wound(x)
+        return np.concatenate([self.sensors.read(x, winch), gap], 1).astype(np.float32)
+
+    def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Largest absolute length error of the wound cables, (B,) [m]."""
+        return np.abs(target - self._wound(x)).max(axis=-1)
+
+    def reward(
+        self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """Reward (B,), success (B,) and terms; ``error`` is :meth:`error`'s (B,)."""
+        held = error <= self.shape_tolerance
+        terms = {
+            "reward_shape": -self.shape_weight * error,
+            "reward_control": -self.control_weight * np.mean(commands**2, axis=-1),
+        }
+        return terms["reward_shape"] + terms["reward_control"], held, terms
+
+
+#: the options each task takes, besides ``control_dt``
+SHAPE_OPTIONS = ("shape_range", "shape_tolerance", "shape_weight", "control_weight",
+                 "reset_noise_scale")  # fmt: skip
+
+
+def make_robot_task(
+    name: str, topology: Topology, control_dt: float, options: Mapping[str, Any]
+) -> GoalTask | ShapeTask:
+    """The task ``name`` (``"goal"`` or ``"shape"``) for a robot, with its options (the
+    goal task's defaults: :data:`GOAL_DEFAULTS`).
+
+    Raises:
+        ValueError: an unknown task name. TypeError: an option the task does not take.
+    """
+    sensors = RobotSensors(topology)
+    if name == "goal":
+        known = set(TaskOptions.__annotations__) - {"max_command"}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise TypeError(f"unknown goal-task option(s) {unknown}; it takes {sorted(known)}")
+        opts = {**GOAL_DEFAULTS, **options}
+        if "goal_distance" in opts:
+            opts["goal_distance"] = tuple(float(d) for d in opts["goal_distance"])
+        rolling = RollingTask(control_dt=control_dt, max_command=1.0, **opts)
+        return GoalTask(sensors, rolling)
+    if name == "shape":
+        unknown = sorted(set(options) - set(SHAPE_OPTIONS))
+        if unknown:
+            raise TypeError(
+                f"unknown shape-task option(s) {unknown}; it takes {list(SHAPE_OPTIONS)}"
+            )
+        return ShapeTask(sensors, control_dt=control_dt, **options)
+    raise ValueError(f"task must be one of {TASKS}, got {name!r}")

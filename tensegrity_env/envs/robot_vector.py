@@ -1,0 +1,189 @@
+"""N generic robots in one batch: ``TensegritySR-v0`` in one engine call, and its twins.
+
+:class:`TensegritySRVectorEnv` holds N rod states (N, R, 13) and winch states (N, W, 2)
+and advances them with one batched :meth:`TorchStepper.wind
+<tensegrity_env.envs.physics.TorchStepper.wind>` per env step;
+:class:`TensegrityMJVectorEnv` steps N MuJoCo twins one after another. Both are
+Gymnasium :class:`~gymnasium.vector.VectorEnv` s with the single env's task code::
+
+    gym.make_vec("TensegritySR-v0", num_envs=64, vectorization_mode="vector_entry_point")
+    gym.make_vec("TensegrityMJ-v0", num_envs=64, vectorization_mode="vector_entry_point")
+
+and wraps into Stable-Baselines3 with :class:`~tensegrity_env.envs.sb3.SB3VecEnv`.
+Autoreset, seeding (env ``i`` gets ``seed + i``), ``final_obs``/``final_info`` and the
+handling of bad input are those of
+:class:`~tensegrity_env.envs.vector.IcosahedronSRVectorEnv`; reward terms,
+``task_error``, ``is_success`` and the positions are arrays (N,) in ``infos``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from tensegrity_env.envs.robot_env import ROBOT_REWARD_TERMS
+from tensegrity_env.envs.robot_physics import MJRobotBatch, SRRobotSimulator
+from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
+from tensegrity_env.envs.task import check_action
+from tensegrity_env.envs.vector import MAX_EPISODE_STEPS, env_seeds, record_final
+
+
+class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
+    """A robot task on N copies of a batch simulator (:class:`SRRobotSimulator` or
+    :class:`MJRobotBatch`); subclasses build it and call :meth:`_setup`."""
+
+    metadata: dict[str, Any] = {  # noqa: RUF012
+        "render_modes": [],
+        "render_fps": 20,
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+    }
+
+    sim: SRRobotSimulator | MJRobotBatch
+
+    def _setup(
+        self, num_envs: int, task: str, max_episode_steps: int | None, options: dict[str, Any]
+    ) -> None:
+        self.task = make_robot_task(task, self.sim.topology, self.sim.control_dt, options)
+        self.num_envs, self.max_episode_steps = int(num_envs), max_episode_steps
+        self.render_mode = None
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.sim.control_dt)}
+        self.rest = self.sim.rest_pose()
+        W = self.sim.command_shape[0]
+        self.single_action_space = spaces.Box(-1.0, 1.0, (W,), np.float32)
+        n_obs = self.task.observation_size()
+        self.single_observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._rngs = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
+        self.targets = np.zeros((self.num_envs, self.task.target_size()))
+        self._error = np.zeros(self.num_envs)
+        self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
+        self._last_obs = np.zeros((self.num_envs, n_obs), dtype=np.float32)
+        self._needs_reset = True
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every env; ``seed`` an int (env i gets ``seed + i``) or one per env."""
+        for i, s in enumerate(env_seeds(seed, self.num_envs)):
+            if s is not None:
+                self._rngs[i] = seeding.np_random(s)[0]
+        self._reset_envs(np.arange(self.num_envs))
+        obs = self._observe()
+        self._last_obs, self._needs_reset = obs, False
+        return obs, self._base_info()
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("call reset() before step()")
+        a = check_action(actions, self.action_space.shape, "one command per motor")  # type: ignore[arg-type]
+        commands = np.clip(a, -1.0, 1.0)
+        self.sim.step_batch(commands)
+        x = self.sim.x
+        bad = ~np.all(np.isfinite(x), axis=(1, 2))
+        error = self.task.error(x, self.targets)
+        error[bad] = self._error[bad]
+        reward, success, terms = self.task.reward(self._error, error, commands)
+        reward[bad] = 0.0
+        infos: dict[str, Any] = {k: np.zeros(self.num_envs) for k in ROBOT_REWARD_TERMS}
+        for k, v in terms.items():
+            v[bad] = 0.0
+            infos[k] = v
+        self._error = error
+        self._elapsed += 1
+        terminated = (success & isinstance(self.task, GoalTask)) | bad
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        if self.max_episode_steps is not None:
+            truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
+        obs = self._observe()
+        obs[bad] = self._last_obs[bad]
+        infos.update(self._base_info())
+        infos["is_success"], infos["physics_diverged"] = success & ~bad, bad
+        done = terminated | truncated
+        if done.any():
+            ended = record_final(obs, infos, done)
+            self._reset_envs(ended)
+            obs[ended] = self._observe()[ended]
+        self._last_obs = obs
+        return obs, reward, terminated, truncated, infos
+
+    def _observe(self) -> np.ndarray:
+        return self.task.observe(self.sim.x, self.sim.winch, self.targets)
+
+    def _reset_envs(self, idx: np.ndarray) -> None:
+        for i in idx:
+            x, self.targets[i] = self.task.sample_reset(
+                self._rngs[i], self.rest, self.sim.rest_winch
+            )
+            self.sim.set_state(x, None, int(i))
+        self._elapsed[idx] = 0
+        self._error[idx] = self.task.error(self.sim.x[idx], self.targets[idx])
+
+    def _base_info(self) -> dict[str, Any]:
+        c = self.sim.x[..., 0:3].mean(axis=1)
+        return {"task_error": self._error.copy(), "x_position": c[:, 0], "y_position": c[:, 1]}
+
+
+def _batch_size(num_envs: int) -> int:
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    return int(num_envs)
+
+
+class TensegritySRVectorEnv(RobotVectorEnv):
+    """N :class:`~tensegrity_env.envs.robot_env.TensegritySREnv` in one engine call.
+
+    Args:
+        num_envs: N.
+        model, robot, task, frame_skip, **options: as ``TensegritySR-v0``.
+        max_episode_steps: time limit (truncation) per episode, None for none.
+        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting). One
+            by default: at N = 64 on two cores, two threads stepped 8x slower than one.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        model: str | Path | None = None,
+        robot: str | Path | None = None,
+        task: str = "goal",
+        frame_skip: int = 50,
+        max_episode_steps: int | None = MAX_EPISODE_STEPS,
+        threads: int | None = 1,
+        **options: Any,
+    ) -> None:
+        n = _batch_size(num_envs)
+        self.sim = SRRobotSimulator(model, robot, frame_skip, n, threads)
+        self._setup(n, task, max_episode_steps, options)
+
+
+class TensegrityMJVectorEnv(RobotVectorEnv):
+    """N :class:`~tensegrity_env.envs.robot_env.TensegrityMJEnv` twins, stepped one after
+    another (:class:`~tensegrity_env.envs.robot_physics.MJRobotBatch`).
+
+    Args:
+        num_envs: N. robot, task, frame_skip, **options: as ``TensegrityMJ-v0``.
+        max_episode_steps: time limit (truncation) per episode, None for none.
+    """
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        robot: str | Path | None = None,
+        task: str = "goal",
+        frame_skip: int = 50,
+        max_episode_steps: int | None = MAX_EPISODE_STEPS,
+        **options: Any,
+    ) -> None:
+        n = _batch_size(num_envs)
+        self.sim = MJRobotBatch(robot, frame_skip, n)
+        self._setup(n, task, max_episode_steps, options)

@@ -426,11 +426,62 @@ def step_winch_robot(demo: Demo) -> None:
     gap = np.linalg.norm(sr.state[:, :3] - mj.state[:, :3], axis=1).max()
     print(f"at the end the rod centres of the two envs are at most {1e3 * gap:.2g} mm apart")
 
+
+#: NTRT's documented 3-prism in its YAML model format (decimetres, y up)
+NTRT_PRISM = """\
+builders:
+  rod: {class: tgRodInfo, parameters: {density: 0.5, radius: 0.1}}
+  string: {class: tgBasicActuatorInfo, parameters: {stiffness: 100, damping: 3, pretension: 50}}
+nodes:
+  bottom1: [-5, 0, 0]
+  bottom2: [5, 0, 0]
+  bottom3: [0, 0, 8.66]
+  top1: [-5, 5, 0]
+  top2: [5, 5, 0]
+  top3: [0, 5, 8.66]
+pair_groups:
+  rod: [[bottom1, top2], [bottom2, top3], [bottom3, top1]]
+  string: [[bottom1, bottom2], [bottom2, bottom3], [bottom1, bottom3], [top1, top2], [top2, top3],
+           [top1, top3], [bottom1, top1], [bottom2, top2], [bottom3, top3]]
+"""
+
+
+def step_ntrt_take(demo: Demo) -> None:
+    banner("A lab's export: an NTRT YAML robot (tension-only cables, on a floor) dropped in "
+           "the engine, written as an OptiTrack row-format take (unlabelled ids, y up, "
+           "0.5 mm noise, dropouts), imported and inspected")  # fmt: skip
+    from identification.data.mocap.optitrack_rows import write_optitrack_rows
+    from tensegrity_env.model import Model
+    from tensegrity_env.ntrt import from_ntrt
+    from tensegrity_env.rotations import TO_Z_UP
+
+    rate = 120.0  # [Hz] a common motion-capture rate
+    robot = demo.out / "ntrt_prism.yaml"
+    atomic_write_text(robot, NTRT_PRISM)
+    rest, model = from_ntrt(robot), Model.read(robot, dt=1.0 / rate)
+    R, rng = model.topology.n_rods, np.random.default_rng(7)
+    # from 0.3 m above its rest pose, turning slowly: free fall, touchdown, rest
+    start = State.from_numpy(np.asarray(rest.rest_p)[None] + [0.0, 0.0, 0.3], np.zeros((1, R, 3)),
+                             np.asarray(rest.rest_q)[None], rng.normal(0.0, 1.0, (1, R, 3)))  # fmt: skip
+    roll = model.engine().rollout(start, model.params, int(1.5 * rate))
+    caps = np.stack([node_positions(model.topology, p, q)
+                     for p, q in zip(roll.p[0].numpy(), roll.q[0].numpy(), strict=True)])  # fmt: skip
+    time_s = np.arange(len(caps)) / rate
+    points = (caps + rng.normal(0.0, 5e-4, caps.shape)) @ TO_Z_UP["y"]  # z up -> the file's y up
+    ids = np.tile(np.arange(100, 100 + caps.shape[1]), (len(caps), 1))
+    lost = rng.random(ids.shape) < 0.01
+    points[lost], ids[lost] = np.nan, -1
+    take = write_optitrack_rows(demo.out / "ntrt_take.csv", time_s, points, ids)
+    data = demo.out / "ntrt_take.h5"
+    demo.cli("import-mocap", take, "--robot", robot, "--split", "1,0,0", "-o", data)
+    demo.cli("inspect", data, writes=False)
+
 #: the demo's steps, in order: name -> function (steps read what earlier steps wrote)
 STEPS: dict[str, Callable[[Demo], None]] = {
     "generate": step_generate,
     "identify": step_identify,
     "mocap": step_mocap,
+    "ntrt_take": step_ntrt_take,
     "element": step_element,
     "control_gain": step_control_gain,
     "experiment": step_experiment,

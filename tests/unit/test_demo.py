@@ -27,3 +27,5 @@ def test_unknown_steps_are_named(tmp_path: Path, one_line_error) -> None:
 def test_sizes_follow_full() -> None:
     assert Demo(Path("x")).size(1, 2) == 1 and Demo(Path("x"), full=True).size(1, 2) == 2
     assert list(STEPS)[:2] == ["generate", "identify"] and "transfer" in STEPS
+    # the winch robot and the lab export need nothing an earlier step wrote
+    assert {"winch_robot", "ntrt_take"} <= set(STEPS)

@@ -400,15 +400,18 @@ def simulate_family(d: Draw, xml: str, init: dict[str, np.ndarray], duration: fl
     return Split(nodes=nodes, control=np.zeros((n, T, R, 3)), **out)
 
 
-def write_family_cell(d: Draw, directory: Path) -> CellData:
+def write_family_cell(d: Draw, directory: Path, share: float = 1.0) -> CellData:
     """Simulate the drawn plant and write ``measured.h5`` (end caps only, gaps as NaN)
-    and ``clean.h5`` (no noise, no gaps, rod states), both with the ground truth."""
+    and ``clean.h5`` (no noise, no gaps, rod states), both with the ground truth.
+    ``share``: this fraction of the measured benchmark's trajectories per split (at
+    least one each)."""
     directory.mkdir(parents=True, exist_ok=True)
     truth, topology = truth_of(d)
     cell = d.cell
     rng = np.random.default_rng([d.seed, 64, 11])
     clean, seen = {}, {}
-    for k, (name, n) in enumerate(cell.counts.items()):
+    for k, (name, n_all) in enumerate(cell.counts.items()):
+        n = max(1, round(share * n_all))
         init = family_initial_states(d, n, np.random.default_rng([d.seed, 64, k, 3]))
         clean[name] = simulate_family(d, truth.xml, init, cell.durations[name])
         nodes = measure(clean[name].nodes, cell, rng, fill=False)

@@ -187,7 +187,9 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "random), identified by `tensegrity-sr identify` on their end caps, from the true",
         "model (`--params true.xml`) or from the regression (`default`, anchored by the",
         "true first rod mass). RMS / noise: the fit's end-cap RMS over the plant's noise;",
-        "moved: the parameter furthest from the truth in its stated standard errors; the",
+        "moved: the largest move of a parameter from the truth in its stated standard",
+        "errors (in brackets: their RMS over all parameters, about 1 when they are honest);",
+        "the",
         "group columns: the largest relative error (inertia: the perpendicular moments);",
         "contact: the floor contact's largest relative error (stiffness, damping,",
         "friction; those the data cannot pin are left out). Invariants: from the truth,",
@@ -216,6 +218,8 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         cells = [f"{100 * w[g]:.2f} %" if g in w else "—" for g in GROUPS]
         ratio = f"{r['rms_over_noise']:.3f}" if "rms_over_noise" in r else "—"
         moved = f"{r['moved'][1]:.2f}" if r.get("moved", [""])[0] else "—"
+        if len(r.get("moved", [])) > 2 and r["moved"][0]:
+            moved += f" ({r['moved'][2]:.2f})"
         contact = f"{100 * max(r['contact'].values()):.2f} %" if r.get("contact") else "—"
         status = "met" if not r["verdict"] else "miss"
         lines.append(

@@ -35,8 +35,12 @@ TRUTH = {"mass": np.array([1.0, 2.0]), "inertia": np.array([[1.0, 1.0, 0.01]] * 
 
 
 def test_the_largest_move_is_counted_in_standard_errors() -> None:
-    assert largest_move(_doc([1.0, 2.3], 0.1), TRUTH) == pytest.approx(("mass[b]", 3.0))
-    assert largest_move(_doc([1.0, 2.0], 0.1), TRUTH) == ("", 0.0)
+    name, z, rms = largest_move(_doc([1.0, 2.3], 0.1), TRUTH)
+    assert name == "mass[b]" and z == pytest.approx(3.0) and rms == pytest.approx(np.sqrt(3))
+    assert largest_move(_doc([1.0, 2.0], 0.1), TRUTH)[1:] == (0.0, 0.0)
+    doc = _doc([1.0, 2.0], 0.1)
+    doc["uncertainty"] = {}
+    assert largest_move(doc, TRUTH) == ("", 0.0, 0.0)
 
 
 def test_worst_errors_leave_the_assumed_axial_moment_out() -> None:

@@ -17,7 +17,7 @@ as each plant finishes; a rerun skips the records already there for the same dra
 resumable), ``--rerun`` replaces them. ``docs/results/family.md`` is generated from it.
 
     OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-9 --setting flight floor \\
-        --default-start --share 0.5
+        --default-start --share 0.25
     python benchmarks/bench_family.py --report-only
 """
 
@@ -189,20 +189,19 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "true first rod mass). RMS / noise: the fit's end-cap RMS over the plant's noise;",
         "moved: the largest move of a parameter from the truth in its stated standard",
         "errors (in brackets: their RMS over all parameters, about 1 when they are honest);",
-        "the",
-        "group columns: the largest relative error (inertia: the perpendicular moments);",
+        "the group columns: the largest relative error (inertia: the perpendicular moments);",
         "contact: the floor contact's largest relative error (stiffness, damping,",
         "friction; those the data cannot pin are left out). Invariants: from the truth,",
         f"RMS / noise <= {RMS_OVER_NOISE:g} and no parameter moved more than "
         f"{MAX_SE_MOVED:g} standard errors;",
-        f"from the default start, mass, inertia and stiffness within {STRUCTURE_TOL:.0%},",
-        f"damping and contact within {DISSIPATION_TOL:.0%}. Data: "
+        f"from the default start, mass, inertia and stiffness within {100 * STRUCTURE_TOL:g} %,",
+        f"damping and contact within {100 * DISSIPATION_TOL:g} %. Data: "
         + ", ".join(f"{s:g}" for s in shares)
         + " of the measured benchmark's trajectories per split. Seconds: wall time on 2",
         "shared cores. Measured with",
         "",
         "    OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-9 \\",
-        "        --setting flight floor --default-start --share 0.5",
+        "        --setting flight floor --default-start --share 0.25 --workers 3",
         "",
         "and generated from `family.json` by `python benchmarks/bench_family.py --report-only`.",
         "",

@@ -1,43 +1,62 @@
-"""Drawn plants (``benchmarks/plant_family.py``) identified as a user would.
+"""Drawn plants (``benchmarks/plant_family.py``) identified as a user would, and judged
+against the invariants of ``benchmarks/family_invariants.py``.
 
-For each seed a plant is drawn (file conventions and physics at random), its MJCF and
-data written, and ``tensegrity-sr identify`` run on the end caps from the true model
-(``--params true.xml``) and, with ``--default-start``, from the regression (anchored by
-the true first rod mass). Each record holds the draw, the command's status, the end-cap
-RMS against the plant's noise and the largest relative error per parameter group.
+For each seed and setting a plant is drawn (file conventions and physics at random),
+its MJCF and data written, and ``tensegrity-sr identify`` run on the end caps from the
+true model (``--params true.xml``) and, with ``--default-start``, from the regression
+(anchored by the true first rod mass). Each record holds the draw, the command's status,
+the end-cap RMS against the plant's noise, the largest relative error per parameter
+group, the floor contact's errors and the invariant's verdict.
 
-Results go to ``docs/results/family.json`` (one record per seed and start; a rerun
-replaces it) and ``docs/results/family.md`` is generated from it.
+Plants run in parallel processes through Dask distributed: a local cluster of
+``--workers`` processes by default, or the workers of a running scheduler
+(``--scheduler tcp://HOST:8786``; start one with ``dask scheduler`` and, on each
+machine, ``dask worker tcp://HOST:8786 --nthreads 1`` from a checkout with
+``PYTHONPATH=$PWD:$PWD/benchmarks``). Results go to ``docs/results/family.json``, written
+as each plant finishes; a rerun skips the records already there for the same draw (it is
+resumable), ``--rerun`` replaces them. ``docs/results/family.md`` is generated from it.
 
-    OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-4
-    python benchmarks/bench_family.py --seeds 0-4 --setting floor --default-start
+    OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-9 --setting flight floor \\
+        --default-start --share 0.25
     python benchmarks/bench_family.py --report-only
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import os
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench_measured import run_cli
-from plant_family import draw, write_family_cell
+from family_invariants import (
+    DISSIPATION_TOL,
+    GROUPS,
+    MAX_SE_MOVED,
+    RMS_OVER_NOISE,
+    STRUCTURE_TOL,
+    contact_errors,
+    largest_move,
+    verdict,
+    worst_errors,
+)
+from plant_family import Draw, draw, write_family_cell
 
 from identification.data.dataset import read_ground_truth
 from tensegrity_env.io_utils import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
-GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
 #: the draw's fields a record keeps
 DRAWN = ("rate", "noise", "dropout", "length", "prestress", "end_cap", "friction")
+STARTS = ("truth", "default")
 
 
 def seeds_of(text: str) -> list[int]:
@@ -49,56 +68,118 @@ def seeds_of(text: str) -> list[int]:
     return out
 
 
-def worst_errors(params: dict[str, Any], truth: dict[str, np.ndarray]) -> dict[str, float]:
-    """Largest relative error per group; inertia: the perpendicular moments only."""
-    out = {}
-    for g in GROUPS:
-        got, want = np.asarray(params[g], float), np.asarray(truth[g], float)
-        if g == "inertia":  # the axial moment is assumed, not identified
-            keep = want > want.min(axis=1, keepdims=True) * (1 + 1e-9)
-            got, want = got[keep], want[keep]
-        out[g] = float(np.max(np.abs(got / want - 1)))
-    return out
+def draw_id(d: Draw, share: float) -> str:
+    """A short hash of everything drawn and of the data share: a record is reused only
+    for the very plant and data it was measured on."""
+    text = json.dumps({**d.summary(), "share": share}, sort_keys=True)
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-def run_seed(seed: int, setting: str, start: str, work: Path, timeout: float) -> dict[str, Any]:
-    """Draw, write and identify one plant from ``start`` (``truth`` or ``default``)."""
-    d = draw(seed, setting)
-    folder = work / f"family{seed}_{setting}"
-    record: dict[str, Any] = {
-        "seed": seed, "setting": setting, "start": start, "label": d.label,
-        "draw": {k: v for k, v in d.summary().items() if k in DRAWN},
-        "reversed_rods": int(d.site_reversed.sum()), "mass": float(d.mass.mean()),
-        "stiffness": float(d.stiffness.mean()),
-    }  # fmt: skip
-    if not (folder / "measured.h5").exists():
-        try:
-            write_family_cell(d, folder)
-        except RuntimeError as e:  # MuJoCo's step diverged: no data to identify
-            record["identify"] = {"status": "no data", "code": None, "seconds": 0.0,
-                                  "message": f"the plant: {e}", "command": ""}  # fmt: skip
-            return record
+def identify(folder: Path, start: str, timeout: float) -> dict[str, Any]:
+    """Run ``identify`` on ``folder``'s plant from ``start``; the record's result fields."""
     gt = read_ground_truth(folder / "measured.h5")
     assert gt is not None
-    t = gt.params
+    truth = gt.params.numpy()
     out = folder / f"{start}.json"
     out.unlink(missing_ok=True)
     args = ["identify", "measured.h5", "-o", out.name]
     args += (["--params", "true.xml"] if start == "truth"
-             else ["--anchor", f"mass[rod0]={float(t.mass[0])!r}"])  # fmt: skip
-    run = run_cli(args, folder, f"{start}.log", timeout)
-    record["identify"] = run
-    if run["status"] == "ok":
+             else ["--anchor", f"mass[rod0]={float(truth['mass'][0])!r}"])  # fmt: skip
+    record: dict[str, Any] = {"identify": run_cli(args, folder, f"{start}.log", timeout)}
+    if record["identify"]["status"] == "ok":
         doc = json.loads(out.read_text())
-        prov = doc["provenance"]
-        record["end_cap_rms_m"] = prov["end_cap_rms_m"]
-        record["rms_over_noise"] = prov["end_cap_rms_m"] / d.noise
-        record["worst"] = worst_errors(doc["params"], t.numpy())
+        noise = float(gt.sim.get("draw", {}).get("noise", float("nan")))
+        record["end_cap_rms_m"] = doc["provenance"]["end_cap_rms_m"]
+        record["rms_over_noise"] = record["end_cap_rms_m"] / noise
+        record["worst"] = worst_errors(doc["params"], truth)
+        record["moved"] = list(largest_move(doc, truth))
+        record["contact"], record["contact_unseen"] = contact_errors(doc, gt.effects or [])
     return record
 
 
+def run_plant(
+    seed: int, setting: str, starts: list[str], share: float, timeout: float,
+    workdir: str | None,
+) -> list[dict[str, Any]]:  # fmt: skip
+    """Draw, write and identify one plant from each of ``starts``; one record per start.
+    ``workdir``: where its data and logs go (None: a temporary folder, removed after)."""
+    d = draw(seed, setting)
+    base: dict[str, Any] = {
+        "seed": seed, "setting": setting, "label": d.label, "draw_id": draw_id(d, share),
+        "share": share, "draw": {k: v for k, v in d.summary().items() if k in DRAWN},
+        "reversed_rods": int(d.site_reversed.sum()), "mass": float(d.mass.mean()),
+        "stiffness": float(d.stiffness.mean()),
+    }  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(workdir or tmp) / f"family{seed}_{setting}_{base['draw_id']}"
+        no_data = None
+        if not (folder / "measured.h5").exists():
+            try:
+                write_family_cell(d, folder, share)
+            except RuntimeError as e:  # MuJoCo's step diverged: no data to identify
+                no_data = {"status": "no data", "code": None, "seconds": 0.0,
+                           "message": str(e), "command": ""}  # fmt: skip
+        records = []
+        for start in starts:
+            rec = {**base, "start": start}
+            rec.update({"identify": no_data} if no_data else identify(folder, start, timeout))
+            rec["verdict"] = verdict(rec)
+            records.append(rec)
+    return records
+
+
+def key(r: dict[str, Any]) -> tuple[int, str, str]:
+    return (r["seed"], r["setting"], r["start"])
+
+
+def todo(
+    records: list[dict[str, Any]], seeds: list[int], settings: list[str], starts: list[str],
+    share: float, rerun: bool,
+) -> Iterator[tuple[int, str, list[str]]]:  # fmt: skip
+    """(seed, setting, starts still to run): those without a record of the same draw."""
+    done = {key(r): r.get("draw_id") for r in records}
+    for seed in seeds:
+        for setting in settings:
+            want = draw_id(draw(seed, setting), share)
+            missing = [s for s in starts if rerun or done.get((seed, setting, s)) != want]
+            if missing:
+                yield seed, setting, missing
+
+
+def client_of(scheduler: str | None, workers: int) -> Any:
+    """A Dask client: of the scheduler at ``scheduler``, else of a local cluster of
+    ``workers`` single-threaded processes."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        return Client(scheduler)
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           memory_limit=0, dashboard_address=None)  # fmt: skip
+    return Client(cluster)
+
+
+def merged(records: list[dict[str, Any]], new: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    keys = {key(r) for r in new}
+    return [r for r in records if key(r) not in keys] + new
+
+
+def summary_lines(records: list[dict[str, Any]]) -> list[str]:
+    """Per setting and start: how many records meet their invariants."""
+    lines = []
+    for setting in ("flight", "floor"):
+        for start in STARTS:
+            rs = [r for r in records if r["setting"] == setting and r["start"] == start]
+            if rs:
+                met = sum(not r["verdict"] for r in rs)
+                lines.append(f"- {setting}, from the {start}: {met} of {len(rs)} plants meet "
+                             "the invariants")  # fmt: skip
+    return lines
+
+
 def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
-    """The table of ``records``, generated."""
+    """The table of ``records``, its summary and the misses, generated."""
+    records = sorted(records, key=lambda r: (r["setting"], r["seed"], STARTS.index(r["start"])))
+    shares = sorted({r.get("share", 1.0) for r in records})
     lines = [
         "# Drawn plants",
         "",
@@ -106,58 +187,102 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "random), identified by `tensegrity-sr identify` on their end caps, from the true",
         "model (`--params true.xml`) or from the regression (`default`, anchored by the",
         "true first rod mass). RMS / noise: the fit's end-cap RMS over the plant's noise;",
-        "the group columns: the largest relative error (inertia: the perpendicular",
-        "moments). Seconds: wall time on 2 shared cores. Measured with",
-        "`OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-4` (add",
-        "`--default-start`, `--setting floor`); generated from `family.json` by",
-        "`python benchmarks/bench_family.py --report-only`.",
+        "moved: the largest move of a parameter from the truth in its stated standard",
+        "errors (in brackets: their RMS over all parameters, about 1 when they are honest);",
+        "the group columns: the largest relative error (inertia: the perpendicular moments);",
+        "contact: the floor contact's largest relative error (stiffness, damping,",
+        "friction; those the data cannot pin are left out). Invariants: from the truth,",
+        f"RMS / noise <= {RMS_OVER_NOISE:g} and no parameter moved more than "
+        f"{MAX_SE_MOVED:g} standard errors;",
+        f"from the default start, mass, inertia and stiffness within {100 * STRUCTURE_TOL:g} %,",
+        f"damping and contact within {100 * DISSIPATION_TOL:g} %. Data: "
+        + ", ".join(f"{s:g}" for s in shares)
+        + " of the measured benchmark's trajectories per split. Seconds: wall time on 2",
+        "shared cores. Measured with",
+        "",
+        "    OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-9 \\",
+        "        --setting flight floor --default-start --share 0.25 --workers 3",
+        "",
+        "and generated from `family.json` by `python benchmarks/bench_family.py --report-only`.",
+        "",
+        *summary_lines(records),
         "",
         "| plant | start | reversed rods | L [m] | M [kg] | K [N/m] | prestress | status | "
-        "RMS / noise | mass | inertia | stiffness | damping | rest length | seconds |",
-        "|" + "---|" * 15,
+        "RMS / noise | moved [se] | mass | inertia | stiffness | damping | rest length "
+        "| contact | seconds |",
+        "|" + "---|" * 17,
     ]
-    for r in sorted(records, key=lambda r: (r["setting"], r["seed"], r["start"])):
+    for r in records:
         w = r.get("worst", {})
         cells = [f"{100 * w[g]:.2f} %" if g in w else "—" for g in GROUPS]
         ratio = f"{r['rms_over_noise']:.3f}" if "rms_over_noise" in r else "—"
-        status = r["identify"]["status"]
-        if status != "ok":
-            status += f": {r['identify']['message'][:80]}"
+        moved = f"{r['moved'][1]:.2f}" if r.get("moved", [""])[0] else "—"
+        if len(r.get("moved", [])) > 2 and r["moved"][0]:
+            moved += f" ({r['moved'][2]:.2f})"
+        contact = f"{100 * max(r['contact'].values()):.2f} %" if r.get("contact") else "—"
+        status = "met" if not r["verdict"] else "miss"
         lines.append(
             f"| {r['label']} | {r['start']} | {r['reversed_rods']} | {r['draw']['length']:.2f} "
             f"| {r['mass']:.3g} | {r['stiffness']:.3g} | {r['draw']['prestress']:.2f} "
-            f"| {status} | {ratio} | " + " | ".join(cells)
-            + f" | {r['identify']['seconds']:.0f} |"
+            f"| {status} | {ratio} | {moved} | " + " | ".join(cells)
+            + f" | {contact} | {r['identify']['seconds']:.0f} |"
         )
+    misses = [r for r in records if r["verdict"]]
+    if misses:
+        lines += ["", "## Misses", ""]
+        lines += [f"- {r['label']} from the {r['start']}: {r['verdict']}" for r in misses]
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", default="0-4", help="seeds, e.g. 0-4 or 1,3 (default 0-4)")
-    ap.add_argument("--setting", choices=("flight", "floor"), default="flight")
+    ap.add_argument("--setting", nargs="+", choices=("flight", "floor"), default=["flight"])
     ap.add_argument("--default-start", action="store_true",
                     help="also identify from the regression (anchored by the true rod0 mass)")
+    ap.add_argument("--share", type=float, default=1.0,
+                    help="fraction of the measured benchmark's trajectories per split "
+                         "(default 1)")  # fmt: skip
     ap.add_argument("--timeout", type=float, default=1800, help="seconds per command")
     ap.add_argument("--workdir", type=Path, help="where plant data and logs go (default: temp)")
+    ap.add_argument("--scheduler", help="address of a running Dask scheduler (default: a "
+                    "local cluster)")  # fmt: skip
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                    help="processes of the local cluster (default: one per core)")
+    ap.add_argument("--rerun", action="store_true", help="replace records already there")
     ap.add_argument("--json", type=Path, default=ROOT / "docs/results/family.json")
     ap.add_argument("--md", type=Path, default=ROOT / "docs/results/family.md")
     ap.add_argument("--report-only", action="store_true", help="only regenerate --md")
     a = ap.parse_args()
     records = json.loads(a.json.read_text()) if a.json.exists() else []
     if not a.report_only:
-        starts = ["truth", "default"] if a.default_start else ["truth"]
-        with tempfile.TemporaryDirectory() as tmp:
-            work = a.workdir or Path(tmp)
-            for seed in seeds_of(a.seeds):
-                for start in starts:
-                    rec = run_seed(seed, a.setting, start, work, a.timeout)
-                    key = (rec["seed"], rec["setting"], rec["start"])
-                    records = [r for r in records
-                               if (r["seed"], r["setting"], r["start"]) != key] + [rec]  # fmt: skip
-                    atomic_write_text(a.json, json.dumps(records, indent=1) + "\n")
-                    print(f"{rec['label']} from {start}: {rec['identify']['status']} "
-                          f"{rec.get('rms_over_noise', float('nan')):.3f} x noise")  # fmt: skip
+        starts = list(STARTS) if a.default_start else ["truth"]
+        jobs = list(todo(records, seeds_of(a.seeds), a.setting, starts, a.share, a.rerun))
+        print(f"{len(jobs)} plants to run", flush=True)
+        if jobs:
+            from dask.distributed import as_completed
+
+            client = client_of(a.scheduler, a.workers)
+            workdir = str(a.workdir.resolve()) if a.workdir else None
+            futures = [
+                client.submit(run_plant, seed, setting, missing, a.share, a.timeout, workdir,
+                              pure=False)
+                for seed, setting, missing in jobs
+            ]
+            for fut in as_completed(futures):
+                try:
+                    new = fut.result()
+                except Exception as e:  # left for the next run to redo
+                    print(f"a plant failed to run: {type(e).__name__}: {e}", flush=True)
+                    continue
+                records = merged(records, new)
+                atomic_write_text(a.json, json.dumps(records, indent=1) + "\n")
+                write_markdown(records, a.md)
+                for r in new:
+                    print(f"{r['label']} from the {r['start']}: {r['identify']['status']} "
+                          f"{r.get('rms_over_noise', float('nan')):.3f} x noise; "
+                          f"{r['verdict'] or 'invariants met'}", flush=True)  # fmt: skip
+            client.close()
     write_markdown(records, a.md)
     return 0
 

@@ -11,8 +11,18 @@ prestress and floor friction; for the measurement, the sample rate, noise and dr
 left as NaN gaps. The MJCF is written here; the topology the dataset carries is what
 :func:`tensegrity_env.mjcf.reader.from_mjcf` reads from it, as a user's would be.
 
-On a floor many draws diverge in MuJoCo's Euler step (light or thin rods rolling on
-it): :func:`simulate_family` raises then, as the measured benchmark's plant does.
+Stable on a floor: MuJoCo's Euler step at the 1 ms physics step
+(:data:`measured_plant.PHYSICS_DT`) needs a contact ``solref`` time constant of at least
+twice the step (drawn from :data:`MIN_SOLREF_STEPS` steps up) and a rod whose axial moment
+of inertia is not vanishingly small against its perpendicular one: a solid cylinder's
+``m r^2 / 2`` (0.06-0.5 % of the perpendicular moment at the drawn radii) let 8 of the
+first 8 floor draws diverge within 3 s, as a rod rolling on its thin side spins about its
+axis. Rods carry end-cap housings wider than the rod, so the axial moment is drawn
+:data:`AXIAL_RATIO` of the perpendicular one. Should a draw still diverge,
+:func:`simulate_family` raises, naming it.
+
+Floor trajectories start thrown (rolling along the floor), dropped from rest, or resting
+on a face of the structure's hull, one of the three at random per trajectory.
 
 Recorded rod states are those of the principal frame at the centre of mass (the
 dataset's convention), whatever the body frame. The initial states are the measured
@@ -23,13 +33,14 @@ carried into the drawn frames.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 from measured_plant import (
+    PHYSICS_DT,
     Cell,
     CellData,
     Truth,
@@ -37,6 +48,7 @@ from measured_plant import (
     lift,
     measure,
 )
+from scipy.spatial import ConvexHull
 
 from identification.data.dataset import Dataset, GroundTruth, Split, write_dataset
 from tensegrity_env import assemblies
@@ -60,6 +72,14 @@ MIN_STIFFNESS_WEIGHTS = 8.0
 #: 0.25 rad per 1 ms physics step (Euler stays accurate to the plant's own round-off)
 MAX_STIFFNESS_PER_KG = 2000.0
 GRAVITY = 9.81
+#: the floor contact's solref time constant is drawn at least this many physics steps:
+#: MuJoCo's soft contact is stable only above 2 steps, and the draw keeps a margin
+MIN_SOLREF_STEPS = 5.0
+#: range of a rod's axial moment of inertia over its perpendicular one: end-cap housings
+#: wider than the rod (a solid rod's m r^2 / 2 is 0.06-0.5 % and diverges on a floor)
+AXIAL_RATIO = (0.01, 0.05)
+#: how floor trajectories start (one at random per trajectory)
+FLOOR_STARTS = ("thrown", "dropped", "resting")
 
 
 @dataclass(frozen=True)
@@ -88,6 +108,7 @@ class Draw:
         frame_origin: the body frame's origin in the principal frame [m], (R, 3).
         frame_turn: the principal frame's orientation in the body frame (w, x, y, z),
             (R, 4).
+        axial_ratio: each rod's axial moment of inertia over its perpendicular one, (R,).
     """
 
     seed: int
@@ -112,6 +133,7 @@ class Draw:
     frame_turn: np.ndarray
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float] = (0.9, 0.95, 0.001)
+    axial_ratio: np.ndarray = field(default_factory=lambda: np.full(6, AXIAL_RATIO[0]))
 
     @property
     def cell(self) -> Cell:
@@ -137,11 +159,13 @@ def draw(seed: int, setting: str = "flight", **fixed: Any) -> Draw:
     stiffness 20-5000 N/m (±10 % between springs; bounded by
     :data:`MIN_STIFFNESS_WEIGHTS` and :data:`MAX_STIFFNESS_PER_KG`), damping ratio
     0.5-5 %, prestress 0-60 %, friction 0.5-1.5, floor ``solref`` 5-40 ms and damping
-    ratio 0.5-2, ``solimp`` d_min 0.8-0.95, d_max up to 0.99 and width 0.5-5 mm (MuJoCo's
+    ratio 0.5-2 (the time constant at least :data:`MIN_SOLREF_STEPS` physics steps),
+    ``solimp`` d_min 0.8-0.95, d_max up to 0.99 and width 0.5-5 mm (MuJoCo's
     defaults: 20 ms, 1, 0.9, 0.95, 1 mm), 0.1-2 mm noise, 0-2 % dropouts, rates of
     :data:`FAMILY_RATES`; every convention either way with equal odds; a body frame off
     the centre of mass by up to 20 % of the rod length and turned at random, each in half
-    of the rods; the centre of mass up to 15 % of the rod length off its middle.
+    of the rods; the centre of mass up to 15 % of the rod length off its middle; the axial
+    moment of inertia :data:`AXIAL_RATIO` of the perpendicular one (log-uniform per rod).
     """
     rng = np.random.default_rng([seed, 64])
     topo = nominal().topology
@@ -170,9 +194,11 @@ def draw(seed: int, setting: str = "flight", **fixed: Any) -> Draw:
         com_shift=length * rng.uniform(-0.15, 0.15, R),
         frame_origin=np.where(off[:, None], length * 0.2 * rng.uniform(-1, 1, (R, 3)), 0.0),
         frame_turn=turn,
-        solref=(log_uniform(0.005, 0.04), log_uniform(0.5, 2.0)),
+        solref=(max(log_uniform(0.005, 0.04), MIN_SOLREF_STEPS * PHYSICS_DT),
+                log_uniform(0.5, 2.0)),
         solimp=(d_min := float(rng.uniform(0.8, 0.95)), float(rng.uniform(d_min + 0.01, 0.99)),
                 log_uniform(5e-4, 5e-3)),
+        axial_ratio=np.exp(rng.uniform(*np.log(AXIAL_RATIO), R)),
     )  # fmt: skip
     return replace(d, **fixed)
 
@@ -185,10 +211,10 @@ def principal_caps(d: Draw) -> np.ndarray:
 
 
 def principal_inertia(d: Draw) -> np.ndarray:
-    """Principal inertia (R, 3) [kg m^2]: a solid cylinder about its centre of mass,
-    the axial moment on the rod's axis."""
+    """Principal inertia (R, 3) [kg m^2]: the perpendicular moments a solid cylinder's
+    about its centre of mass, the axial one (on the rod's axis) ``axial_ratio`` of them."""
     perp = d.mass * (d.length**2 / 12 + d.com_shift**2 + d.radius**2 / 4)
-    axial = d.mass * d.radius**2 / 2
+    axial = d.axial_ratio * perp
     out = np.repeat(perp[:, None], 3, axis=1)
     out[np.arange(len(d.mass)), d.axis] = axial
     return out
@@ -297,9 +323,35 @@ def family_initial_states(d: Draw, n: int, rng: np.random.Generator) -> dict[str
     u = np.eye(3)[d.axis] * d.axis_sign[:, None]
     align = shortest_arc(u, np.broadcast_to([0.0, 0.0, 1.0], u.shape))  # (R, 4): u onto z
     q = np_quat_mul(st["q"], np.broadcast_to(align, st["q"].shape))
+    omega = st["omega"].copy()
     if d.setting == "floor":
-        lift(p, q, rng, 0.02, 0.2, principal_caps(d), d.radius)
-    return {"p": p, "v": v, "q": q, "omega": st["omega"].copy()}
+        caps = principal_caps(d)
+        lift(p, q, rng, 0.02, 0.2, caps, d.radius)
+        for i, how in enumerate(rng.choice(FLOOR_STARTS, n)):
+            if how == "thrown":
+                continue
+            v[i], omega[i] = 0.0, 0.0
+            if how == "dropped":  # from rest, lowest end cap 0.1-0.5 m up
+                lift(p[i : i + 1], q[i : i + 1], rng, 0.1, 0.5, caps, d.radius)
+            else:
+                p[i], q[i] = face_down(p[i], q[i], caps, rng)
+                lift(p[i : i + 1], q[i : i + 1], rng, 0.0, 1e-3, caps, d.radius)
+    return {"p": p, "v": v, "q": q, "omega": omega}
+
+
+def face_down(
+    p: np.ndarray, q: np.ndarray, caps: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose ``p`` (R, 3) [m], ``q`` (R, 4) turned rigidly about its centre so that a
+    face of its end caps' convex hull, drawn at random, faces straight down. ``caps``
+    (R, 2, 3) [m]: the end caps in the principal frames."""
+    world = p[:, None] + np.einsum("rij,rkj->rki", np_quat_to_matrix(q), caps)
+    hull = ConvexHull(world.reshape(-1, 3))
+    normal = hull.equations[rng.integers(len(hull.equations)), :3]  # outward, unit
+    turn = shortest_arc(normal, np.array([0.0, 0.0, -1.0]))
+    centre = p.mean(axis=0)
+    rot = np_quat_to_matrix(turn)
+    return centre + (p - centre) @ rot.T, np_quat_mul(np.broadcast_to(turn, q.shape), q)
 
 
 def simulate_family(d: Draw, xml: str, init: dict[str, np.ndarray], duration: float) -> Split:
@@ -348,15 +400,18 @@ def simulate_family(d: Draw, xml: str, init: dict[str, np.ndarray], duration: fl
     return Split(nodes=nodes, control=np.zeros((n, T, R, 3)), **out)
 
 
-def write_family_cell(d: Draw, directory: Path) -> CellData:
+def write_family_cell(d: Draw, directory: Path, share: float = 1.0) -> CellData:
     """Simulate the drawn plant and write ``measured.h5`` (end caps only, gaps as NaN)
-    and ``clean.h5`` (no noise, no gaps, rod states), both with the ground truth."""
+    and ``clean.h5`` (no noise, no gaps, rod states), both with the ground truth.
+    ``share``: this fraction of the measured benchmark's trajectories per split (at
+    least one each)."""
     directory.mkdir(parents=True, exist_ok=True)
     truth, topology = truth_of(d)
     cell = d.cell
     rng = np.random.default_rng([d.seed, 64, 11])
     clean, seen = {}, {}
-    for k, (name, n) in enumerate(cell.counts.items()):
+    for k, (name, n_all) in enumerate(cell.counts.items()):
+        n = max(1, round(share * n_all))
         init = family_initial_states(d, n, np.random.default_rng([d.seed, 64, k, 3]))
         clean[name] = simulate_family(d, truth.xml, init, cell.durations[name])
         nodes = measure(clean[name].nodes, cell, rng, fill=False)

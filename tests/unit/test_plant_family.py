@@ -13,12 +13,21 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
 from measured_plant import Cell, measure
-from plant_family import draw, family_initial_states, principal_caps, simulate_family, truth_of
+from plant_family import (
+    AXIAL_RATIO,
+    MIN_SOLREF_STEPS,
+    draw,
+    family_initial_states,
+    principal_caps,
+    simulate_family,
+    truth_of,
+)
 
 from identification.trajectory.windows import end_caps
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine, State, substeps_for
 from tensegrity_env.mjcf.reader import from_mjcf
+from tensegrity_env.rotations import np_quat_to_matrix
 
 
 def test_draws_cover_every_convention_and_repeat_from_their_seed() -> None:
@@ -91,3 +100,32 @@ def test_dropouts_can_stay_gaps() -> None:
     lost = np.isnan(gaps).all(-1)
     assert np.isnan(gaps).any(-1).sum() == lost.sum()  # a whole end cap is lost, x, y and z
     assert abs(lost.mean() - 0.02) < 0.002 and not lost[:, [0, -1]].any()
+
+
+def test_floor_starts_rest_on_a_face_drop_from_rest_or_are_thrown() -> None:
+    d = draw(2, "floor")
+    init = family_initial_states(d, 24, np.random.default_rng(5))
+    caps = init["p"][:, :, None] + np.einsum(
+        "nrij,rkj->nrki", np_quat_to_matrix(init["q"]), principal_caps(d)
+    )
+    low = np.sort(caps[..., 2].reshape(24, -1), axis=1) - d.radius
+    still = (np.abs(init["v"]).max(axis=(1, 2)) == 0) & (np.abs(init["omega"]).max(axis=(1, 2)) == 0)
+    resting = still & (low[:, 0] < 1.001e-3)
+    dropped = still & ~resting
+    assert resting.any() and dropped.any() and (~still).any()
+    # on a face: three end caps down together (the hull's face), the rest well above
+    np.testing.assert_allclose(low[resting, 2], low[resting, 0], atol=1e-9)
+    assert (low[resting, 3] - low[resting, 0] > 0.01 * d.length).all()
+    assert ((low[dropped, 0] >= 0.1 - 1e-9) & (low[dropped, 0] <= 0.5)).all()
+    assert ((low[~still, 0] >= 0.02 - 1e-9) & (low[~still, 0] <= 0.2)).all()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_floor_draws_stay_stable_in_mujoco(seed: int) -> None:
+    """A solid rod's axial moment (m r^2 / 2) let these diverge within 3 s."""
+    d = draw(seed, "floor")
+    assert d.solref[0] >= MIN_SOLREF_STEPS * 1e-3 and (d.axial_ratio >= AXIAL_RATIO[0]).all()
+    truth, _ = truth_of(d)
+    init = family_initial_states(d, 4, np.random.default_rng([seed, 64, 0, 3]))
+    clean = simulate_family(d, truth.xml, init, 3.0)
+    assert np.isfinite(clean.nodes).all() and (clean.nodes[..., 2] < 2 * d.radius).any()

@@ -1,0 +1,137 @@
+"""The invariants a drawn plant's identification must meet, judged from the params file
+``tensegrity-sr identify`` wrote and the plant's ground truth.
+
+- From the exact true model (start ``truth``): the fit stays at the noise, an end-cap
+  RMS of at most :data:`RMS_OVER_NOISE` times the plant's noise, and no parameter moves
+  from its true value by more than :data:`MAX_SE_MOVED` of its stated standard errors.
+- From the default start (``default``): masses, perpendicular inertias and stiffnesses
+  within :data:`STRUCTURE_TOL`, spring damping and the floor contact's stiffness,
+  damping and friction within :data:`DISSIPATION_TOL` (a contact parameter the command
+  reports as not identifiable from the data is listed, not judged).
+
+A miss is one line naming the stage (the plant, the command, or the invariant) and why.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+#: the fit from the truth may end at most this far above the noise (RMS / noise)
+RMS_OVER_NOISE = 1.2
+#: and move no parameter by more than this many of its stated standard errors
+MAX_SE_MOVED = 2.0
+#: relative tolerance of masses, inertias and stiffnesses from the default start
+STRUCTURE_TOL = 0.03
+#: relative tolerance of spring damping and floor contact from the default start
+DISSIPATION_TOL = 0.10
+#: parameter groups of the table (rest length reported, not judged)
+GROUPS = ("mass", "inertia", "stiffness", "damping", "rest_length")
+#: group -> tolerance from the default start
+TOLERANCE = {"mass": STRUCTURE_TOL, "inertia": STRUCTURE_TOL, "stiffness": STRUCTURE_TOL,
+             "damping": DISSIPATION_TOL, "contact": DISSIPATION_TOL}  # fmt: skip
+#: floor contact parameters judged from the default start
+CONTACT = ("stiffness", "damping", "friction")
+
+
+def perpendicular(inertia: np.ndarray) -> np.ndarray:
+    """Mask (R, 3) of the perpendicular principal moments: all but each rod's smallest
+    (the axial one, assumed rather than identified)."""
+    return inertia > inertia.min(axis=1, keepdims=True) * (1 + 1e-9)
+
+
+def worst_errors(params: Mapping[str, Any], truth: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """Largest relative error per group of :data:`GROUPS`; inertia: perpendicular moments."""
+    out = {}
+    for g in GROUPS:
+        got, want = np.asarray(params[g], float), np.asarray(truth[g], float)
+        if g == "inertia":
+            keep = perpendicular(want)
+            got, want = got[keep], want[keep]
+        out[g] = float(np.max(np.abs(got / want - 1)))
+    return out
+
+
+def named_values(doc: Mapping[str, Any]) -> dict[str, tuple[str, tuple[int, ...]]]:
+    """Parameter name as the params file's ``uncertainty`` spells it -> (group, index)."""
+    rods = [r["name"] for r in doc["topology"]["rods"]]
+    springs = [s["name"] for s in doc["topology"]["springs"]]
+    out: dict[str, tuple[str, tuple[int, ...]]] = {}
+    for r, name in enumerate(rods):
+        out[f"mass[{name}]"] = ("mass", (r,))
+        for k, ax in enumerate("xyz"):
+            out[f"inertia[{name},{ax}]"] = ("inertia", (r, k))
+    for group in ("stiffness", "damping", "rest_length"):
+        for s, name in enumerate(springs):
+            out[f"{group}[{name}]"] = (group, (s,))
+    return out
+
+
+def largest_move(
+    doc: Mapping[str, Any], truth: Mapping[str, np.ndarray]
+) -> tuple[str, float, float]:
+    """The parameter moved furthest from its true value in its stated standard errors:
+    (name, its |value - truth| / stderr, the RMS of that ratio over every parameter that
+    states one: about 1 where the standard errors are honest); ("", 0, 0) when none does.
+
+    With N honest standard errors the largest ratio grows like sqrt(2 ln N) (about 2.9
+    for the icosahedron's 89), so the RMS is the check of the errors' honesty and the
+    largest one the check of :data:`MAX_SE_MOVED`."""
+    names = named_values(doc)
+    zs: dict[str, float] = {}
+    for name, se in doc.get("uncertainty", {}).items():
+        if name in names and se > 0:
+            group, idx = names[name]
+            got = float(np.asarray(doc["params"][group])[idx])
+            zs[name] = abs(got - float(truth[group][idx])) / se
+    if not zs:
+        return ("", 0.0, 0.0)
+    name = max(zs, key=lambda k: zs[k])
+    return (name, zs[name], float(np.sqrt(np.mean(np.square(list(zs.values()))))))
+
+
+def contact_errors(
+    doc: Mapping[str, Any], truth_effects: list[dict[str, Any]]
+) -> tuple[dict[str, float], dict[str, str]]:
+    """Relative errors of the identified floor contact's :data:`CONTACT` parameters, and
+    those the command reports as not identifiable (name -> its reason)."""
+    want = next((e["params"] for e in truth_effects if e["name"] == "ground_contact"), None)
+    if want is None:
+        return {}, {}
+    got = next((e["params"] for e in doc.get("effects", []) if e["name"] == "ground_contact"),
+               None)  # fmt: skip
+    unseen = {k.split(".", 1)[1]: why for k, why in
+              doc.get("identifiability", {}).get("not_identifiable", {}).items()
+              if k.startswith("ground_contact.")}  # fmt: skip
+    if got is None:
+        return {k: float("inf") for k in CONTACT}, unseen
+    errs = {k: abs(float(got[k]) / float(want[k]) - 1) for k in CONTACT if k not in unseen}
+    return errs, unseen
+
+
+def verdict(record: Mapping[str, Any]) -> str:
+    """``""`` when the record meets its start's invariants, else one line: the stage and
+    why (``record`` as :func:`bench_family.run_plant` writes it)."""
+    run = record["identify"]
+    if run["status"] == "no data":
+        return f"plant: {run['message']}"
+    if run["status"] != "ok":
+        return f"identify ({run['status']}): {run['message']}"
+    if record["start"] == "truth":
+        ratio = record["rms_over_noise"]
+        if not ratio <= RMS_OVER_NOISE:
+            return (f"fit from the truth: end-cap RMS {ratio:.3g} x noise "
+                    f"> {RMS_OVER_NOISE:g}")  # fmt: skip
+        name, z = record["moved"]
+        if z > MAX_SE_MOVED:
+            return f"fit from the truth: {name} moved {z:.3g} standard errors > {MAX_SE_MOVED:g}"
+        return ""
+    misses = [f"{g} {100 * e:.3g} %" for g, e in record["worst"].items()
+              if g in TOLERANCE and not e <= TOLERANCE[g]]  # fmt: skip
+    misses += [f"contact {k} {100 * e:.3g} %" for k, e in record.get("contact", {}).items()
+               if not e <= DISSIPATION_TOL]  # fmt: skip
+    if misses:
+        return "fit from the default start: " + ", ".join(misses) + " off the truth"
+    return ""

@@ -51,6 +51,23 @@ from tensegrity_env.params import Params
 from tensegrity_env.rotations import TO_Z_UP, axis_angle_to_quat, np_quat_to_matrix
 from tensegrity_env.topology import Rod, Spring, Topology, TopologyError
 
+#: NTRT's documented 3-prism in its YAML model format (decimetres, y up): an example model
+EXAMPLE_PRISM = """\
+builders:
+  rod: {class: tgRodInfo, parameters: {density: 0.5, radius: 0.1}}
+  string: {class: tgBasicActuatorInfo, parameters: {stiffness: 100, damping: 3, pretension: 50}}
+nodes:
+  bottom1: [-5, 0, 0]
+  bottom2: [5, 0, 0]
+  bottom3: [0, 0, 8.66]
+  top1: [-5, 5, 0]
+  top2: [5, 5, 0]
+  top3: [0, 5, 8.66]
+pair_groups:
+  rod: [[bottom1, top2], [bottom2, top3], [bottom3, top1]]
+  string: [[bottom1, bottom2], [bottom2, bottom3], [bottom1, bottom3], [top1, top2], [top2, top3],
+           [top1, top3], [bottom1, top1], [bottom2, top2], [bottom3, top3]]
+"""
 #: metres per NTRT length unit by default: NTRT's models (and the ETH jumping robot's)
 #: are built in decimetres
 DECIMETRE = 0.1

@@ -38,6 +38,7 @@ from tensegrity_env.io_utils import (
     check_output_dir,
     run_reporting,
 )
+from tensegrity_env.ntrt import EXAMPLE_PRISM
 from tensegrity_sr.cli import main as cli
 
 T = TypeVar("T")
@@ -427,25 +428,6 @@ def step_winch_robot(demo: Demo) -> None:
     print(f"at the end the rod centres of the two envs are at most {1e3 * gap:.2g} mm apart")
 
 
-#: NTRT's documented 3-prism in its YAML model format (decimetres, y up)
-NTRT_PRISM = """\
-builders:
-  rod: {class: tgRodInfo, parameters: {density: 0.5, radius: 0.1}}
-  string: {class: tgBasicActuatorInfo, parameters: {stiffness: 100, damping: 3, pretension: 50}}
-nodes:
-  bottom1: [-5, 0, 0]
-  bottom2: [5, 0, 0]
-  bottom3: [0, 0, 8.66]
-  top1: [-5, 5, 0]
-  top2: [5, 5, 0]
-  top3: [0, 5, 8.66]
-pair_groups:
-  rod: [[bottom1, top2], [bottom2, top3], [bottom3, top1]]
-  string: [[bottom1, bottom2], [bottom2, bottom3], [bottom1, bottom3], [top1, top2], [top2, top3],
-           [top1, top3], [bottom1, top1], [bottom2, top2], [bottom3, top3]]
-"""
-
-
 def step_ntrt_take(demo: Demo) -> None:
     banner("A lab's export: an NTRT YAML robot (tension-only cables, on a floor) dropped in "
            "the engine, written as an OptiTrack row-format take (unlabelled ids, y up, "
@@ -457,7 +439,7 @@ def step_ntrt_take(demo: Demo) -> None:
 
     rate = 120.0  # [Hz] a common motion-capture rate
     robot = demo.out / "ntrt_prism.yaml"
-    atomic_write_text(robot, NTRT_PRISM)
+    atomic_write_text(robot, EXAMPLE_PRISM)
     rest, model = from_ntrt(robot), Model.read(robot, dt=1.0 / rate)
     R, rng = model.topology.n_rods, np.random.default_rng(7)
     # from 0.3 m above its rest pose, turning slowly: free fall, touchdown, rest

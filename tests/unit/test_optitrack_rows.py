@@ -16,26 +16,10 @@ from identification.data.mocap.optitrack_rows import write_optitrack_rows
 from identification.data.mocap.vertical import find_vertical, free_flight
 from identification.data.quality import repeated_frames
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.ntrt import EXAMPLE_PRISM as PRISM
 from tensegrity_env.ntrt import from_ntrt
 from tensegrity_env.rotations import TO_Z_UP, axis_angle_to_quat, np_quat_to_matrix
 
-#: NTRT's documented 3-prism (decimetres, y up)
-PRISM = """
-builders:
-  rod: {class: tgRodInfo, parameters: {density: 0.5, radius: 0.1}}
-  string: {class: tgBasicActuatorInfo, parameters: {stiffness: 100, damping: 3, pretension: 50}}
-nodes:
-  bottom1: [-5, 0, 0]
-  bottom2: [5, 0, 0]
-  bottom3: [0, 0, 8.66]
-  top1: [-5, 5, 0]
-  top2: [5, 5, 0]
-  top3: [0, 5, 8.66]
-pair_groups:
-  rod: [[bottom1, top2], [bottom2, top3], [bottom3, top1]]
-  string: [[bottom1, bottom2], [bottom2, bottom3], [bottom1, bottom3], [top1, top2], [top2, top3],
-           [top1, top3], [bottom1, top1], [bottom2, top2], [bottom3, top3]]
-"""
 RATE = 120.0
 G = 9.81
 

@@ -338,4 +338,4 @@ def make_stepper(
             if backend == "native":
                 raise
             warnings.warn(f"{e}: stepping the PyTorch engine instead (slower)", stacklevel=2)
-    return TorchStepper(topology, params, effects, dt, frame_skip, device=device)
+    return TorchStepper(topology, params, effects, dt, frame_skip, device=device, threads=threads)

@@ -68,7 +68,7 @@
 #define TSR_W 8 /* assemblies per SIMD block */
 #define TSR_MAX_EDGES 8
 #define TSR_MAX_POINTS 32
-#define TSR_MAX_WINCHES 32
+#define TSR_MAX_WINCHES 32 /* winch states held per SIMD block on the stack (a robot has a few) */
 
 typedef struct {
     int R, S, A;

@@ -13,6 +13,7 @@ from tensegrity_env.engine.winch import REST, SPEED
 from tensegrity_env.envs.physics import NativeStepper, pack_states, unpack_states
 from tensegrity_env.envs.robot_physics import SRRobotSimulator
 from tensegrity_env.native.kernel import usable_kernel
+from tensegrity_env.native.pack import PACKED_PARAMS
 from tensegrity_env.params import Params
 
 pytestmark = pytest.mark.skipif(
@@ -131,3 +132,29 @@ def test_winches_wanting_a_gradient_take_the_pytorch_step(prism: SRRobotSimulato
                     winches=torch.ones(1, prism.topology.n_winches, dtype=torch.float64))  # fmt: skip
     s.winch[..., REST].sum().backward()  # type: ignore[index]
     assert speed.grad is not None and torch.all(speed.grad != 0)
+
+
+def test_per_assembly_winch_parameters_run_by_run(prism: SRRobotSimulator) -> None:
+    """Winch speeds, lags and stiffnesses with a batch dimension (a forward-difference
+    Jacobian's layout): three runs of assemblies, each stepped with its own packed model,
+    equal to PyTorch's."""
+    p, B = prism.params, 6
+    scale = torch.tensor([1.0, 1.0, 1.2, 1.2, 1.2, 0.9], dtype=torch.float64)[:, None]
+    params = p.replace(winch_speed=p.winch_speed * scale, winch_lag=p.winch_lag * scale,
+                       stiffness=p.stiffness * scale)  # fmt: skip
+    start = unpack_states(np.repeat(prism.rest_pose()[None], B, axis=0))
+    u = torch.as_tensor(np.random.default_rng(0).uniform(-1, 1, (B, prism.topology.n_winches)))
+    out = []
+    for native in (False, True):
+        engine = Engine(prism.topology, 10 * prism.dt, prism.effects, substeps=10, native=native)
+        s = start
+        with torch.no_grad():
+            for _ in range(30):
+                s = engine.step(s, params, winches=u)
+        out.append(s)
+    assert engine.native_step is not None
+    assert list(engine.native_step.cache.get([getattr(params, k) for k in PACKED_PARAMS], B)
+                .start) == [0, 2, 5, 6]  # fmt: skip
+    assert np.abs(pack_states(out[0]) - pack_states(out[1])).max() <= ROUND_OFF
+    assert np.abs((out[0].winch - out[1].winch).numpy()).max() <= ROUND_OFF  # type: ignore[operator]
+    assert np.abs((out[1].winch[0] - out[1].winch[2]).numpy()).max() > 1e-4  # type: ignore[index]

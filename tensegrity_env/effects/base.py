@@ -122,11 +122,14 @@ class NativeForm:
         slots: names of slots of the kernel's effects block
             (:data:`tensegrity_env.native.pack.EFFECT_SLOTS`).
         keys: the parameters packed.
+        constants: ``(slot, value)`` pairs of fixed numbers of the law (not parameters)
+            written into one-entry slots, e.g. a regularisation velocity [m/s].
     """
 
     kind: str
     slots: tuple[str, ...] = ()
     keys: tuple[str, ...] = ()
+    constants: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -111,8 +111,7 @@ class Engine:
         # the step by the C kernel where it applies, with its cache of packed models
         self.native_step = (
             NativeEngineStep(topology, self.effects, self.substeps, self.physics_dt,
-                             bool(self.cable_springs.numel()),
-                             has_winches=bool(self.winch_springs.numel()))
+                             bool(self.cable_springs.numel()))
             if self.native
             else None
         )  # fmt: skip
@@ -222,13 +221,14 @@ class Engine:
         (:attr:`State.winch`); a state without one starts from
         :func:`~tensegrity_env.engine.winch.initial_winch_state`.
         """
-        if self.native_step is not None:
-            x = self.native_step(state.tensors(), params, control, cables)
-            if x is not None:
-                return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
         winch = state.winch
         if winch is None and self.winch_springs.numel():
             winch = initial_winch_state(self.topology, params, state.batch_size)
+        if self.native_step is not None:
+            out = self.native_step(state.tensors(), params, control, cables, winch, winches)
+            if out is not None:
+                x, wound = out
+                return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13], wound)
         for _ in range(self.substeps):
             # forces with the rest lengths at the step's start (wound springs from the winch state)
             acting = params if winch is None else wound_rest_lengths(params, self.winch_springs, winch)

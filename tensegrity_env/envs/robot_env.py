@@ -160,9 +160,10 @@ class TensegritySREnv(RobotEnv):
     the lab 3-bar prism ``tensegrity_env/assets/lab_prism.xml``, three rods, nine
     cables, six of them wound at up to 0.1 m/s with a 30 ms motor lag, standing on a
     floor). The physics is the identified model of a params file (``model``; default:
-    the robot file's own parameters and floor contact), stepped by the PyTorch engine in
-    float64 at the file's physics step (1 ms), ``frame_skip`` steps per action (20 Hz by
-    default), on one CPU thread. ``TensegrityMJ-v0`` is the same robot and task in MuJoCo.
+    the robot file's own parameters and floor contact), stepped by the C kernel (the
+    engine's physics and winding, to round-off; the PyTorch engine where the kernel does
+    not apply) in float64 at the file's physics step (1 ms), ``frame_skip`` steps per
+    action (20 Hz by default), on one CPU thread. ``TensegrityMJ-v0`` is the same robot and task in MuJoCo.
 
     **Action space** ``Box(-1, 1, (W,), float32)``: the motor command of each winch, in
     the file's winch order: the cable's rest length changes at ``u * v_max`` [m/s]

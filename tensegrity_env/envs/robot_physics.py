@@ -7,9 +7,13 @@ hold packed rod states (R, 13) (rows ``p``, ``v``, ``q`` (w x y z), ``omega``, w
 frame) and winch states (W, 2) (rest length [m], winding speed [m/s]) and advance them
 ``frame_skip`` physics steps per control step under motor commands (W,) in [-1, 1]:
 
-* :class:`SRRobotSimulator`: :class:`~tensegrity_env.engine.Engine` in float64 on the
-  CPU (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`): the
-  native kernel has no winch form, so every step is the PyTorch engine's.
+* :class:`SRRobotSimulator`: the identified model by the C kernel
+  (:meth:`NativeStepper.wind <tensegrity_env.envs.physics.NativeStepper.wind>`: the
+  ``frame_skip`` physics steps and the winding of a control step in one call, threads
+  over the batch), or by :class:`~tensegrity_env.engine.Engine` in float64 where the
+  kernel cannot be built or an effect has no C form
+  (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`, with a
+  warning); the two agree to round-off.
 * :class:`MJRobotSimulator`: MuJoCo with :class:`~tensegrity_env.mjcf.winches.MjWinches`
   setting ``tendon_lengthspring`` from the winch state before every ``mj_step``.
 """
@@ -26,7 +30,7 @@ import torch
 from tensegrity_env.engine.winch import initial_winch_state
 from tensegrity_env.envs.base import settle
 from tensegrity_env.envs.mj_env import pack_mj, unpack_mj
-from tensegrity_env.envs.physics import TorchStepper, make_stepper
+from tensegrity_env.envs.physics import Backend, make_stepper
 from tensegrity_env.envs.sr_env import ASSETS
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
@@ -66,7 +70,10 @@ class SRRobotSimulator:
         frame_skip: physics steps per control step (the physics step is the file's
             ``timestep``).
         batch: number of copies stepped together.
-        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting).
+        threads: the C kernel's threads over the batch (None: every available core), or
+            PyTorch's CPU threads where it steps (None: PyTorch's setting).
+        backend: ``"auto"`` (the C kernel where it applies), ``"native"`` or ``"torch"``
+            (:func:`~tensegrity_env.envs.physics.make_stepper`).
     """
 
     def __init__(
@@ -76,6 +83,7 @@ class SRRobotSimulator:
         frame_skip: int = 50,
         batch: int = 1,
         threads: int | None = None,
+        backend: Backend = "auto",
     ) -> None:
         self.robot_path = Path(robot) if robot is not None else DEFAULT_ROBOT
         self.asm = from_mjcf(self.robot_path)
@@ -97,9 +105,8 @@ class SRRobotSimulator:
         self.dt, self.frame_skip = self.model.dt, int(frame_skip)
         self.control_dt = self.dt * self.frame_skip
         self.command_shape = (t.n_winches,)
-        self.stepper = TorchStepper(
-            t, self.params, self.effects, self.dt, self.frame_skip, threads=threads
-        )
+        self.stepper = make_stepper(t, self.params, self.effects, self.dt, self.frame_skip,
+                                    backend=backend, threads=threads)  # fmt: skip
         self.rest_winch = initial_winch_state(t, self.params.to(dtype=torch.float64), 1)[0].numpy()
         self.x = np.zeros((batch, t.n_rods, 13))
         self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
@@ -116,10 +123,8 @@ class SRRobotSimulator:
         return self.winch[0].copy()
 
     def step(self, command: np.ndarray) -> None:
-        """Advance copy 0 under motor commands (W,)."""
-        x, w = self.x[:1].copy(), self.winch[:1].copy()
-        self.stepper.wind(x, w, np.asarray(command, dtype=np.float64)[None])
-        self.x[:1], self.winch[:1] = x, w
+        """Advance copy 0 under motor commands (W,) (in place: its rows are contiguous)."""
+        self.stepper.wind(self.x[:1], self.winch[:1], np.asarray(command, dtype=np.float64)[None])
 
     def step_batch(self, commands: np.ndarray) -> None:
         """Advance every copy under motor commands (B, W)."""

@@ -23,7 +23,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tensegrity_env.assemblies import node_positions
 from tensegrity_env.envs.task import RollingTask, TaskOptions
 from tensegrity_env.topology import Topology
 
@@ -43,17 +42,52 @@ class RobotSensors:
     """
 
     topology: Topology
+    #: the topology's arrays a reading needs, taken once (a reading runs every env step)
+    _rod: np.ndarray = field(init=False, repr=False, compare=False)
+    _node_rod: np.ndarray = field(init=False, repr=False, compare=False)
+    _offsets: np.ndarray = field(init=False, repr=False, compare=False)
+    _fixed: np.ndarray = field(init=False, repr=False, compare=False)
+    _ends: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        t = self.topology
+        rod = t.node_rod
+        on = rod >= 0
+        offsets = t.node_offsets
+        object.__setattr__(self, "_rod", np.flatnonzero(on))
+        object.__setattr__(self, "_offsets", np.ascontiguousarray(offsets[on])[..., None])
+        object.__setattr__(self, "_fixed", offsets.copy())
+        ends = (t.spring_nodes[:, 0].copy(), t.spring_nodes[:, 1].copy())
+        object.__setattr__(self, "_ends", ends)
+        object.__setattr__(self, "_node_rod", rod[on])
+
+    def nodes(self, x: np.ndarray) -> np.ndarray:
+        """Every node (end caps, anchors, attachment points), (B, N, 3) [m], world frame:
+        :func:`~tensegrity_env.assemblies.node_positions` of the rod poses in ``x``."""
+        q = x[..., 6:10]
+        w, a, b, c = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+        ww, aa, bb, cc = w * w, a * a, b * b, c * c
+        ab, ac, bc, wa, wb, wc = a * b, a * c, b * c, w * a, w * b, w * c
+        rot = np.stack([ww + aa - bb - cc, 2 * (ab - wc), 2 * (ac + wb),
+                        2 * (ab + wc), ww - aa + bb - cc, 2 * (bc - wa),
+                        2 * (ac - wb), 2 * (bc + wa), ww - aa - bb + cc],
+                       axis=-1).reshape(*q.shape[:-1], 3, 3)  # fmt: skip
+        rod = self._node_rod
+        out = np.broadcast_to(self._fixed, (*x.shape[:-2], *self._fixed.shape)).copy()
+        out[..., self._rod, :] = x[..., rod, 0:3] + (rot[..., rod, :, :] @ self._offsets)[..., 0]
+        return out
 
     def end_caps(self, x: np.ndarray) -> np.ndarray:
         """End-cap positions, (B, 2R, 3) [m], rod r's caps at 2r and 2r + 1."""
-        nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
-        return nodes[..., : 2 * self.topology.n_rods, :]
+        return self.nodes(x)[..., : 2 * self.topology.n_rods, :]
 
-    def cable_lengths(self, x: np.ndarray) -> np.ndarray:
-        """Every cable's length between its attachment points, (B, S) [m]."""
-        nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
-        a, b = self.topology.spring_nodes[:, 0], self.topology.spring_nodes[:, 1]
-        return np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
+    def cable_lengths(self, x: np.ndarray, nodes: np.ndarray | None = None) -> np.ndarray:
+        """Every cable's length between its attachment points, (B, S) [m] (``nodes``:
+        :meth:`nodes` of ``x`` where already computed)."""
+        nodes = self.nodes(x) if nodes is None else nodes
+        a, b = self._ends
+        d = nodes[..., a, :] - nodes[..., b, :]
+        return np.sqrt(np.einsum("...i,...i->...", d, d))
 
     def size(self) -> int:
         """Length of :meth:`read`'s output per robot."""
@@ -63,10 +97,12 @@ class RobotSensors:
     def read(self, x: np.ndarray, winch: np.ndarray) -> np.ndarray:
         """Sensor readings (B, 6R + 1 + S + W) [m]: end caps minus the centre (mean of the
         end caps), the centre's height, the cable lengths, the motors' rest lengths."""
-        caps = self.end_caps(x)
+        nodes = self.nodes(x)
+        caps = nodes[..., : 2 * self.topology.n_rods, :]
         c = caps.mean(axis=-2, keepdims=True)
         B = x.shape[0]
-        parts = [(caps - c).reshape(B, -1), c[:, 0, 2:3], self.cable_lengths(x), winch[..., 0]]
+        parts = [(caps - c).reshape(B, -1), c[:, 0, 2:3], self.cable_lengths(x, nodes),
+                 winch[..., 0]]  # fmt: skip
         return np.concatenate(parts, axis=1)
 
 

@@ -45,20 +45,22 @@ __all__ = ["CONTACT_LAW", "GRADIENT_WANTED", "SOURCE", "SWITCHED_OFF", "USE_NATI
 def load_kernel() -> tuple[ctypes.CDLL, bool]:
     """The loaded library and whether it has OpenMP. Raises :class:`NativeUnavailable`."""
     lib, openmp = build_and_load(SOURCE)
-    dbl, i32 = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
     c_int = ctypes.c_int
+    # the last two: the winch states (B, W, 2) in/out and their commands (B, W) (None: no
+    # winding / motors at 0)
+    ptr = ctypes.c_void_p  # array addresses (ints, ctypes pointers or None for NULL)
     lib.tsr_step.argtypes = [
-        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, i32, c_int
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, ptr, ptr, ptr, ptr, c_int,
+        ptr, ptr,
     ]  # fmt: skip
     lib.tsr_step.restype = c_int
     lib.tsr_step_groups.argtypes = [
-        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, c_int,
-        ctypes.POINTER(ctypes.c_long), i32, c_int,
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, ptr, ptr, ptr, c_int,
+        ptr, ptr, c_int, ptr, ptr,
     ]  # fmt: skip
     lib.tsr_step_groups.restype = c_int
-    lib.tsr_model_size.argtypes = [c_int, c_int, c_int, c_int]
+    lib.tsr_model_size.argtypes = [c_int, c_int, c_int, c_int, c_int]
     lib.tsr_model_size.restype = c_int
-    ptr = ctypes.c_void_p
     lib.tsr_contact_forces.argtypes = [
         ctypes.c_long, c_int, *[ptr] * 7, c_int, *[ptr] * 7, c_int, ptr, ptr
     ]  # fmt: skip
@@ -66,6 +68,7 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
     lib.tsr_max_rods.restype = c_int
     lib.tsr_max_nodes.restype = c_int
     lib.tsr_max_points.restype = c_int
+    lib.tsr_max_winches.restype = c_int
     return lib, openmp
 
 

@@ -19,6 +19,10 @@
  *               gyroscopic term
  *   integration MuJoCo's semi-implicit Euler: v, w_local first, then p and the
  *               quaternion with the new rod-frame angular velocity
+ *   winding     after the integration, each winch's speed s' = s* + (s - s*) exp(-h / tau)
+ *               (s' = s* without lag), s* = clamp(u, -1, 1) v_max, then its rest length
+ *               l0' = clamp(l0 + h s', l_min, l_max); the springs pull with the rest
+ *               lengths of the step's start
  *
  * Only touching end caps enter the contact problem (the engine masks the others
  * out, which gives the same forces), so a rod off the floor costs nothing.
@@ -45,7 +49,14 @@
  *           beta[3] integrated implicitly (an implicit linear drag: its wrench is among
  *           the linear drag's too; (M + h b) a = f per rod axis), and per spring the cubic
  *           stiffness k3[S] (T += k3 (l - l0)^3), rest-length offset delta[S]
- *           (T -= K delta) and slack[S] (1: no elastic force while l < l0)
+ *           (T -= K delta), slack[S] (1: no elastic force while l < l0) and dry
+ *           friction F[S] (T += F tanh(dl/dt / v_eps), v_eps the block's friction_velocity
+ *           entry after the implicit damping, as tensegrity_env/effects/spring_friction.py),
+ *           then the winches: W, winch_of[S] (1 + the winch winding spring s, 0: none),
+ *           v_max[W], lag[W], l_min[W], l_max[W] (tensegrity_env/engine/winch.py)
+ *   winch   (B, W, 2): each wound spring's rest length [m] and winding speed [m/s]; in/out
+ *           (NULL: no winding, the rest lengths are the model's)
+ *   wcmd    (B, W): the winch motors' commands, clipped to [-1, 1] (NULL: 0)
  *   groups  (tsr_step_groups): G models one after the other, and for each the first
  *           assembly it steps (assemblies start[g] .. start[g+1]-1)
  */
@@ -57,6 +68,7 @@
 #define TSR_W 8 /* assemblies per SIMD block */
 #define TSR_MAX_EDGES 8
 #define TSR_MAX_POINTS 32
+#define TSR_MAX_WINCHES 32 /* winch states held per SIMD block on the stack (a robot has a few) */
 
 typedef struct {
     int R, S, A;
@@ -68,14 +80,19 @@ typedef struct {
     int has_origin;
     int P, point_rod[TSR_MAX_POINTS];
     const double *point_offset;
-    const double *drag, *qdrag, *field, *implicit, *cubic, *offset, *slack;
-    int has_drag, has_qdrag, has_field, has_implicit, has_spring_law;
+    const double *drag, *qdrag, *field, *implicit, *cubic, *offset, *slack, *friction;
+    double friction_v;
+    int has_drag, has_qdrag, has_field, has_implicit, has_spring_law, has_friction;
+    int W;
+    const double *winch_of, *w_speed, *w_lag, *w_min, *w_max;
     const int *springs;
     int iterations;
     double dt;
 } Model;
 
-static void unpack(Model *m, const double *w, const int *springs, int R, int S, int A) {
+/* the model at w; returns its length (doubles) */
+static long unpack(Model *m, const double *w, const int *springs, int R, int S, int A) {
+    const double *w0 = w;
     m->R = R; m->S = S; m->A = A; m->springs = springs;
     m->end = w; w += 6 * R;
     m->arm_u = w; w += 3 * R;
@@ -105,23 +122,36 @@ static void unpack(Model *m, const double *w, const int *springs, int R, int S, 
     m->qdrag = w; w += 6;
     m->field = w; w += 3;
     m->implicit = w; w += 6;
+    m->friction_v = w[0]; w += 1;
     m->cubic = w; w += S;
     m->offset = w; w += S;
-    m->slack = w;
+    m->slack = w; w += S;
+    m->friction = w; w += S;
+    m->W = (int)w[0]; w += 1;
+    m->winch_of = w; w += S;
+    m->w_speed = w; w += m->W;
+    m->w_lag = w; w += m->W;
+    m->w_min = w; w += m->W;
+    m->w_max = w; w += m->W;
     m->has_drag = m->has_qdrag = m->has_field = m->has_spring_law = m->has_implicit = 0;
+    m->has_friction = 0;
     for (int i = 0; i < 6; i++) {
         m->has_drag |= m->drag[i] != 0.0;
         m->has_qdrag |= m->qdrag[i] != 0.0;
         m->has_implicit |= m->implicit[i] != 0.0;
     }
     for (int i = 0; i < 3; i++) m->has_field |= m->field[i] != 0.0;
-    for (int i = 0; i < S; i++)
+    for (int i = 0; i < S; i++) {
         m->has_spring_law |= m->cubic[i] != 0.0 || m->offset[i] != 0.0 || m->slack[i] != 0.0;
+        m->has_friction |= m->friction[i] != 0.0;
+    }
+    return (long)(w - w0);
 }
 
-/* the length of the packed model of R rods, S springs, A anchors and P points */
-int tsr_model_size(int R, int S, int A, int P) {
-    return 6 * R + 3 * R + 3 * A + 3 * S + R + 3 * R + 1 + 3 + 8 + R + 4 * R + 1 + 4 * P + 21 + 3 * S;
+/* the length of the packed model of R rods, S springs, A anchors, P points, W winches */
+int tsr_model_size(int R, int S, int A, int P, int W) {
+    return 6 * R + 3 * R + 3 * A + 3 * S + R + 3 * R + 1 + 3 + 8 + R + 4 * R + 1 + 4 * P + 22 +
+           4 * S + 1 + S + 4 * W;
 }
 
 /* ------------------------------------------------------------------ W assemblies at once
@@ -139,6 +169,11 @@ static inline vd vsel(vl m, vd a, vd b) { return (vd)(((vl)a & m) | ((vl)b & ~m)
 static inline vd vsqrt(vd x) {
     vd r;
     for (int l = 0; l < TSR_W; l++) r[l] = sqrt(x[l]);
+    return r;
+}
+static inline vd vtanh(vd x) {
+    vd r;
+    for (int l = 0; l < TSR_W; l++) r[l] = tanh(x[l]);
     return r;
 }
 static inline vd vmax0(vd x) { return vsel(x > 0, x, vsplat(0.0)); }
@@ -190,6 +225,8 @@ static void vsincos(vd x, vd *s, vd *c) {
 }
 
 typedef struct { vd p[3], v[3], q[4], w[3], u[3]; } VRod;
+/* the winches of W assemblies: rest length [m], winding speed [m/s], command */
+typedef struct { vd rest[TSR_MAX_WINCHES], speed[TSR_MAX_WINCHES], u[TSR_MAX_WINCHES]; } VWinch;
 
 /* ------------------------------------------------------------------ the ground contact
  * GroundContact's law (tensegrity_env/effects/ground_contact.py), the one C form of it:
@@ -452,8 +489,8 @@ int tsr_contact_forces(long B, int R, const double *p, const double *v, const do
     return 0;
 }
 
-/* one physics step of W assemblies (R rods each) */
-static void vsubstep(const Model *m, VRod *x) {
+/* one physics step of W assemblies (R rods each); wn: their winches (NULL: none wound) */
+static void vsubstep(const Model *m, VRod *x, const VWinch *wn) {
     const int R = m->R, N0 = 2 * m->R + m->A, N = N0 + m->P;
     vd M[TSR_MAX_RODS][9], arms[TSR_MAX_RODS][2][3], parms[TSR_MAX_POINTS][3];
     vd nx[TSR_MAX_NODES][3], nv[TSR_MAX_NODES][3], nf[TSR_MAX_NODES][3];
@@ -494,12 +531,15 @@ static void vsubstep(const Model *m, VRod *x) {
         for (int i = 0; i < 3; i++) d[i] = nx[b][i] - nx[a][i];
         vd len = vsqrt(vdot(d, d)), inv = 1.0 / len;
         for (int i = 0; i < 3; i++) { e[i] = d[i] * inv; rate += (nv[b][i] - nv[a][i]) * e[i]; }
-        vd stretch = len - m->l0[s];
+        const int wi = wn ? (int)m->winch_of[s] - 1 : -1; /* wound: the winch's rest length */
+        vd stretch = wi >= 0 ? len - wn->rest[wi] : len - m->l0[s];
         vd T = m->K[s] * stretch + m->c[s] * rate;
         if (m->has_spring_law) {
             T += m->cubic[s] * (stretch * stretch * stretch) - m->K[s] * m->offset[s];
             if (m->slack[s] != 0.0) T -= vsel(stretch < 0, m->K[s] * stretch, vsplat(0.0));
         }
+        if (m->has_friction && m->friction[s] != 0.0)
+            T += m->friction[s] * vtanh(rate / m->friction_v);
         for (int i = 0; i < 3; i++) { nf[a][i] += T * e[i]; nf[b][i] -= T * e[i]; }
     }
     const double dt = m->dt;
@@ -608,11 +648,29 @@ static void vsubstep(const Model *m, VRod *x) {
     }
 }
 
+/* one winding step h of the winches of W assemblies (the module's "winding") */
+static void vwind(const Model *m, VWinch *wn) {
+    const double h = m->dt;
+    for (int k = 0; k < m->W; k++) {
+        vd u = wn->u[k];
+        u = vsel(u < -1.0, vsplat(-1.0), u);
+        u = vsel(u > 1.0, vsplat(1.0), u);
+        const vd target = u * m->w_speed[k];
+        const double decay = m->w_lag[k] > 0.0 ? exp(-h / m->w_lag[k]) : 0.0;
+        wn->speed[k] = target + (wn->speed[k] - target) * decay;
+        vd rest = wn->rest[k] + h * wn->speed[k];
+        rest = vsel(rest < m->w_min[k], vsplat(m->w_min[k]), rest);
+        wn->rest[k] = vsel(rest > m->w_max[k], vsplat(m->w_max[k]), rest);
+    }
+}
+
 /* frame_skip steps of assemblies lo..hi-1 under model m, W at a time (the last block
- * padded with copies of its last assembly); threads: OpenMP threads over the blocks */
+ * padded with copies of its last assembly); threads: OpenMP threads over the blocks;
+ * control NULL: no command; winch NULL: no winding; wcmd NULL: the motors at 0 */
 static void step_range(const Model *m, long lo, long hi, int frame_skip, double *state,
-                       const double *control, int threads) {
-    const int R = m->R;
+                       const double *control, double *winch, const double *wcmd,
+                       int threads) {
+    const int R = m->R, NW = winch ? m->W : 0;
     const long blocks = (hi - lo + TSR_W - 1) / TSR_W;
     (void)threads;
 #ifdef _OPENMP
@@ -621,6 +679,7 @@ static void step_range(const Model *m, long lo, long hi, int frame_skip, double 
 #endif
     for (long blk = 0; blk < blocks; blk++) {
         VRod x[TSR_MAX_RODS];
+        VWinch wn;
         long env[TSR_W];
         for (int l = 0; l < TSR_W; l++) {
             long e = lo + blk * TSR_W + l;
@@ -629,17 +688,26 @@ static void step_range(const Model *m, long lo, long hi, int frame_skip, double 
         for (int r = 0; r < R; r++)
             for (int l = 0; l < TSR_W; l++) {
                 const double *s = state + (env[l] * R + r) * 13;
-                const double *u = control + (env[l] * R + r) * 3;
+                const double *u = control ? control + (env[l] * R + r) * 3 : NULL;
                 for (int i = 0; i < 3; i++) {
                     x[r].p[i][l] = s[i];
                     x[r].v[i][l] = s[3 + i];
                     x[r].w[i][l] = s[10 + i];
-                    x[r].u[i][l] = u[i];
+                    x[r].u[i][l] = u ? u[i] : 0.0;
                 }
                 for (int i = 0; i < 4; i++) x[r].q[i][l] = s[6 + i];
             }
-        for (int k = 0; k < frame_skip; k++) vsubstep(m, x);
-        for (int l = 0; l < TSR_W && lo + blk * TSR_W + l < hi; l++)
+        for (int k = 0; k < NW; k++)
+            for (int l = 0; l < TSR_W; l++) {
+                wn.rest[k][l] = winch[(env[l] * NW + k) * 2];
+                wn.speed[k][l] = winch[(env[l] * NW + k) * 2 + 1];
+                wn.u[k][l] = wcmd ? wcmd[env[l] * NW + k] : 0.0;
+            }
+        for (int k = 0; k < frame_skip; k++) {
+            vsubstep(m, x, NW ? &wn : NULL);
+            if (NW) vwind(m, &wn);
+        }
+        for (int l = 0; l < TSR_W && lo + blk * TSR_W + l < hi; l++) {
             for (int r = 0; r < R; r++) {
                 double *s = state + (env[l] * R + r) * 13;
                 for (int i = 0; i < 3; i++) {
@@ -649,39 +717,48 @@ static void step_range(const Model *m, long lo, long hi, int frame_skip, double 
                 }
                 for (int i = 0; i < 4; i++) s[6 + i] = x[r].q[i][l];
             }
+            for (int k = 0; k < NW; k++) {
+                winch[(env[l] * NW + k) * 2] = wn.rest[k][l];
+                winch[(env[l] * NW + k) * 2 + 1] = wn.speed[k][l];
+            }
+        }
     }
 }
 
 int tsr_step_groups(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
                     double *state, const double *control, const double *models, int G,
-                    const long *start, const int *springs, int threads);
+                    const long *start, const int *springs, int threads, double *winch,
+                    const double *wcmd);
 
 /* frame_skip steps of B assemblies under one model */
 int tsr_step(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
              double *state, const double *control, const double *model, const int *springs,
-             int threads) {
+             int threads, double *winch, const double *wcmd) {
     return tsr_step_groups(B, R, S, A, frame_skip, dt, iterations, state, control, model, 1,
-                           NULL, springs, threads);
+                           NULL, springs, threads, winch, wcmd);
 }
 
 /* frame_skip steps of B assemblies under G models: model g (models + g * size) steps
- * assemblies start[g] .. start[g+1]-1 (start NULL: one model for all B) */
+ * assemblies start[g] .. start[g+1]-1 (start NULL: one model for all B); the winches'
+ * states and commands as step_range */
 int tsr_step_groups(int B, int R, int S, int A, int frame_skip, double dt, int iterations,
                     double *state, const double *control, const double *models, int G,
-                    const long *start, const int *springs, int threads) {
+                    const long *start, const int *springs, int threads, double *winch,
+                    const double *wcmd) {
     if (R > TSR_MAX_RODS || 2 * R + A > TSR_MAX_NODES) return -1;
+    const double *w = models;
     for (int g = 0; g < G; g++) {
         Model m;
-        const double *w = models;
-        unpack(&m, w, springs, R, S, A);
+        memset(&m, 0, sizeof(m));
+        const long size = unpack(&m, w, springs, R, S, A);
         if (m.P > TSR_MAX_POINTS || 2 * R + A + m.P > TSR_MAX_NODES) return -1;
-        w += (long)g * tsr_model_size(R, S, A, m.P);
-        unpack(&m, w, springs, R, S, A);
+        if (m.W > TSR_MAX_WINCHES || m.W < 0) return -1;
         m.iterations = iterations;
         m.dt = dt;
         long lo = start ? start[g] : 0, hi = start ? start[g + 1] : B;
         if (lo < 0 || hi > B || lo > hi) return -2;
-        if (hi > lo) step_range(&m, lo, hi, frame_skip, state, control, threads);
+        if (hi > lo) step_range(&m, lo, hi, frame_skip, state, control, winch, wcmd, threads);
+        w += size;
     }
     return 0;
 }
@@ -689,4 +766,5 @@ int tsr_step_groups(int B, int R, int S, int A, int frame_skip, double dt, int i
 int tsr_max_rods(void) { return TSR_MAX_RODS; }
 int tsr_max_nodes(void) { return TSR_MAX_NODES; }
 int tsr_max_points(void) { return TSR_MAX_POINTS; }
+int tsr_max_winches(void) { return TSR_MAX_WINCHES; }
 int tsr_lanes(void) { return TSR_W; }

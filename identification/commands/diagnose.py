@@ -184,8 +184,7 @@ def run(args: argparse.Namespace) -> int:
     from identification.discovery.choose import choose_scorer, uses_trajectories
     from identification.discovery.loop import EffectDiscovery
     from identification.discovery.report import fmt_unit, ratio, write_params, write_report
-    from identification.trajectory.floor_evidence import contact_evidence
-    from tensegrity_env.effects import GroundContact
+    from identification.trajectory.floor_evidence import floor_evidence
 
     check_output_dir(args.output, args.force, inputs=[args.dataset, args.params])
     check_number("--max-effects", args.max_effects, 0)
@@ -220,9 +219,9 @@ def run(args: argparse.Namespace) -> int:
         with np.errstate(invalid="ignore", divide="ignore"), window_workers(args.jobs):
             result = loop.fit(dataset).result_
         truth = read_ground_truth(args.dataset)
-        contacts = [e for e in result.model.effects if isinstance(e, GroundContact)]
-        evidence = [contact_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,
-                                     c) for c in contacts]  # fmt: skip
+        floors = [h for e in result.model.effects if (h := e.floor_height()) is not None]
+        evidence = [floor_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,
+                                   h) for h in floors]  # fmt: skip
         report = write_report(result, out, str(args.dataset),
                               None if truth is None else truth.effects,
                               [e.markdown() for e in evidence])  # fmt: skip

@@ -230,7 +230,7 @@ def identify_on_floor(
     free = torch.nonzero(vec.free)[:, 0].tolist()
     stderr = {names[i]: float(s) for i, s in zip(free, many.stderr[: len(free)], strict=True)}
     contact = many.effects[-1]
-    assert isinstance(contact, GroundContact)
+    assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
     stages = [{"window": many.windows.steps, "windows": many.windows.size, "floor": True,
                "rms": many.rms}]  # fmt: skip
     return FloorIdentification(

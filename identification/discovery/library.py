@@ -284,7 +284,7 @@ def slack_probe(
     """Springs whose stiffness drops when compressed: ``ΔK_s (l - l0) [l < l0]`` per spring."""
     if SlackSprings.name in current.names:
         return [], "already in the model"
-    regressed = [e for e in current.effects if isinstance(e, LinearEffect) or _through_engine(e)]
+    regressed = [e for e in current.effects if isinstance(e, LinearEffect) or _through_engine(e)]  # the abstract base: linear in theta()
     est = ExtendedIdentifier(
         effects=regressed,
         anchors=settings.anchors, init_params=settings.init_params,

@@ -230,7 +230,7 @@ def bounded(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
     values at ``theta``."""
     assert vec.coords is not None
     contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
-    assert isinstance(contact, GroundContact)
+    assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
     return replace(vec, coords=vec.coords.with_box(contact_box(contact)))
 
 
@@ -256,7 +256,7 @@ def search_floor_contact(
     n = vec.n_free
     effects = vec.coords.effects_at(theta[n:].detach())
     others, contact = effects[:-1], effects[-1]
-    assert isinstance(contact, GroundContact)
+    assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
     params = vec.params(vec.full(theta.detach()))
     touch = Touchdowns(state=windows.state, obs=windows.obs, control=windows.control,
                        traj=windows.traj, first=windows.start, prefix_rms=float("nan"))  # fmt: skip

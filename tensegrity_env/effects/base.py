@@ -282,6 +282,23 @@ class PhysicalEffect(EffectBase):
         """Whether the values pass :meth:`check` (a fit may give unphysical ones)."""
         return not self.violation()
 
+    def clearance(self, state: State, kin: Kinematics) -> torch.Tensor | None:
+        """How far each rod's end caps are from where the gate lets the effect act,
+        (B, R, 2) [m], below 0 where it acts; None (the default): the gate does not
+        depend on where the end caps are. ``state``, ``kin``: the rods (B rows)."""
+        return None
+
+    def elastic(self, length: torch.Tensor, rest: torch.Tensor) -> torch.Tensor | None:
+        """Where each spring still carries its elastic tension ``K (l - l0)``: a bool
+        (B, S) from spring lengths ``length`` (B, S) [m] and rest lengths ``rest`` (S,)
+        [m]; None (the default): the effect switches no spring's elasticity off."""
+        return None
+
+    def floor_height(self) -> float | None:
+        """The height [m] of the floor at which the effect stops end caps; None (the
+        default): the effect is no floor."""
+        return None
+
     def value(self, key: str, like: torch.Tensor) -> torch.Tensor:
         """Parameter ``key`` on the dtype and device of ``like``."""
         v = self.values[key]

@@ -250,7 +250,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
     """Regressions on rod states, from ``--params``' effects if given."""
     from identification.discovery.library import FitSettings
     from identification.discovery.one_step import OneStepScorer
-    from identification.linear.regression import parse_anchor
+    from identification.linear.anchors import parse_anchor
     from tensegrity_env.effects.base import PhysicalEffect
 
     anchors = dict(parse_anchor(a) for a in args.anchor)
@@ -281,7 +281,7 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     """Windowed trajectory fits on end caps, from ``--params``' declared model if given."""
     from identification.discovery.end_cap_data import TrajectorySettings
     from identification.discovery.multi_step import MultiStepScorer
-    from identification.linear.regression import parse_anchor
+    from identification.linear.anchors import parse_anchor
 
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None

@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
     from identification.commands.identify_end_caps import run_end_caps
     from identification.data.dataset import read_dataset, read_ground_truth
     from identification.data.sample_grid import on_nominal_grid
-    from identification.linear.regression import SpringRodIdentifier, parse_anchor
+    from identification.linear.anchors import parse_anchor
+    from identification.linear.regression import SpringRodIdentifier
     from identification.linear.winch_lag import fit_winch_lag
     from identification.report.tables import (
         error_text,

@@ -156,7 +156,7 @@ def side_by_side_video(
     """
     from tensegrity_env.envs.rendering import env_label, side_by_side, write_video
 
-    kw = {"render_mode": "rgb_array", "width": width, "height": height}
+    kw: dict[str, Any] = {"render_mode": "rgb_array", "width": width, "height": height}
     left, right = gym.make(source, **kw), gym.make(target, **kw)
     try:
         obs_l, _ = left.reset(seed=seed)

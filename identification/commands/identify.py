@@ -147,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"winch lag {float(est.winch_lag_[0]):.4g} s: the smallest residual of "
               f"{len(est.lag_search_)} lags tried")  # fmt: skip
     else:
+        assert not isinstance(lag, str)  # the one string form, "auto", is handled above
         est = identifier(lag).fit(dataset, args.split)
     fit_time = time.perf_counter() - t0
     try:  # nothing outside the physical domain is written

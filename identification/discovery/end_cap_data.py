@@ -156,7 +156,7 @@ class TrajFit:
     def fitted_model(self, topology: Topology, dt: float) -> FittedModel:
         """The fit as the loop's model: parameters, effects, fitted-parameter count and
         the declared parameters' standard errors."""
-        model = Model(topology, self.params, self.effects, dt)
+        model = Model(topology, self.params, tuple(self.effects), dt)
         return FittedModel(model, self.k, uncertainty=self.uncertainty)
 
     @property

@@ -113,6 +113,10 @@ class SpringRodIdentifier:
             of rest lengths the fitted winding covers in the data.
     """
 
+    #: every winch lag tried [s] -> its residual sum of squares, set by
+    #: :func:`~identification.linear.winch_lag.fit_winch_lag` on the estimator it returns
+    lag_search_: dict[float, float]
+
     def __init__(
         self,
         solver: str = "lstsq",
@@ -412,8 +416,9 @@ class SpringRodIdentifier:
 
     def _winch_values(
         self, topo: Any, values: dict[str, np.ndarray], rest: np.ndarray
-    ) -> dict[str, np.ndarray]:
-        """``winch_*`` parameters: ``v_max = (K·v)/K``, the lag taken as known, the range
+    ) -> dict[str, Any]:
+        """``winch_*`` keywords of :meth:`Params.create` ((W,) arrays; none without
+        winches): ``v_max = (K·v)/K``, the lag taken as known, the range
         from ``init_params`` or the span the winding covers in the fit data (see the
         class doc)."""
         if not topo.n_winches:
@@ -550,6 +555,7 @@ def evaluate_params(
         )
         roll = engine.rollout(init, params, T, ctrl, cable_ctrl,
                               None if winch_ctrl is None else winch_ctrl[:, :T])  # fmt: skip
+        assert data.p is not None  # the initial states above came from it
         err = torch.linalg.vector_norm(roll.p - torch.as_tensor(data.p[:, : T + 1]), dim=-1)
         curve = err.nanmean(dim=(0, 2)).numpy()  # (samples in a gap: left out)
     return {

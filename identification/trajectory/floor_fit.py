@@ -82,6 +82,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -176,11 +177,11 @@ def floor_height(nodes: np.ndarray, topology: Topology) -> float:
 
 
 def floor_contact(
-    topology: Topology, nodes: np.ndarray, start: GroundContact | None = None
+    topology: Topology, nodes: np.ndarray, start: PhysicalEffect | None = None
 ) -> GroundContact:
     """The contact a floor fit starts from: ``start``'s values (a params file, or a fit)
     if given, else :data:`CONTACT_START` at the height :func:`floor_height` estimates."""
-    values = dict(CONTACT_START)
+    values: dict[str, Any] = dict(CONTACT_START)  # parameter name -> value
     values["height"] = floor_height(nodes, topology)
     if start is not None:
         values.update({k: float(start.values[k].reshape(-1)[0]) for k in start.PARAMS})

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 import torch
@@ -294,6 +294,14 @@ class PhysicalEffect(EffectBase):
         [m]; None (the default): the effect switches no spring's elasticity off."""
         return None
 
+    def filter_commands(
+        self, control: torch.Tensor, dt: float, explicit: bool = False
+    ) -> torch.Tensor:
+        """The commands that act, from those given ``control`` (B, T, ...) (time on dim 1)
+        at step ``dt`` [s]; ``explicit``: MuJoCo's explicit filter form, for cable commands.
+        The default: unchanged (an effect with :attr:`filters_commands` overrides it)."""
+        return control
+
     def floor_height(self) -> float | None:
         """The height [m] of the floor at which the effect stops end caps; None (the
         default): the effect is no floor."""
@@ -306,7 +314,7 @@ class PhysicalEffect(EffectBase):
             v = v.to(dtype=like.dtype, device=like.device)
         return v
 
-    def with_values(self, validate: bool = True, **values: Any) -> PhysicalEffect:
+    def with_values(self, validate: bool = True, **values: Any) -> Self:
         """A copy with some parameters replaced (tensors kept as given: differentiable).
 
         ``validate=False`` skips the physical checks (see :meth:`physical`).
@@ -420,7 +428,7 @@ class LinearEffect(PhysicalEffect):
                 names += [f"{k}[{'xyz'[i] if n == 3 else i}]" for i in range(n)]
         return names
 
-    def with_theta(self, theta: Any, stderr: Any = None) -> LinearEffect:
+    def with_theta(self, theta: Any, stderr: Any = None) -> Self:
         """A copy with :meth:`theta` replaced (and its standard errors, same layout)."""
         theta = torch.as_tensor(theta, dtype=torch.float64).reshape(-1)
         values, unc, i = {}, {}, 0
@@ -437,7 +445,11 @@ class LinearEffect(PhysicalEffect):
         return new
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         force, torque = self.basis(state, kin, params)
         th = self.theta().to(force)
@@ -466,7 +478,11 @@ class SpringLawEffect(LinearEffect):
         return force * phi, torque * phi
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         phi = self.factor(state, kin, params)
         return spring_tension_wrench(kin, self.topology, phi * self.theta().to(phi))

@@ -95,7 +95,11 @@ class SlackSprings(PhysicalEffect):
         return (length > rest) | (self.mask(rest) == 0)
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         if self.values["springs"].numel() == 0:
             return None

@@ -53,7 +53,8 @@ class RobotSensors:
         """Every cable's length between its attachment points, (B, S) [m]."""
         nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
         a, b = self.topology.spring_nodes[:, 0], self.topology.spring_nodes[:, 1]
-        return np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
+        result: np.ndarray = np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
+        return result
 
     def size(self) -> int:
         """Length of :meth:`read`'s output per robot."""
@@ -206,7 +207,8 @@ class ShapeTask:
 
     def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray:
         """Largest absolute length error of the wound cables, (B,) [m]."""
-        return np.abs(target - self._wound(x)).max(axis=-1)
+        result: np.ndarray = np.abs(target - self._wound(x)).max(axis=-1)
+        return result
 
     def reward(
         self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray

@@ -48,8 +48,7 @@ if TYPE_CHECKING:  # the commands import torch, MuJoCo and SciPy when they run, 
 #: default window lengths of the trajectory method [s]: selection (``--window``) and the
 #: accepted models' fits (``--fit-window``). A fitted initial state absorbs the linear part
 #: of a missing constant acceleration, so what selection sees of it grows as the window's
-#: length squared: 0.1-s windows missed a 0.35 m/s^2 force field in free flight at 120 Hz
-#: and 1 mm noise (BIC +4.4), 0.2-s ones name it (BIC -756 and -806 on two other seeds)
+#: length squared (measured in docs/decisions.md)
 WINDOW_S = 0.2
 FIT_WINDOW_S = 0.3
 #: default random selection windows per split of the trajectory method

@@ -7,6 +7,7 @@ principal frame to the world frame: ``x_world = R(q) @ x_rod``.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from tensegrity_env.vec3 import dot
@@ -60,7 +61,8 @@ def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> tor
     c = torch.where(safe, torch.cos(half), torch.ones_like(half))
     qrot = torch.cat((c, axis * s), dim=-1)
     out = quat_mul(q, qrot)
-    return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
+    result: torch.Tensor = out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
+    return result
 
 
 #: rotations taking a file's up axis to z (right-handed): Vicon and Qualisys record z-up,
@@ -75,7 +77,7 @@ TO_Z_UP = {
 }
 
 
-def axis_angle_to_quat(axis: np.ndarray, angle: float) -> np.ndarray:
+def axis_angle_to_quat(axis: npt.ArrayLike, angle: float) -> np.ndarray:
     """Numpy helper: unit quaternion (w, x, y, z) rotating ``angle`` [rad] about ``axis``."""
     a = np.asarray(axis, dtype=float)
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * a / np.linalg.norm(a)])
@@ -103,7 +105,8 @@ def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def np_quat_conj(q: np.ndarray) -> np.ndarray:
     """Conjugate in numpy (the inverse of a unit quaternion), shapes (..., 4)."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    result: np.ndarray = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return result
 
 
 def np_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -115,7 +118,8 @@ def np_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def unit(x: np.ndarray) -> np.ndarray:
     """``x`` divided by its norm along the last axis."""
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+    result: np.ndarray = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    return result
 
 
 def shortest_arc(a_from: np.ndarray, a_to: np.ndarray) -> np.ndarray:
@@ -157,4 +161,5 @@ def random_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:
         ],
         axis=-1,
     )
-    return q * np.sign(q[:, :1] + (q[:, :1] == 0))
+    result: np.ndarray = q * np.sign(q[:, :1] + (q[:, :1] == 0))
+    return result

@@ -105,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
     from identification.commands.identify_end_caps import run_end_caps
     from identification.data.dataset import read_dataset, read_ground_truth
     from identification.data.sample_grid import on_nominal_grid
-    from identification.linear.regression import SpringRodIdentifier, parse_anchor
+    from identification.linear.anchors import parse_anchor
+    from identification.linear.regression import SpringRodIdentifier
     from identification.linear.winch_lag import fit_winch_lag
     from identification.report.tables import (
         error_text,
@@ -146,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"winch lag {float(est.winch_lag_[0]):.4g} s: the smallest residual of "
               f"{len(est.lag_search_)} lags tried")  # fmt: skip
     else:
+        assert not isinstance(lag, str)  # the one string form, "auto", is handled above
         est = identifier(lag).fit(dataset, args.split)
     fit_time = time.perf_counter() - t0
     try:  # nothing outside the physical domain is written

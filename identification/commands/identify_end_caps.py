@@ -133,7 +133,8 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
                f"{describe(args.first_window, dt)} to {describe(window, dt)}")  # fmt: skip
     print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: {how}, physics step "
           f"<= {args.physics_dt:g} s")  # fmt: skip
-    start, contact, others = None, None, []
+    start, contact = None, None
+    others: list[PhysicalEffect] = []
     if args.params is not None:
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
         print(f"starting from the model in {args.params}"
@@ -217,6 +218,6 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         extra["floor_evidence"] = evidence.as_dict()
         print(f"  standard errors: {FLOOR_STDERR_NOTE}")
         extra["identifiability"]["standard_errors"] = FLOOR_STDERR_NOTE
-    Model(dataset.topology, est.params_, effects, dt=physics).save(args.output, extra)
+    Model(dataset.topology, est.params_, tuple(effects), dt=physics).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

@@ -127,7 +127,8 @@ def longest_run(mask: np.ndarray) -> int:
 def sample_quality(ds: Dataset) -> SampleQuality:
     """Measure ``ds`` (every split, every trajectory)."""
     n_caps = 2 * ds.topology.n_rods
-    steps, seen, missing, d3 = [], np.zeros(n_caps), np.zeros(n_caps), [[] for _ in range(n_caps)]
+    steps, seen, missing = [], np.zeros(n_caps), np.zeros(n_caps)
+    d3: list[list[np.ndarray]] = [[] for _ in range(n_caps)]  # per end cap
     longest = np.zeros(n_caps, dtype=int)
     duration, placeholders = 0.0, 0
     for s in ds.splits.values():

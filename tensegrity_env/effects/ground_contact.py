@@ -204,6 +204,13 @@ class GroundContact(PhysicalEffect):
         nodes = tension_to_node_forces(tension, frame, self._incidence.to(tension))
         return kinematics_wrench(nodes, kin)
 
+    def clearance(self, state: State, kin: Kinematics) -> torch.Tensor:
+        """Each end cap's distance above the floor, (B, R, 2) [m] (< 0 in contact)."""
+        return self.contact_geometry(state, kin)["dist"]
+
+    def floor_height(self) -> float:
+        return float(self.values["height"].reshape(-1)[0])
+
     def contact_geometry(self, state: State, kin: Kinematics) -> dict[str, torch.Tensor]:
         """Per end cap (B, R, 2): ``dist`` [m] (< 0 in contact), ``slip`` [m/s], ``vn`` [m/s].
 

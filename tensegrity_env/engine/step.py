@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 
@@ -87,7 +88,7 @@ class Engine:
         if twice:  # effects add their forces: one given twice acts twice
             raise ValueError(f"effects named twice: {twice}")
         self.dtype, self.device = dtype, torch.device(device)
-        kw = {"dtype": dtype, "device": self.device}
+        kw: dict[str, Any] = {"dtype": dtype, "device": self.device}
         self.end_offsets = torch.as_tensor(topology.end_offsets, **kw)  # (R, 2, 3)
         self.anchors = torch.as_tensor(topology.anchor_positions, **kw)  # (A, 3)
         self.control_arms = torch.as_tensor(topology.control_arms, **kw)  # (R, 3)
@@ -163,7 +164,7 @@ class Engine:
             arm = rotate(kin.rot, self.control_arms)
             f_u, t_u = point_force_wrench(params.control_gain * control, arm)
             force, torque = force + f_u, torque + t_u
-        constraints = [e for e in self.effects if getattr(e, "constraint", False)]
+        constraints = [e for e in self.effects if e.constraint]
         for effect in self.effects:
             if effect in constraints:
                 continue

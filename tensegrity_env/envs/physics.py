@@ -30,7 +30,7 @@ import os
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import torch
@@ -295,7 +295,7 @@ class TorchStepper:
         in place by ``frame_skip`` physics steps, the winch motors' commands ``commands``
         (B, W) in [-1, 1] held (:meth:`Engine.step <tensegrity_env.engine.Engine.step>`)."""
         with torch.no_grad(), torch_threads(self.threads):
-            kw = {"dtype": self.dtype, "device": self.device}
+            kw: dict[str, Any] = {"dtype": self.dtype, "device": self.device}
             state = unpack_states(x, self.dtype, self.device).with_winch(
                 torch.as_tensor(winch, **kw)
             )
@@ -303,7 +303,8 @@ class TorchStepper:
             for _ in range(self.frame_skip):
                 state = self.engine.step(state, self.params, winches=u)
             x[...] = pack_states(state)
-            winch[...] = state.winch.cpu().numpy()  # type: ignore[union-attr]
+            assert state.winch is not None  # a state stepped with winches keeps them
+            winch[...] = state.winch.cpu().numpy()
 
 
 def make_stepper(

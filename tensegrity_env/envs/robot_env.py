@@ -70,7 +70,7 @@ class RobotEnv(SceneEnv):
         self.rest = sim.rest_pose()
         self._init_scene(sim, render_mode, width, height, max(self.task.goal_radius, 1e-3))
         n_motors = sim.command_shape[0]
-        self.action_space = spaces.Box(-1.0, 1.0, (n_motors,), np.float32)
+        self.action_space: spaces.Box = spaces.Box(-1.0, 1.0, (n_motors,), np.float32)
         n_obs = self.task.observation_size()
         self.observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self.state = self.rest.copy()
@@ -105,7 +105,7 @@ class RobotEnv(SceneEnv):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = check_action(action, self.action_space.shape, "one command per motor")  # type: ignore[arg-type]
+        a = check_action(action, self.action_space.shape, "one command per motor")
         command = np.clip(a, -1.0, 1.0)
         self.sim.step(command)
         x = self.sim.get_state()
@@ -138,10 +138,12 @@ class RobotEnv(SceneEnv):
         """Where the renderer draws the goal disc: the goal, or under the centre (shape)."""
         if isinstance(self.task, GoalTask):
             return self.target
-        return self.state[:, 0:2].mean(axis=0)
+        result: np.ndarray = self.state[:, 0:2].mean(axis=0)
+        return result
 
     def _obs(self) -> np.ndarray:
-        return self.task.observe(self.state[None], self.winch[None], self.target[None])[0]
+        result: np.ndarray = self.task.observe(self.state[None], self.winch[None], self.target[None])[0]
+        return result
 
     def _info(self) -> dict[str, Any]:
         c = self.state[:, 0:3].mean(axis=0)

@@ -117,10 +117,12 @@ class SRRobotSimulator:
         self.winch[i] = self.rest_winch if winch is None else winch
 
     def get_state(self) -> np.ndarray:
-        return self.x[0].copy()
+        result: np.ndarray = self.x[0].copy()
+        return result
 
     def get_winch(self) -> np.ndarray:
-        return self.winch[0].copy()
+        result: np.ndarray = self.winch[0].copy()
+        return result
 
     def step(self, command: np.ndarray) -> None:
         """Advance copy 0 under motor commands (W,) (in place: its rows are contiguous)."""
@@ -153,7 +155,8 @@ def _sr_rest(model: str, model_mtime: float, robot: str, robot_mtime: float) -> 
         stepper(x, zero)
     if not np.all(np.isfinite(x)):
         raise RuntimeError(f"{model}: the model diverged while settling on the floor")
-    return x[0]
+    result: np.ndarray = x[0]
+    return result
 
 
 class MJRobotSimulator:

@@ -242,7 +242,8 @@ class ShapeTask:
 
     def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray:
         """Largest absolute length error of the wound cables, (B,) [m]."""
-        return np.abs(target - self._wound(x)).max(axis=-1)
+        result: np.ndarray = np.abs(target - self._wound(x)).max(axis=-1)
+        return result
 
     def reward(
         self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray

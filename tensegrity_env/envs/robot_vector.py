@@ -60,7 +60,7 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.sim.control_dt)}
         self.rest = self.sim.rest_pose()
         W = self.sim.command_shape[0]
-        self.single_action_space = spaces.Box(-1.0, 1.0, (W,), np.float32)
+        self.single_action_space: spaces.Box = spaces.Box(-1.0, 1.0, (W,), np.float32)
         n_obs = self.task.observation_size()
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -89,7 +89,8 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = check_action(actions, self.action_space.shape, "one command per motor")  # type: ignore[arg-type]
+        a = check_action(actions, (self.num_envs, *self.single_action_space.shape),
+                         "one command per motor")  # fmt: skip
         commands = np.clip(a, -1.0, 1.0)
         self.sim.step_batch(commands)
         x = self.sim.x

@@ -128,13 +128,15 @@ class RollingTask:
         """
         a = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0).reshape(-1, n_rods, 3)
         norm = np.linalg.norm(a, axis=-1, keepdims=True)
-        return self.max_command * a / np.maximum(norm, 1.0)
+        result: np.ndarray = self.max_command * a / np.maximum(norm, 1.0)
+        return result
 
     # ------------------------------------------------------------------ observation
     @staticmethod
     def centre(x: np.ndarray) -> np.ndarray:
         """Mean of the rod centres, (B, 3) [m] (parameter-free, so equal in both envs)."""
-        return x[..., 0:3].mean(axis=1)
+        result: np.ndarray = x[..., 0:3].mean(axis=1)
+        return result
 
     @staticmethod
     def observation_size(n_rods: int) -> int:
@@ -158,7 +160,8 @@ class RollingTask:
 
     def distance(self, x: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """Horizontal distance from the centre to the goal, (B,) [m]."""
-        return np.linalg.norm(goal - self.centre(x)[:, :2], axis=-1)
+        result: np.ndarray = np.linalg.norm(goal - self.centre(x)[:, :2], axis=-1)
+        return result
 
     # ------------------------------------------------------------------ reward
     def reward(

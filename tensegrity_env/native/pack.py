@@ -154,7 +154,7 @@ def effects_block(
             if not all(v.numel() == 1 for v in values.values()):
                 raise NotNative(f"{name}: the kernel takes one value per parameter")
             contact = {k: float(v.detach()) for k, v in values.items()}
-            radius = e.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]
+            radius = e.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]  # the "contact" form carries end-cap radii
         elif form.kind == "mask":
             idx = values[form.keys[0]].cpu().numpy().astype(int)
             for slot in form.slots:

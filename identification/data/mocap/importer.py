@@ -408,7 +408,7 @@ def parse_fractions(text: str) -> tuple[float, float, float]:
         raise InputError(f"--split: {text!r} is not three fractions like 0.7,0.15,0.15") from None
     if len(parts) != 3 or min(parts) < 0 or abs(sum(parts) - 1) > 1e-6 or parts[0] <= 0:
         raise InputError(f"--split: {text!r} must be train,val,test fractions summing to 1")
-    return parts  # type: ignore[return-value]
+    return parts
 
 
 def _stack(pieces: list[Piece], n_rods: int) -> Split:
@@ -449,11 +449,13 @@ def build_dataset(
         where[split].append([t.source.name, round(float(t.time[a]), 4), round(float(t.time[end - 1]), 4)])
 
     def cut(t: ImportedTake) -> list[tuple[int, int | None]]:
-        ranges = pieces(list(t.stretches), t.time, piece) if t.stretches is not None else [(0, None)]
+        ranges: list[tuple[int, int | None]] = (
+            [*pieces(list(t.stretches), t.time, piece)] if t.stretches is not None else [(0, None)]
+        )
         if not ranges:
             raise InputError(f"{t.source}: no stretch a fit can use lasts {piece:g} s "
                              f"({', '.join(map(str, t.stretches or ()))})")  # fmt: skip
-        return ranges  # type: ignore[return-value]
+        return ranges
 
     if assign or len(takes) >= 3:
         if assign:

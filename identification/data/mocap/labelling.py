@@ -201,7 +201,7 @@ def label_clouds(
         pred, reach, fresh = _predict(caps, time, seen_at, f, gate, shape)
         known = np.isfinite(pred).all(-1)
         lost = fresh.sum() < 3 and shape is not None and len(cloud) >= n_caps
-        if lost and time[f] - tried_at >= REPLACE_EVERY:
+        if lost and shape is not None and time[f] - tried_at >= REPLACE_EVERY:
             tried_at = time[f]
             placed = initial_caps_from_shape(shape, cloud)
             pick = np.array([int(np.argmin(np.linalg.norm(cloud - c, axis=-1))) if np.isfinite(c).all()
@@ -230,7 +230,7 @@ def label_clouds(
                     worse = i if dist[i, pick[i]] > dist[k, pick[k]] else k
                     pick[worse] = -1
         assigned = {}
-        for i in np.flatnonzero(pick >= 0):
+        for i in np.flatnonzero(pick >= 0).tolist():
             j = int(present[pick[i]])
             if seen_at[i, 0] >= 0 and not fresh[i]:
                 reacquired[i] += 1

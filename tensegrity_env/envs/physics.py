@@ -177,7 +177,7 @@ class NativeStepper:
             self.frame_skip = steps
         err = float(np.abs(mine - pack_states(ref)).max())
         if W:
-            err = max(err, float(np.abs(wound - ref.winch.numpy()).max()))  # type: ignore[union-attr]
+            err = max(err, float(np.abs(wound - ref.winch.numpy()).max()))
         if not err <= atol:
             raise KernelMismatch(
                 f"the native kernel differs from the engine by {err:.2e} (> {atol:g}): "

@@ -87,7 +87,8 @@ class RobotSensors:
         nodes = self.nodes(x) if nodes is None else nodes
         a, b = self._ends
         d = nodes[..., a, :] - nodes[..., b, :]
-        return np.sqrt(np.einsum("...i,...i->...", d, d))
+        lengths: np.ndarray = np.sqrt(np.einsum("...i,...i->...", d, d))
+        return lengths
 
     def size(self) -> int:
         """Length of :meth:`read`'s output per robot."""

@@ -15,7 +15,9 @@ frame) and winch states (W, 2) (rest length [m], winding speed [m/s]) and advanc
   (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`, with a
   warning); the two agree to round-off.
 * :class:`MJRobotSimulator`: MuJoCo with :class:`~tensegrity_env.mjcf.winches.MjWinches`
-  setting ``tendon_lengthspring`` from the winch state before every ``mj_step``.
+  setting ``tendon_lengthspring`` from the winch state before every ``mj_step`` (the
+  winding of a control step integrated first, in NumPy:
+  :class:`~tensegrity_env.mjcf.winches.Winding`).
 """
 
 from __future__ import annotations
@@ -194,15 +196,13 @@ class MJRobotSimulator:
         return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
 
     def get_winch(self) -> np.ndarray:
-        return self.plant.state[0].numpy().copy()
+        return self.plant.state.copy()
 
     def step(self, command: np.ndarray) -> None:
         """``frame_skip`` MuJoCo steps under motor commands (W,)."""
         bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
         before = bad.number
-        u = np.asarray(command, dtype=np.float64)
-        for _ in range(self.frame_skip):
-            self.plant.step(self.data, u)
+        self.plant.run(self.data, command, self.frame_skip)
         # MuJoCo resets an unstable simulation to qpos0 and goes on; report it instead
         self.diverged |= bad.number > before
 

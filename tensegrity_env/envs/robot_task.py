@@ -121,7 +121,7 @@ class RobotSensors:
         end caps), the centre's height, the cable lengths, the motors' rest lengths."""
         nodes = self.nodes(x)
         caps = nodes[..., : 2 * self.topology.n_rods, :]
-        c = caps.mean(axis=-2, keepdims=True)
+        c = caps.sum(axis=-2, keepdims=True) / caps.shape[-2]  # their mean
         B = x.shape[0]
         parts = [(caps - c).reshape(B, -1), c[:, 0, 2:3], self.cable_lengths(x, nodes),
                  winch[..., 0]]  # fmt: skip
@@ -273,7 +273,8 @@ class ShapeTask:
         held = error <= self.shape_tolerance
         terms = {
             "reward_shape": -self.shape_weight * error,
-            "reward_control": -self.control_weight * np.mean(commands**2, axis=-1),
+            "reward_control": -self.control_weight
+            * ((commands**2).sum(axis=-1) / commands.shape[-1]),
         }
         return terms["reward_shape"] + terms["reward_control"], held, terms
 

@@ -61,6 +61,25 @@ from tensegrity_env.envs.twin import twin_assembly
 from tensegrity_env.model import Model
 
 
+def per_step(
+    step: Callable[[np.ndarray], object],
+    actions: np.ndarray,
+    reset: Callable[[], object] | None = None,
+) -> Callable[[], float]:
+    """A timing function: ``reset()`` (if given), then ``step(a)`` for each of ``actions``
+    (T, ...); it returns the mean wall time per call [s]."""
+
+    def timed() -> float:
+        if reset is not None:
+            reset()
+        t0 = time.perf_counter()
+        for a in actions:
+            step(a)
+        return (time.perf_counter() - t0) / len(actions)
+
+    return timed
+
+
 def best_of(fns: list[Callable[[], float]], repeats: int) -> list[float]:
     """Run each timing function ``repeats`` times in alternation; the best (lowest) of each."""
     best = [np.inf] * len(fns)
@@ -80,16 +99,8 @@ def batched(num_envs: int, steps: int, mj_steps: int, threads: int, repeats: int
     sr.step(actions[0])  # warm up (first touch of the buffers, the kernel's threads)
     mj.step(actions[0])
 
-    def run(env: IcosahedronSRVectorEnv | IcosahedronMJVectorEnv, n: int) -> Callable[[], float]:
-        def timed() -> float:
-            t0 = time.perf_counter()
-            for k in range(n):
-                env.step(actions[k])
-            return (time.perf_counter() - t0) / n
-
-        return timed
-
-    t_sr, t_mj = best_of([run(sr, steps), run(mj, mj_steps)], repeats)
+    t_sr, t_mj = best_of([per_step(sr.step, actions[:steps]), per_step(mj.step, actions[:mj_steps])],
+                         repeats)  # fmt: skip
     r_sr, r_mj = num_envs / t_sr, num_envs / t_mj
     print(
         f"\n1. Batched, N = {num_envs}, {threads} thread(s) each (env-steps/s, 50 physics steps each)"
@@ -107,14 +118,7 @@ def single(steps: int, repeats: int) -> None:
     actions = rng.uniform(-1, 1, (steps, 18)).astype(np.float32)
 
     def run(env: IcosahedronSREnv | IcosahedronMJEnv) -> Callable[[], float]:
-        def timed() -> float:
-            env.reset(seed=0)
-            t0 = time.perf_counter()
-            for a in actions:
-                env.step(a)
-            return (time.perf_counter() - t0) / steps
-
-        return timed
+        return per_step(env.step, actions, lambda: env.reset(seed=0))
 
     t_sr, t_mj = best_of([run(sr), run(mj)], repeats)
     print("\n2. Single env, env.step latency (50 physics steps + observation + reward)")
@@ -175,23 +179,12 @@ def robot(num_envs: int, steps: int, mj_steps: int, single_steps: int, threads: 
     actions = actions.astype(np.float32)
 
     def run(env: TensegritySREnv | TensegrityMJEnv) -> Callable[[], float]:
-        def timed() -> float:
-            env.reset(seed=0)
-            t0 = time.perf_counter()
-            for a in actions[:single_steps, 0]:
-                env.step(a)
-            return (time.perf_counter() - t0) / single_steps
+        return per_step(env.step, actions[:single_steps, 0], lambda: env.reset(seed=0))
 
-        return timed
+    def mj_steps_alone(_: np.ndarray) -> None:  # the twin's MuJoCo physics: no winding, task
+        mujoco.mj_step(mj.sim.model, mj.sim.data, nstep=mj.sim.frame_skip)
 
-    def bare() -> float:  # the twin's MuJoCo physics alone: no winding, task or observation
-        mj.reset(seed=0)
-        model, data = mj.sim.model, mj.sim.data
-        t0 = time.perf_counter()
-        for _ in range(single_steps):
-            mujoco.mj_step(model, data, nstep=mj.sim.frame_skip)
-        return (time.perf_counter() - t0) / single_steps
-
+    bare = per_step(mj_steps_alone, actions[:single_steps, 0], lambda: mj.reset(seed=0))
     t_sr, t_mj, t_bare = best_of([run(sr), run(mj), bare], repeats)
     print("\n4. Generic robot (lab 3-bar, 6 winches), env.step latency (50 physics steps)")
     print(f"   TensegritySR-v0 (C kernel, {sr.sim.stepper.backend}): {t_sr * 1e3:8.3f} ms")
@@ -206,16 +199,8 @@ def robot(num_envs: int, steps: int, mj_steps: int, single_steps: int, threads: 
     venv.step(actions[0])  # warm up (first touch of the buffers, the threads)
     twins.step(actions[0])
 
-    def batch(env: TensegritySRVectorEnv | TensegrityMJVectorEnv, n: int) -> Callable[[], float]:
-        def timed() -> float:
-            t0 = time.perf_counter()
-            for a in actions[:n]:
-                env.step(a)
-            return (time.perf_counter() - t0) / n
-
-        return timed
-
-    b_sr, b_mj = best_of([batch(venv, steps), batch(twins, mj_steps)], repeats)
+    b_sr, b_mj = best_of([per_step(venv.step, actions[:steps]),
+                          per_step(twins.step, actions[:mj_steps])], repeats)  # fmt: skip
     how = type(twins.sim).__name__
     print(f"   batched, N = {num_envs}, {threads} thread(s) each (env-steps/s)")
     print(f"   TensegritySR-v0 vector env (C kernel):        {num_envs / b_sr:12,.0f}")

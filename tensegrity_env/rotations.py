@@ -84,8 +84,17 @@ def axis_angle_to_quat(axis: npt.ArrayLike, angle: float) -> np.ndarray:
 
 
 def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Numpy wrapper of :func:`quat_to_matrix`."""
-    return quat_to_matrix(torch.as_tensor(np.array(q, dtype=float))).numpy()
+    """:func:`quat_to_matrix` in numpy (the same arithmetic, so the same numbers, without
+    a round trip through PyTorch): (..., 4) -> (..., 3, 3), float64."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    out = np.empty((*q.shape[:-1], 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = ww + xx - yy - zz, 2 * (xy - wz), 2 * (xz + wy)
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = 2 * (xy + wz), ww - xx + yy - zz, 2 * (yz - wx)
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 2 * (xz - wy), 2 * (yz + wx), ww - xx - yy + zz
+    return out
 
 
 def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

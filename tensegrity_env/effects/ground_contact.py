@@ -38,7 +38,7 @@ passive and actuator forces. Called directly without that wrench, it uses the sp
 
 Where no gradient is wanted (double precision on the CPU, as the trajectory fits'
 forward differences step it), the C kernel's ``tsr_contact_forces``
-(``tensegrity_env/native/native_step.c``, the same law the kernel's step uses) computes
+(``tensegrity_env/native/native_contact.c``, the same law the kernel's step uses) computes
 the same geometry and law rod by rod (``benchmarks/bench_engine.py`` times both); the
 two agree to round-off (``tests/unit/test_soft_contact_solve.py``). Otherwise, and
 where no C compiler works, PyTorch does

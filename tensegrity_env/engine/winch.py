@@ -51,10 +51,15 @@ def winding_speed(
     (B, W), ``command`` (B, W) in command units (clipped to [-1, 1]).
     """
     target = command.clamp(-1.0, 1.0) * v_max
+    return target + (speed - target) * winding_decay(lag, h)
+
+
+def winding_decay(lag: torch.Tensor, h: float) -> torch.Tensor:
+    """How much of a motor's speed error is left after one step ``h`` [s]:
+    ``exp(-h / tau)``, 0 without lag (``tau`` = ``lag`` [s], same shape)."""
     lagged = lag > 0
     decay = torch.exp(-h / torch.where(lagged, lag, torch.ones_like(lag)))
-    decay = torch.where(lagged, decay, torch.zeros_like(decay))
-    return target + (speed - target) * decay
+    return torch.where(lagged, decay, torch.zeros_like(decay))
 
 
 def unit_winding(commands: torch.Tensor, lag: torch.Tensor, h: float) -> torch.Tensor:

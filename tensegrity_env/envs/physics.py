@@ -6,7 +6,7 @@ float64 in place (rows ``p`` (3) [m], ``v`` (3) [m/s], ``q`` (4, w x y z), ``ome
 ``control`` (B, R, 3) held for the whole control step:
 
 * :class:`NativeStepper`, the default on CPU: the C kernel
-  (``tensegrity_env/native/native_step.c``: the engine's step with the effects it has,
+  (``tensegrity_env/native/native_step.h`` and its files: the engine's step with the effects it has,
   written out per assembly, threads over the batch; the model packed by
   :func:`~tensegrity_env.native.pack.pack_model`, as the engine's no-gradient step
   packs it). It fuses the ``frame_skip`` substeps of a control step into one call and
@@ -181,7 +181,7 @@ class NativeStepper:
         if not err <= atol:
             raise KernelMismatch(
                 f"the native kernel differs from the engine by {err:.2e} (> {atol:g}): "
-                "an effect's law changed without native_step.c"
+                "an effect's law changed without the C kernel (tensegrity_env/native/)"
             )
         return err
 

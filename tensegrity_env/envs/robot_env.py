@@ -146,7 +146,7 @@ class RobotEnv(SceneEnv):
         return result
 
     def _info(self) -> dict[str, Any]:
-        c = self.state[:, 0:3].mean(axis=0)
+        c = self.state[:, 0:3].sum(axis=0) / self.state.shape[0]  # the rods' mean centre
         return {
             "task_error": self._error,
             "x_position": float(c[0]),

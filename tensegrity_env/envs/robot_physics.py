@@ -15,7 +15,9 @@ frame) and winch states (W, 2) (rest length [m], winding speed [m/s]) and advanc
   (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`, with a
   warning); the two agree to round-off.
 * :class:`MJRobotSimulator`: MuJoCo with :class:`~tensegrity_env.mjcf.winches.MjWinches`
-  setting ``tendon_lengthspring`` from the winch state before every ``mj_step``.
+  setting ``tendon_lengthspring`` from the winch state before every ``mj_step`` (the
+  winding of a control step integrated first, in NumPy:
+  :class:`~tensegrity_env.mjcf.winches.Winding`).
 """
 
 from __future__ import annotations
@@ -23,13 +25,12 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import torch
 
 from tensegrity_env.engine.winch import initial_winch_state
 from tensegrity_env.envs.base import settle
-from tensegrity_env.envs.mj_env import pack_mj, unpack_mj
+from tensegrity_env.envs.mj_env import MJPhysics, pack_mj
 from tensegrity_env.envs.physics import Backend, make_stepper
 from tensegrity_env.envs.sr_env import ASSETS
 from tensegrity_env.io_utils import InputError
@@ -159,7 +160,7 @@ def _sr_rest(model: str, model_mtime: float, robot: str, robot_mtime: float) -> 
     return result
 
 
-class MJRobotSimulator:
+class MJRobotSimulator(MJPhysics):
     """One robot in MuJoCo, its winches wound by :class:`~tensegrity_env.mjcf.winches.MjWinches`.
 
     Args:
@@ -168,54 +169,28 @@ class MJRobotSimulator:
     """
 
     def __init__(self, robot: str | Path | None = None, frame_skip: int = 50) -> None:
-        self.xml_path = Path(robot) if robot is not None else DEFAULT_ROBOT
-        self.asm = from_mjcf(self.xml_path)
-        self.topology, self.model = self.asm.topology, self.asm.model
+        super().__init__(Path(robot) if robot is not None else DEFAULT_ROBOT, frame_skip)
         require_winches(self.topology, self.xml_path)
-        self.data = mujoco.MjData(self.model)
         self.plant = self.asm.mj_winches()
-        self.frame_skip = int(frame_skip)
-        self.control_dt = float(self.model.opt.timestep) * self.frame_skip
         self.command_shape = (self.topology.n_winches,)
-        self.diverged = False
 
     def set_state(self, x: np.ndarray, winch: np.ndarray | None = None) -> None:
         """Rod state (R, 13) and winch state (W, 2) (None: at rest)."""
-        mujoco.mj_resetData(self.model, self.data)
         self.plant.reset(winch)
         self.plant.apply()
-        qpos, qvel = unpack_mj(self.asm, x)
-        self.data.qpos[:] = qpos
-        self.data.qvel[:] = qvel
-        mujoco.mj_forward(self.model, self.data)
-        self.diverged = False
-
-    def get_state(self) -> np.ndarray:
-        """Packed rod states (R, 13); NaN once MuJoCo has declared the simulation unstable."""
-        if self.diverged:
-            return np.full((self.topology.n_rods, 13), np.nan)
-        return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
+        super().set_state(x)
 
     def get_winch(self) -> np.ndarray:
-        return self.plant.state[0].numpy().copy()
+        return self.plant.state.copy()
 
     def step(self, command: np.ndarray) -> None:
         """``frame_skip`` MuJoCo steps under motor commands (W,)."""
-        bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
-        before = bad.number
-        u = np.asarray(command, dtype=np.float64)
-        for _ in range(self.frame_skip):
-            self.plant.step(self.data, u)
-        # MuJoCo resets an unstable simulation to qpos0 and goes on; report it instead
-        self.diverged |= bad.number > before
+        self._advance(lambda: self.plant.run(self.data, command, self.frame_skip))
 
     def rest_pose(self) -> np.ndarray:
         """The twin's resting pose, settled in MuJoCo from the file's pose (cached per file)."""
         p = self.xml_path.resolve()
         return _mj_rest(str(p), p.stat().st_mtime, self.frame_skip).copy()
-
-    def render_assembly(self) -> MjcfAssembly:
-        return self.asm
 
 
 @lru_cache(maxsize=8)

@@ -10,7 +10,7 @@ So each wound tendon keeps its file's rest length ``l_ref`` and gets a force act
 (a ``motor`` on the tendon, gear 1) whose control at each physics step is
 ``K (l0 - l_ref)``, ``l0`` the rest length :class:`~tensegrity_env.mjcf.winches.MjWinches`
 would have written before that step; the winding over a control step is integrated
-first (the steps of :func:`~tensegrity_env.engine.winch.winch_step`, in NumPy) and the
+first (by the twin's own :class:`~tensegrity_env.mjcf.winches.Winding`) and the
 whole control step of every twin is one ``rollout`` call over threads. The same forces
 as the twin stepped one ``mj_step`` at a time, to round-off
 (``tests/unit/test_robot_envs.py``). A robot with a tension-only wound cable (a dead
@@ -88,13 +88,8 @@ class MJRobotRollout:
         self.motors = np.array([self.model.actuator(MOTOR_PREFIX + n).id for n in names])
         self.stiffness = self.model.tendon_stiffness[tendons].copy()  # K [N/m]
         self.l_ref = self.model.tendon_lengthspring[tendons, 1].copy()  # [m]
-        p = asm.params
-        self.v_max = p.winch_speed.double().numpy()
-        self.l_min, self.l_max = p.winch_min.double().numpy(), p.winch_max.double().numpy()
-        lag = p.winch_lag.double().numpy()
+        self.winding = plant.winding  # the twin's own winding (mjcf/winches.py)
         self.h = float(self.model.opt.timestep)
-        # the lag's decay over one physics step (engine/winch.py's winding_speed)
-        self.decay = np.where(lag > 0, np.exp(-self.h / np.where(lag > 0, lag, 1.0)), 0.0)
         self.threads = int(threads or default_threads())
         self._pool = mj_rollout.Rollout(nthread=self.threads)
         self._datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
@@ -123,14 +118,11 @@ class MJRobotRollout:
 
     def step_batch(self, commands: np.ndarray) -> None:
         """Every twin ``frame_skip`` MuJoCo steps under its motor commands (N, W)."""
-        u = np.clip(np.asarray(commands, dtype=np.float64), -1.0, 1.0)
-        rest, speed = self.winch[..., 0].copy(), self.winch[..., 1].copy()
-        target = u * self.v_max
+        # the rest lengths before each step (K, N, W) [m], and the winch state after
+        before, rest, speed = self.winding.wind(self.winch[..., 0], self.winch[..., 1], commands,
+                                                self.frame_skip)  # fmt: skip
         ctrl = self._ctrl
-        for k in range(self.frame_skip):  # the rest lengths before each step, then winding
-            ctrl[:, k, self.motors] = self.stiffness * (rest - self.l_ref)
-            speed = target + (speed - target) * self.decay
-            rest = np.clip(rest + self.h * speed, self.l_min, self.l_max)
+        ctrl[:, :, self.motors] = (self.stiffness * (before - self.l_ref)).transpose(1, 0, 2)
         expected = self.states[:, 0] + self.frame_skip * self.h
         self._pool.rollout(self.model, self._datas, self.states, ctrl, nstep=self.frame_skip,
                            state=self._out)  # fmt: skip

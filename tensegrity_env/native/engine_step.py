@@ -1,7 +1,7 @@
 """The engine's steps by the C kernel where no gradient is wanted.
 
 An :class:`~tensegrity_env.engine.Engine` built with ``native=True`` hands a step to
-:class:`NativeEngineStep` (the kernel ``native_step.c``: the engine's physics written out
+:class:`NativeEngineStep` (the C kernel, ``native_step.h``: the engine's physics written out
 per assembly) when the kernel computes the same thing: no gradient wanted through the
 state, the parameters or the effects, float64 on the CPU, no cable commands, a kernel
 that builds, and a model :func:`~tensegrity_env.native.pack.pack_model` packs (only

@@ -4,7 +4,7 @@ The environments' stepper and the engine's no-gradient step both pack their mode
 the topology, the parameters (one set, or one per run of assemblies that share them;
 the winches' speeds, ranges and lags among them) and the effects, each as its class
 declares (its ``native`` form: slots of the effects block, :data:`EFFECT_SLOTS`, or the
-contact law), in ``native_step.c``'s layout. A model the kernel does not compute raises :class:`NotNative` with the
+contact law), in ``native_step.h``'s layout. A model the kernel does not compute raises :class:`NotNative` with the
 reason (an effect's declared ``no_native``).
 """
 
@@ -31,7 +31,7 @@ PER_SPRING = 4
 
 def effect_slots(n_springs: int) -> dict[str, tuple[int, int]]:
     """The effects block's slots, name -> (offset, width), for ``n_springs`` springs:
-    ``native_step.c``'s layout (:data:`EFFECT_HEAD` entries, then :data:`PER_SPRING`
+    ``native_step.h``'s layout (:data:`EFFECT_HEAD` entries, then :data:`PER_SPRING`
     per spring)."""
     S, H = n_springs, EFFECT_HEAD
     return {
@@ -128,7 +128,7 @@ def effects_block(
     effects: Sequence[object], topology: Topology
 ) -> tuple[dict[str, float] | None, np.ndarray, np.ndarray]:
     """The kernel's view of ``effects``: the ground contact's law (None without one),
-    the effects block (``native_step.c``'s layout, :data:`EFFECT_HEAD` + 3 S) and the
+    the effects block (``native_step.h``'s layout, :data:`EFFECT_HEAD` + 3 S) and the
     end caps' contact radii (R,) [m].
 
     Raises:
@@ -180,7 +180,7 @@ def model_vector(
     radius: np.ndarray,
     effects: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The kernel's packed model (``native_step.c``'s layout) of ``topology`` with
+    """The kernel's packed model (``native_step.h``'s layout) of ``topology`` with
     ``params`` (arrays of :data:`PACKED_PARAMS`) and the ground contact's ``contact``
     values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R,) [m] the end caps'
     contact radii; ``effects`` the effects block (:data:`EFFECT_HEAD` + 4 S entries;

@@ -166,7 +166,9 @@ class Engine:
             tension = effect.tension(frame, tension, kin)
         if cables is not None and self.cable_springs.numel():
             tension = tension.index_add(1, self.cable_springs, -params.cable_gain * cables)
-        force, torque = kinematics_wrench(tension_to_node_forces(tension, frame, self.incidence), kin)
+        force, torque = kinematics_wrench(
+            tension_to_node_forces(tension, frame, self.incidence), kin
+        )
         # control forces h * f_u at the arm r_u
         if control is not None:
             arm = rotate(kin.rot, self.control_arms)
@@ -236,7 +238,9 @@ class Engine:
             x = self.native_step(state.tensors(), params, control, cables)
             if x is not None:
                 return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
-        return self._integrate(state, params, self.substeps, self.physics_dt, control, cables, winches)
+        return self._integrate(
+            state, params, self.substeps, self.physics_dt, control, cables, winches
+        )
 
     def _integrate(
         self,
@@ -256,7 +260,9 @@ class Engine:
         h_winch = h if isinstance(h, float) else h.reshape(-1, 1)  # (B, 1) against (B, W)
         for _ in range(n):
             # forces with the rest lengths at the step's start (wound springs from the winch state)
-            acting = params if winch is None else wound_rest_lengths(params, self.winch_springs, winch)
+            acting = (
+                params if winch is None else wound_rest_lengths(params, self.winch_springs, winch)
+            )
             accel, alpha_l, omega_l = self.accelerations(state, acting, control, cables, h)
             # integration: semi-implicit Euler (MuJoCo's Euler integrator)
             state = semi_implicit_euler(state, accel, alpha_l, omega_l, h, self.frame_origins)  # type: ignore[arg-type]

@@ -10,8 +10,10 @@ from __future__ import annotations
 from functools import cache
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import torch
+from test_mjcf_lab import mj_rod_state
 
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.mjcf import from_mjcf
@@ -37,10 +39,6 @@ def jittered_times(rng: np.random.Generator) -> np.ndarray:
 
 def start_state(asm) -> State:
     """The prism at its file pose, moving: (1, R, ·)."""
-    import mujoco
-
-    from test_mjcf_lab import mj_rod_state
-
     d = mujoco.MjData(asm.model)
     mujoco.mj_forward(asm.model, d)
     s = mj_rod_state(asm, d)
@@ -110,7 +108,10 @@ def simulated_take(tmp_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     measured = truth + rng.normal(0, NOISE, size=truth.shape)
     names = [f"{r.name}_{k}" for r in asm.topology.rods for k in (0, 1)]
     header = ",".join(["time", *(f"{n}_{a}" for n in names for a in "xyz")])
-    rows = [",".join([repr(float(tk)), *(repr(float(x)) for x in m.ravel())]) for tk, m in zip(t, measured, strict=True)]
+    rows = [
+        ",".join([repr(float(tk)), *(repr(float(x)) for x in m.ravel())])
+        for tk, m in zip(t, measured, strict=True)
+    ]
     csv = tmp_path / "take.csv"
     csv.write_text("\n".join([header, *rows]) + "\n")
     log = write_commands(tmp_path / "take_commands.csv", t[:-1], u, [f"w{k}" for k in range(6)])
@@ -125,7 +126,7 @@ def test_a_take_at_its_own_times_fits_to_the_noise(tmp_path: Path) -> None:
     from identification.data.dataset import read_dataset
     from tensegrity_sr.cli import main
 
-    t, truth, measured, csv, log = simulated_take(tmp_path)
+    t, truth, _, csv, log = simulated_take(tmp_path)
     h5 = tmp_path / "take.h5"
     assert main(["import-mocap", str(csv), "--robot", str(LAB_PRISM), "--units", "m", "--up", "z",
                  "--split", "1,0,0", "--commands", str(log), "-o", str(h5)]) == 0  # fmt: skip

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
+import pytest
 import torch
 from test_mjcf_lab import mj_rod_state
 
@@ -118,11 +119,14 @@ def simulated_take(tmp_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     return t, truth, measured, csv, log
 
 
-def test_a_take_at_its_own_times_fits_to_the_noise(tmp_path: Path) -> None:
+def test_a_take_at_its_own_times_fits_to_the_noise(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     """A simulated take at jittered times (steps of 1-3 ms among 20 ms ones, a 0.2 s gap)
     through import-mocap with its winch command log: each sample keeps its time, and the
     engine rolled out at those times fits the end caps to the noise; rolled out on the
-    uniform grid of the median interval it misses by many noise levels."""
+    uniform grid of the median interval it misses by many noise levels. ``inspect``
+    flags the short steps and the gap with their times."""
     from identification.data.dataset import read_dataset
     from tensegrity_sr.cli import main
 
@@ -147,3 +151,10 @@ def test_a_take_at_its_own_times_fits_to_the_noise(tmp_path: Path) -> None:
     assert np.abs(at_times - truth).max() < 1e-9
     assert rms(at_times) < 1.2 * NOISE, rms(at_times)
     assert rms(on_grid) > 10 * NOISE, rms(on_grid)
+    capsys.readouterr()
+    assert main(["inspect", str(h5)]) == 0
+    out = capsys.readouterr().out
+    short = np.flatnonzero(np.diff(t) < 0.005) + 1
+    assert f"{len(short)} steps too short to be capture times" in out
+    assert ", ".join(f"{x:.3f}" for x in t[short][:5]) in out
+    assert "1 gaps (> 1.5 x the median step" in out and f"at {t[26]:.3f} s" in out

@@ -21,6 +21,7 @@ from identification.trajectory.winch_fit import LAGS, fit_winding
 from tensegrity_env.io_utils import InputError, StageError
 from tensegrity_env.model import Model
 
+
 def run_winch_end_caps(args: argparse.Namespace, dataset: Dataset) -> int:
     """Identify a winch-driven robot from end caps and its command log; write params.json."""
     if args.params is None:
@@ -61,7 +62,7 @@ def run_winch_end_caps(args: argparse.Namespace, dataset: Dataset) -> int:
         print(f"  rest_length[{n}] at the start {x:.4g} m")
     lo, hi = declared.params.winch_min.numpy(), declared.params.winch_max.numpy()
     reached = (fit.winding_range[:, 0] <= lo + 1e-9) | (fit.winding_range[:, 1] >= hi - 1e-9)
-    unseen = {"stiffness, damping": "kept as declared: the winding fit sees lengths, not forces"}
+    unseen = {"stiffness, damping": "the winding fit sees lengths, not forces"}
     if not reached.any():
         why = (f"the fitted winding stays within {fit.winding_range[:, 0].min():.4g}-"
                f"{fit.winding_range[:, 1].max():.4g} m, inside the declared range: no limit is reached")  # fmt: skip

@@ -1,4 +1,4 @@
-"""Trajectories at their own sample times: measured states, winding and window rollouts.
+"""Trajectories at their own sample times: measured states and winding.
 
 A real take's samples are not evenly spaced (message times, dropped frames, two
 messages of one frame). Everything here works at each sample's own time ``t`` (the
@@ -17,16 +17,13 @@ dataset's ``time``): no grid is assumed.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
 import torch
 
 from identification.data.end_caps import rod_states_from_nodes
-from tensegrity_env.engine import Engine, State, substeps_for
+from tensegrity_env.engine import substeps_for
 from tensegrity_env.engine.winch import initial_winch_state, winch_step
 from tensegrity_env.params import Params
-from tensegrity_env.rotations import quat_to_matrix
 from tensegrity_env.topology import Topology
 
 
@@ -99,31 +96,3 @@ def winch_at_times(
             winch = winch_step(winch, params, commands[k][None], h)
         out.append(winch)
     return torch.cat(out)
-
-
-def window_caps(
-    engine: Engine,
-    params: Params,
-    states: dict[str, np.ndarray],
-    winch: torch.Tensor | None,
-    times: np.ndarray,
-    commands: torch.Tensor | None,
-    starts: Sequence[int],
-    length: int,
-) -> torch.Tensor:
-    """End caps (B, length + 1, 2R, 3) [m] of windows rolled out from the measured
-    states at samples ``starts`` over the next ``length`` samples at their own times.
-
-    ``states`` (T + 1, R, ·) as :func:`states_at_times`; ``winch`` (T + 1, W, 2) the winch
-    state at each sample (None without winches); ``commands`` (T, W) the winch commands.
-    """
-    idx = torch.as_tensor(np.asarray(starts))
-    rng = idx[:, None] + torch.arange(length + 1)
-    init = State(*(torch.as_tensor(states[k])[idx] for k in ("p", "v", "q", "omega")))
-    if winch is not None:
-        init = init.with_winch(winch[idx])
-    t = torch.as_tensor(times)[rng]
-    u = None if commands is None else commands[rng[:, :-1]]
-    out = engine.rollout_at(init, params, t - t[:, :1], winches=u)
-    arms = torch.einsum("btrij,rkj->btrki", quat_to_matrix(out.q), engine.end_offsets)
-    return (out.p.unsqueeze(3) + arms).flatten(2, 3)

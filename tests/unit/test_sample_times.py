@@ -158,3 +158,33 @@ def test_a_take_at_its_own_times_fits_to_the_noise(
     assert f"{len(short)} steps too short to be capture times" in out
     assert ", ".join(f"{x:.3f}" for x in t[short][:5]) in out
     assert "1 gaps (> 1.5 x the median step" in out and f"at {t[26]:.3f} s" in out
+
+
+def test_measured_states_come_from_the_samples_own_times(tmp_path: Path) -> None:
+    """End caps moving at constant velocity, sampled at uneven times with steps of 1-3 ms
+    among them: the local line fits give each cap's velocity and the rods' states
+    exactly, where a grid of the median step would not (the 3-bar of
+    ``test_bekris_crawl``, its cables between end-cap centres)."""
+    import sys
+
+    from test_bekris_crawl import CAPS, lab_take
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from bekris_crawl import LENGTH, convert
+
+    from identification.trajectory.timed import local_linear, states_at_times
+    from tensegrity_env.model import Model
+
+    topology = Model.read(convert(lab_take(tmp_path / "lab"), tmp_path / "out").robot).topology
+    rng = np.random.default_rng(4)
+    t = jittered_times(rng)[:20]
+    vel = np.tile(rng.normal(0, 0.2, size=(1, 3)), (6, 1))  # a rigid translation [m/s]
+    nodes = CAPS[None] * LENGTH + t[:, None, None] * vel[None]
+    pos, v = local_linear(nodes, t, 0.03)
+    assert np.allclose(pos, nodes, atol=1e-12) and np.allclose(v, vel[None], atol=1e-10)
+    st = states_at_times(nodes, t, topology, 0.03)
+    assert np.allclose(st["v"], vel[None, :3], atol=1e-10)
+    assert np.allclose(st["omega"], 0.0, atol=1e-10)
+    grid = np.arange(len(t)) * np.median(np.diff(t))
+    _, v_grid = local_linear(nodes, grid, 0.03)
+    assert np.abs(v_grid - vel[None]).max() > 0.1 * np.abs(vel).max()

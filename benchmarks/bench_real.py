@@ -20,6 +20,10 @@ runs what a user would, through the command line:
 5. the cross-take check: each take's identified model predicting the other take's
    held-out pieces.
 
+The 3-bar crawl (``bekris_3bar_crawl``, a robot driven by winches, its samples at uneven
+times) runs its own steps (``benchmarks/real_crawl.py``) into the same layout. Running
+some takes keeps the other takes' records already in ``--json``.
+
 Results go to ``docs/results/real.json``; ``docs/results/real.md`` is generated from it
 (:func:`markdown`).
 
@@ -69,6 +73,8 @@ TAKES = {
     "eth_T5_jump": ("eth_jumping_6bar/raw/T5_3A_thirdcomp.csv", "eth_jumping_6bar/robot_ntrt/isodrop3Aext.yaml"),
 }
 MODELS = ("nominal", "identified", "diagnosed")
+#: the winch-driven crawl, run by benchmarks/real_crawl.py
+CRAWL = "bekris_3bar_crawl"
 
 
 def run_cli(args: list[str], log: Path, timeout: float) -> dict[str, Any]:
@@ -281,6 +287,8 @@ def markdown(results: dict[str, Any]) -> str:
         if key in ("meta", "cross_take"):
             continue
         lines += [f"## {key}", "", f"`{rec['file']}` with `{rec['robot']}`.", ""]
+        if "command" in rec:
+            lines += [f"`{rec['command']}` ({rec.get('seconds', 0):.0f} s)", ""]
         runs = rec.get("runs", {})
         lines += [f"- `{c}`: exit {r['returncode']} in {r['seconds']:.0f} s" + (f" ({r['last']})" if r["returncode"] else "")
                   for c, r in runs.items()]  # fmt: skip
@@ -289,7 +297,9 @@ def markdown(results: dict[str, Any]) -> str:
                                                   for s in rec["stretches"])]  # fmt: skip
         h = rec.get("heldout")
         if h:
-            lines += [f"- held out: {h['pieces']} pieces of {h['piece_s']:g} s", "",
+            held = (f"{h['pieces']} pieces of {h['piece_s']:g} s" if "pieces" in h else
+                    f"the last {h['piece_s']:g} s from {h['from_s']:g} s, {h.get('starts', 0)} starts")  # fmt: skip
+            lines += [f"- held out: {held}", "",
                       "| model | " + " | ".join(f"{t:g} s" for t in h["horizon_s"]) + " |",
                       "| --- |" + " --- |" * len(h["horizon_s"])]  # fmt: skip
             for m in MODELS:
@@ -305,7 +315,7 @@ def markdown(results: dict[str, Any]) -> str:
                       "| --- |" + " --- |" * len(params)]  # fmt: skip
             for g in ("mass", "stiffness", "damping", "rest_length"):
                 lines.append(f"| {g} | " + " | ".join(" / ".join(f"{x:.4g}" for x in v[g]) for v in params.values()) + " |")
-        lines += ["", *targets(rec), ""]
+        lines += ["", *targets(rec), *[f"- {n}" for n in rec.get("notes", [])], ""]
     cross = results.get("cross_take", {})
     if "cross_take" in results and not cross:
         lines += ["## Cross-take", "", "Not evaluated: no take has an identified model.", ""]
@@ -325,6 +335,8 @@ def markdown(results: dict[str, Any]) -> str:
 def targets(rec: dict[str, Any]) -> list[str]:
     """Lines saying which targets a take's record meets, and by how much it misses the others."""
     h = rec.get("heldout", {})
+    if 0.25 not in h.get("horizon_s", HORIZONS):
+        return []
     k = HORIZONS.index(0.25)
     out = []
     ident, nom = h.get("identified_rms_m"), h.get("nominal_rms_m")
@@ -345,7 +357,8 @@ def targets(rec: dict[str, Any]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "real", help="the real recordings' folder")
-    ap.add_argument("--takes", default=",".join(TAKES), help=f"comma-separated takes (default {','.join(TAKES)})")
+    every = ",".join([*TAKES, CRAWL])
+    ap.add_argument("--takes", default=every, help=f"comma-separated takes (default {every})")
     ap.add_argument("--quick", action="store_true", help="fewer fit windows and one effect at most in diagnose")
     ap.add_argument("--workdir", type=Path, help="keep the imported takes and fitted models here")
     ap.add_argument("--timeout", type=float, default=1800.0, help="per command [s]")
@@ -365,13 +378,25 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     t0 = time.perf_counter()
     work = args.workdir or Path(tempfile.mkdtemp(prefix="bench_real_"))
-    results: dict[str, Any] = {}
-    for key in args.takes.split(","):
+    results: dict[str, Any] = json.loads(args.json.read_text()) if args.json.is_file() else {}
+    keys = args.takes.split(",")
+    for key in keys:
         print(f"{key}: import, identify, diagnose, evaluate in {work / key}", flush=True)
-        results[key] = run_take(key, args.data, work, args.quick, args.timeout, args.reuse)
+        if key == CRAWL:
+            from real_crawl import run as run_crawl
+
+            results[key] = run_crawl(args.data, work, args.timeout, args.reuse)
+        else:
+            results[key] = run_take(key, args.data, work, args.quick, args.timeout, args.reuse)
         print(json.dumps(results[key].get("heldout", {})), flush=True)
-    if len(results) > 1:
-        results["cross_take"] = cross_take(results, args.data, work)
+    ran = [k for k in keys if k in TAKES]
+    if len(ran) > 1:
+        results["cross_take"] = cross_take({k: results[k] for k in ran}, args.data, work)
+    if not ran:  # only the crawl: its record carries its command; the others' meta stays
+        atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
+        atomic_write_text(md, markdown(results))
+        print(f"wrote {args.json} and {md}")
+        return 0
     command = ("python benchmarks/bench_real.py --data ../shared/real" + (" --quick" if args.quick else "")
                + (" (its commands' outputs evaluated again with --reuse)" if args.reuse else ""))  # fmt: skip
     results["meta"] = {"command": command, "seconds": round(time.perf_counter() - t0, 1), "notes": args.note}

@@ -46,8 +46,11 @@ def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
     return torch.stack(rows, dim=-2)
 
 
-def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> torch.Tensor:
-    """Rotate ``q`` by body-frame angular velocity ``omega_local`` for ``dt`` seconds.
+def quat_integrate(
+    q: torch.Tensor, omega_local: torch.Tensor, dt: float | torch.Tensor
+) -> torch.Tensor:
+    """Rotate ``q`` by body-frame angular velocity ``omega_local`` for ``dt`` seconds
+    (a float, or a tensor broadcasting against (..., 1)).
 
     MuJoCo's ``mju_quatIntegrate``: ``q ⊗ quat(axis=ω/|ω|, angle=|ω| dt)``, then
     normalised. Shapes (..., 4), (..., 3).

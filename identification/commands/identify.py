@@ -120,7 +120,12 @@ def run(args: argparse.Namespace) -> int:
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
     check_number("--floor-windows", args.floor_windows, 1)
-    dataset, grid = on_nominal_grid(read_dataset(args.dataset))
+    raw = read_dataset(args.dataset)
+    if raw.topology.n_winches and not raw.split(args.split).has_states:
+        from identification.commands.identify_winches import run_winch_end_caps
+
+        return run_winch_end_caps(args, raw)  # at the samples' own times, no grid
+    dataset, grid = on_nominal_grid(raw)
     if grid.changed:
         print(grid.text(dataset.dt))
     anchors = dict(parse_anchor(a) for a in args.anchor)

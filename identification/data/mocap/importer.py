@@ -85,7 +85,8 @@ def read_robot(
 class ImportedTake:
     """End caps of one take. ``caps`` (F, 2R, 3) [m], NaN unseen; ``time`` (F,) [s];
     ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen);
-    ``commands`` (F, C): each cable actuator's command in force from each frame on
+    ``commands`` (F, C + W): each cable actuator's, then each winch motor's command in
+    force from each frame on
     [command units] (None: not logged, zero); ``rejected``: labelled samples read as
     unseen (:func:`checked_labels`, :func:`rods_off_their_length`); ``reacquired``
     (2R,): times each cap was found again after being lost (unlabelled takes);
@@ -106,13 +107,13 @@ class ImportedTake:
     ids: np.ndarray | None = None
     stretches: tuple[Stretch, ...] | None = None
 
-    def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
+    def piece(self, a: int = 0, b: int | None = None, n_commands: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
-        cmd = self.commands if self.commands is not None else np.zeros((len(self.time), n_cables))
+        cmd = self.commands if self.commands is not None else np.zeros((len(self.time), n_commands))
         return self.time[a:b], self.caps[a:b], cmd[a:b]
 
 
-#: one take's stretch for a split: time (F,), caps (F, 2R, 3), commands (F, C)
+#: one take's stretch for a split: time (F,), caps (F, 2R, 3), commands (F, C + W)
 Piece = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -411,19 +412,22 @@ def parse_fractions(text: str) -> tuple[float, float, float]:
     return parts
 
 
-def _stack(pieces: list[Piece], n_rods: int) -> Split:
+def _stack(pieces: list[Piece], n_rods: int, n_cables: int) -> Split:
     """Takes of one split as trajectories of equal length: the shortest take's; longer
     takes are cut into as many whole pieces of that length as they hold (the rest of a
-    take, shorter than one piece, is left out). Cable commands (if the robot has cable
-    actuators) are those in force over each sample interval."""
+    take, shorter than one piece, is left out). Each sample keeps its own time (from the
+    piece's first). Cable and winch commands (the first ``n_cables`` columns, then the
+    winches') are those in force over each sample interval."""
     T1 = min(len(t) for t, _, _ in pieces)
     chunks = [(t[a : a + T1], c[a : a + T1], u[a : a + T1 - 1]) for t, c, u in pieces
               for a in range(0, len(t) - T1 + 1, T1)]  # fmt: skip
     nodes = np.stack([c for _, c, _ in chunks])
     time = np.stack([t - t[0] for t, _, _ in chunks])
-    cables = np.stack([u for _, _, u in chunks])
+    commands = np.stack([u for _, _, u in chunks])
+    cables, winches = commands[..., :n_cables], commands[..., n_cables:]
     return Split(nodes=nodes, control=np.zeros((len(chunks), T1 - 1, n_rods, 3)), time=time,
-                 cable_control=cables if cables.shape[-1] else None)  # fmt: skip
+                 cable_control=cables if cables.shape[-1] else None,
+                 winch_control=winches if winches.shape[-1] else None)  # fmt: skip
 
 
 def build_dataset(
@@ -435,13 +439,13 @@ def build_dataset(
     duration when it has no stretches). A take with stretches gives only pieces of
     ``piece`` [s] cut from the stretches a fit uses (:func:`~identification.data.mocap.
     stretches.pieces`), each whole in one split; the attrs record the stretches and
-    each split's pieces (file, start, end [s])."""
+    each split's pieces (file, time of its first and last sample [s])."""
     rates = np.array([t.rate for t in takes])
     if np.ptp(rates) > RATE_TOL * rates.min():
         raise InputError(f"takes have different frame rates ({sorted(set(rates.round(3)))} Hz); import them separately")
     groups: dict[str, list[Piece]] = {"train": [], "val": [], "test": []}
     where: dict[str, list[list[object]]] = {"train": [], "val": [], "test": []}
-    C = robot.topology.n_cables
+    C = robot.topology.n_cables + robot.topology.n_winches
 
     def add(t: ImportedTake, split: str, a: int = 0, b: int | None = None) -> None:
         groups[split].append(t.piece(a, b, C))
@@ -482,7 +486,7 @@ def build_dataset(
                 add(t, s, a, b)
     if not groups["train"]:
         raise InputError("no take left for the training split")
-    splits = {s: _stack(p, robot.topology.n_rods) for s, p in groups.items() if p}
+    splits = {s: _stack(p, robot.topology.n_rods, robot.topology.n_cables) for s, p in groups.items() if p}
     attrs: dict[str, object] = {
         "source": "import-mocap",
         "files": [str(t.source) for t in takes],
@@ -492,5 +496,5 @@ def build_dataset(
     }
     if any(t.stretches is not None for t in takes):
         attrs["stretches"] = {t.source.name: [x.to_dict() for x in t.stretches or ()] for t in takes}
-        attrs["pieces"] = {s: w for s, w in where.items() if w}
+    attrs["pieces"] = {s: w for s, w in where.items() if w}
     return Dataset(topology=robot.topology, dt=float(1.0 / np.median(rates)), splits=splits, attrs=attrs)

@@ -11,6 +11,7 @@ from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import cap_names
 from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
+from identification.data.mocap.placement import Placement
 from identification.data.mocap.recording import MarkerRecording
 from identification.data.mocap.stretches import Stretch, assign_splits, pieces
 from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
@@ -91,7 +92,9 @@ class ImportedTake:
     (2R,): times each cap was found again after being lost (unlabelled takes);
     ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`);
     ``stretches``: the take's stretches of which a fit uses those at rest, free or named
-    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used)."""
+    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used);
+    ``placement``: how its markers were placed on the robot's end caps and floor
+    (:mod:`~identification.data.mocap.placement`; None: as recorded)."""
 
     source: Path
     time: np.ndarray
@@ -105,6 +108,7 @@ class ImportedTake:
     reacquired: np.ndarray | None = None
     ids: np.ndarray | None = None
     stretches: tuple[Stretch, ...] | None = None
+    placement: Placement | None = None
 
     def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
@@ -488,6 +492,8 @@ def build_dataset(
         "ghost_points": int(sum(t.ghosts for t in takes)),
         "rejected_samples": int(sum(t.rejected for t in takes)),
     }
+    if any(t.placement is not None for t in takes):
+        attrs["placement"] = {t.source.name: t.placement.to_dict() for t in takes if t.placement is not None}
     if any(t.stretches is not None for t in takes):
         attrs["stretches"] = {t.source.name: [x.to_dict() for x in t.stretches or ()] for t in takes}
         attrs["pieces"] = {s: w for s, w in where.items() if w}

@@ -99,3 +99,22 @@ def test_an_import_places_markers_on_the_caps_and_the_floor_at_zero(tmp_path: Pa
     np.testing.assert_allclose(caps[seen], truth[:, perm][seen], atol=5e-4)
     placed = json.loads(data.attrs["placement"])["take.csv"]
     assert abs(placed["floor_height_m"] - 0.017) < 1e-4 and placed["floor_shifted"]
+
+
+def test_a_lone_marker_at_rest_keeps_the_axis_its_rod_had_at_rest() -> None:
+    """One marker of a resting rod hidden for 1 s: its partner is placed along the axis
+    the rod had while both were seen in that resting stretch; outside it, not."""
+    time = np.arange(360) / 120.0
+    caps = np.tile([[0.0, 0.0, 0.006], [0.3, 0.4, 0.006]], (360, 1, 1)) + np.random.default_rng(
+        2
+    ).normal(0, 5e-5, (360, 2, 3))
+    u = np.array([0.6, 0.8, 0.0])
+    markers = caps.copy()
+    markers[:, 0] -= 0.004 * u
+    markers[:, 1] += 0.004 * u
+    markers[100:220, 0] = np.nan
+    placed, found = markers_onto_caps(markers, np.array([0.5]), time, [Stretch(0.0, 3.0, "rest")])
+    assert abs(found[0] - 0.004) < 1e-4
+    np.testing.assert_allclose(placed[100:220, 1], caps[100:220, 1], atol=3e-4)
+    placed, _ = markers_onto_caps(markers, np.array([0.5]), time, [Stretch(0.0, 3.0, "free")])
+    assert np.isnan(placed[120:200, 1]).all()

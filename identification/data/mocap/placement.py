@@ -77,33 +77,49 @@ class Placement:
         return out
 
 
-def _axis(d: np.ndarray, time: np.ndarray) -> np.ndarray:
+def _axis(d: np.ndarray, time: np.ndarray, resting: np.ndarray) -> np.ndarray:
     """Unit axes (F, 3) of a rod's cap-to-cap vectors ``d`` (F, 3) [m] at ``time`` (F,)
-    [s]; where one cap is unseen, the axis of the nearest frame that sees both within
-    :data:`AXIS_NEAR` (a lone marker keeps its measurement); NaN beyond."""
+    [s]. Where one cap is unseen (a lone marker keeps its measurement): the axis of the
+    nearest frame that sees both within :data:`AXIS_NEAR`, or anywhere in the same
+    resting stretch (``resting`` (F,): its index, -1 when not at rest; a robot at rest
+    turns no rod); NaN elsewhere."""
     n = np.linalg.norm(d, axis=-1)
-    both = np.flatnonzero(np.isfinite(n) & (n > 0))
+    ok = np.isfinite(n) & (n > 0)
     u = np.full_like(d, np.nan)
-    if not both.size:
-        return u
-    u[both] = d[both] / n[both, None]
-    k = np.searchsorted(time[both], time)  # the first frame seeing both at or after each
-    prev, nxt = both[np.clip(k - 1, 0, len(both) - 1)], both[np.clip(k, 0, len(both) - 1)]
-    near = np.where(np.abs(time - time[prev]) <= np.abs(time[nxt] - time), prev, nxt)
-    fill = ~np.isfinite(u).all(-1) & (np.abs(time - time[near]) <= AXIS_NEAR)
-    u[fill] = u[near[fill]]
+    u[ok] = d[ok] / n[ok, None]
+    lone = np.flatnonzero(~ok)
+    for group in (None, *np.unique(resting[resting >= 0])):
+        both = np.flatnonzero(ok & (resting == group)) if group is not None else np.flatnonzero(ok)
+        if not both.size:
+            continue
+        k = np.searchsorted(time[both], time[lone])  # the first such frame at or after each
+        prev, nxt = both[np.clip(k - 1, 0, len(both) - 1)], both[np.clip(k, 0, len(both) - 1)]
+        near = np.where(
+            np.abs(time[lone] - time[prev]) <= np.abs(time[nxt] - time[lone]), prev, nxt
+        )
+        take = (
+            (np.abs(time[lone] - time[near]) <= AXIS_NEAR)
+            if group is None
+            else resting[lone] == group
+        )
+        u[lone[take]] = u[near[take]]
     return u
 
 
 def markers_onto_caps(
-    caps: np.ndarray, lengths: np.ndarray, time: np.ndarray
+    caps: np.ndarray, lengths: np.ndarray, time: np.ndarray, stretches: list[Stretch] = ()
 ) -> tuple[np.ndarray, np.ndarray]:
-    """End caps ``caps`` (F, 2R, 3) [m] (markers, NaN unseen) at ``time`` (F,) [s] moved along each rod's axis
-    onto the model's end caps ``lengths`` (R,) [m] apart, and how far beyond them each
+    """End caps ``caps`` (F, 2R, 3) [m] (markers, NaN unseen) at ``time`` (F,) [s] moved
+    along each rod's axis (:func:`_axis`, the take's resting ``stretches`` keep a lone
+    marker's) onto the model's end caps ``lengths`` (R,) [m] apart, and how far beyond them each
     rod's markers sat, per end (R,) [m] (module docstring). A rod whose markers are
     within :data:`MARKER_OFFSET_MIN` of the model's distance is left (offset 0); one
     never seen whole gives NaN and is left."""
     apart = np.linalg.norm(caps[:, 0::2] - caps[:, 1::2], axis=-1)  # (F, R)
+    resting = np.full(len(time), -1)
+    for k, s in enumerate(stretches):
+        if s.kind == "rest":
+            resting[(time >= s.start) & (time < s.end)] = k
     beyond = np.full(len(lengths), np.nan)
     out = caps.copy()
     for r, length in enumerate(lengths):
@@ -115,7 +131,7 @@ def markers_onto_caps(
             beyond[r] = 0.0
             continue
         beyond[r] = diff / 2
-        u = _axis(caps[:, 2 * r + 1] - caps[:, 2 * r], time)
+        u = _axis(caps[:, 2 * r + 1] - caps[:, 2 * r], time, resting)
         out[:, 2 * r] = caps[:, 2 * r] + beyond[r] * u
         out[:, 2 * r + 1] = caps[:, 2 * r + 1] - beyond[r] * u
     return out, beyond
@@ -145,7 +161,7 @@ def place_take(caps: np.ndarray, time: np.ndarray, stretches: list[Stretch], len
     distances ``lengths`` (R,) [m]) and its heights measured from the floor its resting
     ``stretches`` show (:func:`floor_from_rest`, rods' ``radius`` (R,) [m]), where
     these differ by more than :data:`MARKER_OFFSET_MIN` and :data:`FLOOR_SHIFT_MIN`."""
-    out, beyond = markers_onto_caps(caps, lengths, time)
+    out, beyond = markers_onto_caps(caps, lengths, time, stretches)
     floor = floor_from_rest(out, time, stretches, radius)
     shifted = bool(np.isfinite(floor) and abs(floor) > FLOOR_SHIFT_MIN)
     if shifted:

@@ -1,0 +1,42 @@
+"""A declared tension-only spring that is slack throughout the data keeps its declared
+values: the fit sees nothing of it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from identification.commands.identify_end_caps import keep_declared, never_taut
+from identification.discovery.floor_fits import FloorIdentification
+from tensegrity_env.ntrt import EXAMPLE_PRISM, from_ntrt
+
+
+def test_a_cable_never_as_long_as_its_rest_length_keeps_its_declared_values(tmp_path: Path) -> None:
+    (tmp_path / "prism.yaml").write_text(EXAMPLE_PRISM)
+    robot = from_ntrt(tmp_path / "prism.yaml")
+    topo, declared = robot.topology, robot.params
+    rng = np.random.default_rng(0)
+    nodes = robot.rest_caps[None, None] + rng.normal(
+        0, 1e-4, (2, 50, 6, 3)
+    )  # the built pose, 0.1 mm noise
+    nodes[0, 10:20, 1] = np.nan  # gaps are no lengths
+    rest = declared.rest_length.numpy().copy()
+    length = np.linalg.norm(
+        robot.rest_caps[topo.spring_nodes[:, 0]] - robot.rest_caps[topo.spring_nodes[:, 1]], axis=-1
+    )
+    rest[3] = length[3] + 0.01  # spring 3 a centimetre longer than it ever is: slack throughout
+    effects = robot.declared_effects(ground=False)
+    assert never_taut(nodes, topo, effects, rest) == [3]
+    assert never_taut(nodes, topo, [], rest) == []  # a linear spring pushes when short: it is seen
+    drifted = replace(
+        declared, rest_length=torch.as_tensor(rest * 1e4), stiffness=declared.stiffness * 1e6
+    )
+    est = FloorIdentification(drifted, topo, {}, "absolute", {}, 0.0, True, [], effects[0])
+    keep_declared(est, declared, [3], topo)
+    assert float(est.params_.rest_length[3]) == float(declared.rest_length[3])
+    assert float(est.params_.stiffness[3]) == float(declared.stiffness[3])
+    assert float(est.params_.rest_length[2]) == rest[2] * 1e4  # the others as fitted
+    assert f"rest_length[{topo.springs[3].name}]" in est.notes_

@@ -103,15 +103,17 @@ def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None)
 def with_stretches(take: ImportedTake, segments: str | None, robot: Robot) -> ImportedTake:
     """``take`` (z-up) placed on the robot's end caps and floor
     (:func:`~identification.data.mocap.placement.place_take`, from the stretches found
-    in it), with the stretches a fit uses: the user's ``segments`` (``--segments``),
+    in it; an unlabelled take's tracking report printed before), with the stretches a fit uses: the user's ``segments`` (``--segments``),
     else those found when something outside the model acts in it (else none: the whole
     take is used), printed with their times."""
-    from identification.data.mocap.importer import cap_distances
+    from identification.data.mocap.importer import cap_distances, tracking_report
     from identification.data.mocap.placement import place_take
     from identification.data.mocap.stretches import find_stretches, named_stretches, parse_segments
 
     found = find_stretches(take.caps, take.time)
     print(f"{take.source}: stretches " + ", ".join(map(str, found)))
+    if take.reacquired is not None:  # the tracking as labelled, before the placement
+        print(tracking_report(take, robot.topology))
     radius = np.array([r.radius for r in robot.topology.rods])
     caps, placement = place_take(take.caps, take.time, found, cap_distances(robot), radius)
     for line in placement.lines():
@@ -139,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
         label_take,
         parse_fractions,
         read_robot,
-        tracking_report,
         upright,
     )
     from identification.data.mocap.marker_map import read_marker_map
@@ -171,9 +172,6 @@ def run(args: argparse.Namespace) -> int:
     for _, line in turned:
         print(line)
     takes = [with_stretches(t, args.segments, robot) for t, _ in turned]
-    for take in takes:
-        if take.reacquired is not None:
-            print(tracking_report(take, robot.topology))
     for rec, take in zip(recordings, takes, strict=True):
         if len(take.time) < rec.n_frames:
             print(f"{rec.source}: tracking starts at frame {rec.n_frames - len(take.time)} "

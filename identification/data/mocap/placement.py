@@ -52,16 +52,20 @@ class Placement:
         floor: the floor's height [m] in the file's (z-up) coordinates, found from the
             resting stretches; NaN when the take never rests.
         shifted: whether the heights were shifted by ``-floor``.
+        lone: samples of a marker seen without its rod's other one, away from any
+            frame that shows the rod's axis: where its end cap lies is not known, and
+            it is read as unseen.
     """
 
     beyond: np.ndarray
     floor: float
     shifted: bool
+    lone: int = 0
 
     def to_dict(self) -> dict[str, object]:
         return {"markers_beyond_caps_m": [None if not np.isfinite(b) else round(float(b), 6) for b in self.beyond],
                 "floor_height_m": None if not np.isfinite(self.floor) else round(self.floor, 6),
-                "floor_shifted": self.shifted}  # fmt: skip
+                "floor_shifted": self.shifted, "lone_samples_unseen": self.lone}  # fmt: skip
 
     def lines(self) -> list[str]:
         """What was done, one line each (nothing when nothing was)."""
@@ -70,7 +74,9 @@ class Placement:
         if moved.size:
             out.append(f"markers sit {1e3 * moved.min():.1f} to {1e3 * moved.max():.1f} mm beyond the model's "
                        f"end caps along {moved.size} rods (their distance over the take against the model's): "
-                       "placed onto the end caps")  # fmt: skip
+                       "placed onto the end caps" + (f"; {self.lone} samples of a marker seen without its "
+                       "rod's other one, far from a frame that shows the rod's axis, read as unseen"
+                       if self.lone else ""))  # fmt: skip
         if self.shifted:
             out.append(f"the floor lies at z = {1e3 * self.floor:.1f} mm (the lowest end caps at rest, less "
                        "their radius): heights measured from it")  # fmt: skip
@@ -162,8 +168,9 @@ def place_take(caps: np.ndarray, time: np.ndarray, stretches: list[Stretch], len
     ``stretches`` show (:func:`floor_from_rest`, rods' ``radius`` (R,) [m]), where
     these differ by more than :data:`MARKER_OFFSET_MIN` and :data:`FLOOR_SHIFT_MIN`."""
     out, beyond = markers_onto_caps(caps, lengths, time, stretches)
+    lone = int((np.isfinite(caps).all(-1) & ~np.isfinite(out).all(-1)).sum())
     floor = floor_from_rest(out, time, stretches, radius)
     shifted = bool(np.isfinite(floor) and abs(floor) > FLOOR_SHIFT_MIN)
     if shifted:
         out[..., 2] -= floor
-    return out, Placement(beyond, floor, shifted)
+    return out, Placement(beyond, floor, shifted, lone)

@@ -284,11 +284,12 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
         first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
     # two passes: the rods' marker distances as tracked with the robot's lengths and a
     # loose gate, then tracked again with those
-    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids)
+    built = robot.rest_caps  # labelled by cap index, as the tracking is
+    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids, built=built)
     apart = np.linalg.norm(lab.caps[:, 0::2] - lab.caps[:, 1::2], axis=-1)
     usual = np.array([np.median(a[np.isfinite(a)]) if np.isfinite(a).any() else np.nan for a in apart.T])
     lengths = np.where(np.isfinite(usual), usual, lengths)
-    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
+    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids, built=built)
     caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
     caps, held = without_placeholders(caps)
     rejected += held

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from identification.data.mocap.stretches import Stretch
+from identification.data.quality import placeholder_samples
 
 #: a rod's markers are moved onto the model's end caps when their median distance
 #: differs from the model's by more than this [m] (0.5 mm per end; the millimetre a
@@ -74,8 +75,9 @@ class Placement:
         if moved.size:
             out.append(f"markers sit {1e3 * moved.min():.1f} to {1e3 * moved.max():.1f} mm beyond the model's "
                        f"end caps along {moved.size} rods (their distance over the take against the model's): "
-                       "placed onto the end caps" + (f"; {self.lone} samples of a marker seen without its "
-                       "rod's other one, far from a frame that shows the rod's axis, read as unseen"
+                       "placed onto the end caps" + (f"; {self.lone} samples read as unseen (a marker seen without its "
+                       "rod's other one, far from a frame that shows the rod's axis, and what it leaves of a "
+                       "frame copied from the one before)"
                        if self.lone else ""))  # fmt: skip
         if self.shifted:
             out.append(f"the floor lies at z = {1e3 * self.floor:.1f} mm (the lowest end caps at rest, less "
@@ -168,6 +170,9 @@ def place_take(caps: np.ndarray, time: np.ndarray, stretches: list[Stretch], len
     ``stretches`` show (:func:`floor_from_rest`, rods' ``radius`` (R,) [m]), where
     these differ by more than :data:`MARKER_OFFSET_MIN` and :data:`FLOOR_SHIFT_MIN`."""
     out, beyond = markers_onto_caps(caps, lengths, time, stretches)
+    # a frame whose other caps repeated the frame before reads as a copy once its lone
+    # marker is gone (:func:`~identification.data.quality.placeholder_samples`)
+    out[placeholder_samples(out) & np.isfinite(out).all(-1)] = np.nan
     lone = int((np.isfinite(caps).all(-1) & ~np.isfinite(out).all(-1)).sum())
     floor = floor_from_rest(out, time, stretches, radius)
     shifted = bool(np.isfinite(floor) and abs(floor) > FLOOR_SHIFT_MIN)

@@ -73,7 +73,9 @@ def test_the_jump_take_imports_with_its_repeated_frames_as_gaps(tmp_path: Path, 
     assert "up is y" in out and "frames repeated the frame before" in out
     seen = np.isfinite(caps).all(-1)
     measured = np.isfinite(caps).any(-1).any(-1)  # frames that are not repeats
-    assert 0.70 < measured.mean() < 0.76  # every 4th frame repeats the one before
+    # every 4th frame repeats the one before (72 % measured); in the jump a few frames
+    # more see only markers whose rod's other one is hidden: their caps are not placed
+    assert 0.66 < measured.mean() < 0.76
     late = time > 10.0  # after the jump and the landing
     assert seen[late].mean() > 0.55  # found again after the tracking was lost in the jump
     # the floor the compressed robot rests on, at the height the drop take found (one day's

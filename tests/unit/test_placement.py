@@ -118,3 +118,26 @@ def test_a_lone_marker_at_rest_keeps_the_axis_its_rod_had_at_rest() -> None:
     np.testing.assert_allclose(placed[100:220, 1], caps[100:220, 1], atol=3e-4)
     placed, _ = markers_onto_caps(markers, np.array([0.5]), time, [Stretch(0.0, 3.0, "free")])
     assert np.isnan(placed[120:200, 1]).all()
+
+
+def test_a_lost_cap_found_again_keeps_its_new_marker_distance(tmp_path: Path) -> None:
+    """The prism at rest; one marker lost for 0.2 s comes back 12 mm farther out along its
+    rod (a marker shifted on its cap), beyond the tracker's 1 cm rod-length gate: it is
+    re-acquired, and tracked from then on at the rod's new marker distance."""
+    from identification.data.mocap.labelling import label_clouds
+    from tensegrity_env.ntrt import EXAMPLE_PRISM, from_ntrt
+
+    (tmp_path / "prism.yaml").write_text(EXAMPLE_PRISM)
+    robot = from_ntrt(tmp_path / "prism.yaml")
+    rest = robot.rest_caps
+    time = np.arange(240) / 120.0
+    rng = np.random.default_rng(3)
+    points = np.repeat(rest[None], 240, axis=0) + rng.normal(0, 5e-5, (240, 6, 3))
+    u = (rest[1] - rest[0]) / np.linalg.norm(rest[1] - rest[0])
+    points[100:124, 1] = np.nan
+    points[124:, 1] += 0.012 * u
+    lengths = np.linalg.norm(rest[0::2] - rest[1::2], axis=-1)
+    lab = label_clouds(points, time, points[0], lengths, built=rest)
+    seen = np.isfinite(lab.caps).all(-1)
+    assert seen[130:].all() and lab.reacquired[1] == 1
+    np.testing.assert_allclose(lab.caps[130:, 1], points[130:, 1])

@@ -17,7 +17,6 @@ from identification.commands.declared import (
     add_params_option,
     declared_model,
     declared_start,
-    no_other_effects,
 )
 from identification.commands.durations import describe, samples_of, seconds
 from identification.defaults import (
@@ -284,9 +283,9 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
 
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None
+    others: list[Any] = []
     if args.params is not None:
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
-        no_other_effects(args.params, others, "diagnose's trajectory fit")
     dt = dataset.dt
     span = WINDOW_S if args.window is None else args.window
     if span < 2 * dt or args.windows < 1 or args.fit_windows < 1:
@@ -314,4 +313,4 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   floor_window=floor_window, final_iter=args.final_iterations,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     print(window_header(dataset, settings))
-    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs)
+    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs, effects=others)

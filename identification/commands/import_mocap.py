@@ -13,7 +13,7 @@ from tensegrity_env.cli_options import add_end_caps_option
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 
 if TYPE_CHECKING:  # imported where used: --help imports no torch, MuJoCo or SciPy
-    from identification.data.mocap.importer import ImportedTake
+    from identification.data.mocap.importer import ImportedTake, Robot
     from identification.data.mocap.recording import MarkerRecording
 
 
@@ -105,14 +105,25 @@ def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None)
     return take if log is None else replace(take, commands=hold_commands(*log, take.time, str(take.source)))
 
 
-def with_stretches(take: ImportedTake, segments: str | None) -> ImportedTake:
-    """``take`` (z-up) with the stretches a fit uses: the user's ``segments``
-    (``--segments``), else those found in it when something outside the model acts in
-    it (else none: the whole take is used), printed with their times."""
+def with_stretches(take: ImportedTake, segments: str | None, robot: Robot) -> ImportedTake:
+    """``take`` (z-up) placed on the robot's end caps and floor
+    (:func:`~identification.data.mocap.placement.place_take`, from the stretches found
+    in it; an unlabelled take's tracking report printed before), with the stretches a fit uses: the user's ``segments`` (``--segments``),
+    else those found when something outside the model acts in it (else none: the whole
+    take is used), printed with their times."""
+    from identification.data.mocap.importer import cap_distances, tracking_report
+    from identification.data.mocap.placement import place_take
     from identification.data.mocap.stretches import find_stretches, named_stretches, parse_segments
 
     found = find_stretches(take.caps, take.time)
     print(f"{take.source}: stretches " + ", ".join(map(str, found)))
+    if take.reacquired is not None:  # the tracking as labelled, before the placement
+        print(tracking_report(take, robot.topology))
+    radius = np.array([r.radius for r in robot.topology.rods])
+    caps, placement = place_take(take.caps, take.time, found, cap_distances(robot), radius)
+    for line in placement.lines():
+        print(f"{take.source}: {line}")
+    take = replace(take, caps=caps, placement=placement)
     if segments is None:
         if not any(s.kind == "external" for s in found):
             return take
@@ -135,7 +146,6 @@ def run(args: argparse.Namespace) -> int:
         label_take,
         parse_fractions,
         read_robot,
-        tracking_report,
         upright,
     )
     from identification.data.mocap.marker_map import read_marker_map
@@ -166,10 +176,7 @@ def run(args: argparse.Namespace) -> int:
     turned = [upright(t, args.up) for t in takes]  # every take checked before one is written
     for _, line in turned:
         print(line)
-    takes = [with_stretches(t, args.segments) for t, _ in turned]
-    for take in takes:
-        if take.reacquired is not None:
-            print(tracking_report(take, robot.topology))
+    takes = [with_stretches(t, args.segments, robot) for t, _ in turned]
     for rec, take in zip(recordings, takes, strict=True):
         if len(take.time) < rec.n_frames:
             print(f"{rec.source}: tracking starts at frame {rec.n_frames - len(take.time)} "

@@ -11,6 +11,7 @@ from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import cap_names
 from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
+from identification.data.mocap.placement import Placement
 from identification.data.mocap.recording import MarkerRecording
 from identification.data.mocap.stretches import Stretch, assign_splits, pieces
 from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
@@ -92,7 +93,9 @@ class ImportedTake:
     (2R,): times each cap was found again after being lost (unlabelled takes);
     ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`);
     ``stretches``: the take's stretches of which a fit uses those at rest, free or named
-    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used)."""
+    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used);
+    ``placement``: how its markers were placed on the robot's end caps and floor
+    (:mod:`~identification.data.mocap.placement`; None: as recorded)."""
 
     source: Path
     time: np.ndarray
@@ -106,6 +109,7 @@ class ImportedTake:
     reacquired: np.ndarray | None = None
     ids: np.ndarray | None = None
     stretches: tuple[Stretch, ...] | None = None
+    placement: Placement | None = None
 
     def piece(self, a: int = 0, b: int | None = None, n_commands: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
@@ -281,11 +285,12 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
         first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
     # two passes: the rods' marker distances as tracked with the robot's lengths and a
     # loose gate, then tracked again with those
-    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids)
+    built = robot.rest_caps  # labelled by cap index, as the tracking is
+    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids, built=built)
     apart = np.linalg.norm(lab.caps[:, 0::2] - lab.caps[:, 1::2], axis=-1)
     usual = np.array([np.median(a[np.isfinite(a)]) if np.isfinite(a).any() else np.nan for a in apart.T])
     lengths = np.where(np.isfinite(usual), usual, lengths)
-    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
+    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids, built=built)
     caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
     caps, held = without_placeholders(caps)
     rejected += held
@@ -494,6 +499,8 @@ def build_dataset(
         "ghost_points": int(sum(t.ghosts for t in takes)),
         "rejected_samples": int(sum(t.rejected for t in takes)),
     }
+    if any(t.placement is not None for t in takes):
+        attrs["placement"] = {t.source.name: t.placement.to_dict() for t in takes if t.placement is not None}
     if any(t.stretches is not None for t in takes):
         attrs["stretches"] = {t.source.name: [x.to_dict() for x in t.stretches or ()] for t in takes}
     attrs["pieces"] = {s: w for s, w in where.items() if w}

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from identification.data.dataset import read_dataset
 from identification.data.mocap.c3d_files import write_c3d
@@ -58,18 +59,21 @@ def test_logged_cable_commands_drive_the_robot_along_its_imported_end_caps(tmp_p
 
 
 
-def test_cable_gains_are_identified_from_imported_end_caps_and_command_logs(tmp_path: Path) -> None:
-    """The measured path of a cable-driven robot: the icosahedron with three tendon
-    actuators (gains -40, -55, -70 N per unit), 6 takes of 0.6 s at 120 Hz with 1 mm
-    marker noise, commands logged at 20 Hz; ``import-mocap --commands`` then ``identify``
-    on the end caps recovers the gains and the masses."""
+def _identified_from_takes(tmp_path: Path, takes: int):
+    """The icosahedron with three tendon actuators (gains -40, -55, -70 N per unit):
+    ``takes`` takes of 0.6 s at 120 Hz with 1 mm marker noise, commands logged at 20 Hz
+    (seed 11: the first takes of a longer series are the same),
+    ``import-mocap --commands`` then ``identify`` on the end caps. The identified
+    params, the true ones and identify's output."""
     import json
+
+    from tensegrity_env.mjcf import from_mjcf
 
     xml = (ROBOT.parent / "icosahedron_cables.xml").read_text()
     (tmp_path / "robot.xml").write_text(xml)
     rng = np.random.default_rng(11)
     files, logs = [], []
-    for k in range(6):
+    for k in range(takes):
         log_t = np.arange(0, 0.6, 0.05)
         log_u = rng.uniform(-0.5, 0.5, (len(log_t), 3))
         time, caps, names = simulate_caps(xml, 120.0, 0.6, rng, commands=(log_t, log_u))
@@ -78,13 +82,29 @@ def test_cable_gains_are_identified_from_imported_end_caps_and_command_logs(tmp_
         logs += ["--commands", str(write_commands(tmp_path / f"u{k}.csv", log_t, log_u, ["a0", "a1", "a2"]))]
     r = cli("import-mocap", *files, "--robot", tmp_path / "robot.xml", *logs, "-o", tmp_path / "d.h5")
     assert r.returncode == 0, r.stderr
-    from tensegrity_env.mjcf import from_mjcf
-
     truth = from_mjcf(tmp_path / "robot.xml").params
     anchor = f"mass[rod0]={float(truth.mass[0])!r}"
     r = cli("identify", tmp_path / "d.h5", "--anchor", anchor, "-o", tmp_path / "p.json")
     assert r.returncode == 0, r.stderr
-    got = json.loads((tmp_path / "p.json").read_text())["params"]
+    return json.loads((tmp_path / "p.json").read_text())["params"], truth, r.stdout
+
+
+def test_cable_gains_are_identified_from_three_takes(tmp_path: Path) -> None:
+    """The fast form of the six-take test below (the steps with cable commands run in
+    PyTorch): from the first three of its takes, ``identify`` recovers the three cable
+    gains within 2 % (measured: 0.02-0.63 %) and the masses within 4 % (measured: 1.9 %;
+    six takes pin them within 1 %)."""
+    got, truth, out = _identified_from_takes(tmp_path, 3)
+    np.testing.assert_allclose(got["cable_gain"], truth.cable_gain.numpy(), rtol=0.02)
+    np.testing.assert_allclose(got["mass"], truth.mass.numpy(), rtol=0.04)
+    assert "cable_gain[spring5]" in out
+
+
+@pytest.mark.slow
+def test_cable_gains_are_identified_from_imported_end_caps_and_command_logs(tmp_path: Path) -> None:
+    """The measured path of a cable-driven robot: six takes; ``identify`` on the end
+    caps recovers the gains within 2 % and the masses within 1 %."""
+    got, truth, out = _identified_from_takes(tmp_path, 6)
     np.testing.assert_allclose(got["cable_gain"], truth.cable_gain.numpy(), rtol=0.02)
     np.testing.assert_allclose(got["mass"], truth.mass.numpy(), rtol=0.01)
-    assert "cable_gain[spring5]" in r.stdout
+    assert "cable_gain[spring5]" in out

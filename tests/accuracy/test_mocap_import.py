@@ -11,7 +11,6 @@ import pytest
 
 from identification.data.dataset import read_dataset
 from identification.data.mocap.c3d_files import write_c3d
-from identification.data.mocap.commands import write_commands
 from identification.data.mocap.csv_files import write_motive_csv, write_plain_csv, write_vicon_csv
 from identification.data.mocap.importer import read_robot, take_end_caps
 from identification.data.mocap.recording import MarkerRecording
@@ -212,36 +211,6 @@ def test_a_y_up_export_is_found_y_up_and_a_contradicting_up_is_refused(tmp_path:
     np.testing.assert_allclose(a[0], caps, atol=1e-6)
 
 
-def test_logged_cable_commands_drive_the_robot_along_its_imported_end_caps(tmp_path: Path) -> None:
-    """Cable commands logged at 40 Hz beside a 120 Hz take: held onto the frames, fed
-    back into MuJoCo from the same start they reproduce the take's end caps exactly; a
-    hold one frame late, or no commands, does not."""
-    import re
-
-    xml = re.sub(r'<geom name="floor"[^>]*/>', "", (ROBOT.parent / "lab_prism_force_actuators.xml").read_text())
-    xml = xml.replace(' dyntype="filter" dynprm="0.03"', "")  # force actuators, no lag
-    rng = np.random.default_rng(9)
-    log_t = np.arange(40) / 40.0
-    log_u = rng.uniform(-1.0, 1.0, (40, 3))
-    _, caps, names = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3),
-                                      commands=(log_t, log_u))  # fmt: skip
-    write_c3d(tmp_path / "take.c3d", caps, names, 120.0, units="m")
-    write_commands(tmp_path / "take_commands.csv", log_t, log_u, ["a0", "a1", "a2"])
-    (tmp_path / "robot.xml").write_text(xml)
-    r = cli("import-mocap", tmp_path / "take.c3d", "--robot", tmp_path / "robot.xml",
-            "--commands", tmp_path / "take_commands.csv", "--split", "1,0,0", "-o", tmp_path / "d.h5")  # fmt: skip
-    assert r.returncode == 0, r.stderr
-    held = read_dataset(tmp_path / "d.h5").split("train").cable_control[0]  # (T, 3)
-    np.testing.assert_array_equal(held[::3], log_u[: len(held[::3])])
-    frames = np.arange(len(held)) / 120.0
-    _, again, _ = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3), commands=(frames, held))
-    assert np.abs(again - caps).max() < 1e-9
-    late = np.concatenate([held[:1] * 0, held[:-1]])
-    _, off, _ = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3), commands=(frames, late))
-    _, none, _ = simulate_caps(xml, 120.0, 0.9, np.random.default_rng(3))
-    assert np.abs(off - caps).max() > 1e-2 and np.abs(none - caps).max() > 1e-2
-
-
 def test_swapped_labels_are_swapped_back_within_a_rod_and_dropped_across_rods(tmp_path: Path, clean) -> None:
     """Labelling errors of a labelled export: a rod's two markers swapped for 11 frames
     come back in place (no rod turns half a turn in 1/120 s); markers of two rods
@@ -274,35 +243,3 @@ def test_unlabelled_tracking_starts_at_the_first_frame_that_shows_every_end_cap(
     ok = imp.track_of_cap >= 0
     assert ok.all() and (take.cap_of_track[imp.track_of_cap] == np.arange(12)).all()
     np.testing.assert_allclose(imp.caps, caps[10:], atol=6e-3)  # 1 mm noise, 6 sigma
-
-
-def test_cable_gains_are_identified_from_imported_end_caps_and_command_logs(tmp_path: Path) -> None:
-    """The measured path of a cable-driven robot: the icosahedron with three tendon
-    actuators (gains -40, -55, -70 N per unit), 6 takes of 0.6 s at 120 Hz with 1 mm
-    marker noise, commands logged at 20 Hz; ``import-mocap --commands`` then ``identify``
-    on the end caps recovers the gains and the masses."""
-    import json
-
-    xml = (ROBOT.parent / "icosahedron_cables.xml").read_text()
-    (tmp_path / "robot.xml").write_text(xml)
-    rng = np.random.default_rng(11)
-    files, logs = [], []
-    for k in range(6):
-        log_t = np.arange(0, 0.6, 0.05)
-        log_u = rng.uniform(-0.5, 0.5, (len(log_t), 3))
-        time, caps, names = simulate_caps(xml, 120.0, 0.6, rng, commands=(log_t, log_u))
-        take = record_take(time, caps, names, rng, noise=1e-3)
-        files.append(write_c3d(tmp_path / f"take{k}.c3d", take.points, take.names, 120.0))
-        logs += ["--commands", str(write_commands(tmp_path / f"u{k}.csv", log_t, log_u, ["a0", "a1", "a2"]))]
-    r = cli("import-mocap", *files, "--robot", tmp_path / "robot.xml", *logs, "-o", tmp_path / "d.h5")
-    assert r.returncode == 0, r.stderr
-    from tensegrity_env.mjcf import from_mjcf
-
-    truth = from_mjcf(tmp_path / "robot.xml").params
-    anchor = f"mass[rod0]={float(truth.mass[0])!r}"
-    r = cli("identify", tmp_path / "d.h5", "--anchor", anchor, "-o", tmp_path / "p.json")
-    assert r.returncode == 0, r.stderr
-    got = json.loads((tmp_path / "p.json").read_text())["params"]
-    np.testing.assert_allclose(got["cable_gain"], truth.cable_gain.numpy(), rtol=0.02)
-    np.testing.assert_allclose(got["mass"], truth.mass.numpy(), rtol=0.01)
-    assert "cable_gain[spring5]" in r.stdout

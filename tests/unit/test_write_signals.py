@@ -42,8 +42,8 @@ CHILD = textwrap.dedent(
 
     class SignalInFinalizer:
         def __del__(self):
-            os.kill(os.getpid(), sig)
-            for _ in range(1000):  # the handler runs here, inside the finalizer
+            signal.raise_signal(sig)  # to this thread: its C handler has run on return
+            for _ in range(1000):  # the Python handler runs here, inside the finalizer
                 pass
 
     def stop(point):

@@ -138,7 +138,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
         print(f"starting from the model in {args.params}"
               + (f", keeping its {', '.join(e.name for e in others)}" if others else ""))  # fmt: skip
-    noise = noise_level(split.nodes)
+    noise = noise_level(split.nodes, rods=True)
     print(f"noise level estimated from the end caps: {noise * 1e3:.3g} mm")
     t0 = time.perf_counter()
     est: TrajectoryIdentifier | FloorIdentification

@@ -159,7 +159,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         self.data.log = log
         self.data.contact_start = self.contact
         t0 = time.perf_counter()
-        self.noise = noise_level(dataset.split("train").nodes)
+        self.noise = noise_level(dataset.split("train").nodes, rods=True)
         log(f"noise level estimated from the training end caps: {self.noise * 1e3:.3g} mm")
         final, base = fit_declared(self.data, self.settings, self.start)
         log(f"declared model: end-cap RMS {final.rms * 1e3:.3f} mm on {final.windows.size} "

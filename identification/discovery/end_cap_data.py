@@ -231,6 +231,8 @@ class EndCapData:
         #: limits of the contact's coordinates in every fit after the floor fit
         #: (:func:`~identification.trajectory.floor_fit.contact_box`; None: no limits)
         self.contact_box: dict[str, tuple[float, float]] | None = None
+        #: steps per window the floor fit chose (None: no floor fit yet)
+        self.floor_steps: int | None = None
 
     @property
     def spin(self) -> bool:

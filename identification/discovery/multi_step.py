@@ -558,7 +558,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
             count = s.final_floor_windows
             if count <= s.floor_windows:
                 return current
-            steps = s.final_floor_window or floor_steps(data.dt, s)
+            steps = s.final_floor_window or data.floor_steps or floor_steps(data.dt, s)
             windows = data.cut("train", steps, count, 5, lift_off=count // 2)
             return self.refit(current, windows, within=STUCK_WINDOW * self.noise)
         if contact_gate(data.train, data.topology)[0]:

@@ -21,10 +21,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from measured_plant import measure
 from plant_family import draw, family_initial_states, simulate_family, truth_of
 
-from identification.data.end_caps import RodAxes
+from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.stage_check import noise_level
+from identification.trajectory.touchdown import Touchdowns, touchdown_residual
+from identification.trajectory.window_states import forward_seeds
+from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env.engine import Engine, State, substeps_for
 from tensegrity_env.mjcf.reader import from_mjcf
 
@@ -79,3 +82,40 @@ def test_the_noise_level_comes_from_the_rigid_rods_lengths(plant) -> None:
     assert noise_level(seen, rods=True) == pytest.approx(d.noise, rel=0.1)
     assert noise_level(seen) > 3 * d.noise  # third differences read the motion
     assert noise_level(clean.nodes, rods=True) < 1e-9
+
+
+def test_a_windows_first_samples_seed_a_drop_from_rest(plant) -> None:
+    """A release from rest at a trajectory's first sample (the prestressed springs
+    accelerate the light rods to 7 m/s within a sample): the smoothing filter there
+    extrapolates, the window's own first samples read it better."""
+    d, _, topo, clean = plant
+    assert np.abs(clean.v[:, 0]).max() == 0  # seed 9's first two starts are from rest
+    seen = measure(clean.nodes, d.cell, np.random.default_rng(1), fill=False)
+    axes = RodAxes.of(topo)
+    dt = 1 / d.rate
+    smooth = smooth_rod_states(seen, dt, axes, odd_window(0.1 / dt))
+    grid = {k: getattr(smooth, k) for k in STATE_KEYS}
+    windows = cut_windows(seen, np.zeros((*seen.shape[:2], topo.n_rods, 3))[:, 1:], grid, 4)
+    first = windows.take(np.flatnonzero(windows.start == 0))
+    fresh = forward_seeds(first, axes, dt)
+    err = lambda s: float((s.v - torch.as_tensor(clean.v[first.traj, 0])).norm(dim=-1).max())  # noqa: E731
+    assert err(fresh.state) < 0.6 * err(first.state)  # m/s
+    np.testing.assert_allclose(fresh.state.p.numpy(), clean.p[first.traj, 0], atol=2e-3)
+
+
+def test_gaps_count_in_no_residual_of_the_contact_search(plant) -> None:
+    d, truth, topo, clean = plant
+    seen = measure(clean.nodes, d.cell, np.random.default_rng(1), fill=False)
+    state = State(*(torch.as_tensor(getattr(clean, k)[:, 0]) for k in ("p", "v", "q", "omega")))
+    contact = from_mjcf("family.xml", xml=truth.xml).declared_effects()[0]
+    engine = Engine(topo, 1 / d.rate, substeps=substeps_for(1 / d.rate))
+    obs = torch.as_tensor(seen[:, :31])
+    valid = torch.isfinite(obs).all(-1)
+    assert not bool(valid.all())
+    touch = Touchdowns(state=state, obs=torch.nan_to_num(obs), control=None,
+                       traj=np.arange(2), first=np.zeros(2, int), prefix_rms=float("nan"),
+                       valid=valid)  # fmt: skip
+    r = touchdown_residual(engine, truth.params, [], contact, touch, 30)
+    assert bool((r[~valid] == 0).all())
+    rms = float(torch.sqrt((r**2).sum() / (3 * valid.sum())))
+    assert rms == pytest.approx(d.noise, rel=0.15)  # the true model at the true states: noise

@@ -51,7 +51,7 @@ from identification.trajectory.floor_fit import (
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.stage_check import noise_level
-from identification.trajectory.windowed_fit import windows_within
+from identification.trajectory.window_errors import windows_within
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.params import Params

@@ -94,10 +94,10 @@ from identification.trajectory.effect_fit import to_free
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
+from identification.trajectory.window_errors import better_states
 from identification.trajectory.window_states import fit_states, forward_seeds
 from identification.trajectory.windowed_fit import (
     WindowFit,
-    better_states,
     fit_windows,
     group_size,
     state_response,

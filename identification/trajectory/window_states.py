@@ -32,7 +32,8 @@ import torch
 
 from identification.data.end_caps import RodAxes
 from identification.trajectory.param_vector import DTYPE, ParamVector
-from identification.trajectory.windowed_fit import WindowFit, better_states, fit_windows
+from identification.trajectory.window_errors import better_states
+from identification.trajectory.windowed_fit import WindowFit, fit_windows
 from identification.trajectory.windows import Windows, end_caps
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.rotations import quat_mul, quat_to_matrix, shortest_arc

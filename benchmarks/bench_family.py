@@ -176,6 +176,28 @@ def summary_lines(records: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def runs_lines(records: list[dict[str, Any]]) -> list[str]:
+    """Per setting and start, the seeds measured (as ``--seeds`` takes them)."""
+    lines = []
+    for setting in ("flight", "floor"):
+        for start in STARTS:
+            seeds = sorted({r["seed"] for r in records
+                            if r["setting"] == setting and r["start"] == start})  # fmt: skip
+            if seeds:
+                lines.append(f"- {setting}, from the {start}: seeds {spans_of(seeds)}")
+    return lines
+
+
+def spans_of(seeds: list[int]) -> str:
+    """``[0, 1, 2, 5]`` -> ``"0-2,5"``."""
+    parts, lo = [], seeds[0]
+    for a, b in zip(seeds, [*seeds[1:], None], strict=True):
+        if b != a + 1:
+            parts.append(f"{lo}-{a}" if a > lo else f"{lo}")
+            lo = b
+    return ",".join(parts)
+
+
 def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
     """The table of ``records``, its summary and the misses, generated."""
     records = sorted(records, key=lambda r: (r["setting"], r["seed"], STARTS.index(r["start"])))
@@ -202,10 +224,14 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         f"damping and contact within {100 * DISSIPATION_TOL:g} %. Data: "
         + ", ".join(f"{s:g}" for s in shares)
         + " of the measured benchmark's trajectories per split. Seconds: wall time on 2",
-        "shared cores. Measured with",
+        "shared cores (several plants at once). Each setting and start is measured with",
         "",
-        "    OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds 0-9 \\",
-        "        --setting flight floor --default-start --share 0.25 --workers 3",
+        "    OMP_NUM_THREADS=1 python benchmarks/bench_family.py --seeds SEEDS \\",
+        "        --setting SETTING [--default-start] --share 0.25 --workers 2 [--rerun]",
+        "",
+        "(a rerun keeps the records of the same draw unless `--rerun`), the seeds being",
+        "",
+        *runs_lines(records),
         "",
         "and generated from `family.json` by `python benchmarks/bench_family.py --report-only`.",
         "",

@@ -528,8 +528,9 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
 
     def settings_summary(self) -> dict[str, Any]:
         s = self.settings
+        chosen = self.data.floor_steps if getattr(self, "data", None) is not None else None
         return {"anchors": dict(s.anchors), "window": s.window, "fit_windows": s.fit_windows,
-                "floor_windows": s.floor_windows,
+                "floor_windows": s.floor_windows, "floor_window_steps": chosen,
                 "final_floor_windows": s.final_floor_windows, "final_iterations": s.final_iter,
                 "min_bic_drop": MIN_BIC_DROP,
                 "min_chi2_gain": self.criteria.min_gain}  # fmt: skip

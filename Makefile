@@ -25,7 +25,10 @@ demo-full: $(STAMP)
 # tests/unit: fast checks (seconds each); tests/accuracy: seeded end-to-end identification and
 # discovery. Tests marked slow stay out of both (run them with `pytest -m slow`). The files
 # run in two processes (pytest-xdist; a file's tests share one, so its fixtures are built once).
+# mypy checks the types first ([tool.mypy] in pyproject.toml; its cache, .mypy_cache, makes
+# a rerun take seconds).
 test: $(STAMP)
+	$(BIN)/python -m mypy
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests/unit tests/accuracy
 
 test-fast: $(STAMP)

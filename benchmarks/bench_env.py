@@ -19,16 +19,18 @@ the best of ``--repeats`` kept per side, so background load hits both alike:
    control at all.
 
 4. **Generic robot**: ``TensegritySR-v0`` (the shipped lab 3-bar with six winches, the
-   PyTorch engine: the C kernel has no winch form) against ``TensegrityMJ-v0``: the
-   single-env ``env.step`` latency, and a batch of N robots (one batched engine call)
-   against N twins stepped one after the other (the twin winds its cables from Python
-   between ``mj_step`` calls, so ``mujoco.rollout`` cannot step it).
+   C kernel winding them) against ``TensegrityMJ-v0``: the single-env ``env.step``
+   latency (target: ratio >= 10; beside it the twin's 50 ``mj_step`` alone, without its
+   winding, task or observation), and a batch of N robots (one kernel call, OpenMP over
+   the batch) against N twins through ``mujoco.rollout`` (the winding as tendon forces,
+   :mod:`tensegrity_env.envs.robot_rollout`), the same threads a side (target: ratio
+   >= 50 at N = 4096).
 
 Ratios are printed, never asserted::
 
     .venv/bin/python benchmarks/bench_env.py
     .venv/bin/python benchmarks/bench_env.py --num-envs 1024 --repeats 2
-    .venv/bin/python benchmarks/bench_env.py --sections robot --robot-num-envs 64
+    .venv/bin/python benchmarks/bench_env.py --sections robot --robot-num-envs 4096
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 import tensegrity_env  # noqa: F401  (registers the envs, MUJOCO_GL)
@@ -56,6 +59,25 @@ from tensegrity_env.envs import (
 from tensegrity_env.envs.physics import default_threads
 from tensegrity_env.envs.twin import twin_assembly
 from tensegrity_env.model import Model
+
+
+def per_step(
+    step: Callable[[np.ndarray], object],
+    actions: np.ndarray,
+    reset: Callable[[], object] | None = None,
+) -> Callable[[], float]:
+    """A timing function: ``reset()`` (if given), then ``step(a)`` for each of ``actions``
+    (T, ...); it returns the mean wall time per call [s]."""
+
+    def timed() -> float:
+        if reset is not None:
+            reset()
+        t0 = time.perf_counter()
+        for a in actions:
+            step(a)
+        return (time.perf_counter() - t0) / len(actions)
+
+    return timed
 
 
 def best_of(fns: list[Callable[[], float]], repeats: int) -> list[float]:
@@ -77,16 +99,8 @@ def batched(num_envs: int, steps: int, mj_steps: int, threads: int, repeats: int
     sr.step(actions[0])  # warm up (first touch of the buffers, the kernel's threads)
     mj.step(actions[0])
 
-    def run(env: IcosahedronSRVectorEnv | IcosahedronMJVectorEnv, n: int) -> Callable[[], float]:
-        def timed() -> float:
-            t0 = time.perf_counter()
-            for k in range(n):
-                env.step(actions[k])
-            return (time.perf_counter() - t0) / n
-
-        return timed
-
-    t_sr, t_mj = best_of([run(sr, steps), run(mj, mj_steps)], repeats)
+    t_sr, t_mj = best_of([per_step(sr.step, actions[:steps]), per_step(mj.step, actions[:mj_steps])],
+                         repeats)  # fmt: skip
     r_sr, r_mj = num_envs / t_sr, num_envs / t_mj
     print(
         f"\n1. Batched, N = {num_envs}, {threads} thread(s) each (env-steps/s, 50 physics steps each)"
@@ -104,14 +118,7 @@ def single(steps: int, repeats: int) -> None:
     actions = rng.uniform(-1, 1, (steps, 18)).astype(np.float32)
 
     def run(env: IcosahedronSREnv | IcosahedronMJEnv) -> Callable[[], float]:
-        def timed() -> float:
-            env.reset(seed=0)
-            t0 = time.perf_counter()
-            for a in actions:
-                env.step(a)
-            return (time.perf_counter() - t0) / steps
-
-        return timed
+        return per_step(env.step, actions, lambda: env.reset(seed=0))
 
     t_sr, t_mj = best_of([run(sr), run(mj)], repeats)
     print("\n2. Single env, env.step latency (50 physics steps + observation + reward)")
@@ -163,48 +170,44 @@ def fidelity(episodes: int) -> None:
             print(f"   {label:<48} {med[0]:10.3f} {mx[0]:9.3f} {med[1]:11.3f} {mx[1]:9.3f}")
 
 
-def robot(num_envs: int, steps: int, threads: int, repeats: int) -> None:
+def robot(num_envs: int, steps: int, mj_steps: int, single_steps: int, threads: int,
+          repeats: int) -> None:  # fmt: skip
     sr, mj = TensegritySREnv(), TensegrityMJEnv()
     W = sr.action_space.shape[0]
     rng = np.random.default_rng(2)
-    actions = rng.uniform(-1, 1, (steps, num_envs, W)).astype(np.float32)
+    actions = rng.uniform(-1, 1, (max(steps, mj_steps, single_steps), num_envs, W))
+    actions = actions.astype(np.float32)
 
     def run(env: TensegritySREnv | TensegrityMJEnv) -> Callable[[], float]:
-        def timed() -> float:
-            env.reset(seed=0)
-            t0 = time.perf_counter()
-            for a in actions[:, 0]:
-                env.step(a)
-            return (time.perf_counter() - t0) / steps
+        return per_step(env.step, actions[:single_steps, 0], lambda: env.reset(seed=0))
 
-        return timed
+    def mj_steps_alone(_: np.ndarray) -> None:  # the twin's MuJoCo physics: no winding, task
+        mujoco.mj_step(mj.sim.model, mj.sim.data, nstep=mj.sim.frame_skip)
 
-    t_sr, t_mj = best_of([run(sr), run(mj)], repeats)
+    bare = per_step(mj_steps_alone, actions[:single_steps, 0], lambda: mj.reset(seed=0))
+    t_sr, t_mj, t_bare = best_of([run(sr), run(mj), bare], repeats)
     print("\n4. Generic robot (lab 3-bar, 6 winches), env.step latency (50 physics steps)")
-    print(f"   TensegritySR-v0 (PyTorch engine): {t_sr * 1e3:8.3f} ms")
-    print(f"   TensegrityMJ-v0 (MuJoCo):         {t_mj * 1e3:8.3f} ms")
-    print(f"   ratio MJ / SR latency: {t_mj / t_sr:.2f}x")
+    print(f"   TensegritySR-v0 (C kernel, {sr.sim.stepper.backend}): {t_sr * 1e3:8.3f} ms")
+    print(f"   TensegrityMJ-v0 (MuJoCo):              {t_mj * 1e3:8.3f} ms")
+    print(f"   its 50 mj_step alone (no winding):     {t_bare * 1e3:8.3f} ms")
+    print(f"   ratio MJ / SR latency: {t_mj / t_sr:.1f}x   (target >= 10); bare mj_step / SR: "
+          f"{t_bare / t_sr:.1f}x")  # fmt: skip
     venv = TensegritySRVectorEnv(num_envs, threads=threads)
-    twins = TensegrityMJVectorEnv(num_envs)
+    twins = TensegrityMJVectorEnv(num_envs, threads=threads)
     venv.reset(seed=0)
     twins.reset(seed=0)
+    venv.step(actions[0])  # warm up (first touch of the buffers, the threads)
+    twins.step(actions[0])
 
-    def batch_sr() -> float:
-        t0 = time.perf_counter()
-        for a in actions:
-            venv.step(a)
-        return (time.perf_counter() - t0) / steps
-
-    def batch_mj() -> float:
-        t0 = time.perf_counter()
-        for a in actions:
-            twins.step(a)
-        return (time.perf_counter() - t0) / steps
-
-    b_sr, b_mj = best_of([batch_sr, batch_mj], repeats)
-    print(f"   batched, N = {num_envs}, {threads} thread(s) (env-steps/s): TensegritySR-v0 vector env "
-          f"{num_envs / b_sr:10,.0f}, TensegrityMJ-v0 vector env {num_envs / b_mj:10,.0f}, "
-          f"ratio SR / MJ {b_mj / b_sr:.2f}x")  # fmt: skip
+    b_sr, b_mj = best_of([per_step(venv.step, actions[:steps]),
+                          per_step(twins.step, actions[:mj_steps])], repeats)  # fmt: skip
+    how = type(twins.sim).__name__
+    print(f"   batched, N = {num_envs}, {threads} thread(s) each (env-steps/s)")
+    print(f"   TensegritySR-v0 vector env (C kernel):        {num_envs / b_sr:12,.0f}")
+    print(f"   TensegrityMJ-v0 vector env ({how}): {num_envs / b_mj:12,.0f}")
+    print(f"   ratio SR / MJ: {b_mj / b_sr:.1f}x   (target >= 50)")
+    venv.close()
+    twins.close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -216,8 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--single-steps", type=int, default=200, help="timed single-env steps")
     ap.add_argument("--repeats", type=int, default=3, help="alternating timed runs (default 3)")
     ap.add_argument("--episodes", type=int, default=16, help="fidelity episodes (default 16)")
-    ap.add_argument("--robot-num-envs", type=int, default=64, help="generic robot batch N")
-    ap.add_argument("--robot-steps", type=int, default=5, help="timed generic robot steps")
+    ap.add_argument("--robot-num-envs", type=int, default=4096, help="generic robot batch N")
+    ap.add_argument("--robot-steps", type=int, default=10, help="timed batched robot SR steps")
+    ap.add_argument("--robot-mj-steps", type=int, default=2, help="timed batched robot MJ steps")
     ap.add_argument("--sections", default="batched,single,fidelity,robot",
                     help="comma-separated sections to run (default: all four)")  # fmt: skip
     args = ap.parse_args(argv)
@@ -231,7 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     if "fidelity" in sections:
         fidelity(args.episodes)
     if "robot" in sections:
-        robot(args.robot_num_envs, args.robot_steps, threads, args.repeats)
+        robot(args.robot_num_envs, args.robot_steps, args.robot_mj_steps, args.single_steps,
+              threads, args.repeats)  # fmt: skip
     return 0
 
 

@@ -52,7 +52,8 @@ import torch
 
 from identification.data.dataset import Dataset, GroundTruth, Split, read_dataset, read_ground_truth
 from identification.data.dataset import write_dataset as write_h5
-from identification.linear.regression import SpringRodIdentifier, evaluate_params, parse_anchor
+from identification.linear.anchors import parse_anchor
+from identification.linear.regression import SpringRodIdentifier, evaluate_params
 from identification.report.tables import group_errors
 from identification.simulation.generate import GenerateSpec, generate
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf

@@ -10,27 +10,17 @@ from __future__ import annotations
 
 from typing import Any
 
-#: default windows of the floor fit of the declared model and contact (each window's
-#: initial state is fitted through every contact, which costs in proportion). More pin
-#: the declared model better, and also let it take up an undeclared effect: on the
-#: measured benchmark's floor cells (seed 0) 24 windows put the control's spring damping
-#: within 7.6 % (max) where 8 left 14 %, but the declared fit on 24 windows absorbed the
-#: force-field cell's field, which was then missed (named with 8)
+#: default windows of the floor fit of the declared model and contact: more pin it
+#: better but let it take up an undeclared effect (measured in docs/decisions.md)
 FLOOR_WINDOWS = 8
 #: windows of the training split for the final refit of the selected model on the floor:
-#: once selection is done, more windows only sharpen the parameters (spring damping
-#: above all), with nothing left for the declared fit to absorb. The spread of the
-#: fitted damping shrinks as the inverse square root of the windows kept. 96 windows of
-#: 0.25 s are every sample of the benchmark's 8 training trajectories of 3 s: on its
-#: floor cells with seed 1 (the seed the defaults were set on; ``python
-#: benchmarks/bench_measured.py --settings floor --seed0 1``) they put the spring damping
-#: within 8.7 % (max over 24 springs; control), 7.3 % (linear drag) and 11.2 %
-#: (quadratic drag) where 48 windows and 20 iterations gave 11.7, 11.4 and 14.8 %.
-#: Above one group's worth the windows run in the ``--jobs`` workers
+#: once selection is done, more windows only sharpen the parameters; 96 of 0.25 s are
+#: every sample of the benchmark's 8 training trajectories of 3 s (measured in
+#: docs/decisions.md). Above one group's worth they run in the ``--jobs`` workers
 #: (:mod:`identification.trajectory.forked`)
 FINAL_FLOOR_WINDOWS = 96
-#: most Levenberg-Marquardt iterations of the final refit: on those cells the refit on
-#: 74-96 windows converged in 30-49 iterations, where 20 ran out on every cell
+#: most Levenberg-Marquardt iterations of the final refit: enough for it to converge on
+#: the benchmark's floor cells (docs/decisions.md)
 FINAL_ITERATIONS = 60
 
 #: longest window on the floor [s]: each one's initial state is fitted, and a window

@@ -84,7 +84,7 @@ def episode_starts(source_id: str, n: int, seed: int) -> list[EpisodeStart]:
         for k in range(n):
             env.reset(seed=seed + k)
             base = env.unwrapped
-            starts.append(EpisodeStart(seed + k, base.state.copy(), base.goal.copy()))  # type: ignore[attr-defined]
+            starts.append(EpisodeStart(seed + k, base.state.copy(), base.goal.copy()))  # type: ignore[attr-defined]  # a rolling-task env, checked above
     finally:
         env.close()
     return starts
@@ -114,7 +114,7 @@ def evaluate(policy: Policy, env_id: str, starts: list[EpisodeStart]) -> EvalRes
                 f"the policy's {space.shape}"
             )
         out = [run_episode(env, policy, s) for s in starts]
-        dt = float(env.unwrapped.task.control_dt)  # type: ignore[attr-defined]
+        dt = float(env.unwrapped.task.control_dt)  # type: ignore[attr-defined]  # a rolling-task env
     finally:
         env.close()
     r, s, n = zip(*out, strict=True) if out else ((), (), ())

@@ -77,6 +77,7 @@ class VecGoalFrame(VecEnvWrapper):
 
     def __init__(self, venv: VecEnv) -> None:
         super().__init__(venv)
+        assert venv.observation_space.shape is not None  # a Box
         _rods(int(np.prod(venv.observation_space.shape)))
         self._world_obs: np.ndarray | None = None
 

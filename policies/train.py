@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
-from stable_baselines3.common.logger import HumanOutputFormat, Logger
+from stable_baselines3.common.logger import HumanOutputFormat, KVWriter, Logger
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from tqdm import tqdm
@@ -269,7 +269,7 @@ def train(
     if tb_dir is None:
         # SB3's default logger makes a folder in the temp directory even when it only
         # prints; log to stdout alone instead
-        writers = [HumanOutputFormat(sys.stdout)] if verbose else []
+        writers: list[KVWriter] = [HumanOutputFormat(sys.stdout)] if verbose else []
         model.set_logger(Logger(folder=None, output_formats=writers))
     record: dict[str, Any] = {
         "algo": algo,

@@ -156,15 +156,15 @@ def side_by_side_video(
     """
     from tensegrity_env.envs.rendering import env_label, side_by_side, write_video
 
-    kw = {"render_mode": "rgb_array", "width": width, "height": height}
+    kw: dict[str, Any] = {"render_mode": "rgb_array", "width": width, "height": height}
     left, right = gym.make(source, **kw), gym.make(target, **kw)
     try:
         obs_l, _ = left.reset(seed=seed)
         base = left.unwrapped
-        opts = {"state": base.state.copy(), "goal": base.goal.copy()}  # type: ignore[attr-defined]
+        opts = {"state": base.state.copy(), "goal": base.goal.copy()}  # type: ignore[attr-defined]  # rolling-task envs
         obs_r, _ = right.reset(seed=seed, options=opts)
         names = env_label(left), env_label(right)
-        frames = [side_by_side(left.render(), right.render(), *names)]  # type: ignore[arg-type]
+        frames = [side_by_side(left.render(), right.render(), *names)]  # type: ignore[arg-type]  # rgb_array: an image
         done_l = done_r = False
         for _ in range(max_steps):
             if not done_l:
@@ -173,7 +173,7 @@ def side_by_side_video(
             if not done_r:
                 obs_r, _, t, u, _ = right.step(policy(obs_r))
                 done_r = t or u
-            frames.append(side_by_side(left.render(), right.render(), *names))  # type: ignore[arg-type]
+            frames.append(side_by_side(left.render(), right.render(), *names))  # type: ignore[arg-type]  # rgb_array: an image
             if done_l and done_r:
                 break
         return write_video(frames, path, fps=left.metadata.get("render_fps", 20))

@@ -43,14 +43,21 @@ def make_training_env(env_id: str, n_envs: int, seed: int, threads: int | None =
     if spec.vector_entry_point is None:
         venv = make_vec_env(env_id, n_envs=n_envs, seed=seed)
         return venv
+    from tensegrity_env.envs.robot_vector import TensegritySRVectorEnv
     from tensegrity_env.envs.sb3 import SB3VecEnv
+    from tensegrity_env.envs.vector import RollingVectorEnv
 
-    creator = load_env_creator(spec.vector_entry_point)  # type: ignore[arg-type]
+    entry = spec.vector_entry_point
+    creator = entry if callable(entry) else load_env_creator(entry)
     kwargs: dict[str, Any] = {"num_envs": n_envs, **spec.kwargs}
     if spec.max_episode_steps is not None:
         kwargs.setdefault("max_episode_steps", spec.max_episode_steps)
     if "threads" in inspect.signature(creator).parameters:
         kwargs["threads"] = threads
-    venv = VecMonitor(SB3VecEnv(creator(**kwargs)))  # episode returns for the logs
+    vector = creator(**kwargs)
+    if not isinstance(vector, RollingVectorEnv | TensegritySRVectorEnv):
+        raise InputError(f"{env_id}: its vector entry point makes a {type(vector).__name__}, "
+                         "not one of this package's batched environments")  # fmt: skip
+    venv = VecMonitor(SB3VecEnv(vector))  # episode returns for the logs
     venv.seed(seed)
     return venv

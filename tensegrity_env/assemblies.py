@@ -7,6 +7,7 @@ and per rod (seeded) so that per-element identification has something to find.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -168,4 +169,4 @@ def element(
     return Assembly(topology, params, np.zeros((1, 3)), pose_q)
 
 
-ASSEMBLIES = {"icosahedron": icosahedron, "element": element}
+ASSEMBLIES: dict[str, Callable[[], Assembly]] = {"icosahedron": icosahedron, "element": element}

@@ -318,7 +318,9 @@ def held_signals() -> Iterator[list[int]]:
         return
 
     # a handler installed outside Python (None) could not be put back: left as it is
-    previous = {s: h for s in HELD_SIGNALS if (h := signal.getsignal(s)) is not None}
+    previous: dict[int, Any] = {
+        s: h for s in HELD_SIGNALS if (h := signal.getsignal(s)) is not None
+    }
 
     def record(signum: int, frame: FrameType | None) -> None:
         if previous[signum] is not signal.SIG_IGN:  # an ignored signal stays ignored

@@ -14,6 +14,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -275,7 +276,7 @@ def contact_of(
     }, found
 
 
-def _pair_law(m: mujoco.MjModel, g1: int, g2: int) -> tuple:
+def _pair_law(m: mujoco.MjModel, g1: int, g2: int) -> tuple[Any, ...]:
     """(friction, condim, solref, solimp, margin) of the contact of geoms g1, g2."""
     p1, p2 = int(m.geom_priority[g1]), int(m.geom_priority[g2])
     if p1 != p2:

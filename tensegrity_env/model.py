@@ -141,13 +141,13 @@ class Model:
             from tensegrity_env.ntrt import from_ntrt
 
             robot = from_ntrt(path)
-            return cls(robot.topology, robot.params, robot.declared_effects(), dt)
+            return cls(robot.topology, robot.params, tuple(robot.declared_effects()), dt)
         if path.suffix.lower() != ".xml":
             return cls.load(path, dt)
         from tensegrity_env.mjcf import from_mjcf
 
         asm = from_mjcf(path)
-        return cls(asm.topology, asm.params, asm.declared_effects(), dt)
+        return cls(asm.topology, asm.params, tuple(asm.declared_effects()), dt)
 
     @classmethod
     def load(cls, path: str | Path, dt: float = DEFAULT_DT) -> Model:
@@ -170,7 +170,7 @@ class Model:
             effects = effects_from_document(doc, topology, root=path.parent)
         except InputError as e:
             raise InputError(f"{path}: {e}") from None
-        return cls(topology, params, effects, dt)
+        return cls(topology, params, tuple(effects), dt)
 
     def to_document(self, extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """The ``params.json`` document (a JSON-ready dict).

@@ -344,9 +344,9 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
             name=f"rod{k}",
             length=float(np.linalg.norm(pos[main[1]] - pos[main[0]])),
             radius=main[3],
-            end_offsets=(tuple(ends[0].tolist()), tuple(ends[1].tolist())),  # type: ignore[arg-type]
+            end_offsets=(tuple(ends[0].tolist()), tuple(ends[1].tolist())),
             end_cap="capsule",
-            attachments=tuple(tuple((frame.T @ (pos[n] - com)).tolist()) for n in others),  # type: ignore[misc]
+            attachments=tuple(tuple((frame.T @ (pos[n] - com)).tolist()) for n in others),
         ))  # fmt: skip
         masses.append(mass)
         inertias.append(inertia)

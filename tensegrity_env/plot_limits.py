@@ -34,7 +34,8 @@ PAD = 0.05
 def _finite(values: Any, log: bool) -> np.ndarray:
     a = np.asarray(values, dtype=float).ravel()
     keep = np.isfinite(a) & (a > 0 if log else True)
-    return np.log10(a[keep]) if log else a[keep]
+    result: np.ndarray = np.log10(a[keep]) if log else a[keep]
+    return result
 
 
 def robust_limits(

@@ -7,6 +7,7 @@ principal frame to the world frame: ``x_world = R(q) @ x_rod``.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from tensegrity_env.vec3 import dot
@@ -45,8 +46,11 @@ def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
     return torch.stack(rows, dim=-2)
 
 
-def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> torch.Tensor:
-    """Rotate ``q`` by body-frame angular velocity ``omega_local`` for ``dt`` seconds.
+def quat_integrate(
+    q: torch.Tensor, omega_local: torch.Tensor, dt: float | torch.Tensor
+) -> torch.Tensor:
+    """Rotate ``q`` by body-frame angular velocity ``omega_local`` for ``dt`` seconds
+    (a float, or a tensor broadcasting against (..., 1)).
 
     MuJoCo's ``mju_quatIntegrate``: ``q ⊗ quat(axis=ω/|ω|, angle=|ω| dt)``, then
     normalised. Shapes (..., 4), (..., 3).
@@ -60,7 +64,8 @@ def quat_integrate(q: torch.Tensor, omega_local: torch.Tensor, dt: float) -> tor
     c = torch.where(safe, torch.cos(half), torch.ones_like(half))
     qrot = torch.cat((c, axis * s), dim=-1)
     out = quat_mul(q, qrot)
-    return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
+    result: torch.Tensor = out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
+    return result
 
 
 #: rotations taking a file's up axis to z (right-handed): Vicon and Qualisys record z-up,
@@ -75,15 +80,24 @@ TO_Z_UP = {
 }
 
 
-def axis_angle_to_quat(axis: np.ndarray, angle: float) -> np.ndarray:
+def axis_angle_to_quat(axis: npt.ArrayLike, angle: float) -> np.ndarray:
     """Numpy helper: unit quaternion (w, x, y, z) rotating ``angle`` [rad] about ``axis``."""
     a = np.asarray(axis, dtype=float)
     return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * a / np.linalg.norm(a)])
 
 
 def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Numpy wrapper of :func:`quat_to_matrix`."""
-    return quat_to_matrix(torch.as_tensor(np.array(q, dtype=float))).numpy()
+    """:func:`quat_to_matrix` in numpy (the same arithmetic, so the same numbers, without
+    a round trip through PyTorch): (..., 4) -> (..., 3, 3), float64."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    ww, xx, yy, zz = w * w, x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    out = np.empty((*q.shape[:-1], 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = ww + xx - yy - zz, 2 * (xy - wz), 2 * (xz + wy)
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = 2 * (xy + wz), ww - xx + yy - zz, 2 * (yz - wx)
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = 2 * (xz - wy), 2 * (yz + wx), ww - xx - yy + zz
+    return out
 
 
 def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -103,7 +117,8 @@ def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def np_quat_conj(q: np.ndarray) -> np.ndarray:
     """Conjugate in numpy (the inverse of a unit quaternion), shapes (..., 4)."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0])
+    result: np.ndarray = q * np.array([1.0, -1.0, -1.0, -1.0])
+    return result
 
 
 def np_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -115,7 +130,8 @@ def np_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def unit(x: np.ndarray) -> np.ndarray:
     """``x`` divided by its norm along the last axis."""
-    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+    result: np.ndarray = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    return result
 
 
 def shortest_arc(a_from: np.ndarray, a_to: np.ndarray) -> np.ndarray:
@@ -157,4 +173,5 @@ def random_quaternions(rng: np.random.Generator, n: int) -> np.ndarray:
         ],
         axis=-1,
     )
-    return q * np.sign(q[:, :1] + (q[:, :1] == 0))
+    result: np.ndarray = q * np.sign(q[:, :1] + (q[:, :1] == 0))
+    return result

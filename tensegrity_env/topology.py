@@ -364,11 +364,11 @@ class Topology:
                     name=str(r["name"]),
                     length=float(r["length"]),
                     radius=float(r.get("radius", 0.0)),
-                    end_offsets=tuple(tuple(map(float, e)) for e in r["end_offsets"]),  # type: ignore[arg-type]
-                    control_arm=tuple(map(float, r.get("control_arm", (0, 0, 0)))),  # type: ignore[arg-type]
-                    frame_origin=tuple(map(float, r.get("frame_origin", (0, 0, 0)))),  # type: ignore[arg-type]
+                    end_offsets=tuple(tuple(map(float, e)) for e in r["end_offsets"]),  # type: ignore[arg-type]  # any length: __post_init__ names a bad one
+                    control_arm=tuple(map(float, r.get("control_arm", (0, 0, 0)))),  # type: ignore[arg-type]  # as end_offsets
+                    frame_origin=tuple(map(float, r.get("frame_origin", (0, 0, 0)))),  # type: ignore[arg-type]  # as end_offsets
                     end_cap=str(r.get("end_cap", "capsule")),
-                    attachments=tuple(tuple(map(float, a)) for a in r.get("attachments", [])),  # type: ignore[misc]
+                    attachments=tuple(tuple(map(float, a)) for a in r.get("attachments", [])),  # type: ignore[misc]  # as end_offsets
                 )
                 for r in d["rods"]
             )
@@ -380,7 +380,7 @@ class Topology:
             cables = tuple(int(c) for c in d.get("cable_actuators", []))
             winches = tuple(int(w) for w in d.get("winches", []))
             return cls(
-                rods=rods, springs=springs, anchors=anchors, name=name,  # type: ignore[arg-type]
+                rods=rods, springs=springs, anchors=anchors, name=name,  # type: ignore[arg-type]  # anchors: as end_offsets
                 cable_actuators=cables, winches=winches,
             )  # fmt: skip
         except TopologyError:

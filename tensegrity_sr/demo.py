@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
@@ -101,6 +101,8 @@ def step_identify(demo: Demo) -> None:
     )
     score = est.score(dataset, "test")
     test = dataset.split("test")
+    assert test.p is not None and test.v is not None and test.q is not None
+    assert test.omega is not None  # generated data holds the rod states
     init = State.from_numpy(test.p[:1, 0], test.v[:1, 0], test.q[:1, 0], test.omega[:1, 0])
     roll = est.simulate(init, test.n_transitions, torch.as_tensor(test.control[:1]))
     model_nodes = np.stack(
@@ -283,7 +285,7 @@ def step_environments(demo: Demo) -> None:
         g = obs[73:75] / max(float(np.linalg.norm(obs[73:75])), 1e-9)
         return np.tile([g[0], g[1], 0.0], 6).astype(np.float32)
 
-    kw = {"render_mode": "rgb_array", "width": 400, "height": 300}
+    kw: dict[str, Any] = {"render_mode": "rgb_array", "width": 400, "height": 300}
     sr, mj = IcosahedronSREnv(**kw), IcosahedronMJEnv(**kw)
     try:
         clip = record_side_by_side(
@@ -414,7 +416,7 @@ def step_winch_robot(demo: Demo) -> None:
                       "states\n\n" + "\n".join(lines) + "\n")  # fmt: skip
     env_model = found.replace(effects=Model.read(robot).effects)
     env_model.save(out / "lab_prism_env_model.json")
-    kw = {"render_mode": "rgb_array", "width": 400, "height": 300}
+    kw: dict[str, Any] = {"render_mode": "rgb_array", "width": 400, "height": 300}
     sr = TensegritySREnv(model=out / "lab_prism_env_model.json", robot=robot, **kw)
     mj = TensegrityMJEnv(robot=robot, **kw)
     steps = demo.size(40, 200)

@@ -48,11 +48,12 @@ def declared_start(
 
     model = declared_model(path, dataset, source)
     anchors.setdefault(f"mass[{model.topology.rods[0].name}]", float(model.params.mass[0]))
+    # narrowing to the class: the floor fits run its contact law (search, touchdowns)
     floors = [e for e in model.effects if isinstance(e, GroundContact)]
     if len(floors) > 1:
         raise InputError(f"{path}: a trajectory fit starts from the declared model and at "
                          "most one ground_contact (remove the others from its 'effects')")  # fmt: skip
-    others = [e for e in model.effects if not isinstance(e, GroundContact)]
+    others = [e for e in model.effects if all(e is not f for f in floors)]
     return model.params, floors[0] if floors else None, others
 
 

@@ -17,7 +17,6 @@ from identification.commands.declared import (
     add_params_option,
     declared_model,
     declared_start,
-    no_other_effects,
 )
 from identification.commands.durations import describe, samples_of, seconds
 from identification.commands.effort import COUNTS, add_effort_option, apply_effort, effort_line
@@ -46,8 +45,7 @@ if TYPE_CHECKING:  # the commands import torch, MuJoCo and SciPy when they run, 
 #: default window lengths of the trajectory method [s]: selection (``--window``) and the
 #: accepted models' fits (``--fit-window``). A fitted initial state absorbs the linear part
 #: of a missing constant acceleration, so what selection sees of it grows as the window's
-#: length squared: 0.1-s windows missed a 0.35 m/s^2 force field in free flight at 120 Hz
-#: and 1 mm noise (BIC +4.4), 0.2-s ones name it (BIC -756 and -806 on two other seeds)
+#: length squared (measured in docs/decisions.md)
 WINDOW_S = 0.2
 FIT_WINDOW_S = 0.3
 #: default random selection windows per split of the trajectory method (``--effort default``)
@@ -162,8 +160,7 @@ def run(args: argparse.Namespace) -> int:
     from identification.discovery.choose import choose_scorer, uses_trajectories
     from identification.discovery.loop import EffectDiscovery
     from identification.discovery.report import fmt_unit, ratio, write_params, write_report
-    from identification.trajectory.floor_evidence import contact_evidence
-    from tensegrity_env.effects import GroundContact
+    from identification.trajectory.floor_evidence import floor_evidence
 
     check_output_dir(args.output, args.force, inputs=[args.dataset, args.params])
     apply_effort(args)
@@ -199,9 +196,9 @@ def run(args: argparse.Namespace) -> int:
         with np.errstate(invalid="ignore", divide="ignore"), window_workers(args.jobs):
             result = loop.fit(dataset).result_
         truth = read_ground_truth(args.dataset)
-        contacts = [e for e in result.model.effects if isinstance(e, GroundContact)]
-        evidence = [contact_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,
-                                     c) for c in contacts]  # fmt: skip
+        floors = [h for e in result.model.effects if (h := e.floor_height()) is not None]
+        evidence = [floor_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,
+                                   h) for h in floors]  # fmt: skip
         report = write_report(result, out, str(args.dataset),
                               None if truth is None else truth.effects,
                               [e.markdown() for e in evidence])  # fmt: skip
@@ -230,7 +227,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
     """Regressions on rod states, from ``--params``' effects if given."""
     from identification.discovery.library import FitSettings
     from identification.discovery.one_step import OneStepScorer
-    from identification.linear.regression import parse_anchor
+    from identification.linear.anchors import parse_anchor
     from tensegrity_env.effects.base import PhysicalEffect
 
     anchors = dict(parse_anchor(a) for a in args.anchor)
@@ -262,13 +259,13 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     """Windowed trajectory fits on end caps, from ``--params``' declared model if given."""
     from identification.discovery.end_cap_data import TrajectorySettings
     from identification.discovery.multi_step import MultiStepScorer
-    from identification.linear.regression import parse_anchor
+    from identification.linear.anchors import parse_anchor
 
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None
+    others: list[Any] = []
     if args.params is not None:
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
-        no_other_effects(args.params, others, "diagnose's trajectory fit")
     dt = dataset.dt
     apply_effort(args)
     fit_span = FIT_WINDOW_S if args.fit_window is None else args.fit_window
@@ -300,4 +297,5 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     print(window_header(dataset, settings))
     print(effort_line(args, ("windows", "fit_windows", "floor_windows", "final_floor_windows",
                              "final_iterations")))  # fmt: skip
-    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs)
+    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs,
+                           effects=others)  # fmt: skip

@@ -54,7 +54,7 @@ def register(sub: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     from identification.data.dataset import read_dataset, read_ground_truth
     from identification.experiments.efficiency import run_efficiency, write_outputs
-    from identification.linear.regression import parse_anchor
+    from identification.linear.anchors import parse_anchor
 
     check_output_dir(args.output, args.force, inputs=[args.dataset])
     if args.horizon is not None and not args.horizon > 0:

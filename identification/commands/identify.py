@@ -100,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
     from identification.commands.identify_end_caps import run_end_caps
     from identification.data.dataset import read_dataset, read_ground_truth
     from identification.data.sample_grid import on_nominal_grid
-    from identification.linear.regression import SpringRodIdentifier, parse_anchor
+    from identification.linear.anchors import parse_anchor
+    from identification.linear.regression import SpringRodIdentifier
     from identification.linear.winch_lag import fit_winch_lag
     from identification.report.tables import (
         error_text,
@@ -118,7 +119,12 @@ def run(args: argparse.Namespace) -> int:
     if args.first_window is None:
         args.first_window = 0.1  # the free-flight fit's first stage [s]
     check_number("--floor-windows", args.floor_windows, 1)
-    dataset, grid = on_nominal_grid(read_dataset(args.dataset))
+    raw = read_dataset(args.dataset)
+    if raw.topology.n_winches and not raw.split(args.split).has_states:
+        from identification.commands.identify_winches import run_winch_end_caps
+
+        return run_winch_end_caps(args, raw)  # at the samples' own times, no grid
+    dataset, grid = on_nominal_grid(raw)
     if grid.changed:
         print(grid.text(dataset.dt))
     anchors = dict(parse_anchor(a) for a in args.anchor)
@@ -145,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"winch lag {float(est.winch_lag_[0]):.4g} s: the smallest residual of "
               f"{len(est.lag_search_)} lags tried")  # fmt: skip
     else:
+        assert not isinstance(lag, str)  # the one string form, "auto", is handled above
         est = identifier(lag).fit(dataset, args.split)
     fit_time = time.perf_counter() - t0
     try:  # nothing outside the physical domain is written

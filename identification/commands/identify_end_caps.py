@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -42,10 +43,13 @@ from identification.report.tables import group_errors, parameter_table, relative
 from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.stage_check import check_stage, noise_level
+from tensegrity_env.effects import SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import substeps_for
 from tensegrity_env.io_utils import InputError, StageError
 from tensegrity_env.model import Model
+from tensegrity_env.params import Params
+from tensegrity_env.topology import Topology
 
 UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
          "rest_length": "m", "control_gain": "1", "cable_gain": "N/unit"}  # fmt: skip
@@ -99,6 +103,50 @@ def parameter_rows(
     return rows
 
 
+def never_taut(
+    nodes: np.ndarray, topology: Topology, effects: list[PhysicalEffect], rest_length: np.ndarray
+) -> list[int]:
+    """The tension-only springs of ``effects`` (a declared model's ``slack_springs``)
+    between two end caps whose measured length in ``nodes`` (N, T, 2R, 3) [m] never
+    reaches ``rest_length`` (S,) [m]: slack throughout, they pull on nothing, so the data
+    holds nothing of their stiffness, damping or rest length."""
+    slack = [
+        int(s) for e in effects if isinstance(e, SlackSprings) for s in e.values["springs"].tolist()
+    ]
+    caps = 2 * topology.n_rods
+    out = []
+    for s in slack:
+        a, b = topology.spring_nodes[s]
+        if max(a, b) >= caps:
+            continue
+        length = np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
+        length = length[np.isfinite(length)]
+        if length.size and length.max() < rest_length[s]:
+            out.append(s)
+    return out
+
+
+def keep_declared(
+    est: TrajectoryIdentifier | FloorIdentification,
+    start: Params,
+    springs: list[int],
+    topology: Topology,
+) -> None:
+    """``est`` with the declared stiffness, damping and rest length of ``springs`` (slack
+    throughout the data, :func:`never_taut`) in place of the values its fit drifted to,
+    and each noted as not identifiable."""
+    p = est.params_
+    values = {k: getattr(p, k).clone() for k in ("stiffness", "damping", "rest_length")}
+    for s in springs:
+        for k, v in values.items():
+            v[s] = getattr(start, k)[s]
+            est.notes_[f"{k}[{topology.springs[s].name}]"] = (
+                "a tension-only spring slack throughout the data (never as long as its rest "
+                "length): the declared value is kept"
+            )
+    est.params_ = replace(p, **values)
+
+
 def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, float]) -> int:
     """Identify from end caps only, print the table, write params.json."""
     used = [o for o, v in (("--solver network", args.solver == "network"),
@@ -133,7 +181,8 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
                f"{describe(args.first_window, dt)} to {describe(window, dt)}")  # fmt: skip
     print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: {how}, physics step "
           f"<= {args.physics_dt:g} s; effort {args.effort}")  # fmt: skip
-    start, contact, others = None, None, []
+    start, contact = None, None
+    others: list[PhysicalEffect] = []
     if args.params is not None:
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
         print(f"starting from the model in {args.params}"
@@ -164,6 +213,13 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
             max_iter=args.max_iter,
         ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
+    if start is not None:
+        slack = never_taut(split.nodes, dataset.topology, others, start.rest_length.numpy())
+        if slack:
+            keep_declared(est, start, slack, dataset.topology)
+            print(f"{len(slack)} tension-only springs are slack throughout the data "
+                  f"({', '.join(dataset.topology.springs[s].name for s in slack)}): their declared "
+                  "values are kept")  # fmt: skip
     check_stage("the trajectory fit", est.rms_, noise,
                 "shorter windows (--window), a smaller --physics-dt, or 'diagnose' if the data "
                 "holds an effect the declared model lacks (contact, drag)")  # fmt: skip
@@ -220,6 +276,6 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         extra["floor_evidence"] = evidence.as_dict()
         print(f"  standard errors: {FLOOR_STDERR_NOTE}")
         extra["identifiability"]["standard_errors"] = FLOOR_STDERR_NOTE
-    Model(dataset.topology, est.params_, effects, dt=physics).save(args.output, extra)
+    Model(dataset.topology, est.params_, tuple(effects), dt=physics).save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

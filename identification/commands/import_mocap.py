@@ -13,7 +13,7 @@ from tensegrity_env.cli_options import add_end_caps_option
 from tensegrity_env.io_utils import InputError, add_force_option, check_output_file
 
 if TYPE_CHECKING:  # imported where used: --help imports no torch, MuJoCo or SciPy
-    from identification.data.mocap.importer import ImportedTake
+    from identification.data.mocap.importer import ImportedTake, Robot
     from identification.data.mocap.recording import MarkerRecording
 
 
@@ -38,9 +38,10 @@ def register(sub: Any) -> None:
     p.add_argument("--units", choices=("m", "mm"),
                    help="length unit of files that do not state theirs (plain CSV)")  # fmt: skip
     p.add_argument("--commands", type=Path, action="append", default=[], metavar="CSV",
-                   help="the cable actuators' command log of a take (CSV 'time,<actuator>,...', "
-                        "times from the take's first frame, held until the next row), once per "
-                        "take in the order of the files; without it, commands are zero")  # fmt: skip
+                   help="the motor command log of a take (CSV 'time,<actuator>,...': a column per "
+                        "cable actuator, then one per winch, in the robot file's order; times from "
+                        "the take's first frame, held until the next row), once per take in the "
+                        "order of the files; without it, commands are zero")  # fmt: skip
     p.add_argument("--up", choices=("z", "y", "x"),
                    help="the files' vertical axis, rotated to z (default: found in each take, "
                         "from free flight where there is any, else from the floor its lowest "
@@ -68,25 +69,29 @@ def register(sub: Any) -> None:
 
 
 def command_logs(
-    files: list[Path], recordings: list[MarkerRecording], n_cables: int
+    files: list[Path], recordings: list[MarkerRecording], n_cables: int, n_winches: int = 0
 ) -> list[tuple[np.ndarray, np.ndarray] | None]:
-    """Each take's ``--commands`` log, times (K,) [s] and values (K, C), read and checked
-    against its take before any work; None for every take without files."""
+    """Each take's ``--commands`` log, times (K,) [s] and values (K, C + W) (the cable
+    actuators', then the winch motors'), read and checked against its take before any
+    work; None for every take without files."""
     from identification.data.mocap.commands import hold_commands, read_commands
 
+    n = n_cables + n_winches
+    what = " and ".join(x for x in (f"{n_cables} cable actuators" if n_cables else "",
+                                    f"{n_winches} winches" if n_winches else "") if x)  # fmt: skip
     if not files:
-        if n_cables:
-            print(f"warning: the robot has {n_cables} cable actuators and no --commands were "
-                  "given: their commands are recorded as zero (an unactuated robot)")  # fmt: skip
+        if n:
+            print(f"warning: the robot has {what} and no --commands were given: their "
+                  "commands are recorded as zero (an unactuated robot)")  # fmt: skip
         return [None] * len(recordings)
-    if not n_cables:
-        raise InputError(f"{files[0]}: --commands given, but the robot has no cable actuators")
+    if not n:
+        raise InputError(f"{files[0]}: --commands given, but the robot has no cable actuators or winches")
     if len(files) != len(recordings):
         raise InputError(f"--commands: {len(files)} command files for {len(recordings)} takes "
                          "(one per take, in the order of the files)")  # fmt: skip
     logs: list[tuple[np.ndarray, np.ndarray] | None] = []
     for f, rec in zip(files, recordings, strict=True):
-        times, values = read_commands(f, n_cables)
+        times, values = read_commands(f, n, what)
         hold_commands(times, values, rec.time[:1], str(f))  # refuses a log that starts late
         logs.append((times, values))
     return logs
@@ -100,14 +105,25 @@ def with_commands(take: ImportedTake, log: tuple[np.ndarray, np.ndarray] | None)
     return take if log is None else replace(take, commands=hold_commands(*log, take.time, str(take.source)))
 
 
-def with_stretches(take: ImportedTake, segments: str | None) -> ImportedTake:
-    """``take`` (z-up) with the stretches a fit uses: the user's ``segments``
-    (``--segments``), else those found in it when something outside the model acts in
-    it (else none: the whole take is used), printed with their times."""
+def with_stretches(take: ImportedTake, segments: str | None, robot: Robot) -> ImportedTake:
+    """``take`` (z-up) placed on the robot's end caps and floor
+    (:func:`~identification.data.mocap.placement.place_take`, from the stretches found
+    in it; an unlabelled take's tracking report printed before), with the stretches a fit uses: the user's ``segments`` (``--segments``),
+    else those found when something outside the model acts in it (else none: the whole
+    take is used), printed with their times."""
+    from identification.data.mocap.importer import cap_distances, tracking_report
+    from identification.data.mocap.placement import place_take
     from identification.data.mocap.stretches import find_stretches, named_stretches, parse_segments
 
     found = find_stretches(take.caps, take.time)
     print(f"{take.source}: stretches " + ", ".join(map(str, found)))
+    if take.reacquired is not None:  # the tracking as labelled, before the placement
+        print(tracking_report(take, robot.topology))
+    radius = np.array([r.radius for r in robot.topology.rods])
+    caps, placement = place_take(take.caps, take.time, found, cap_distances(robot), radius)
+    for line in placement.lines():
+        print(f"{take.source}: {line}")
+    take = replace(take, caps=caps, placement=placement)
     if segments is None:
         if not any(s.kind == "external" for s in found):
             return take
@@ -130,7 +146,6 @@ def run(args: argparse.Namespace) -> int:
         label_take,
         parse_fractions,
         read_robot,
-        tracking_report,
         upright,
     )
     from identification.data.mocap.marker_map import read_marker_map
@@ -154,17 +169,14 @@ def run(args: argparse.Namespace) -> int:
     mmap = read_marker_map(args.map, robot.topology) if args.map else None
     recordings = [read_recording(f, args.units) for f in args.files]  # all checked before work
     maps = [check_take(rec, robot, mmap) for rec in recordings]
-    logs = command_logs(args.commands, recordings, robot.topology.n_cables)
+    logs = command_logs(args.commands, recordings, robot.topology.n_cables, robot.topology.n_winches)
     takes = [with_commands(label_take(r, robot, m), log)
              for r, m, log in tqdm(list(zip(recordings, maps, logs, strict=True)), desc="labelling",
                                    unit="take")]  # fmt: skip
     turned = [upright(t, args.up) for t in takes]  # every take checked before one is written
     for _, line in turned:
         print(line)
-    takes = [with_stretches(t, args.segments) for t, _ in turned]
-    for take in takes:
-        if take.reacquired is not None:
-            print(tracking_report(take, robot.topology))
+    takes = [with_stretches(t, args.segments, robot) for t, _ in turned]
     for rec, take in zip(recordings, takes, strict=True):
         if len(take.time) < rec.n_frames:
             print(f"{rec.source}: tracking starts at frame {rec.n_frames - len(take.time)} "
@@ -190,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         + (f"labelled samples off their rod's length read as unseen "
            f"{dataset.attrs['rejected_samples']}; " if dataset.attrs["rejected_samples"] else "")
         + f"splits {', '.join(f'{k} {v.n_trajectories}' for k, v in dataset.splits.items())}"
-        + (f"; commands of {robot.topology.n_cables} cable actuators from {len(args.commands)} "
-           "logs" if args.commands else "")
+        + (f"; commands of {robot.topology.n_cables + robot.topology.n_winches} motors from "
+           f"{len(args.commands)} logs" if args.commands else "")
     )
     return 0

@@ -73,6 +73,11 @@ def summary(ds: Dataset, truth: GroundTruth | None) -> str:
     lines.append(f"arrays: {stored}")
     control = [np.abs(s.control).max() for s in ds.splits.values() if s.control.size]
     lines.append(f"control: {'none (all zero)' if not control or max(control) == 0 else 'applied'}")
+    for what, attr, n in (("cable actuator", "has_cable_commands", ds.topology.n_cables),
+                          ("winch motor", "has_winch_commands", ds.topology.n_winches)):  # fmt: skip
+        if n:
+            driven = any(getattr(s, attr) for s in ds.splits.values())
+            lines.append(f"{what} commands: {n} {what}s, " + ("commanded" if driven else "none (all zero)"))
     if truth is None:
         lines.append("ground truth: none (measured data)")
     else:

@@ -255,7 +255,7 @@ def read_dataset(path: str | Path, splits: tuple[str, ...] | None = None) -> Dat
             out = {}
             for name in names:
                 g = f[f"splits/{name}"]
-                arrays = {
+                arrays: dict[str, Any] = {
                     k: (g[k][()] if k in g else None)
                     for k in ("nodes", "control", *STATE_KEYS, "time", "cable_control", "winch_control")
                 }

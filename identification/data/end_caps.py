@@ -188,7 +188,7 @@ def rod_states_from_nodes(
         p = p + np.einsum(
             "...ij,...j->...i", np_quat_to_matrix(q), np.broadcast_to(c_perp, p.shape)
         )
-    edge = 2 if nodes.shape[-3] >= 3 else 1
+    edge: Literal[1, 2] = 2 if nodes.shape[-3] >= 3 else 1
     v = np.gradient(p, dt, axis=-3, edge_order=edge)
     a_dot = np.gradient(a, dt, axis=-3, edge_order=edge)
     omega = np.cross(a, a_dot)  # ω_⊥ = a × ȧ for a unit vector turning as ȧ = ω × a

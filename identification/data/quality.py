@@ -11,6 +11,10 @@ fit: the third difference of three consecutive sample steps,
 ``x[t+3] - 3 x[t+2] + 3 x[t+1] - x[t]``, is the residual of a local quadratic; for
 white noise of std ``σ`` it has std ``σ √20``, and smooth motion contributes only its
 jerk times ``dt³``. A median absolute deviation keeps impacts from inflating it.
+
+Time stamps that cannot be capture times are flagged with their times: a step far
+shorter than the median step (two log messages of one frame, a clock that stamps on
+arrival, not at capture) and gaps, steps far longer than it (frames lost, a pause).
 """
 
 from __future__ import annotations
@@ -32,6 +36,14 @@ HELD_RUN = 3
 #: coordinate) repeats it: 30 times below the finest marker noise of optical systems
 #: (~0.03 mm), 100 times above the round-off of positions exported with 8 decimals
 REPEAT_TOL = 1e-6
+#: a step shorter than this fraction of the median step cannot separate two captures: a
+#: capture system's frames are its period apart, give or take jitter of a small fraction
+SHORT_STEP = 0.25
+#: a step longer than this many median steps is a gap: at least one frame is missing
+#: (jitter of up to half a period cannot stretch one step this far)
+GAP_STEP = 1.5
+#: how many flagged times the report lists
+LISTED_TIMES = 5
 #: what :func:`placeholder_samples` finds, for messages
 PLACEHOLDER_KINDS = (f"exactly the origin, one position held over {HELD_RUN}+ frames, or a frame "
                      f"repeating the one before within {REPEAT_TOL * 1e6:g} µm")  # fmt: skip
@@ -55,6 +67,11 @@ class SampleQuality:
         noise: (2R,) marker noise std per end cap [m] (NaN: too few samples).
         placeholders: samples that stand for an unseen end cap rather than a
             measurement (:func:`placeholder_samples`).
+        median_step: median interval between consecutive samples [s].
+        short_steps: times [s] (from each trajectory's start) of the samples that follow
+            the one before by less than :data:`SHORT_STEP` median steps.
+        gaps: times [s] of the samples that follow the one before by more than
+            :data:`GAP_STEP` median steps.
     """
 
     rate: float
@@ -67,6 +84,9 @@ class SampleQuality:
     longest_gap: np.ndarray
     noise: np.ndarray
     placeholders: int
+    median_step: float = 0.0
+    short_steps: tuple[float, ...] = ()
+    gaps: tuple[float, ...] = ()
 
 
 def placeholder_samples(points: np.ndarray) -> np.ndarray:
@@ -127,7 +147,9 @@ def longest_run(mask: np.ndarray) -> int:
 def sample_quality(ds: Dataset) -> SampleQuality:
     """Measure ``ds`` (every split, every trajectory)."""
     n_caps = 2 * ds.topology.n_rods
-    steps, seen, missing, d3 = [], np.zeros(n_caps), np.zeros(n_caps), [[] for _ in range(n_caps)]
+    steps, seen, missing = [], np.zeros(n_caps), np.zeros(n_caps)
+    d3: list[list[np.ndarray]] = [[] for _ in range(n_caps)]  # per end cap
+    ends: list[np.ndarray] = []  # the time of the sample ending each step
     longest = np.zeros(n_caps, dtype=int)
     duration, placeholders = 0.0, 0
     for s in ds.splits.values():
@@ -137,6 +159,7 @@ def sample_quality(ds: Dataset) -> SampleQuality:
             ti = t[i, ok_t]
             duration += float(ti[-1] - ti[0]) + ds.dt
             steps.append(np.diff(ti))
+            ends.append(ti[1:])
             nodes = s.nodes[i, ok_t]
             placeholders += int(placeholder_samples(nodes).sum())
             valid = np.isfinite(nodes).all(-1)
@@ -147,7 +170,8 @@ def sample_quality(ds: Dataset) -> SampleQuality:
                 x = nodes[:, c]
                 diff3 = x[3:] - 3 * x[2:-1] + 3 * x[1:-2] - x[:-3]
                 d3[c].append(diff3[np.isfinite(diff3).all(-1)].ravel())
-    intervals = np.concatenate(steps)
+    intervals, stamped = np.concatenate(steps), np.concatenate(ends)
+    median = float(np.median(intervals)) if intervals.size else ds.dt
     whole = np.maximum(np.rint(intervals / ds.dt), 1.0)
     dt_dev = intervals - whole * ds.dt
     noise = np.array([third_difference_noise(np.concatenate(d3[c]), least=10)
@@ -163,6 +187,9 @@ def sample_quality(ds: Dataset) -> SampleQuality:
         longest_gap=longest * ds.dt,
         noise=noise,
         placeholders=placeholders,
+        median_step=median,
+        short_steps=tuple(float(x) for x in stamped[intervals < SHORT_STEP * median]),
+        gaps=tuple(float(x) for x in stamped[intervals > GAP_STEP * median]),
     )
 
 
@@ -180,6 +207,15 @@ def quality_text(q: SampleQuality, cap_names: list[str]) -> str:
         f"(max {_us(q.max_jitter)} µs){dropped}, {q.duration:.3g} s recorded",
         "end cap        dropout  longest gap   noise",
     ]
+    for what, times, rule in (
+        ("steps too short to be capture times", q.short_steps, f"< {SHORT_STEP:g}"),
+        ("gaps", q.gaps, f"> {GAP_STEP:g}"),
+    ):
+        if times:
+            listed = ", ".join(f"{t:.3f}" for t in times[:LISTED_TIMES])
+            more = ", ..." if len(times) > LISTED_TIMES else ""
+            lines.insert(1, f"time stamps: {len(times)} {what} ({rule} x the median step "
+                            f"{q.median_step * 1e3:.3g} ms), at {listed}{more} s")  # fmt: skip
     if q.placeholders:
         lines.insert(1, f"placeholder samples: {q.placeholders} ({PLACEHOLDER_KINDS}): unseen end "
                         "caps written as positions; identify refuses them, write them as NaN")  # fmt: skip

@@ -157,7 +157,7 @@ class TrajFit:
     def fitted_model(self, topology: Topology, dt: float) -> FittedModel:
         """The fit as the loop's model: parameters, effects, fitted-parameter count and
         the declared parameters' standard errors."""
-        model = Model(topology, self.params, self.effects, dt)
+        model = Model(topology, self.params, tuple(self.effects), dt)
         return FittedModel(model, self.k, uncertainty=self.uncertainty)
 
     @property
@@ -384,14 +384,14 @@ def contact_searched(vec: ParamVector) -> bool:
     """Whether ``vec`` holds a contact whose parameters came from the touchdown search."""
     coords = vec.coords
     return coords is not None and any(
-        isinstance(e, GroundContact) and not slot
+        e.gate.needs == "floor" and not slot
         for e, slot in zip(coords.effects, coords.slots, strict=True)
     )
 
 
 def has_contact(vec: ParamVector) -> bool:
     return vec.coords is not None and any(
-        isinstance(e, GroundContact) for e in vec.coords.effects_at(vec.coords.start())
+        e.gate.needs == "floor" for e in vec.coords.effects_at(vec.coords.start())
     )
 
 

@@ -309,7 +309,7 @@ def touchdown_contact(
     assert vec.coords is not None
     effects = vec.coords.effects_at(theta[vec.n_free :].detach())
     others, contact = effects[:-1], effects[-1]
-    assert isinstance(contact, GroundContact)
+    assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
     fixed = held(vec, theta)
     engine = data.engine.with_effects(others)
     radius = cap_radii(data.topology)

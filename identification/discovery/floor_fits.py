@@ -285,12 +285,12 @@ def identify_on_floor(
     names = vec.names()
     free = torch.nonzero(vec.free)[:, 0].tolist()
     stderr = {names[i]: float(s) for i, s in zip(free, many.stderr[: len(free)], strict=True)}
-    contact = many.effects[-1]
-    assert isinstance(contact, GroundContact)
+    fitted = many.effects[-1]
+    assert isinstance(fitted, GroundContact)  # narrowing: fits append the floor contact last
     stages = [{"window": many.windows.steps, "windows": many.windows.size, "floor": True,
                "rms": many.rms}]  # fmt: skip
     return FloorIdentification(
         params_=many.params, topology_=topo, stderr_=stderr, mode_=ident.mode_,
         notes_=TrajectoryIdentifier.notes(topo, data.axes, has_control), rms_=many.rms,
-        converged_=True, stages_=stages, contact_=contact, effects_=list(many.effects[:-1]),
+        converged_=True, stages_=stages, contact_=fitted, effects_=list(many.effects[:-1]),
     )  # fmt: skip

@@ -145,6 +145,8 @@ def judge(
         c.verdict = (
             f"negligible: its force on the rods is {size:.2%} of their weight (< {NEGLIGIBLE:.1%})"
         )
+    elif c.bic_drop < 0:
+        c.verdict = f"rejected: BIC rises by {-c.bic_drop:.3g} (it must drop by {MIN_BIC_DROP:g})"
     elif not c.bic_drop >= MIN_BIC_DROP:
         c.verdict = f"rejected: BIC drops only {c.bic_drop:.3g} (< {MIN_BIC_DROP:g})"
     elif not c.gain >= criteria.min_gain:

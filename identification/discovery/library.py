@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -125,7 +126,7 @@ def fit_model(
         fitted, extra = _fit_through_engine(dataset, est.params_, fitted, i, settings)
         notes[fitted[i].name] = extra
     n += sum(e.fit_form.n_extra for e in fitted)
-    model = Model(dataset.topology, est.params_, fitted, dataset.dt)
+    model = Model(dataset.topology, est.params_, tuple(fitted), dataset.dt)
     return FittedModel(model, n, notes, regression_uncertainty(est))
 
 
@@ -244,7 +245,8 @@ def _gated(name: str, split: Split, topology: Topology) -> Callable[[], Proposal
 def _start(name: str, topology: Topology) -> PhysicalEffect:
     """Library effect ``name`` at the start its class declares for an engine fit."""
     cls = EFFECTS[name]
-    return cls(topology, **dict(cls.fit_form.start or {}))
+    start: dict[str, Any] = dict(cls.fit_form.start or {})  # parameter name -> value
+    return cls(topology, **start)
 
 
 def floor_proposal(name: str, split: Split, topology: Topology) -> Proposal:
@@ -284,7 +286,7 @@ def slack_probe(
     """Springs whose stiffness drops when compressed: ``ΔK_s (l - l0) [l < l0]`` per spring."""
     if SlackSprings.name in current.names:
         return [], "already in the model"
-    regressed = [e for e in current.effects if isinstance(e, LinearEffect) or _through_engine(e)]
+    regressed = [e for e in current.effects if isinstance(e, LinearEffect) or _through_engine(e)]  # the abstract base: linear in theta()
     est = ExtendedIdentifier(
         effects=regressed,
         anchors=settings.anchors, init_params=settings.init_params,
@@ -353,7 +355,7 @@ def search_lag(
                 fit_rest_length=settings.fit_rest_length,
             ).fit(dataset)  # fmt: skip
             n = int(np.sum(~est.solution_.fixed & est.solution_.identifiable)) + 1
-            model = Model(dataset.topology, est.params_, est.effects_, dataset.dt)
+            model = Model(dataset.topology, est.params_, tuple(est.effects_), dataset.dt)
             fits[tau] = (
                 float(est.solution_.rss),
                 FittedModel(model, n, uncertainty=regression_uncertainty(est)),

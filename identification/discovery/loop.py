@@ -214,6 +214,7 @@ class EffectDiscovery:
                 note = (f" (runner-up {r.name}: predicted changes correlate {r.correlation:.3f}, "
                         f"{r.note}" + ("; CANNOT be told apart)" if r.ambiguous else ")"))  # fmt: skip
             instead = f" in place of {', '.join(it.replaced)}" if it.replaced else ""
+            assert it.chosen is not None  # add() returned a model: one was chosen
             log(f"added {it.chosen.name}{instead}{note}")
             for name, why in it.removed.items():
                 log(f"removed {name}: {why}")
@@ -363,8 +364,8 @@ class EffectDiscovery:
                 return added
             earlier = set(it.before.model.names) - {chosen.name}
             stale = [e.name for e in added.model.effects if e.name in earlier and e.violation()]
-            if stale and (added := self.replace(it, chosen, stale)) is not None:
-                return added
+            if stale and (replaced := self.replace(it, chosen, stale)) is not None:
+                return replaced
             it.chosen, it.runner_up = self.choose(it.before, it.candidates)
         return None
 
@@ -407,8 +408,11 @@ class EffectDiscovery:
             gate = f"without {name}, which was added before {chosen.name}"
             proposal = Proposal(chosen.name, effect, gate)
             now = current
-            c = fitted(lambda p, now=now, name=name: scorer.fit_candidate(now, p, [name, p.name]),
-                       proposal)  # fmt: skip
+
+            def without(p: Proposal, now: Candidate[Any] = now, name: str = name) -> Candidate[Any]:
+                return scorer.fit_candidate(now, p, [name, p.name])
+
+            c = fitted(without, proposal)
             if isinstance(c, Exception):
                 self.log(f"  {gate}: not judged ({c})")
                 continue

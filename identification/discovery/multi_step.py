@@ -84,6 +84,7 @@ from identification.trajectory.stage_check import check_stage, fit_diverged, noi
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import GroundContact, ImplicitLinearDrag
+from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import State
 from tensegrity_env.params import Params
 
@@ -115,6 +116,9 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
             the default start, see :mod:`identification.discovery.floor_fits`).
         jobs: fits run at once, each in a worker process (the two floor refits of an
             accepted candidate; :mod:`~identification.discovery.side_by_side`).
+        effects: what the declared model holds beyond linear springs and a floor (a
+            params file's: an NTRT model's tension-only springs), fitted with it and kept
+            in every model the loop compares.
     """
 
     criteria = MULTI_STEP
@@ -128,8 +132,10 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         clean: Dataset | None = None,
         contact: GroundContact | None = None,
         jobs: int = 1,
+        effects: Sequence[PhysicalEffect] = (),
     ) -> None:
         self.settings = settings
+        self.effects = list(effects)
         self.jobs = jobs
         self.horizon_s = horizon_s
         self.start = start
@@ -147,7 +153,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         t0 = time.perf_counter()
         self.noise = noise_level(dataset.split("train").nodes, rods=True)
         log(f"noise level estimated from the training end caps: {self.noise * 1e3:.3g} mm")
-        final, base = fit_declared(self.data, self.settings, self.start)
+        final, base = fit_declared(self.data, self.settings, self.start, self.effects)
         log(f"declared model: end-cap RMS {final.rms * 1e3:.3f} mm on {final.windows.size} "
             f"training windows ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
         for fit in (final, base):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 
@@ -99,8 +100,10 @@ def group_power(effect: PhysicalEffect, params: Params, states: State) -> dict[s
     weight = params.mass.to(states.v) * float(params.gravity.norm())  # (R,) [N]
     scale = float((weight * states.v.norm(dim=-1)).sum(-1).mean())  # [W]
     for key in effect.PARAMS:
-        alone = type(effect)(effect.topology, validate=False, **{
-            k: v if k == key else torch.zeros_like(v) for k, v in effect.values.items()})  # fmt: skip
+        only: dict[str, Any] = {
+            k: v if k == key else torch.zeros_like(v) for k, v in effect.values.items()
+        }  # parameter name -> value: ``key`` alone
+        alone = type(effect)(effect.topology, validate=False, **only)
         d_force, d_torque, omega_l = force_change(effect.topology, params, [alone], [], states)
         power = (d_force * states.v).sum((-1, -2)) + (d_torque * omega_l).sum((-1, -2))
         power = power[torch.isfinite(power)]

@@ -136,9 +136,9 @@ class OneStepScorer(LoopScorer[FittedModel]):
         self.val_split = "val" if "val" in dataset.splits else "test"
         self.test_split = "test" if "test" in dataset.splits else self.val_split
         start = self.start_effects
-        if any(isinstance(e, ResidualNetwork) for e in start):
+        if any(e.name == ResidualNetwork.name for e in start):
             log("starting effects: a residual network is not a physical effect; left out")
-            start = [e for e in start if not isinstance(e, ResidualNetwork)]
+            start = [e for e in start if e.name != ResidualNetwork.name]
         current = self.score("nothing", fit_model(dataset, start, self.settings))
         names = current.model.names
         log(f"declared model{' + ' + ', '.join(names) if names else ''}: held-out one-step "

@@ -219,7 +219,9 @@ def fit_residual_network(
     ).fit(dataset, split)  # fmt: skip
     effects = list(est.effects_)
     k = len(others)
-    net = effects[k].network
+    fitted = effects[k]
+    assert isinstance(fitted, ResidualNetwork)  # narrowing: the fit keeps each effect's class
+    net = fitted.network
     params = est.params_
     physical = FittedModel(
         model.model.replace(params=params, effects=[e for i, e in enumerate(effects) if i != k]),
@@ -242,7 +244,8 @@ def fit_residual_network(
         train_loss = float(((net.standardised(x) - ys) ** 2).mean())
     effect = ResidualNetwork(topo, net)
     effects[k] = effect
-    before, after = {}, {}
+    before: dict[str, Any] = {}
+    after: dict[str, Any] = {}
     for s in eval_splits:
         if s not in dataset.splits:
             continue

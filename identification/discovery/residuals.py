@@ -286,7 +286,7 @@ def plot_residuals(
 
     def scaled(ax: Any, x: np.ndarray, y: np.ndarray, x_bound: float | None = None) -> None:
         """Both axes scaled to the bulk of the points (``x_bound``: the x axis within ±)."""
-        bound = {} if x_bound is None else {"low": -x_bound, "high": x_bound}
+        bound: dict[str, Any] = {} if x_bound is None else {"low": -x_bound, "high": x_bound}
         set_robust_limits(ax, x, "x", what="points", **bound)
         set_robust_limits(ax, y, "y", what="points")
 

@@ -156,7 +156,7 @@ class Refined(Generic[F]):
     def fit_jointly(self, current: Candidate[F], proposal: Proposal) -> Candidate[F]:
         """``current`` plus the proposed effect fitted with everything free, where
         ``fit_candidate`` holds part of the model (default: ``fit_candidate``)."""
-        return self.fit_candidate(current, proposal)  # type: ignore[attr-defined,no-any-return]
+        return self.fit_candidate(current, proposal)  # type: ignore[attr-defined]  # a mixin: LoopScorer's Scorer side has it
 
     def refusal(self, added: Candidate[F], before: Candidate[F]) -> str:
         """Why ``added`` (``accept``'s refit of a chosen candidate) cannot replace

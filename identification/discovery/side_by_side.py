@@ -60,7 +60,7 @@ def expected_cost(proposal: Proposal) -> tuple[bool, int]:
     above the rest, then more fitted coordinates above fewer (cubic stiffness, one per
     spring, took the longest of a floor pass)."""
     effect = proposal.effect
-    coordinates = len(effect.theta_names()) if isinstance(effect, LinearEffect) else 0
+    coordinates = len(effect.theta_names()) if isinstance(effect, LinearEffect) else 0  # the abstract base: theta() holds its coordinates
     return proposal.start is not None, coordinates
 
 

@@ -53,7 +53,7 @@ def slack_hypothesis(data: EndCapData, current: TrajFit, anchors: dict[str, floa
     about their contact points (:func:`~identification.discovery.floor_fits.leaning_rows`),
     else the airborne samples.
     """
-    old = [e for e in current.effects if isinstance(e, SlackSprings)]
+    old = [e for e in current.effects if e.name == SlackSprings.name]
     known = {int(i) for e in old for i in e.values["springs"].tolist()}
     if len(known) == data.topology.n_springs:
         return Proposal("slack_springs", None, f"all {len(known)} springs are cables already")
@@ -107,7 +107,7 @@ def switched_cables(
     if not offered:
         return []
     vec = held(current.vec, current.theta)
-    others = [e for e in current.effects if not isinstance(e, SlackSprings)]
+    others = [e for e in current.effects if e.name != SlackSprings.name]
 
     def sse(cables: set[int]) -> float:
         engine = data.engine.with_effects([*others,
@@ -150,7 +150,7 @@ def fit_slack(
     assert proposal.effect is not None
     # the proposal holds every cable, old and new: the current cables' effect is replaced
     # (kept beside it, the push of a cable in both would be removed twice: a pull)
-    effects = [*(e for e in keep if not isinstance(e, SlackSprings)), proposal.effect]
+    effects = [*(e for e in keep if e.name != proposal.name), proposal.effect]
     if contact_searched(current.vec):
         return fit_with(data, current, effects, s.candidate_iter)
     many, fit = fit_declared(data, s, effects=effects, values=proposal.start)

@@ -25,7 +25,6 @@ import torch
 
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate_dataset
 from identification.trajectory.effect_fit import rollout_caps
-from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.io_utils import InputError
@@ -75,7 +74,7 @@ def drop_check(
     params: Params, effects: Sequence[PhysicalEffect], n: int = 3, seed: int = 21
 ) -> DropResult:
     """Roll the model (``params``, ``effects``) out from MuJoCo's drops; see the module doc."""
-    if not any(isinstance(e, GroundContact) for e in effects):
+    if not any(e.gate.needs == "floor" for e in effects):
         raise InputError("the model has no ground_contact effect: it would fall through the floor")
     ds, _ = drop_trajectories(n, seed=seed)
     if not effects[0].topology.same_as(ds.topology):

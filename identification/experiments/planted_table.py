@@ -39,7 +39,6 @@ from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_err, ratio, write_params
 from identification.experiments.drop_check import drop_check
 from identification.simulation.planted import PLANTS, PlantSpec, planted_dataset
-from tensegrity_env.effects import GroundContact
 from tensegrity_env.io_utils import atomic_write_text
 
 
@@ -105,7 +104,7 @@ def run_case(
         write_params(r, params_out, {"planted": spec.label})
     b, f = r.baseline_test, r.final_test
     drop: float | None = None  # the 2-s drop against MuJoCo, for an identified contact
-    if any(isinstance(e, GroundContact) for e in r.model.effects):
+    if any(e.gate.needs == "floor" for e in r.model.effects):
         drop = drop_check(r.model.params, r.model.effects).worst
     flagged = [f"{it.chosen.name}~{amb[0]}" for it in r.iterations
                if it.chosen is not None and (amb := it.ambiguous) is not None]  # fmt: skip

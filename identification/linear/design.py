@@ -243,10 +243,12 @@ def rod_blocks(
     A[:, :, :3, h] = -f_u.transpose(0, 1)
     A[:, :, 3:, h] = -t_u.transpose(0, 1)
     if slots.cable is not None:  # -σ (-h_c u) e: the unit-tension wrench times u
+        assert feat.cables is not None  # features carry cable commands where slots do
         u = feat.cables[:, slots.cable.clamp_min(0)] * (slots.cable >= 0)  # (n, R, J)
         A[..., h + 1 : h + 1 + J] = unit * u.transpose(0, 1).unsqueeze(2)
     if slots.winch is not None:  # +σ (K v) w e, as the K·l0 column with w for 1
         first = h + 1 + (J if slots.cable is not None else 0)
+        assert feat.winding is not None  # features carry the winding where slots do
         w = feat.winding[:, slots.winch.clamp_min(0)] * (slots.winch >= 0)  # (n, R, J)
         A[..., first : first + J] = unit * w.transpose(0, 1).unsqueeze(2)
     return A.permute(1, 0, 2, 3)

@@ -7,12 +7,15 @@ with the model's effects folded into the same design matrix:
   stiffness, rest-length offset) adds its columns ``-basis`` (force per unit
   parameter, torque in the rod frame) and is identified jointly with K, K·l0, c,
   M, I, h;
-* :class:`~tensegrity_env.effects.springs.SlackSprings` switches the elastic columns
-  of its cables off while they are shorter than rest (the break point is the
+* an effect that switches springs' elasticity off
+  (:meth:`~tensegrity_env.effects.base.PhysicalEffect.elastic`: slack cables, while
+  shorter than rest) switches their elastic columns off (the break point is the
   reference rest length; :meth:`ExtendedIdentifier.fit` iterates it);
-* any other effect with a gate (ground contact) is not linear in its parameters:
-  rods the gate says it touches are left out of the regression, and its parameters
-  are fitted through the engine (:mod:`identification.trajectory.effect_fit`);
+* an effect whose gate depends on where the end caps are
+  (:meth:`~tensegrity_env.effects.base.PhysicalEffect.clearance`: ground contact) is
+  not linear in its parameters: rods the gate says it touches are left out of the
+  regression, and its parameters are fitted through the engine
+  (:mod:`identification.trajectory.effect_fit`);
 * ``compression_columns`` adds, per spring, ``ΔK_s (l - l0) [l < l0]``: a linear
   probe for springs that lose stiffness when compressed (cables go slack).
 
@@ -44,7 +47,7 @@ from identification.linear.features import (
     transitions_of,
 )
 from identification.linear.regression import SpringRodIdentifier
-from tensegrity_env.effects import GroundContact, LinearEffect, SlackSprings
+from tensegrity_env.effects import LinearEffect
 from tensegrity_env.effects.base import PhysicalEffect, spring_unit_wrench
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.kinematics import AttachmentPoints, node_kinematics
@@ -97,15 +100,16 @@ class ExtendedIdentifier(SpringRodIdentifier):
         if dataset.topology.n_winches:  # its design has no winding columns
             raise InputError(f"{dataset.path or 'dataset'}: the robot has winches; the effect "
                              "regression does not take them (SpringRodIdentifier does)")  # fmt: skip
+        # effects inside the regression read break points and rest lengths from a reference
         needs_reference = (
-            any(isinstance(e, (SlackSprings, LinearEffect)) for e in self.effects)
+            any(e.fit_form.route == "regression" for e in self.effects)
             or self.compression_columns
         )
         self._ref = self.reference
         passes = self.iterations if needs_reference else 1
         if self._ref is None and needs_reference:
             plain = ExtendedIdentifier(
-                effects=[e for e in self.effects if not isinstance(e, (LinearEffect, SlackSprings))],
+                effects=[e for e in self.effects if e.fit_form.route != "regression"],
                 contact_margin=self.contact_margin, **self._base_kwargs(),
             ).fit(dataset, split)  # fmt: skip
             self._ref = plain.params_
@@ -140,7 +144,7 @@ class ExtendedIdentifier(SpringRodIdentifier):
         return Dataset(dataset.topology, dataset.dt, splits, dataset.attrs, dataset.path)
 
     def _extra(self) -> list[tuple[int, LinearEffect]]:
-        return [(i, e) for i, e in enumerate(self.effects) if isinstance(e, LinearEffect)]
+        return [(i, e) for i, e in enumerate(self.effects) if isinstance(e, LinearEffect)]  # the abstract base: columns -basis
 
     def _normal_equations(
         self, dataset: Dataset, data: Split, layout: ParameterLayout, index: np.ndarray
@@ -162,8 +166,6 @@ class ExtendedIdentifier(SpringRodIdentifier):
             assert self.init_params is not None
             rest = self.init_params.rest_length.detach().double()
         ref = self._ref
-        slack = next((e for e in self.effects if isinstance(e, SlackSprings)), None)
-        gated = [e for e in self.effects if isinstance(e, GroundContact)]
         normal = torch.zeros(P + E + 1, P + E + 1, dtype=DTYPE)
         kept = 0.0
         ends = torch.as_tensor(topo.end_offsets, dtype=DTYPE)
@@ -176,8 +178,11 @@ class ExtendedIdentifier(SpringRodIdentifier):
             A = rod_blocks(feat, slots, g, rest)  # (n, R, 6, L)
             kin = node_kinematics(s0, ends, anchors, points)
             l0 = ref.rest_length.double() if ref is not None else None
-            if slack is not None and l0 is not None:
-                taut = (feat.springs.length > l0) | (slack.mask(l0) == 0)  # (n, S)
+            elastic = [] if l0 is None else [
+                m for e in self.effects if (m := e.elastic(feat.springs.length, l0)) is not None
+            ]  # fmt: skip
+            if elastic:  # springs whose elastic tension an effect switches off (slack cables)
+                taut = torch.stack(elastic).all(0)  # (n, S)
                 t = taut[:, slots.spring].to(DTYPE)  # (n, R, J)
                 J = slots.spring.shape[1]
                 for k in (4, 5):  # K and K*l0 columns of every slot
@@ -197,10 +202,11 @@ class ExtendedIdentifier(SpringRodIdentifier):
                 tq_l = torch.einsum("nrji,nrjp->nrip", kin.rot, tq)
                 blocks.append(-torch.cat([f, tq_l], dim=2) * comp[:, None, None])
             A = torch.cat(blocks, dim=-1)
-            if gated:
+            # rods within the margin of where a gated effect (contact) acts are left out
+            clear = [d for e in self.effects if (d := e.clearance(s0, kin)) is not None]
+            if clear:
                 touch = torch.zeros(A.shape[:2], dtype=torch.bool)
-                for e in gated:
-                    dist = e.contact_geometry(s0, kin)["dist"]
+                for dist in clear:
                     touch |= (dist < self.contact_margin).any(-1)
                 A = A * (~touch).to(DTYPE)[..., None, None]
                 kept += float((~touch).sum())

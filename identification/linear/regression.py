@@ -9,13 +9,12 @@ identifiability report, ``predict``/``simulate`` run the identified engine and
     est.score(dataset, "test")   # {'one_step_position_error': ..., ...}
 
 Over 400 lines because it is one estimator class (fit, identifiability report,
-predict, simulate, score) whose parts share its fitted state.
+predict, simulate, score) whose parts share its fitted state. The user's scale
+anchors are read and checked by :mod:`identification.linear.anchors`.
 """
 
 from __future__ import annotations
 
-import math
-import re
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -26,6 +25,7 @@ import torch
 from tqdm.auto import tqdm
 
 from identification.data.dataset import Dataset, Split
+from identification.linear.anchors import check_anchor
 from identification.linear.design import (
     ParameterLayout,
     accumulate_normal,
@@ -112,6 +112,10 @@ class SpringRodIdentifier:
             ``v_max = (K·v)/K`` per winch. Their range is ``init_params``', else the span
             of rest lengths the fitted winding covers in the data.
     """
+
+    #: every winch lag tried [s] -> its residual sum of squares, set by
+    #: :func:`~identification.linear.winch_lag.fit_winch_lag` on the estimator it returns
+    lag_search_: dict[float, float]
 
     def __init__(
         self,
@@ -412,8 +416,9 @@ class SpringRodIdentifier:
 
     def _winch_values(
         self, topo: Any, values: dict[str, np.ndarray], rest: np.ndarray
-    ) -> dict[str, np.ndarray]:
-        """``winch_*`` parameters: ``v_max = (K·v)/K``, the lag taken as known, the range
+    ) -> dict[str, Any]:
+        """``winch_*`` keywords of :meth:`Params.create` ((W,) arrays; none without
+        winches): ``v_max = (K·v)/K``, the lag taken as known, the range
         from ``init_params`` or the span the winding covers in the fit data (see the
         class doc)."""
         if not topo.n_winches:
@@ -550,6 +555,7 @@ def evaluate_params(
         )
         roll = engine.rollout(init, params, T, ctrl, cable_ctrl,
                               None if winch_ctrl is None else winch_ctrl[:, :T])  # fmt: skip
+        assert data.p is not None  # the initial states above came from it
         err = torch.linalg.vector_norm(roll.p - torch.as_tensor(data.p[:, : T + 1]), dim=-1)
         curve = err.nanmean(dim=(0, 2)).numpy()  # (samples in a gap: left out)
     return {
@@ -559,48 +565,3 @@ def evaluate_params(
         "rollout_curve": curve,
         "horizon_steps": T,
     }
-
-
-_NAME = re.compile(r"^([a-z_]+)(\[[^\]]+\])?$")
-
-
-#: the physical domain of an anchored value, per parameter group: (strictly positive, unit)
-ANCHOR_DOMAIN: dict[str, tuple[bool, str]] = {
-    "mass": (True, "kg"),
-    "inertia": (True, "kg*m^2"),
-    "stiffness": (True, "N/m"),
-    "stiffness_rest": (True, "N"),
-    "damping": (False, "N*s/m"),
-    "rest_length": (False, "m"),
-    "control_gain": (True, "N per command unit"),
-    "cable_gain": (False, "N per command unit"),
-}
-#: groups whose values may take either sign (a cable actuator's gain: pull or push)
-SIGNED_GROUPS = frozenset({"cable_gain"})
-
-
-def check_anchor(name: str, value: float) -> None:
-    """Raise :class:`InputError` unless ``value`` is finite and in the physical domain of
-    ``name``'s group (mass, inertia, stiffness, K·l0, h > 0; damping, rest length >= 0)."""
-    m = _NAME.match(name.strip())
-    group = m.group(1) if m else name
-    positive, unit = ANCHOR_DOMAIN.get(group, (False, ""))
-    if not math.isfinite(value):
-        raise InputError(f"--anchor {name}={value!r}: the value must be a finite number")
-    if group not in SIGNED_GROUPS and (value < 0 or (positive and value == 0)):
-        sign = "> 0" if positive else ">= 0"
-        raise InputError(f"--anchor {name}={value!r}: a {group} must be {sign} [{unit}]")
-
-
-def parse_anchor(text: str) -> tuple[str, float]:
-    """Parse ``NAME=VALUE`` (e.g. ``mass[rod0]=1.95``): a finite value in the physical
-    domain of the parameter (:func:`check_anchor`)."""
-    name, sep, value = text.partition("=")
-    if not sep or not _NAME.match(name.strip()):
-        raise InputError(f"--anchor '{text}' must look like mass[rod0]=1.95")
-    try:
-        number = float(value)
-    except ValueError:
-        raise InputError(f"--anchor '{text}': '{value}' is not a number") from None
-    check_anchor(name.strip(), number)
-    return name.strip(), number

@@ -209,7 +209,8 @@ def smoothed_regression(
     slots = rod_slots(layout)
     if rod_keep is not None:
         used_rods = rod_keep if pivots is None else rod_keep | (pivots >= 0)
-        keep = used_rods.any(-1) if keep is None else keep & used_rods.any(-1)
+        any_rod = np.asarray(used_rods.any(-1))  # (n,): samples with a rod kept
+        keep = any_rod if keep is None else keep & any_rod
     if topo.n_cables and cables is None:
         cables = np.zeros((*control.shape[:2], topo.n_cables))
     if topo.n_winches and winding is None:

@@ -167,7 +167,7 @@ def spring_excitation(
     for s in splits.values():
         nodes = (
             assemblies.node_positions(topo, s.p[:, ::stride], s.q[:, ::stride])
-            if s.has_states
+            if s.has_states and s.p is not None and s.q is not None
             else np.ascontiguousarray(s.nodes[:, ::stride])
         )
         lengths = spring_lengths(topo, nodes)

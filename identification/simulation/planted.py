@@ -146,7 +146,7 @@ def planted_mjcf(spec: PlantSpec) -> tuple[str, dict[str, Any]]:
             raise InputError(f"slack_springs: strength must be 1..{S} cables, got {n}")
         cables = np.sort(np.random.default_rng([spec.seed, 99]).choice(S, n, replace=False))
         rest = a.params.numpy()["rest_length"]
-        for k, sp in enumerate(root.find("tendon").findall("spatial")):  # type: ignore[union-attr]
+        for k, sp in enumerate(root.iter("spatial")):  # every spring, in order
             if k in cables:
                 sp.set("springlength", f"0 {float(rest[k])!r}")
         record["params"] = {"springs": cables.tolist()}
@@ -173,13 +173,16 @@ def plant_attribute(root: ET.Element, plant: MujocoPlant, value: float) -> dict[
     """Write ``value`` to ``plant``'s MJCF attribute in ``root`` (the model, changed in
     place); the ground-truth record's ``mujoco`` (and ``params``) entries."""
     if plant.element == "option":
-        targets = [root.find("option")]
+        option = root.find("option")
+        if option is None:
+            raise ValueError("the MJCF has no <option> element to plant in")
+        targets = [option]
     elif plant.element == "tendon":
         targets = list(root.iter("spatial"))
     else:
         raise ValueError(f"unknown MJCF element {plant.element!r} to plant in")
     for t in targets:
-        t.set(plant.attribute, repr(value))  # type: ignore[union-attr]
+        t.set(plant.attribute, repr(value))
     out: dict[str, Any] = {"mujoco": {plant.attribute: value, "model": plant.note}}
     if plant.params:
         out["params"] = {k: value for k in plant.params}

@@ -333,7 +333,8 @@ def roll_and_convert(
         ThreadPoolExecutor(max_workers=1) as sim,
         ThreadPoolExecutor(max_workers=roller.threads) as work,
     ):
-        pending, converting, count = launch(0), [], 0
+        pending, count = launch(0), 0
+        converting: list[Future[None]] = []
         for i, (lo, hi) in enumerate(bounds):
             states = pending.result()
             finish(converting, count)  # frees the buffer the next rollout writes

@@ -99,9 +99,15 @@ class EffectCoords:
     def _held(self, i: int) -> tuple[int, ...]:
         return self.held[i] if self.held else ()
 
+    def _linear(self, i: int) -> LinearEffect:
+        """Effect ``i``, whose coordinates are its ``theta()`` (its slot is None)."""
+        e = self.effects[i]
+        assert isinstance(e, LinearEffect)  # narrowing: a None slot marks the abstract base
+        return e
+
     def _free_idx(self, i: int) -> np.ndarray:
         """Free entries of linear effect ``i``'s ``theta()``."""
-        n = int(self.effects[i].theta().numel())  # type: ignore[attr-defined]
+        n = int(self._linear(i).theta().numel())
         return np.setdiff1d(np.arange(n), self._held(i))
 
     def sizes(self) -> list[int]:
@@ -117,7 +123,7 @@ class EffectCoords:
         out: list[float] = []
         for i, (e, s) in enumerate(zip(self.effects, self.slots, strict=True)):
             if s is None:
-                th = e.theta().detach().double()  # type: ignore[attr-defined]
+                th = self._linear(i).theta().detach().double()
                 out += th[self._free_idx(i)].tolist()
             else:
                 out += [to_free(e.PARAMS[k], float(e.values[k].reshape(-1)[0])) for k in s]
@@ -134,7 +140,7 @@ class EffectCoords:
         i = 0
         for j, (s, n) in enumerate(zip(self.slots, self.sizes(), strict=True)):
             if s is None:
-                floor = self.effects[j].theta_lower()[self._free_idx(j)]  # type: ignore[attr-defined]
+                floor = self._linear(j).theta_lower()[self._free_idx(j)]
             for k in range(n):
                 if s is None:
                     lo.append(float(floor[k]))
@@ -155,7 +161,7 @@ class EffectCoords:
         out: list[bool] = []
         for j, (s, n) in enumerate(zip(self.slots, self.sizes(), strict=True)):
             if s is None:
-                floor = self.effects[j].theta_lower()[self._free_idx(j)]  # type: ignore[attr-defined]
+                floor = self._linear(j).theta_lower()[self._free_idx(j)]
                 out += [bool(np.isfinite(float(f))) for f in floor]
             else:
                 out += [False] * n
@@ -174,12 +180,12 @@ class EffectCoords:
             se = None if stderr is None else np.asarray(stderr[i : i + n], dtype=float)
             if s is None:
                 idx = torch.as_tensor(self._free_idx(j_e))
-                full = e.theta().detach().to(part).index_put((idx,), part)  # type: ignore[attr-defined]
+                full = self._linear(j_e).theta().detach().to(part).index_put((idx,), part)
                 se_full = None
                 if se is not None:
                     se_full = np.zeros(full.numel())
                     se_full[idx.numpy()] = se
-                out.append(e.with_theta(full, se_full))  # type: ignore[attr-defined]
+                out.append(self._linear(j_e).with_theta(full, se_full))
             elif s:
                 vals = {k: from_free(e.PARAMS[k], part[j]) for j, k in enumerate(s)}
                 new = e.with_values(validate=False, **vals)
@@ -213,7 +219,7 @@ class EffectCoords:
         out = []
         for i, (e, s) in enumerate(zip(self.effects, self.slots, strict=True)):
             if s is None:
-                keys = [e.theta_names()[k] for k in self._free_idx(i)]  # type: ignore[attr-defined]
+                keys = [self._linear(i).theta_names()[k] for k in self._free_idx(i)]
             else:
                 keys = list(s)
             out += [f"{e.name}.{k}" for k in keys]

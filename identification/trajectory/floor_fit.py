@@ -82,6 +82,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -176,11 +177,11 @@ def floor_height(nodes: np.ndarray, topology: Topology) -> float:
 
 
 def floor_contact(
-    topology: Topology, nodes: np.ndarray, start: GroundContact | None = None
+    topology: Topology, nodes: np.ndarray, start: PhysicalEffect | None = None
 ) -> GroundContact:
     """The contact a floor fit starts from: ``start``'s values (a params file, or a fit)
     if given, else :data:`CONTACT_START` at the height :func:`floor_height` estimates."""
-    values = dict(CONTACT_START)
+    values: dict[str, Any] = dict(CONTACT_START)  # parameter name -> value
     values["height"] = floor_height(nodes, topology)
     if start is not None:
         values.update({k: float(start.values[k].reshape(-1)[0]) for k in start.PARAMS})
@@ -230,7 +231,7 @@ def bounded(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
     values at ``theta``."""
     assert vec.coords is not None
     contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
-    assert isinstance(contact, GroundContact)
+    assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
     return replace(vec, coords=vec.coords.with_box(contact_box(contact)))
 
 
@@ -256,7 +257,7 @@ def search_floor_contact(
     n = vec.n_free
     effects = vec.coords.effects_at(theta[n:].detach())
     others, contact = effects[:-1], effects[-1]
-    assert isinstance(contact, GroundContact)
+    assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
     params = vec.params(vec.full(theta.detach()))
     touch = Touchdowns(state=windows.state, obs=windows.obs, control=windows.control,
                        traj=windows.traj, first=windows.start, prefix_rms=float("nan"),

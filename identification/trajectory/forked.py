@@ -24,9 +24,7 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from itertools import pairwise
-from typing import Any, TypeVar
-
-T = TypeVar("T")
+from typing import Any
 
 #: the tasks, set before the workers fork (read only in the workers)
 _tasks: Sequence[Callable[[], Any]] | None = None
@@ -45,10 +43,11 @@ def usable_cores() -> int:
 
 
 def side_by_side(
-    tasks: Sequence[Callable[[], T]], jobs: int, log: Callable[[str], None] = print
-) -> list[T]:
+    tasks: Sequence[Callable[[], Any]], jobs: int, log: Callable[[str], None] = print
+) -> list[Any]:
     """``task()`` for every task, in ``jobs`` forked worker processes at most; the
-    results in order (an exception a task raises is raised here)."""
+    results in order (an exception a task raises is raised here). Tasks may return
+    different types (a caller unpacks the list)."""
     global _tasks
     workers = 1 if _in_worker else min(jobs, len(tasks))
     if workers > 1 and "fork" in multiprocessing.get_all_start_methods():

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,7 @@ def slack_regression(
     (N, T), ``rod_keep`` and ``pivots`` (N, T, R), ``radius`` (R,) [m]). The knots start at the rest lengths of the regression without hinges and
     follow the fitted rest lengths until no knot moves more than ``tol`` [m].
     """
-    rows = {"keep": keep, "rod_keep": rod_keep, "pivots": pivots, "radius": radius}
+    rows: dict[str, Any] = {"keep": keep, "rod_keep": rod_keep, "pivots": pivots, "radius": radius}
     plain = smoothed_regression(topology, smooth, control, anchors, **rows)
     knots = np.nan_to_num(plain["rest_length"], nan=float(np.nanmedian(plain["rest_length"])))
     values, change, it = plain, np.inf, 0

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -164,7 +165,7 @@ def contact_at(
     """``contact`` with ``keys`` at coordinates ``x`` (len(keys),) (log/logit/as is)."""
     values = {k: from_free(contact.PARAMS[k], torch.tensor(float(x[j]), dtype=torch.float64))
               for j, k in enumerate(keys)}  # fmt: skip
-    return contact.with_values(validate=False, **values)  # type: ignore[return-value]
+    return contact.with_values(validate=False, **values)
 
 
 def touchdown_residual(
@@ -311,5 +312,7 @@ def contact_from_dataset(
     if touch is None:
         return None
     log(f"{touch.size} touchdowns; airborne prefixes fitted to {touch.prefix_rms * 1e3:.3f} mm")
-    start = start if start is not None else GroundContact(topo, **CONTACT_START)
+    if start is None:
+        generic: dict[str, Any] = dict(CONTACT_START)  # parameter name -> value
+        start = GroundContact(topo, **generic)
     return search_contact(engine, params, effects, start, touch, log)

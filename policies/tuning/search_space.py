@@ -32,7 +32,7 @@ PPO_NETS: dict[str, list[int]] = {"tiny": [64], "small": [64, 64], "medium": [25
 SAC_NETS: dict[str, list[int]] = {"small": [64, 64], "medium": [256, 256], "big": [400, 300]}
 
 
-def sample_ppo(trial: optuna.Trial, base: Entry) -> Entry:
+def sample_ppo(trial: optuna.trial.BaseTrial, base: Entry) -> Entry:
     """One PPO trial's settings over ``base`` (an entry of ``ppo.yml``)."""
     n_envs = int(base.get("n_envs", 1))
     n_steps = 2 ** trial.suggest_int("n_steps_pow", 4, 9)
@@ -59,7 +59,7 @@ def sample_ppo(trial: optuna.Trial, base: Entry) -> Entry:
     return entry
 
 
-def sample_sac(trial: optuna.Trial, base: Entry) -> Entry:
+def sample_sac(trial: optuna.trial.BaseTrial, base: Entry) -> Entry:
     """One SAC trial's settings over ``base`` (an entry of ``sac.yml``)."""
     train_freq = trial.suggest_int("train_freq", 1, 10)
     net = SAC_NETS[trial.suggest_categorical("net_arch", list(SAC_NETS))]
@@ -79,7 +79,7 @@ def sample_sac(trial: optuna.Trial, base: Entry) -> Entry:
 
 
 #: samplers by algorithm name
-SAMPLERS: dict[str, Callable[[optuna.Trial, Entry], Entry]] = {
+SAMPLERS: dict[str, Callable[[optuna.trial.BaseTrial, Entry], Entry]] = {
     "ppo": sample_ppo,
     "sac": sample_sac,
 }

@@ -231,7 +231,9 @@ def run_worker(cfg: StudyConfig, worker: int = 0) -> None:
 def start_workers(cfg: StudyConfig, n: int) -> list[mp.process.BaseProcess]:
     """``n`` worker processes (spawned: each imports torch afresh, one thread each)."""
     ctx = mp.get_context("spawn")
-    procs = [ctx.Process(target=run_worker, args=(cfg, i), daemon=False) for i in range(n)]
+    procs: list[mp.process.BaseProcess] = [
+        ctx.Process(target=run_worker, args=(cfg, i), daemon=False) for i in range(n)
+    ]
     for p in procs:
         p.start()
     return procs
@@ -254,7 +256,7 @@ def watch(
             bar.update(done - bar.n)
             complete = [t for t in trials if t.state == TrialState.COMPLETE]
             running = sum(t.state == TrialState.RUNNING for t in trials)
-            post = {"running": running}
+            post: dict[str, int | str] = {"running": running}
             if complete:
                 post["best"] = f"{max(t.value for t in complete if t.value is not None):.2f}"
             bar.set_postfix(post, refresh=True)

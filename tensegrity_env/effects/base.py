@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 import torch
@@ -122,11 +122,14 @@ class NativeForm:
         slots: names of slots of the kernel's effects block
             (:data:`tensegrity_env.native.pack.EFFECT_SLOTS`).
         keys: the parameters packed.
+        constants: ``(slot, value)`` pairs of fixed numbers of the law (not parameters)
+            written into one-entry slots, e.g. a regularisation velocity [m/s].
     """
 
     kind: str
     slots: tuple[str, ...] = ()
     keys: tuple[str, ...] = ()
+    constants: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -282,6 +285,31 @@ class PhysicalEffect(EffectBase):
         """Whether the values pass :meth:`check` (a fit may give unphysical ones)."""
         return not self.violation()
 
+    def clearance(self, state: State, kin: Kinematics) -> torch.Tensor | None:
+        """How far each rod's end caps are from where the gate lets the effect act,
+        (B, R, 2) [m], below 0 where it acts; None (the default): the gate does not
+        depend on where the end caps are. ``state``, ``kin``: the rods (B rows)."""
+        return None
+
+    def elastic(self, length: torch.Tensor, rest: torch.Tensor) -> torch.Tensor | None:
+        """Where each spring still carries its elastic tension ``K (l - l0)``: a bool
+        (B, S) from spring lengths ``length`` (B, S) [m] and rest lengths ``rest`` (S,)
+        [m]; None (the default): the effect switches no spring's elasticity off."""
+        return None
+
+    def filter_commands(
+        self, control: torch.Tensor, dt: float, explicit: bool = False
+    ) -> torch.Tensor:
+        """The commands that act, from those given ``control`` (B, T, ...) (time on dim 1)
+        at step ``dt`` [s]; ``explicit``: MuJoCo's explicit filter form, for cable commands.
+        The default: unchanged (an effect with :attr:`filters_commands` overrides it)."""
+        return control
+
+    def floor_height(self) -> float | None:
+        """The height [m] of the floor at which the effect stops end caps; None (the
+        default): the effect is no floor."""
+        return None
+
     def value(self, key: str, like: torch.Tensor) -> torch.Tensor:
         """Parameter ``key`` on the dtype and device of ``like``."""
         v = self.values[key]
@@ -289,7 +317,7 @@ class PhysicalEffect(EffectBase):
             v = v.to(dtype=like.dtype, device=like.device)
         return v
 
-    def with_values(self, validate: bool = True, **values: Any) -> PhysicalEffect:
+    def with_values(self, validate: bool = True, **values: Any) -> Self:
         """A copy with some parameters replaced (tensors kept as given: differentiable).
 
         ``validate=False`` skips the physical checks (see :meth:`physical`).
@@ -403,7 +431,7 @@ class LinearEffect(PhysicalEffect):
                 names += [f"{k}[{'xyz'[i] if n == 3 else i}]" for i in range(n)]
         return names
 
-    def with_theta(self, theta: Any, stderr: Any = None) -> LinearEffect:
+    def with_theta(self, theta: Any, stderr: Any = None) -> Self:
         """A copy with :meth:`theta` replaced (and its standard errors, same layout)."""
         theta = torch.as_tensor(theta, dtype=torch.float64).reshape(-1)
         values, unc, i = {}, {}, 0
@@ -420,7 +448,11 @@ class LinearEffect(PhysicalEffect):
         return new
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         force, torque = self.basis(state, kin, params)
         th = self.theta().to(force)
@@ -449,7 +481,11 @@ class SpringLawEffect(LinearEffect):
         return force * phi, torque * phi
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         phi = self.factor(state, kin, params)
         return spring_tension_wrench(kin, self.topology, phi * self.theta().to(phi))

@@ -115,7 +115,7 @@ class LinearDrag(_Drag):
                 f"got {form!r}"
             )
         target = ImplicitLinearDrag if form == "implicit" else LinearDrag
-        return super(LinearDrag, target).from_dict(doc, topology)  # type: ignore[return-value]
+        return super(LinearDrag, target).from_dict(doc, topology)
 
 
 class ImplicitLinearDrag(LinearDrag):

@@ -38,7 +38,7 @@ passive and actuator forces. Called directly without that wrench, it uses the sp
 
 Where no gradient is wanted (double precision on the CPU, as the trajectory fits'
 forward differences step it), the C kernel's ``tsr_contact_forces``
-(``tensegrity_env/native/native_step.c``, the same law the kernel's step uses) computes
+(``tensegrity_env/native/native_contact.c``, the same law the kernel's step uses) computes
 the same geometry and law rod by rod (``benchmarks/bench_engine.py`` times both); the
 two agree to round-off (``tests/unit/test_soft_contact_solve.py``). Otherwise, and
 where no C compiler works, PyTorch does
@@ -203,6 +203,13 @@ class GroundContact(PhysicalEffect):
             tension = hooke_tension(frame, params.stiffness, params.damping, params.rest_length)
         nodes = tension_to_node_forces(tension, frame, self._incidence.to(tension))
         return kinematics_wrench(nodes, kin)
+
+    def clearance(self, state: State, kin: Kinematics) -> torch.Tensor:
+        """Each end cap's distance above the floor, (B, R, 2) [m] (< 0 in contact)."""
+        return self.contact_geometry(state, kin)["dist"]
+
+    def floor_height(self) -> float:
+        return float(self.values["height"].reshape(-1)[0])
 
     def contact_geometry(self, state: State, kin: Kinematics) -> dict[str, torch.Tensor]:
         """Per end cap (B, R, 2): ``dist`` [m] (< 0 in contact), ``slip`` [m/s], ``vn`` [m/s].

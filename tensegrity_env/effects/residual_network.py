@@ -83,6 +83,12 @@ class ResidualMLP(nn.Module):
     ``y = out_mean + out_scale * mlp((x - in_mean) / in_scale)``.
     """
 
+    in_mean: torch.Tensor
+    in_scale: torch.Tensor
+    out_mean: torch.Tensor
+    out_scale: torch.Tensor
+    mlp: nn.Sequential
+
     def __init__(self, hidden: Sequence[int] = (32, 32), activation: str = "tanh") -> None:
         super().__init__()
         if activation not in _ACTIVATIONS:
@@ -128,7 +134,8 @@ class ResidualMLP(nn.Module):
 
     def standardised(self, x: torch.Tensor) -> torch.Tensor:
         """The MLP's raw output on standardised inputs (the training target's scale)."""
-        return self.mlp((x - self.in_mean) / self.in_scale)
+        result: torch.Tensor = self.mlp((x - self.in_mean) / self.in_scale)
+        return result
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.out_mean + self.out_scale * self.standardised(x)
@@ -180,7 +187,11 @@ class ResidualNetwork(LinearEffect):
         self.info: dict[str, Any] = dict(info or {})
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         x = rod_features(state, kin)
         out = self.network(x.to(torch.float64)).to(state.p)

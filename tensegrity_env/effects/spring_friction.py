@@ -17,6 +17,9 @@ it with the springs' stiffness and damping. MuJoCo's tendon ``frictionloss`` is 
 same bounded friction, solved as a soft constraint (``solreffriction``) rather than
 through a smooth sign: the two agree where the cables slide faster than ``v_ε`` and
 differ near sticking (``tests/unit/test_spring_friction.py`` states the tolerance).
+
+In the C kernel the law is the per-spring ``spring_friction`` slot with ``v_ε`` in the
+``friction_velocity`` slot (:attr:`SpringFriction.native`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from typing import ClassVar
 
 import torch
 
-from tensegrity_env.effects.base import Gate, MujocoPlant, ParamSpec, SpringLawEffect
+from tensegrity_env.effects.base import Gate, MujocoPlant, NativeForm, ParamSpec, SpringLawEffect
 from tensegrity_env.engine.forces import spring_frames
 from tensegrity_env.engine.kinematics import Kinematics
 from tensegrity_env.engine.state import State
@@ -46,8 +49,11 @@ class SpringFriction(SpringLawEffect):
         "friction": ParamSpec("N", 0.0, per="spring"),
     }
     gate: ClassVar[Gate] = Gate("acts along every spring whose length changes, opposing l̇")
-    no_native: ClassVar[str] = (
-        "the kernel's effects block has no per-spring friction slot (the step runs in PyTorch)"
+    native: ClassVar[NativeForm | None] = NativeForm(
+        "block",
+        ("spring_friction",),
+        ("friction",),
+        constants=(("friction_velocity", REGULARISATION_VELOCITY),),
     )
     plant: ClassVar[MujocoPlant | None] = MujocoPlant(
         "tendon",

@@ -90,8 +90,16 @@ class SlackSprings(PhysicalEffect):
         m[self.values["springs"].to(like.device)] = 1.0
         return m
 
+    def elastic(self, length: torch.Tensor, rest: torch.Tensor) -> torch.Tensor:
+        """True where a spring is longer than rest or no cable, (B, S)."""
+        return (length > rest) | (self.mask(rest) == 0)
+
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
         if self.values["springs"].numel() == 0:
             return None

@@ -20,7 +20,7 @@ effect on each rod, so that the contact force depends on how hard the rest pushe
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import torch
 
@@ -34,30 +34,49 @@ from tensegrity_env.params import Params
 class Effect(Protocol):
     """A physical effect the engine can include. Subclass :class:`EffectBase`."""
 
-    name: str
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def constraint(self) -> bool: ...
 
     def tension(
         self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics
     ) -> torch.Tensor: ...
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None: ...
+
+    def implicit_damping(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None: ...
 
 
 class EffectBase:
     """Default no-op hooks; an effect overrides the ones where it acts."""
 
-    name = "effect"
+    name: ClassVar[str] = "effect"
     #: True for effects solved last against every applied force (see the module docstring)
-    constraint = False
+    constraint: ClassVar[bool] = False
 
     def tension(self, frame: SpringFrame, tension: torch.Tensor, kin: Kinematics) -> torch.Tensor:
         return tension
 
     def wrench(
-        self, state: State, kin: Kinematics, params: Params
+        self,
+        state: State,
+        kin: Kinematics,
+        params: Params,
+        applied: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """Force and torque (B, R, 3) each on every rod [N, N*m], world frame; None: none.
+
+        ``applied``: the wrench of everything else on each rod, passed to constraints
+        (``constraint = True``) only; other effects leave it.
+        """
         return None
 
     def implicit_damping(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:

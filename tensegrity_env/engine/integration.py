@@ -22,7 +22,7 @@ def semi_implicit_euler(
     accel: torch.Tensor,
     alpha_local: torch.Tensor,
     omega_local: torch.Tensor,
-    dt: float,
+    dt: float | torch.Tensor,
     frame_origin: torch.Tensor | None = None,
 ) -> State:
     """Velocities first, then positions with the new velocities.

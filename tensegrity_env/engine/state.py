@@ -57,7 +57,8 @@ class State:
         self, dtype: torch.dtype | None = None, device: str | torch.device | None = None
     ) -> State:
         winch = None if self.winch is None else self.winch.to(dtype=dtype, device=device)
-        return State(*(x.to(dtype=dtype, device=device) for x in self.tensors()), winch=winch)
+        p, v, q, omega = (x.to(dtype=dtype, device=device) for x in self.tensors())
+        return State(p, v, q, omega, winch=winch)
 
     def rotation(self) -> torch.Tensor:
         """``R(q)``, (B, R, 3, 3): the matrix the integrator computed for this state
@@ -73,7 +74,7 @@ class State:
 
     def with_winch(self, winch: torch.Tensor | None) -> State:
         """This rod state with the winch state ``winch`` (B, W, 2) (keeps :meth:`rotation`)."""
-        out = State(*self.tensors(), winch=winch)
+        out = State(self.p, self.v, self.q, self.omega, winch=winch)
         rot = self.__dict__.get("_rotation")
         return out if rot is None else out.remember_rotation(rot)
 
@@ -84,15 +85,16 @@ class State:
     def index(self, idx: torch.Tensor | slice | int) -> State:
         """Select batch entries (keeps the batch dimension for tensor/slice indices)."""
         winch = None if self.winch is None else self.winch[idx]
-        return State(*(x[idx] for x in self.tensors()), winch=winch)
+        p, v, q, omega = (x[idx] for x in self.tensors())
+        return State(p, v, q, omega, winch=winch)
 
     @staticmethod
     def stack(states: list[State], dim: int = 1) -> State:
         """Stack a sequence of states along a new time dimension: (B, T, R, ·); the winch
         states too where every state has one."""
-        winches = [s.winch for s in states]
-        winch = None if any(w is None for w in winches) else torch.stack(winches, dim=dim)  # type: ignore[arg-type]
-        return State(
-            *(torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=False)),
-            winch=winch,
+        winches = [s.winch for s in states if s.winch is not None]
+        winch = torch.stack(winches, dim=dim) if len(winches) == len(states) else None
+        p, v, q, omega = (
+            torch.stack(xs, dim=dim) for xs in zip(*(s.tensors() for s in states), strict=True)
         )
+        return State(p, v, q, omega, winch=winch)

@@ -4,12 +4,18 @@ The physics step need not be the data's sample interval: an engine built with
 ``substeps = n`` advances ``dt`` per :meth:`Engine.step` in ``n`` physics steps of
 ``dt / n`` (commands held), so a model fitted to samples ``dt`` apart integrates at
 the step its physics needs (:func:`substeps_for`).
+
+Measured samples need not be evenly spaced: :meth:`Engine.advance` integrates over any
+interval (per assembly) in physics steps of at most ``physics_dt`` that end exactly on
+the interval's end, and :meth:`Engine.rollout_at` gives the states at a trajectory's own
+sample times, never on a grid the data does not have.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 
@@ -87,7 +93,7 @@ class Engine:
         if twice:  # effects add their forces: one given twice acts twice
             raise ValueError(f"effects named twice: {twice}")
         self.dtype, self.device = dtype, torch.device(device)
-        kw = {"dtype": dtype, "device": self.device}
+        kw: dict[str, Any] = {"dtype": dtype, "device": self.device}
         self.end_offsets = torch.as_tensor(topology.end_offsets, **kw)  # (R, 2, 3)
         self.anchors = torch.as_tensor(topology.anchor_positions, **kw)  # (A, 3)
         self.control_arms = torch.as_tensor(topology.control_arms, **kw)  # (R, 3)
@@ -111,8 +117,7 @@ class Engine:
         # the step by the C kernel where it applies, with its cache of packed models
         self.native_step = (
             NativeEngineStep(topology, self.effects, self.substeps, self.physics_dt,
-                             bool(self.cable_springs.numel()),
-                             has_winches=bool(self.winch_springs.numel()))
+                             bool(self.cable_springs.numel()))
             if self.native
             else None
         )  # fmt: skip
@@ -132,6 +137,7 @@ class Engine:
         params: Params,
         control: torch.Tensor | None = None,
         cables: torch.Tensor | None = None,
+        h: float | torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Force generation and acceleration generation.
 
@@ -144,6 +150,8 @@ class Engine:
                 (after any actuator filter); the driven spring's tension changes by
                 ``-h_c u``, after the effects' tension hooks (a slack cable still
                 transmits its actuator's force, as in MuJoCo).
+            h: the physics step [s] implicit damping integrates over (``physics_dt`` if
+                None; (B, 1, 1) for a step per assembly).
 
         Returns:
             a (B, R, 3) [m/s^2] world frame, α_l (B, R, 3) [rad/s^2] and ω_l (B, R, 3)
@@ -158,13 +166,15 @@ class Engine:
             tension = effect.tension(frame, tension, kin)
         if cables is not None and self.cable_springs.numel():
             tension = tension.index_add(1, self.cable_springs, -params.cable_gain * cables)
-        force, torque = kinematics_wrench(tension_to_node_forces(tension, frame, self.incidence), kin)
+        force, torque = kinematics_wrench(
+            tension_to_node_forces(tension, frame, self.incidence), kin
+        )
         # control forces h * f_u at the arm r_u
         if control is not None:
             arm = rotate(kin.rot, self.control_arms)
             f_u, t_u = point_force_wrench(params.control_gain * control, arm)
             force, torque = force + f_u, torque + t_u
-        constraints = [e for e in self.effects if getattr(e, "constraint", False)]
+        constraints = [e for e in self.effects if e.constraint]
         for effect in self.effects:
             if effect in constraints:
                 continue
@@ -180,7 +190,7 @@ class Engine:
         alpha_l, omega_l = angular_acceleration_local(torque, state.omega, kin.rot, params.inertia)
         damped = [d for d in (e.implicit_damping(accel) for e in self.effects) if d is not None]
         if damped:
-            accel, alpha_l = self._implicit(accel, alpha_l, kin.rot, params, damped)
+            accel, alpha_l = self._implicit(accel, alpha_l, kin.rot, params, damped, h)
         return accel, alpha_l, omega_l
 
     def _implicit(
@@ -190,15 +200,17 @@ class Engine:
         rot: torch.Tensor,
         params: Params,
         damped: list[tuple[torch.Tensor, torch.Tensor]],
+        h: float | torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Implicit integration of linear damping over one physics step ``h``.
+        """Implicit integration of linear damping over one physics step ``h`` [s]
+        (``physics_dt`` if None; a (B, 1, 1) tensor steps each assembly by its own).
 
         With the damping's wrench already among the forces, ``M a = f - b v`` (explicit)
         becomes ``(M + h b) a = f - b v`` per rod axis, i.e. ``(M + h b) v' = M v + h f``;
         likewise ``(I + h β) α_l = I α_l(explicit)``: MuJoCo's Euler integrator with joint
         damping. ``b``, ``β``: sums over ``damped``, each (3,) or (R, 3) in the rod frame.
         """
-        h = self.physics_dt
+        h = self.physics_dt if h is None else h
         b = sum(d[0] for d in damped)
         beta = sum(d[1] for d in damped)
         mass = params.mass.unsqueeze(-1)  # (R, 1)
@@ -223,24 +235,99 @@ class Engine:
         :func:`~tensegrity_env.engine.winch.initial_winch_state`.
         """
         if self.native_step is not None:
-            x = self.native_step(state.tensors(), params, control, cables)
-            if x is not None:
-                return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
+            winch = state.winch
+            if winch is None and self.winch_springs.numel():
+                winch = initial_winch_state(self.topology, params, state.batch_size)
+            out = self.native_step(state.tensors(), params, control, cables, winch, winches)
+            if out is not None:
+                x, wound = out
+                return State(x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13], wound)
+        return self._integrate(
+            state, params, self.substeps, self.physics_dt, control, cables, winches
+        )
+
+    def _integrate(
+        self,
+        state: State,
+        params: Params,
+        n: int,
+        h: float | torch.Tensor,
+        control: torch.Tensor | None,
+        cables: torch.Tensor | None,
+        winches: torch.Tensor | None,
+    ) -> State:
+        """``n`` physics steps of ``h`` [s] (a float, or (B, 1, 1) per assembly), the
+        commands held."""
         winch = state.winch
         if winch is None and self.winch_springs.numel():
             winch = initial_winch_state(self.topology, params, state.batch_size)
-        for _ in range(self.substeps):
+        h_winch = h if isinstance(h, float) else h.reshape(-1, 1)  # (B, 1) against (B, W)
+        for _ in range(n):
             # forces with the rest lengths at the step's start (wound springs from the winch state)
-            acting = params if winch is None else wound_rest_lengths(params, self.winch_springs, winch)
-            accel, alpha_l, omega_l = self.accelerations(state, acting, control, cables)
-            # integration: semi-implicit Euler (MuJoCo's Euler integrator)
-            state = semi_implicit_euler(
-                state, accel, alpha_l, omega_l, self.physics_dt, self.frame_origins
+            acting = (
+                params if winch is None else wound_rest_lengths(params, self.winch_springs, winch)
             )
+            accel, alpha_l, omega_l = self.accelerations(state, acting, control, cables, h)
+            # integration: semi-implicit Euler (MuJoCo's Euler integrator)
+            state = semi_implicit_euler(state, accel, alpha_l, omega_l, h, self.frame_origins)
             # winding: the rest lengths follow the motors
             if winch is not None:
-                winch = winch_step(winch, params, winches, self.physics_dt)
+                winch = winch_step(winch, params, winches, h_winch)
         return state if winch is None else state.with_winch(winch)
+
+    def advance(
+        self,
+        state: State,
+        params: Params,
+        interval: float | torch.Tensor,
+        control: torch.Tensor | None = None,
+        cables: torch.Tensor | None = None,
+        winches: torch.Tensor | None = None,
+    ) -> State:
+        """Advance every assembly by its own ``interval`` [s] (a float, or (B,)), the
+        commands held (as :meth:`step`).
+
+        ``n = substeps_for(max interval, physics_dt)`` physics steps, each assembly's
+        ``interval / n`` long: at most ``physics_dt`` and ending exactly on the
+        interval's end (never rounded to a grid). Steps by PyTorch (the C kernel's
+        step length is fixed when it is packed).
+        """
+        iv = torch.as_tensor(interval, dtype=self.dtype, device=self.device).reshape(-1)
+        if not bool((iv > 0).all()):
+            raise ValueError(f"intervals must be > 0, got {iv.min().item():g} s")
+        n = substeps_for(float(iv.max()), self.physics_dt)
+        h = (iv / n).reshape(-1, 1, 1).expand(state.batch_size, 1, 1)
+        return self._integrate(state, params, n, h, control, cables, winches)
+
+    def rollout_at(
+        self,
+        state: State,
+        params: Params,
+        times: torch.Tensor | Sequence[float],
+        control: torch.Tensor | None = None,
+        cables: torch.Tensor | None = None,
+        winches: torch.Tensor | None = None,
+    ) -> State:
+        """States at each sample time, stacked on dim 1: (B, T + 1, R, ·).
+
+        ``times`` (T + 1,) or (B, T + 1) [s], increasing, the first the time of
+        ``state``; the interval to each next sample is integrated by :meth:`advance`.
+        Commands as in :meth:`rollout` ((B, T, ·), each held over its sample interval).
+        """
+        t = torch.as_tensor(times, dtype=self.dtype, device=self.device)
+        t = t.expand(state.batch_size, -1) if t.dim() == 1 else t
+        if self.winch_springs.numel() and state.winch is None:
+            state = state.with_winch(initial_winch_state(self.topology, params, state.batch_size))
+        states = [state]
+        for k in range(t.shape[1] - 1):
+            state = self.advance(
+                state, params, t[:, k + 1] - t[:, k],
+                None if control is None else control[:, k],
+                None if cables is None else cables[:, k],
+                None if winches is None else winches[:, k],
+            )  # fmt: skip
+            states.append(state)
+        return State.stack(states, dim=1)
 
     def rollout(
         self,

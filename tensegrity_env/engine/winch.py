@@ -43,18 +43,25 @@ def winding_speed(
     v_max: torch.Tensor,
     lag: torch.Tensor,
     command: torch.Tensor,
-    h: float,
+    h: float | torch.Tensor,
 ) -> torch.Tensor:
-    """Each motor's winding speed after one step ``h`` [s], (B, W) [m/s] (module doc, 3).
+    """Each motor's winding speed after one step ``h`` [s] (a float, or (B, 1) per
+    assembly), (B, W) [m/s] (module doc, 3).
 
     ``speed`` (B, W) [m/s] before the step, ``v_max`` [m/s] and ``lag`` [s] (W,) or
     (B, W), ``command`` (B, W) in command units (clipped to [-1, 1]).
     """
     target = command.clamp(-1.0, 1.0) * v_max
+    return target + (speed - target) * winding_decay(lag, h)
+
+
+def winding_decay(lag: torch.Tensor, h: float | torch.Tensor) -> torch.Tensor:
+    """How much of a motor's speed error is left after one step ``h`` [s] (a float, or
+    (B, 1) per assembly):
+    ``exp(-h / tau)``, 0 without lag (``tau`` = ``lag`` [s], same shape)."""
     lagged = lag > 0
     decay = torch.exp(-h / torch.where(lagged, lag, torch.ones_like(lag)))
-    decay = torch.where(lagged, decay, torch.zeros_like(decay))
-    return target + (speed - target) * decay
+    return torch.where(lagged, decay, torch.zeros_like(decay))
 
 
 def unit_winding(commands: torch.Tensor, lag: torch.Tensor, h: float) -> torch.Tensor:
@@ -74,9 +81,10 @@ def unit_winding(commands: torch.Tensor, lag: torch.Tensor, h: float) -> torch.T
 
 
 def winch_step(
-    winch: torch.Tensor, params: Params, command: torch.Tensor | None, h: float
+    winch: torch.Tensor, params: Params, command: torch.Tensor | None, h: float | torch.Tensor
 ) -> torch.Tensor:
-    """The winch state after one physics step ``h`` [s] (module doc, step 3).
+    """The winch state after one physics step ``h`` [s] (a float, or (B, 1) per
+    assembly) (module doc, step 3).
 
     Args:
         winch: (B, W, 2) rest length [m] and winding speed [m/s].

@@ -5,10 +5,10 @@
                             (params file; native C kernel or PyTorch engine)
 ``IcosahedronMJ-v0``        :class:`IcosahedronMJEnv`: the MuJoCo twin, ground truth
 ``TensegritySR-v0``         :class:`TensegritySREnv`: any winch-driven robot on its
-                            identified model (PyTorch engine); batched:
-                            :class:`TensegritySRVectorEnv`
+                            identified model (native C kernel or PyTorch engine);
+                            batched: :class:`TensegritySRVectorEnv`
 ``TensegrityMJ-v0``         :class:`TensegrityMJEnv`: that robot in MuJoCo (its twin);
-                            batched: :class:`TensegrityMJVectorEnv`
+                            batched: :class:`TensegrityMJVectorEnv` (``mujoco.rollout``)
 ``gym.make_vec(...)``       :class:`IcosahedronSRVectorEnv` /
                             :class:`IcosahedronMJVectorEnv`: N envs, one batched step
 :class:`SB3VecEnv`          Stable-Baselines3 ``VecEnv`` adapter
@@ -16,10 +16,11 @@
 
 Modules: :mod:`.task` (reset, actions, observation, reward: shared),
 :mod:`.base` (the single-env base), :mod:`.sr_env`, :mod:`.mj_env`, :mod:`.vector`,
-:mod:`.sb3`, :mod:`.physics` (steppers) with :mod:`.native` (the C kernel),
+:mod:`.sb3`, :mod:`.physics` (steppers; the C kernel in :mod:`tensegrity_env.native`),
 :mod:`.rendering` (MuJoCo renderer, videos), :mod:`.twin` (the ground truth);
 for any robot: :mod:`.robot_task` (sensors, goal and shape tasks),
-:mod:`.robot_physics` (its model and twin), :mod:`.robot_env`, :mod:`.robot_vector`.
+:mod:`.robot_physics` (its model and twin), :mod:`.robot_rollout` (its twins through
+``mujoco.rollout``), :mod:`.robot_env`, :mod:`.robot_vector`.
 """
 
 from tensegrity_env.envs.mj_env import IcosahedronMJEnv

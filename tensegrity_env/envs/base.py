@@ -91,7 +91,7 @@ class SceneEnv(gym.Env[np.ndarray, np.ndarray]):
         """``reset`` options that start an env (this one or its twin) where this one is."""
         raise NotImplementedError
 
-    def render(self) -> np.ndarray | None:  # type: ignore[override]
+    def render(self) -> np.ndarray | None:
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode (pass render_mode=...)")
             return None
@@ -139,7 +139,7 @@ class RollingEnv(SceneEnv):
         self._init_scene(sim, render_mode, width, height, task.goal_radius)
         self.sim, self.task, self.rest = sim, task, np.array(rest, dtype=np.float64)
         self.n_rods = sim.topology.n_rods
-        self.action_space = spaces.Box(-1.0, 1.0, (3 * self.n_rods,), np.float32)
+        self.action_space: spaces.Box = spaces.Box(-1.0, 1.0, (3 * self.n_rods,), np.float32)
         n_obs = task.observation_size(self.n_rods)
         self.observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self._axes = rod_axes(sim.topology.end_offsets)
@@ -173,7 +173,7 @@ class RollingEnv(SceneEnv):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = check_action(action, self.action_space.shape)  # type: ignore[arg-type]
+        a = check_action(action, self.action_space.shape)
         command = self.task.commands(a[None], self.n_rods)
         self.sim.step(command[0])
         x = self.sim.get_state()
@@ -206,7 +206,8 @@ class RollingEnv(SceneEnv):
 
     # ------------------------------------------------------------------ helpers
     def _obs(self) -> np.ndarray:
-        return self.task.observe(self.state[None], self.goal[None], self._axes)[0]
+        result: np.ndarray = self.task.observe(self.state[None], self.goal[None], self._axes)[0]
+        return result
 
     def _info(self) -> dict[str, Any]:
         c = self.task.centre(self.state[None])[0]

@@ -9,6 +9,7 @@ through MuJoCo's multi-threaded :mod:`mujoco.rollout` for the vector twin.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import Unpack
@@ -39,31 +40,30 @@ def unpack_mj(asm: MjcfAssembly, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return rod_state_to_mj(asm, x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13])
 
 
-class MJSimulator:
-    """One assembly in MuJoCo (``mj_step`` with ``nstep = frame_skip``).
+class MJPhysics:
+    """One assembly in MuJoCo, ``frame_skip`` steps per control step: its packed rod
+    state in and out, and MuJoCo's declared instability kept as ``diverged``. The base
+    of the icosahedron's twin (:class:`MJSimulator`) and of a winch-driven robot's
+    (:class:`~tensegrity_env.envs.robot_physics.MJRobotSimulator`).
 
     Args:
+        xml_path: the assembly's MJCF.
         frame_skip: MuJoCo steps per control step.
-        xml_path: the twin's MJCF (None: the shipped model).
     """
 
-    def __init__(self, frame_skip: int = 50, xml_path: str | Path | None = None) -> None:
-        self.xml_path = Path(xml_path) if xml_path is not None else TWIN_XML
+    def __init__(self, xml_path: Path, frame_skip: int) -> None:
+        self.xml_path = xml_path
         self.asm = from_mjcf(self.xml_path)
-        self.topology = self.asm.topology
-        self.model = self.asm.model
+        self.topology, self.model = self.asm.topology, self.asm.model
         self.data = mujoco.MjData(self.model)
         self.frame_skip = int(frame_skip)
         self.control_dt = float(self.model.opt.timestep) * self.frame_skip
         self.diverged = False
-        if np.any(self.asm.actuators < 0):
-            raise ValueError(f"{self.xml_path}: every rod needs x, y, z force actuators")
 
     def set_state(self, x: np.ndarray) -> None:
+        """Packed rod states (R, 13), at MuJoCo's clock 0."""
         mujoco.mj_resetData(self.model, self.data)
-        qpos, qvel = unpack_mj(self.asm, x)
-        self.data.qpos[:] = qpos
-        self.data.qvel[:] = qvel
+        self.data.qpos[:], self.data.qvel[:] = unpack_mj(self.asm, x)
         mujoco.mj_forward(self.model, self.data)
         self.diverged = False
 
@@ -73,20 +73,39 @@ class MJSimulator:
             return np.full((self.topology.n_rods, 13), np.nan)
         return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
 
-    def step(self, command: np.ndarray) -> None:
-        self.data.ctrl[self.asm.actuators.ravel()] = np.asarray(command).ravel()
+    def _advance(self, run: Callable[[], None]) -> None:
+        """``run()`` (the MuJoCo steps of a control step), flagging ``diverged`` where
+        MuJoCo reset an unstable simulation to ``qpos0`` and went on."""
         bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
         before = bad.number
-        mujoco.mj_step(self.model, self.data, nstep=self.frame_skip)
-        # MuJoCo resets an unstable simulation to qpos0 and goes on; report it instead
+        run()
         self.diverged |= bad.number > before
+
+    def render_assembly(self) -> MjcfAssembly:
+        return self.asm
+
+
+class MJSimulator(MJPhysics):
+    """The icosahedron's twin (``mj_step`` with ``nstep = frame_skip``), commanded by its
+    world-axis force actuators.
+
+    Args:
+        frame_skip: MuJoCo steps per control step.
+        xml_path: the twin's MJCF (None: the shipped model).
+    """
+
+    def __init__(self, frame_skip: int = 50, xml_path: str | Path | None = None) -> None:
+        super().__init__(Path(xml_path) if xml_path is not None else TWIN_XML, frame_skip)
+        if np.any(self.asm.actuators < 0):
+            raise ValueError(f"{self.xml_path}: every rod needs x, y, z force actuators")
+
+    def step(self, command: np.ndarray) -> None:
+        self.data.ctrl[self.asm.actuators.ravel()] = np.asarray(command).ravel()
+        self._advance(lambda: mujoco.mj_step(self.model, self.data, nstep=self.frame_skip))
 
     def initial_pose(self) -> np.ndarray:
         """The model's own initial pose (``qpos0``, the face-down nominal pose), at rest."""
         return pack_mj(self.asm, self.model.qpos0.copy(), np.zeros(self.model.nv))
-
-    def render_assembly(self) -> MjcfAssembly:
-        return self.asm
 
 
 @lru_cache(maxsize=8)

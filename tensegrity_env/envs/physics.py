@@ -6,13 +6,14 @@ float64 in place (rows ``p`` (3) [m], ``v`` (3) [m/s], ``q`` (4, w x y z), ``ome
 ``control`` (B, R, 3) held for the whole control step:
 
 * :class:`NativeStepper`, the default on CPU: the C kernel
-  (``tensegrity_env/native/native_step.c``: the engine's step with the effects it has,
+  (``tensegrity_env/native/native_step.h`` and its files: the engine's step with the effects it has,
   written out per assembly, threads over the batch; the model packed by
   :func:`~tensegrity_env.native.pack.pack_model`, as the engine's no-gradient step
   packs it). It fuses the ``frame_skip`` substeps of a control step into one call and
   visits only the end caps that touch the floor, which is what makes one
   environment step cheaper than MuJoCo's and a batch of 4096 an order of magnitude
-  faster (``benchmarks/bench_env.py``).
+  faster (``benchmarks/bench_env.py``). :meth:`NativeStepper.wind` winds a robot's
+  winches in the same call.
 * :class:`TorchStepper`: :class:`~tensegrity_env.engine.Engine` itself, with any
   effects, on any device; the reference the native kernel is tested against, and
   the fallback where the kernel cannot be built or an effect has no native form.
@@ -25,12 +26,11 @@ one assembly, ten times MuJoCo; eager PyTorch is ~1000 times slower per substep.
 
 from __future__ import annotations
 
-import ctypes
 import os
 import warnings
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import torch
@@ -122,6 +122,7 @@ class NativeStepper:
             topology.n_rods > self._lib.tsr_max_rods()
             or topology.n_nodes > self._lib.tsr_max_nodes()
             or topology.n_points > self._lib.tsr_max_points()
+            or topology.n_winches > self._lib.tsr_max_winches()
         ):
             raise ValueError(f"{topology.name}: too large for the native kernel")
         self.topology = topology
@@ -130,6 +131,8 @@ class NativeStepper:
         self.iterations = int(contact_iterations or ACTIVE_SET_ITERATIONS)
         self._model = packed.models[0]
         self._springs = np.ascontiguousarray(topology.spring_nodes, dtype=np.int32)
+        # the arrays' addresses, taken once (a step passes them as they are)
+        self._model_ptr, self._springs_ptr = self._model.ctypes.data, self._springs.ctypes.data
         if verify:
             self.verify(params, effects)
 
@@ -138,7 +141,9 @@ class NativeStepper:
 
         The states: rods in random orientations spread over a square metre, each
         lowered so that its lower end cap sinks 1 mm into the floor, with random
-        velocities and commands. Raises :class:`KernelMismatch` above ``atol``.
+        velocities and commands; with winches, their rest lengths and speeds at random
+        within their ranges and random motor commands (:meth:`wind`). Raises
+        :class:`KernelMismatch` above ``atol``.
         """
         t = self.topology
         rng = np.random.default_rng(0)
@@ -152,37 +157,80 @@ class NativeStepper:
         x = np.concatenate([p, rng.normal(0, 0.3, (B, R, 3)), q, rng.normal(0, 1, (B, R, 3))], -1)
         u = rng.normal(0, 1, (B, R, 3))
         engine = Engine(t, self.dt, effects)
-        ref = unpack_states(x)
+        W = t.n_winches
+        lo, hi = (getattr(params, k).detach().double().numpy() for k in ("winch_min", "winch_max"))
+        winch = np.stack([rng.uniform(lo, hi, (B, W)), rng.normal(0, 0.05, (B, W))], -1)
+        commands = rng.uniform(-1.2, 1.2, (B, W))
+        ref = unpack_states(x).with_winch(torch.as_tensor(winch) if W else None)
         with torch.no_grad():
             for _ in range(2):
-                ref = engine.step(ref, params, torch.as_tensor(u))
+                ref = engine.step(ref, params, torch.as_tensor(u),
+                                  winches=torch.as_tensor(commands) if W else None)  # fmt: skip
         steps, self.frame_skip = self.frame_skip, 2
         try:
-            mine = np.ascontiguousarray(x)
-            self(mine, u)
+            mine, wound = np.ascontiguousarray(x), winch.copy()
+            if W:
+                self.wind(mine, wound, commands, u)
+            else:
+                self(mine, u)
         finally:
             self.frame_skip = steps
         err = float(np.abs(mine - pack_states(ref)).max())
+        if W:
+            err = max(err, float(np.abs(wound - ref.winch.numpy()).max()))
         if not err <= atol:
             raise KernelMismatch(
                 f"the native kernel differs from the engine by {err:.2e} (> {atol:g}): "
-                "an effect's law changed without native_step.c"
+                "an effect's law changed without the C kernel (tensegrity_env/native/)"
             )
         return err
 
     def __call__(self, x: np.ndarray, control: np.ndarray) -> None:
-        if x.dtype != np.float64 or not x.flags.c_contiguous:
-            raise ValueError("states must be a C-contiguous float64 array (B, R, 13)")
+        """Advance ``x`` (B, R, 13) in place under ``control`` (B, R, 3); winches, if the
+        robot has any, hold the model's rest lengths (no winding: see :meth:`wind`)."""
         u = np.ascontiguousarray(control, dtype=np.float64)
         B, R = x.shape[:2]
         if u.shape != (B, R, 3):
             raise ValueError(f"control has shape {u.shape}, expected {(B, R, 3)}")
-        dbl = ctypes.POINTER(ctypes.c_double)
+        self._run(x, u, None, None)
+
+    def wind(
+        self,
+        x: np.ndarray,
+        winch: np.ndarray,
+        commands: np.ndarray,
+        control: np.ndarray | None = None,
+    ) -> None:
+        """Advance rod states ``x`` (B, R, 13) and winch states ``winch`` (B, W, 2) [m,
+        m/s] (both C-contiguous float64) in place by ``frame_skip`` physics steps, the
+        winch motors' ``commands`` (B, W) in [-1, 1] held (clipped), as
+        :meth:`Engine.step <tensegrity_env.engine.Engine.step>` winds them; ``control``
+        (B, R, 3) the rods' commands f_u (None: none)."""
+        B, W = x.shape[0], self.topology.n_winches
+        if winch.shape != (B, W, 2) or winch.dtype != np.float64 or not winch.flags.c_contiguous:
+            raise ValueError(f"winch states must be a C-contiguous float64 array {(B, W, 2)}")
+        c = np.ascontiguousarray(commands, dtype=np.float64)
+        if c.shape != (B, W):
+            raise ValueError(f"winch commands have shape {c.shape}, expected {(B, W)}")
+        u = None if control is None else np.ascontiguousarray(control, dtype=np.float64)
+        self._run(x, u, winch, c)
+
+    def _run(
+        self,
+        x: np.ndarray,
+        u: np.ndarray | None,
+        winch: np.ndarray | None,
+        commands: np.ndarray | None,
+    ) -> None:
+        if x.dtype != np.float64 or not x.flags.c_contiguous:
+            raise ValueError("states must be a C-contiguous float64 array (B, R, 13)")
         t = self.topology
         code = self._lib.tsr_step(
-            B, R, t.n_springs, t.n_anchors, self.frame_skip, self.dt, self.iterations,
-            x.ctypes.data_as(dbl), u.ctypes.data_as(dbl), self._model.ctypes.data_as(dbl),
-            self._springs.ctypes.data_as(ctypes.POINTER(ctypes.c_int)), self.threads,
+            x.shape[0], t.n_rods, t.n_springs, t.n_anchors, self.frame_skip, self.dt,
+            self.iterations, x.ctypes.data, None if u is None else u.ctypes.data,
+            self._model_ptr, self._springs_ptr, self.threads,
+            None if winch is None else winch.ctypes.data,
+            None if commands is None else commands.ctypes.data,
         )  # fmt: skip
         if code != 0:
             raise RuntimeError(f"native kernel failed with code {code}")
@@ -247,7 +295,7 @@ class TorchStepper:
         in place by ``frame_skip`` physics steps, the winch motors' commands ``commands``
         (B, W) in [-1, 1] held (:meth:`Engine.step <tensegrity_env.engine.Engine.step>`)."""
         with torch.no_grad(), torch_threads(self.threads):
-            kw = {"dtype": self.dtype, "device": self.device}
+            kw: dict[str, Any] = {"dtype": self.dtype, "device": self.device}
             state = unpack_states(x, self.dtype, self.device).with_winch(
                 torch.as_tensor(winch, **kw)
             )
@@ -255,7 +303,8 @@ class TorchStepper:
             for _ in range(self.frame_skip):
                 state = self.engine.step(state, self.params, winches=u)
             x[...] = pack_states(state)
-            winch[...] = state.winch.cpu().numpy()  # type: ignore[union-attr]
+            assert state.winch is not None  # a state stepped with winches keeps them
+            winch[...] = state.winch.cpu().numpy()
 
 
 def make_stepper(
@@ -290,4 +339,4 @@ def make_stepper(
             if backend == "native":
                 raise
             warnings.warn(f"{e}: stepping the PyTorch engine instead (slower)", stacklevel=2)
-    return TorchStepper(topology, params, effects, dt, frame_skip, device=device)
+    return TorchStepper(topology, params, effects, dt, frame_skip, device=device, threads=threads)

@@ -143,7 +143,8 @@ class SceneRenderer:
         self._aim(x, goal)
         self._renderer.update_scene(self.data, camera=self.camera)
         self._add_goal(self._renderer.scene, goal)
-        return self._renderer.render().copy()
+        result: np.ndarray = self._renderer.render().copy()
+        return result
 
     def human(self, x: np.ndarray, goal: np.ndarray) -> None:
         """Show the state in MuJoCo's interactive viewer.

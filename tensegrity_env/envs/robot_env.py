@@ -70,7 +70,7 @@ class RobotEnv(SceneEnv):
         self.rest = sim.rest_pose()
         self._init_scene(sim, render_mode, width, height, max(self.task.goal_radius, 1e-3))
         n_motors = sim.command_shape[0]
-        self.action_space = spaces.Box(-1.0, 1.0, (n_motors,), np.float32)
+        self.action_space: spaces.Box = spaces.Box(-1.0, 1.0, (n_motors,), np.float32)
         n_obs = self.task.observation_size()
         self.observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self.state = self.rest.copy()
@@ -105,7 +105,7 @@ class RobotEnv(SceneEnv):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = check_action(action, self.action_space.shape, "one command per motor")  # type: ignore[arg-type]
+        a = check_action(action, self.action_space.shape, "one command per motor")
         command = np.clip(a, -1.0, 1.0)
         self.sim.step(command)
         x = self.sim.get_state()
@@ -138,13 +138,15 @@ class RobotEnv(SceneEnv):
         """Where the renderer draws the goal disc: the goal, or under the centre (shape)."""
         if isinstance(self.task, GoalTask):
             return self.target
-        return self.state[:, 0:2].mean(axis=0)
+        result: np.ndarray = self.state[:, 0:2].mean(axis=0)
+        return result
 
     def _obs(self) -> np.ndarray:
-        return self.task.observe(self.state[None], self.winch[None], self.target[None])[0]
+        result: np.ndarray = self.task.observe(self.state[None], self.winch[None], self.target[None])[0]
+        return result
 
     def _info(self) -> dict[str, Any]:
-        c = self.state[:, 0:3].mean(axis=0)
+        c = self.state[:, 0:3].sum(axis=0) / self.state.shape[0]  # the rods' mean centre
         return {
             "task_error": self._error,
             "x_position": float(c[0]),
@@ -160,9 +162,10 @@ class TensegritySREnv(RobotEnv):
     the lab 3-bar prism ``tensegrity_env/assets/lab_prism.xml``, three rods, nine
     cables, six of them wound at up to 0.1 m/s with a 30 ms motor lag, standing on a
     floor). The physics is the identified model of a params file (``model``; default:
-    the robot file's own parameters and floor contact), stepped by the PyTorch engine in
-    float64 at the file's physics step (1 ms), ``frame_skip`` steps per action (20 Hz by
-    default), on one CPU thread. ``TensegrityMJ-v0`` is the same robot and task in MuJoCo.
+    the robot file's own parameters and floor contact), stepped by the C kernel (the
+    engine's physics and winding, to round-off; the PyTorch engine where the kernel does
+    not apply) in float64 at the file's physics step (1 ms), ``frame_skip`` steps per
+    action (20 Hz by default), on one CPU thread. ``TensegrityMJ-v0`` is the same robot and task in MuJoCo.
 
     **Action space** ``Box(-1, 1, (W,), float32)``: the motor command of each winch, in
     the file's winch order: the cable's rest length changes at ``u * v_max`` [m/s]

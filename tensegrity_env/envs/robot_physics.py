@@ -7,11 +7,17 @@ hold packed rod states (R, 13) (rows ``p``, ``v``, ``q`` (w x y z), ``omega``, w
 frame) and winch states (W, 2) (rest length [m], winding speed [m/s]) and advance them
 ``frame_skip`` physics steps per control step under motor commands (W,) in [-1, 1]:
 
-* :class:`SRRobotSimulator`: :class:`~tensegrity_env.engine.Engine` in float64 on the
-  CPU (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`): the
-  native kernel has no winch form, so every step is the PyTorch engine's.
+* :class:`SRRobotSimulator`: the identified model by the C kernel
+  (:meth:`NativeStepper.wind <tensegrity_env.envs.physics.NativeStepper.wind>`: the
+  ``frame_skip`` physics steps and the winding of a control step in one call, threads
+  over the batch), or by :class:`~tensegrity_env.engine.Engine` in float64 where the
+  kernel cannot be built or an effect has no C form
+  (:meth:`TorchStepper.wind <tensegrity_env.envs.physics.TorchStepper.wind>`, with a
+  warning); the two agree to round-off.
 * :class:`MJRobotSimulator`: MuJoCo with :class:`~tensegrity_env.mjcf.winches.MjWinches`
-  setting ``tendon_lengthspring`` from the winch state before every ``mj_step``.
+  setting ``tendon_lengthspring`` from the winch state before every ``mj_step`` (the
+  winding of a control step integrated first, in NumPy:
+  :class:`~tensegrity_env.mjcf.winches.Winding`).
 """
 
 from __future__ import annotations
@@ -19,14 +25,13 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import torch
 
 from tensegrity_env.engine.winch import initial_winch_state
 from tensegrity_env.envs.base import settle
-from tensegrity_env.envs.mj_env import pack_mj, unpack_mj
-from tensegrity_env.envs.physics import TorchStepper, make_stepper
+from tensegrity_env.envs.mj_env import MJPhysics, pack_mj
+from tensegrity_env.envs.physics import Backend, make_stepper
 from tensegrity_env.envs.sr_env import ASSETS
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
@@ -66,7 +71,10 @@ class SRRobotSimulator:
         frame_skip: physics steps per control step (the physics step is the file's
             ``timestep``).
         batch: number of copies stepped together.
-        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting).
+        threads: the C kernel's threads over the batch (None: every available core), or
+            PyTorch's CPU threads where it steps (None: PyTorch's setting).
+        backend: ``"auto"`` (the C kernel where it applies), ``"native"`` or ``"torch"``
+            (:func:`~tensegrity_env.envs.physics.make_stepper`).
     """
 
     def __init__(
@@ -76,6 +84,7 @@ class SRRobotSimulator:
         frame_skip: int = 50,
         batch: int = 1,
         threads: int | None = None,
+        backend: Backend = "auto",
     ) -> None:
         self.robot_path = Path(robot) if robot is not None else DEFAULT_ROBOT
         self.asm = from_mjcf(self.robot_path)
@@ -97,9 +106,8 @@ class SRRobotSimulator:
         self.dt, self.frame_skip = self.model.dt, int(frame_skip)
         self.control_dt = self.dt * self.frame_skip
         self.command_shape = (t.n_winches,)
-        self.stepper = TorchStepper(
-            t, self.params, self.effects, self.dt, self.frame_skip, threads=threads
-        )
+        self.stepper = make_stepper(t, self.params, self.effects, self.dt, self.frame_skip,
+                                    backend=backend, threads=threads)  # fmt: skip
         self.rest_winch = initial_winch_state(t, self.params.to(dtype=torch.float64), 1)[0].numpy()
         self.x = np.zeros((batch, t.n_rods, 13))
         self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
@@ -110,16 +118,16 @@ class SRRobotSimulator:
         self.winch[i] = self.rest_winch if winch is None else winch
 
     def get_state(self) -> np.ndarray:
-        return self.x[0].copy()
+        result: np.ndarray = self.x[0].copy()
+        return result
 
     def get_winch(self) -> np.ndarray:
-        return self.winch[0].copy()
+        result: np.ndarray = self.winch[0].copy()
+        return result
 
     def step(self, command: np.ndarray) -> None:
-        """Advance copy 0 under motor commands (W,)."""
-        x, w = self.x[:1].copy(), self.winch[:1].copy()
-        self.stepper.wind(x, w, np.asarray(command, dtype=np.float64)[None])
-        self.x[:1], self.winch[:1] = x, w
+        """Advance copy 0 under motor commands (W,) (in place: its rows are contiguous)."""
+        self.stepper.wind(self.x[:1], self.winch[:1], np.asarray(command, dtype=np.float64)[None])
 
     def step_batch(self, commands: np.ndarray) -> None:
         """Advance every copy under motor commands (B, W)."""
@@ -148,10 +156,11 @@ def _sr_rest(model: str, model_mtime: float, robot: str, robot_mtime: float) -> 
         stepper(x, zero)
     if not np.all(np.isfinite(x)):
         raise RuntimeError(f"{model}: the model diverged while settling on the floor")
-    return x[0]
+    result: np.ndarray = x[0]
+    return result
 
 
-class MJRobotSimulator:
+class MJRobotSimulator(MJPhysics):
     """One robot in MuJoCo, its winches wound by :class:`~tensegrity_env.mjcf.winches.MjWinches`.
 
     Args:
@@ -160,54 +169,28 @@ class MJRobotSimulator:
     """
 
     def __init__(self, robot: str | Path | None = None, frame_skip: int = 50) -> None:
-        self.xml_path = Path(robot) if robot is not None else DEFAULT_ROBOT
-        self.asm = from_mjcf(self.xml_path)
-        self.topology, self.model = self.asm.topology, self.asm.model
+        super().__init__(Path(robot) if robot is not None else DEFAULT_ROBOT, frame_skip)
         require_winches(self.topology, self.xml_path)
-        self.data = mujoco.MjData(self.model)
         self.plant = self.asm.mj_winches()
-        self.frame_skip = int(frame_skip)
-        self.control_dt = float(self.model.opt.timestep) * self.frame_skip
         self.command_shape = (self.topology.n_winches,)
-        self.diverged = False
 
     def set_state(self, x: np.ndarray, winch: np.ndarray | None = None) -> None:
         """Rod state (R, 13) and winch state (W, 2) (None: at rest)."""
-        mujoco.mj_resetData(self.model, self.data)
         self.plant.reset(winch)
         self.plant.apply()
-        qpos, qvel = unpack_mj(self.asm, x)
-        self.data.qpos[:] = qpos
-        self.data.qvel[:] = qvel
-        mujoco.mj_forward(self.model, self.data)
-        self.diverged = False
-
-    def get_state(self) -> np.ndarray:
-        """Packed rod states (R, 13); NaN once MuJoCo has declared the simulation unstable."""
-        if self.diverged:
-            return np.full((self.topology.n_rods, 13), np.nan)
-        return pack_mj(self.asm, self.data.qpos.copy(), self.data.qvel.copy())
+        super().set_state(x)
 
     def get_winch(self) -> np.ndarray:
-        return self.plant.state[0].numpy().copy()
+        return self.plant.state.copy()
 
     def step(self, command: np.ndarray) -> None:
         """``frame_skip`` MuJoCo steps under motor commands (W,)."""
-        bad = self.data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
-        before = bad.number
-        u = np.asarray(command, dtype=np.float64)
-        for _ in range(self.frame_skip):
-            self.plant.step(self.data, u)
-        # MuJoCo resets an unstable simulation to qpos0 and goes on; report it instead
-        self.diverged |= bad.number > before
+        self._advance(lambda: self.plant.run(self.data, command, self.frame_skip))
 
     def rest_pose(self) -> np.ndarray:
         """The twin's resting pose, settled in MuJoCo from the file's pose (cached per file)."""
         p = self.xml_path.resolve()
         return _mj_rest(str(p), p.stat().st_mtime, self.frame_skip).copy()
-
-    def render_assembly(self) -> MjcfAssembly:
-        return self.asm
 
 
 @lru_cache(maxsize=8)

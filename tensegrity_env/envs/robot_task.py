@@ -23,7 +23,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tensegrity_env.assemblies import node_positions
 from tensegrity_env.envs.task import RollingTask, TaskOptions
 from tensegrity_env.topology import Topology
 
@@ -32,6 +31,22 @@ TASKS = ("goal", "shape")
 #: the goal task's defaults for a robot that crawls by winding its cables (a prism
 #: winding at 0.1 m/s moves its centre a few cm/s: goals within reach of a 15 s episode)
 GOAL_DEFAULTS: dict[str, Any] = {"goal_distance": (0.5, 1.0), "goal_radius": 0.2}
+
+
+def _rotation_forms() -> np.ndarray:
+    """The rotation matrix of a unit quaternion q (w x y z) as quadratic forms,
+    ``R_ij = q' A_ij q``: A (3, 3, 4, 4), MuJoCo's mju_quat2Mat."""
+    A = np.zeros((3, 3, 4, 4))
+    A[0, 0] = A[1, 1] = A[2, 2] = np.eye(4)
+    for i, (a, b) in enumerate(((1, 1), (2, 2), (3, 3))):  # diagonal: w^2 + x_i^2 - others
+        for k in (1, 2, 3):
+            A[i, i, k, k] = 1.0 if k == a == b else -1.0
+    # off the diagonal: 2 (x_i x_j -/+ w x_k), written symmetrically
+    for i, j, k, sign in ((0, 1, 3, -1), (1, 0, 3, 1), (0, 2, 2, 1), (2, 0, 2, -1),
+                          (1, 2, 1, -1), (2, 1, 1, 1)):  # fmt: skip
+        A[i, j, i + 1, j + 1] = A[i, j, j + 1, i + 1] = 1.0
+        A[i, j, 0, k] = A[i, j, k, 0] = sign
+    return A
 
 
 @dataclass(frozen=True)
@@ -43,17 +58,59 @@ class RobotSensors:
     """
 
     topology: Topology
+    #: the topology's arrays a reading needs, taken once (a reading runs every env step)
+    _rod: np.ndarray = field(init=False, repr=False, compare=False)
+    _node_rod: np.ndarray = field(init=False, repr=False, compare=False)
+    _lever: np.ndarray = field(init=False, repr=False, compare=False)
+    _slot: np.ndarray = field(init=False, repr=False, compare=False)
+    _fixed: np.ndarray = field(init=False, repr=False, compare=False)
+    _ends: tuple[np.ndarray, np.ndarray] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        t = self.topology
+        rod = t.node_rod
+        on = rod >= 0
+        offsets = t.node_offsets
+        object.__setattr__(self, "_rod", np.flatnonzero(on))
+        # a node's offset R(q) o in the world is linear in its rod's products q_a q_b: per
+        # rod, its nodes' (16, 3) levers side by side (slot j of rod r: its j-th node)
+        node_rod = rod[on]
+        slot = np.array([np.sum(node_rod[:k] == r) for k, r in enumerate(node_rod)], dtype=int)
+        lever = np.zeros((t.n_rods, 16, max(slot.max(initial=-1) + 1, 1), 3))
+        forms = np.einsum("ijab,kj->kabi", _rotation_forms(), offsets[on]).reshape(-1, 16, 3)
+        lever[node_rod, :, slot, :] = forms
+        object.__setattr__(self, "_lever", lever.reshape(t.n_rods, 16, -1))
+        object.__setattr__(self, "_slot", slot)
+        object.__setattr__(self, "_fixed", offsets.copy())
+        ends = (t.spring_nodes[:, 0].copy(), t.spring_nodes[:, 1].copy())
+        object.__setattr__(self, "_ends", ends)
+        object.__setattr__(self, "_node_rod", rod[on])
+
+    def nodes(self, x: np.ndarray) -> np.ndarray:
+        """Every node (end caps, anchors, attachment points), (B, N, 3) [m], world frame:
+        :func:`~tensegrity_env.assemblies.node_positions` of the rod poses in ``x``."""
+        rod, lead, R = self._node_rod, x.shape[:-2], x.shape[-2]
+        q = x[..., 6:10].reshape(-1, R, 4)
+        qq = (q[..., :, None] * q[..., None, :]).reshape(q.shape[0], R, 16)
+        # one (B, 16) x (16, 3 slots) product per rod: its nodes' world offsets R(q) o
+        turned = np.matmul(qq.swapaxes(0, 1), self._lever).reshape(R, q.shape[0], -1, 3)
+        offsets = turned[rod, :, self._slot, :].swapaxes(0, 1)  # (B, K, 3)
+        out = np.broadcast_to(self._fixed, (*lead, *self._fixed.shape)).copy()
+        out[..., self._rod, :] = x[..., rod, 0:3] + offsets.reshape(*lead, -1, 3)
+        return out
 
     def end_caps(self, x: np.ndarray) -> np.ndarray:
         """End-cap positions, (B, 2R, 3) [m], rod r's caps at 2r and 2r + 1."""
-        nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
-        return nodes[..., : 2 * self.topology.n_rods, :]
+        return self.nodes(x)[..., : 2 * self.topology.n_rods, :]
 
-    def cable_lengths(self, x: np.ndarray) -> np.ndarray:
-        """Every cable's length between its attachment points, (B, S) [m]."""
-        nodes = node_positions(self.topology, x[..., 0:3], x[..., 6:10])
-        a, b = self.topology.spring_nodes[:, 0], self.topology.spring_nodes[:, 1]
-        return np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
+    def cable_lengths(self, x: np.ndarray, nodes: np.ndarray | None = None) -> np.ndarray:
+        """Every cable's length between its attachment points, (B, S) [m] (``nodes``:
+        :meth:`nodes` of ``x`` where already computed)."""
+        nodes = self.nodes(x) if nodes is None else nodes
+        a, b = self._ends
+        d = nodes[..., a, :] - nodes[..., b, :]
+        lengths: np.ndarray = np.sqrt(np.einsum("...i,...i->...", d, d))
+        return lengths
 
     def size(self) -> int:
         """Length of :meth:`read`'s output per robot."""
@@ -63,10 +120,12 @@ class RobotSensors:
     def read(self, x: np.ndarray, winch: np.ndarray) -> np.ndarray:
         """Sensor readings (B, 6R + 1 + S + W) [m]: end caps minus the centre (mean of the
         end caps), the centre's height, the cable lengths, the motors' rest lengths."""
-        caps = self.end_caps(x)
-        c = caps.mean(axis=-2, keepdims=True)
+        nodes = self.nodes(x)
+        caps = nodes[..., : 2 * self.topology.n_rods, :]
+        c = caps.sum(axis=-2, keepdims=True) / caps.shape[-2]  # their mean
         B = x.shape[0]
-        parts = [(caps - c).reshape(B, -1), c[:, 0, 2:3], self.cable_lengths(x), winch[..., 0]]
+        parts = [(caps - c).reshape(B, -1), c[:, 0, 2:3], self.cable_lengths(x, nodes),
+                 winch[..., 0]]  # fmt: skip
         return np.concatenate(parts, axis=1)
 
 
@@ -206,7 +265,8 @@ class ShapeTask:
 
     def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray:
         """Largest absolute length error of the wound cables, (B,) [m]."""
-        return np.abs(target - self._wound(x)).max(axis=-1)
+        result: np.ndarray = np.abs(target - self._wound(x)).max(axis=-1)
+        return result
 
     def reward(
         self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
@@ -215,7 +275,8 @@ class ShapeTask:
         held = error <= self.shape_tolerance
         terms = {
             "reward_shape": -self.shape_weight * error,
-            "reward_control": -self.control_weight * np.mean(commands**2, axis=-1),
+            "reward_control": -self.control_weight
+            * ((commands**2).sum(axis=-1) / commands.shape[-1]),
         }
         return terms["reward_shape"] + terms["reward_control"], held, terms
 

@@ -1,9 +1,12 @@
 """N generic robots in one batch: ``TensegritySR-v0`` in one engine call, and its twins.
 
 :class:`TensegritySRVectorEnv` holds N rod states (N, R, 13) and winch states (N, W, 2)
-and advances them with one batched :meth:`TorchStepper.wind
-<tensegrity_env.envs.physics.TorchStepper.wind>` per env step;
-:class:`TensegrityMJVectorEnv` steps N MuJoCo twins one after another. Both are
+and advances them with one batched call of the C kernel per env step (:meth:`NativeStepper.wind
+<tensegrity_env.envs.physics.NativeStepper.wind>`, threads over the batch; the PyTorch
+engine where the kernel does not apply);
+:class:`TensegrityMJVectorEnv` steps N MuJoCo twins in one ``mujoco.rollout`` call
+over threads (:class:`~tensegrity_env.envs.robot_rollout.MJRobotRollout`; one after
+another where a wound cable is tension-only). Both are
 Gymnasium :class:`~gymnasium.vector.VectorEnv` s with the single env's task code::
 
     gym.make_vec("TensegritySR-v0", num_envs=64, vectorization_mode="vector_entry_point")
@@ -30,6 +33,7 @@ from gymnasium.vector.utils import batch_space
 
 from tensegrity_env.envs.robot_env import ROBOT_REWARD_TERMS
 from tensegrity_env.envs.robot_physics import MJRobotBatch, SRRobotSimulator
+from tensegrity_env.envs.robot_rollout import MJRobotRollout
 from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
 from tensegrity_env.envs.task import check_action
 from tensegrity_env.envs.vector import MAX_EPISODE_STEPS, env_seeds, record_final
@@ -45,7 +49,7 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         "autoreset_mode": AutoresetMode.SAME_STEP,
     }
 
-    sim: SRRobotSimulator | MJRobotBatch
+    sim: SRRobotSimulator | MJRobotBatch | MJRobotRollout
 
     def _setup(
         self, num_envs: int, task: str, max_episode_steps: int | None, options: dict[str, Any]
@@ -56,7 +60,7 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.sim.control_dt)}
         self.rest = self.sim.rest_pose()
         W = self.sim.command_shape[0]
-        self.single_action_space = spaces.Box(-1.0, 1.0, (W,), np.float32)
+        self.single_action_space: spaces.Box = spaces.Box(-1.0, 1.0, (W,), np.float32)
         n_obs = self.task.observation_size()
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -85,7 +89,8 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = check_action(actions, self.action_space.shape, "one command per motor")  # type: ignore[arg-type]
+        a = check_action(actions, (self.num_envs, *self.single_action_space.shape),
+                         "one command per motor")  # fmt: skip
         commands = np.clip(a, -1.0, 1.0)
         self.sim.step_batch(commands)
         x = self.sim.x
@@ -140,14 +145,14 @@ def _batch_size(num_envs: int) -> int:
 
 
 class TensegritySRVectorEnv(RobotVectorEnv):
-    """N :class:`~tensegrity_env.envs.robot_env.TensegritySREnv` in one engine call.
+    """N :class:`~tensegrity_env.envs.robot_env.TensegritySREnv` in one kernel call.
 
     Args:
         num_envs: N.
         model, robot, task, frame_skip, **options: as ``TensegritySR-v0``.
         max_episode_steps: time limit (truncation) per episode, None for none.
-        threads: PyTorch's CPU threads while stepping (None: PyTorch's setting). One
-            by default: at N = 64 on two cores, two threads stepped 8x slower than one.
+        threads: the C kernel's threads over the batch (None: every available core);
+            where PyTorch steps instead, its CPU threads (None: PyTorch's setting).
     """
 
     def __init__(
@@ -158,7 +163,7 @@ class TensegritySRVectorEnv(RobotVectorEnv):
         task: str = "goal",
         frame_skip: int = 50,
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
-        threads: int | None = 1,
+        threads: int | None = None,
         **options: Any,
     ) -> None:
         n = _batch_size(num_envs)
@@ -167,12 +172,15 @@ class TensegritySRVectorEnv(RobotVectorEnv):
 
 
 class TensegrityMJVectorEnv(RobotVectorEnv):
-    """N :class:`~tensegrity_env.envs.robot_env.TensegrityMJEnv` twins, stepped one after
-    another (:class:`~tensegrity_env.envs.robot_physics.MJRobotBatch`).
+    """N :class:`~tensegrity_env.envs.robot_env.TensegrityMJEnv` twins through
+    ``mujoco.rollout`` (:class:`~tensegrity_env.envs.robot_rollout.MJRobotRollout`), or
+    stepped one after another where a wound cable is tension-only
+    (:class:`~tensegrity_env.envs.robot_physics.MJRobotBatch`).
 
     Args:
         num_envs: N. robot, task, frame_skip, **options: as ``TensegrityMJ-v0``.
         max_episode_steps: time limit (truncation) per episode, None for none.
+        threads: rollout threads (None: every available core).
     """
 
     def __init__(
@@ -182,8 +190,16 @@ class TensegrityMJVectorEnv(RobotVectorEnv):
         task: str = "goal",
         frame_skip: int = 50,
         max_episode_steps: int | None = MAX_EPISODE_STEPS,
+        threads: int | None = None,
         **options: Any,
     ) -> None:
         n = _batch_size(num_envs)
-        self.sim = MJRobotBatch(robot, frame_skip, n)
+        try:
+            self.sim = MJRobotRollout(robot, frame_skip, n, threads)
+        except ValueError:  # a tension-only wound cable: not linear in its rest length
+            self.sim = MJRobotBatch(robot, frame_skip, n)
         self._setup(n, task, max_episode_steps, options)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if isinstance(self.sim, MJRobotRollout):
+            self.sim.close()

@@ -60,7 +60,7 @@ class SB3VecEnv(VecEnv):
     def reset(self) -> np.ndarray:
         seeds = self._seeds if any(s is not None for s in self._seeds) else None
         options = self._options[0] if self._options and self._options[0] else None
-        obs, _ = self.venv.reset(seed=seeds, options=options)  # type: ignore[arg-type]
+        obs, _ = self.venv.reset(seed=seeds, options=options)
         self._reset_seeds()
         self._reset_options()
         return obs
@@ -85,12 +85,11 @@ class SB3VecEnv(VecEnv):
         self.venv.close()
 
     def get_images(self) -> Sequence[np.ndarray | None]:
-        frames = self.venv.render()
-        return (
-            [None] * self.num_envs
-            if frames is None
-            else [*frames] + [None] * (self.num_envs - len(frames))
-        )
+        frames = self.venv.render()  # RGB arrays of the first envs, or None
+        images: list[np.ndarray | None] = [None] * self.num_envs
+        if frames is not None:
+            images[: len(frames)] = [np.asarray(f) for f in frames]
+        return images
 
     # ------------------------------------------------------------------ attributes
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:

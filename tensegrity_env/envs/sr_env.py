@@ -79,7 +79,8 @@ class SRSimulator:
         self.x[0] = x
 
     def get_state(self) -> np.ndarray:
-        return self.x[0].copy()
+        result: np.ndarray = self.x[0].copy()
+        return result
 
     def step(self, command: np.ndarray) -> None:
         """Advance the first (single) assembly: command (R, 3)."""

@@ -110,7 +110,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self.render_mode, self.width, self.height = render_mode, int(width), int(height)
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.control_dt)}
         R = self.n_rods = self.topology.n_rods
-        self.single_action_space = spaces.Box(-1.0, 1.0, (3 * R,), np.float32)
+        self.single_action_space: spaces.Box = spaces.Box(-1.0, 1.0, (3 * R,), np.float32)
         n_obs = task.observation_size(R)
         self.single_observation_space = spaces.Box(-np.inf, np.inf, (n_obs,), np.float32)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -167,7 +167,7 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
-        a = check_action(actions, self.action_space.shape)  # type: ignore[arg-type]
+        a = check_action(actions, (self.num_envs, *self.single_action_space.shape))
         commands = self.task.commands(a, self.n_rods)
         self._step_physics(commands)
         x = self._get_states()

@@ -7,6 +7,7 @@ import re
 from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -90,7 +91,8 @@ class MjcfAssembly:
         ``control_lag``; free-joint damping as implicit ``linear_drag``."""
         effects: list[PhysicalEffect] = []
         if self.options.ground if ground is None else ground:
-            contact = self.contact or {"friction": self.options.friction}
+            # parameter name -> value (a dict of floats, not the constructor's other keywords)
+            contact: dict[str, Any] = self.contact or {"friction": self.options.friction}
             effects.append(GroundContact(self.topology, height=0.0, **contact))
         if self.slack_springs:
             effects.append(SlackSprings(self.topology, springs=list(self.slack_springs)))
@@ -203,7 +205,7 @@ def from_mjcf(
     Ri = np_quat_to_matrix(iquat)  # inertial frame -> body frame
 
     def to_inertial(i: int, pos_body: np.ndarray) -> tuple[float, float, float]:
-        return tuple((Ri[i].T @ (pos_body - ipos[i])).tolist())  # type: ignore[return-value]
+        return tuple((Ri[i].T @ (pos_body - ipos[i])).tolist())
 
     # end caps of each rod (named, or by convention); its other spring sites are
     # attachment points, in order of first use
@@ -250,7 +252,7 @@ def from_mjcf(
                 name=mj_name(m, BODY, b),
                 length=float(np.linalg.norm(e1 - e0)),
                 radius=radius,
-                end_offsets=(tuple(e0.tolist()), tuple(e1.tolist())),  # type: ignore[arg-type]
+                end_offsets=(tuple(e0.tolist()), tuple(e1.tolist())),
                 control_arm=arm,
                 frame_origin=to_inertial(i, np.zeros(3)),
                 end_cap="sphere" if shapes == {"sphere"} else "capsule",
@@ -288,7 +290,7 @@ def from_mjcf(
         topology = Topology(
             rods=tuple(rods),
             springs=tuple(springs),
-            anchors=tuple(anchors),  # type: ignore[arg-type]
+            anchors=tuple(anchors),
             name=m.names[: m.names.index(b"\0")].decode() or "assembly",
             cable_actuators=tuple(int(m.actuator_trnid[a, 0]) for a in cables.ids),
             winches=tuple(winches.tendons),
@@ -316,6 +318,7 @@ def from_mjcf(
     # dead band [0, L]: a tension-only (slack) spring of rest length L
     low, high = m.tendon_lengthspring[:, 0], m.tendon_lengthspring[:, 1]
     slack = tuple(int(t) for t in np.nonzero((low == 0) & (high > 0))[0])
+    winch_values: dict[str, Any] = dict(winches.values)  # WINCH_FIELDS -> (W,) arrays
     params = Params.create(
         stiffness=stiffness,
         damping=m.tendon_damping.copy(),
@@ -325,7 +328,7 @@ def from_mjcf(
         control_gain=gains[0] if gains else 1.0,
         gravity=m.opt.gravity.copy(),
         cable_gain=[m.actuator_gainprm[a, 0] * m.actuator_gear[a, 0] for a in cables.ids],
-        **winches.values,
+        **winch_values,
     )
     bad = [f for f, v in params.numpy().items() if not np.all(np.isfinite(v))]
     if not (np.isfinite(m.opt.timestep) and m.opt.timestep > 0):

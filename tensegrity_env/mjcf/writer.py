@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from typing import SupportsFloat
 
 import mujoco
 import numpy as np
@@ -41,7 +42,7 @@ class SimOptions:
     cable_lag: float = 0.0
 
 
-def _f(x: float) -> str:
+def _f(x: SupportsFloat) -> str:
     return repr(float(x))
 
 
@@ -151,15 +152,14 @@ def to_mjcf(
                     refsite="world_frame", gear=_v(gear), gainprm=_f(P["control_gain"]),
                 )  # fmt: skip
     if topology.cable_actuators:
-        act = root.find("actuator")
-        if act is None:
-            act = ET.SubElement(root, "actuator")
+        found = root.find("actuator")
+        act = ET.SubElement(root, "actuator") if found is None else found
         lag = {"dyntype": "filter", "dynprm": _f(options.cable_lag)} if options.cable_lag else {}
         for c, s in enumerate(topology.cable_actuators):
-            ET.SubElement(
-                act, "general", name=f"{topology.springs[s].name}_cable",
-                tendon=topology.springs[s].name, gainprm=_f(P["cable_gain"][c]), **lag,
-            )  # fmt: skip
+            ET.SubElement(act, "general", {
+                "name": f"{topology.springs[s].name}_cable", "tendon": topology.springs[s].name,
+                "gainprm": _f(P["cable_gain"][c]), **lag,
+            })  # fmt: skip
     if topology.winches:  # the winch convention of tensegrity_env.mjcf.winches
         custom = ET.SubElement(root, "custom")
         for name, data in winch_numerics(topology, params):

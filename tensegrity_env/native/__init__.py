@@ -1,4 +1,4 @@
-"""The bridge to the C kernel ``native_step.c``: one package between the effects and the
+"""The bridge to the C kernel ``native_step.h``: one package between the effects and the
 engine's step.
 
 * :mod:`~tensegrity_env.native.build`: builds and loads small C kernels once per

@@ -5,7 +5,9 @@ identification's normal equations (:mod:`identification.linear.native_normal`). 
 compiled with ``$CC`` (else ``cc``/``gcc``) into a cache folder
 (``$TENSEGRITY_SR_CACHE``, else ``$XDG_CACHE_HOME/tensegrity-sr`` or
 ``~/.cache/tensegrity-sr``), keyed by the source, the flags and the CPU, and loaded
-with :mod:`ctypes`. When no compiler works, :func:`build_and_load` raises
+with :mod:`ctypes`. A kernel may be several files: its ``.c`` files are compiled
+together into one library, and every file given (headers included) enters the key.
+When no compiler works, :func:`build_and_load` raises
 :class:`NativeUnavailable` and callers fall back to PyTorch.
 """
 
@@ -18,6 +20,7 @@ import platform
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 #: compiler flag sets tried in order (OpenMP and -march=native are optional)
@@ -51,11 +54,11 @@ def _cpu_signature() -> str:
     return platform.processor() or platform.machine()
 
 
-def _compile(cc: str, source: Path, flags: tuple[str, ...], out: Path) -> bool:
+def _compile(cc: str, sources: list[Path], flags: tuple[str, ...], out: Path) -> bool:
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(suffix=".so", dir=out.parent)
     os.close(fd)
-    cmd = [cc, *flags, "-shared", "-fPIC", str(source), "-o", tmp, "-lm"]
+    cmd = [cc, *flags, "-shared", "-fPIC", *map(str, sources), "-o", tmp, "-lm"]
     try:
         done = subprocess.run(cmd, capture_output=True, timeout=120)
     except (OSError, subprocess.TimeoutExpired):
@@ -68,25 +71,30 @@ def _compile(cc: str, source: Path, flags: tuple[str, ...], out: Path) -> bool:
     return True
 
 
-def build_and_load(source: Path) -> tuple[ctypes.CDLL, bool]:
+def build_and_load(source: Path | Sequence[Path]) -> tuple[ctypes.CDLL, bool]:
     """Compile ``source`` (cached) and load it: the library and whether it has OpenMP.
+
+    ``source`` is one C file or a kernel's files (its ``.c`` files compiled together,
+    its headers found beside them); the library is named after the first.
 
     Raises:
         NativeUnavailable: no compiler, or no flag set builds and loads.
     """
+    files = [source] if isinstance(source, Path) else list(source)
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
     if not cc:
         raise NativeUnavailable("no C compiler found (set CC)")
-    text = source.read_bytes()
+    text = b"".join(f.name.encode() + b"\0" + f.read_bytes() for f in files)
+    units = [f for f in files if f.suffix == ".c"]
     for flags in FLAG_SETS:
         key = hashlib.sha256(
             text + " ".join((cc, *flags)).encode() + _cpu_signature().encode()
         ).hexdigest()[:16]
-        lib_path = cache_dir() / f"{source.stem}_{key}.so"
-        if not lib_path.is_file() and not _compile(cc, source, flags, lib_path):
+        lib_path = cache_dir() / f"{files[0].stem}_{key}.so"
+        if not lib_path.is_file() and not _compile(cc, units, flags, lib_path):
             continue
         try:
             return ctypes.CDLL(str(lib_path)), "-fopenmp" in flags
         except OSError:
             continue
-    raise NativeUnavailable(f"could not build {source.name} with {cc}")
+    raise NativeUnavailable(f"could not build {files[0].name} with {cc}")

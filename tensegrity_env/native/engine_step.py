@@ -1,11 +1,12 @@
 """The engine's steps by the C kernel where no gradient is wanted.
 
 An :class:`~tensegrity_env.engine.Engine` built with ``native=True`` hands a step to
-:class:`NativeEngineStep` (the kernel ``native_step.c``: the engine's physics written out
+:class:`NativeEngineStep` (the C kernel, ``native_step.h``: the engine's physics written out
 per assembly) when the kernel computes the same thing: no gradient wanted through the
 state, the parameters or the effects, float64 on the CPU, no cable commands, a kernel
-that builds, no winches, and a model :func:`~tensegrity_env.native.pack.pack_model` packs (only
-effects the kernel has, each with the shapes it takes). Parameters with a batch
+that builds, and a model :func:`~tensegrity_env.native.pack.pack_model` packs (only
+effects the kernel has, each with the shapes it takes). Winches are wound in the kernel
+too: the winch state (B, W, 2) goes in and comes out with the rod states. Parameters with a batch
 dimension (a forward-difference Jacobian's perturbed copies) are stepped in runs of
 consecutive assemblies that share them, one model per run. Otherwise the step runs in
 PyTorch as always, and the reason is logged once (logger ``tensegrity_env.native``).
@@ -18,7 +19,6 @@ arithmetic; the kernel fuses the substeps of a step into one call.
 
 from __future__ import annotations
 
-import ctypes
 import logging
 from collections.abc import Sequence
 
@@ -37,8 +37,6 @@ from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
 
 LOG = logging.getLogger("tensegrity_env.native")
-#: the fallback reason of a model with winches: the kernel has no winch state
-WINCHES = "winch cables (the kernel does not wind rest lengths)"
 
 __all__ = ["FallbackLog", "ModelCache", "NativeEngineStep"]
 
@@ -101,7 +99,6 @@ class NativeEngineStep:
         substeps: physics steps per step, each ``physics_dt`` [s] long.
         has_cables: whether the topology has cable actuators (their commands are
             stepped in PyTorch).
-        has_winches: whether the topology has winches (stepped in PyTorch).
     """
 
     def __init__(
@@ -111,13 +108,11 @@ class NativeEngineStep:
         substeps: int,
         physics_dt: float,
         has_cables: bool,
-        has_winches: bool = False,
     ) -> None:
         self.topology = topology
         self.effects = tuple(effects)
         self.substeps, self.physics_dt = int(substeps), float(physics_dt)
         self.has_cables = bool(has_cables)
-        self.has_winches = bool(has_winches)
         self.cache = ModelCache()
         self.fallbacks = FALLBACKS
         # the springs' node pairs (S, 2) as the kernel takes them
@@ -129,12 +124,16 @@ class NativeEngineStep:
         params: Params,
         control: torch.Tensor | None,
         cables: torch.Tensor | None,
-    ) -> torch.Tensor | None:
-        """The packed states (B, R, 13) after one engine step of ``state`` (``p``,
-        ``v``, ``q``, ``omega``, each (B, R, ·)) by the kernel, or None (the reason
-        logged) where the kernel does not compute the same."""
+        winch: torch.Tensor | None = None,
+        commands: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None] | None:
+        """The packed states (B, R, 13) and the winch state (B, W, 2) [m, m/s] (None
+        without ``winch``) after one engine step of ``state`` (``p``, ``v``, ``q``,
+        ``omega``, each (B, R, ·)) and ``winch`` under the winch motors' ``commands``
+        (B, W) (None: 0) by the kernel, or None (the reason logged) where the kernel
+        does not compute the same."""
         try:
-            return self._step(state, params, control, cables)
+            return self._step(state, params, control, cables, winch, commands)
         except NotNative as e:
             self.fallbacks(str(e))
             return None
@@ -145,16 +144,17 @@ class NativeEngineStep:
         params: Params,
         control: torch.Tensor | None,
         cables: torch.Tensor | None,
-    ) -> torch.Tensor:
-        if self.has_winches:
-            raise NotNative(WINCHES)
+        winch: torch.Tensor | None,
+        commands: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
         if cables is not None and self.has_cables:
             raise NotNative("cable commands")
         B, R = state[0].shape[:2]
+        if commands is not None:
+            commands = commands.to(torch.float64)
         fields = {k: getattr(params, k) for k in PACKED_PARAMS}
         tensors = [*state, *fields.values()]
-        if control is not None:
-            tensors.append(control)
+        tensors += [t for t in (control, winch, commands) if t is not None]
         reason = unusable_reason(*tensors)
         if reason is not None:
             raise NotNative(reason)
@@ -173,19 +173,26 @@ class NativeEngineStep:
             model = pack_model(self.topology, fields, self.effects, B)
             self.cache.put(order, B, model)
         x = torch.cat([t.detach() for t in state], dim=-1).contiguous().numpy()
-        if control is None:
-            u = np.zeros((B, R, 3))
-        else:
+        u = None
+        if control is not None:
             u = np.ascontiguousarray(torch.broadcast_to(control.detach(), (B, R, 3)).numpy())
         topo = self.topology
-        dbl = ctypes.POINTER(ctypes.c_double)
+        W = topo.n_winches
+        w = None if winch is None else winch.detach().clone().reshape(B, W, 2).contiguous()
+        c = None
+        if w is not None and commands is not None:
+            c = np.ascontiguousarray(torch.broadcast_to(commands.detach(), (B, W)).numpy())
         code = lib.tsr_step_groups(
             B, R, topo.n_springs, topo.n_anchors, self.substeps, self.physics_dt,
-            ACTIVE_SET_ITERATIONS, x.ctypes.data_as(dbl), u.ctypes.data_as(dbl),
-            model.models.ctypes.data_as(dbl), len(model.start) - 1,
-            model.start.ctypes.data_as(ctypes.POINTER(ctypes.c_long)),
-            self.springs.ctypes.data_as(ctypes.POINTER(ctypes.c_int)), 1,
+            ACTIVE_SET_ITERATIONS, x.ctypes.data, _ptr(u), model.models.ctypes.data,
+            len(model.start) - 1, model.start.ctypes.data, self.springs.ctypes.data, 1,
+            _ptr(None if w is None else w.numpy()), _ptr(c),
         )  # fmt: skip
         if code != 0:
             raise NotNative(f"the kernel refused the model (code {code})")
-        return torch.from_numpy(x)
+        return torch.from_numpy(x), w
+
+
+def _ptr(a: np.ndarray | None) -> int | None:
+    """``a``'s address for the kernel (None: NULL)."""
+    return None if a is None else int(a.ctypes.data)

@@ -1,5 +1,5 @@
-"""The C kernel ``native_step.c``, loaded: the identified model's step and the ground
-contact's forces.
+"""The C kernel (``native_step.h`` and the ``native_*.c`` files it lists), loaded: the
+identified model's step and the ground contact's forces.
 
 Built once per machine by :mod:`tensegrity_env.native.build` (about a second). Its
 callers: the environments' stepper (:class:`~tensegrity_env.envs.physics.NativeStepper`),
@@ -20,7 +20,11 @@ import torch
 
 from tensegrity_env.native.build import NativeUnavailable, build_and_load
 
-SOURCE = Path(__file__).with_name("native_step.c")
+#: the kernel's files, compiled together (what each holds: ``native_step.h``)
+SOURCES = tuple(
+    Path(__file__).with_name(f"native_{part}")
+    for part in ("step.h", "step.c", "model.c", "forces.c", "contact.c", "winch.c")
+)
 
 #: whether the kernel may stand in for PyTorch where no gradient is wanted (the ground
 #: contact's law and ``Engine(native=True)``); tests and benchmarks switch it off to
@@ -37,28 +41,30 @@ GRADIENT_WANTED = "a gradient is wanted"
 #: the reason given where :data:`USE_NATIVE` is off
 SWITCHED_OFF = "the C kernel is switched off (tensegrity_env.native.kernel.USE_NATIVE)"
 
-__all__ = ["CONTACT_LAW", "GRADIENT_WANTED", "SOURCE", "SWITCHED_OFF", "USE_NATIVE",
+__all__ = ["CONTACT_LAW", "GRADIENT_WANTED", "SOURCES", "SWITCHED_OFF", "USE_NATIVE",
            "NativeUnavailable", "load_kernel", "unusable_reason", "usable_kernel"]  # fmt: skip
 
 
 @lru_cache(maxsize=1)
 def load_kernel() -> tuple[ctypes.CDLL, bool]:
     """The loaded library and whether it has OpenMP. Raises :class:`NativeUnavailable`."""
-    lib, openmp = build_and_load(SOURCE)
-    dbl, i32 = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int)
+    lib, openmp = build_and_load(SOURCES)
     c_int = ctypes.c_int
+    # the last two: the winch states (B, W, 2) in/out and their commands (B, W) (None: no
+    # winding / motors at 0)
+    ptr = ctypes.c_void_p  # array addresses (ints, ctypes pointers or None for NULL)
     lib.tsr_step.argtypes = [
-        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, i32, c_int
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, ptr, ptr, ptr, ptr, c_int,
+        ptr, ptr,
     ]  # fmt: skip
     lib.tsr_step.restype = c_int
     lib.tsr_step_groups.argtypes = [
-        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, dbl, dbl, dbl, c_int,
-        ctypes.POINTER(ctypes.c_long), i32, c_int,
+        c_int, c_int, c_int, c_int, c_int, ctypes.c_double, c_int, ptr, ptr, ptr, c_int,
+        ptr, ptr, c_int, ptr, ptr,
     ]  # fmt: skip
     lib.tsr_step_groups.restype = c_int
-    lib.tsr_model_size.argtypes = [c_int, c_int, c_int, c_int]
+    lib.tsr_model_size.argtypes = [c_int, c_int, c_int, c_int, c_int]
     lib.tsr_model_size.restype = c_int
-    ptr = ctypes.c_void_p
     lib.tsr_contact_forces.argtypes = [
         ctypes.c_long, c_int, *[ptr] * 7, c_int, *[ptr] * 7, c_int, ptr, ptr
     ]  # fmt: skip
@@ -66,6 +72,7 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
     lib.tsr_max_rods.restype = c_int
     lib.tsr_max_nodes.restype = c_int
     lib.tsr_max_points.restype = c_int
+    lib.tsr_max_winches.restype = c_int
     return lib, openmp
 
 

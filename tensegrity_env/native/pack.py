@@ -1,10 +1,10 @@
 """One adapter from a model to the C kernel: :func:`pack_model`.
 
 The environments' stepper and the engine's no-gradient step both pack their model here:
-the topology, the parameters (one set, or one per run of assemblies that share them)
-and the effects, each as its class declares (its ``native`` form: slots of the
-effects block, :data:`EFFECT_SLOTS`, or the contact law), in ``native_step.c``'s
-layout. A model the kernel does not compute raises :class:`NotNative` with the
+the topology, the parameters (one set, or one per run of assemblies that share them;
+the winches' speeds, ranges and lags among them) and the effects, each as its class
+declares (its ``native`` form: slots of the effects block, :data:`EFFECT_SLOTS`, or the
+contact law), in ``native_step.h``'s layout. A model the kernel does not compute raises :class:`NotNative` with the
 reason (an effect's declared ``no_native``).
 """
 
@@ -21,35 +21,43 @@ from tensegrity_env.native.kernel import CONTACT_LAW
 from tensegrity_env.topology import Topology
 
 #: entries of the kernel's effects block besides the per-spring ones: linear drag b, β,
-#: quadratic drag k, κ (3 each, per rod axis), a force field (3) and the linear damping
-#: integrated implicitly b, β (3 each)
-EFFECT_HEAD = 21
+#: quadratic drag k, κ (3 each, per rod axis), a force field (3), the linear damping
+#: integrated implicitly b, β (3 each) and the dry friction's regularisation velocity (1)
+EFFECT_HEAD = 22
+#: per-spring entries of the effects block: cubic stiffness, rest-length offset, slack
+#: mask, dry friction
+PER_SPRING = 4
 
 
 def effect_slots(n_springs: int) -> dict[str, tuple[int, int]]:
     """The effects block's slots, name -> (offset, width), for ``n_springs`` springs:
-    ``native_step.c``'s layout (:data:`EFFECT_HEAD` entries, then three per spring)."""
-    S = n_springs
+    ``native_step.h``'s layout (:data:`EFFECT_HEAD` entries, then :data:`PER_SPRING`
+    per spring)."""
+    S, H = n_springs, EFFECT_HEAD
     return {
         "linear_drag": (0, 6), "quadratic_drag": (6, 6), "force_field": (12, 3),
-        "implicit_damping": (15, 6), "cubic_stiffness": (EFFECT_HEAD, S),
-        "rest_length_offset": (EFFECT_HEAD + S, S), "slack": (EFFECT_HEAD + 2 * S, S),
+        "implicit_damping": (15, 6), "friction_velocity": (21, 1), "cubic_stiffness": (H, S),
+        "rest_length_offset": (H + S, S), "slack": (H + 2 * S, S),
+        "spring_friction": (H + 3 * S, S),
     }  # fmt: skip
 
 
 #: the slots' names (:func:`effect_slots`), for effects to declare theirs against
 EFFECT_SLOTS = tuple(effect_slots(0))
 
+#: the winches' parameters in the order the kernel's model holds them, each (W,)
+WINCH_PARAMS = ("winch_speed", "winch_lag", "winch_min", "winch_max")
+
 #: the parameters a batch dimension may vary, with their unbatched number of dimensions
 BATCHED = {"stiffness": 1, "damping": 1, "rest_length": 1, "mass": 1, "inertia": 2,
-           "control_gain": 0}  # fmt: skip
+           "control_gain": 0, **dict.fromkeys(WINCH_PARAMS, 1)}  # fmt: skip
 
 #: the parameters the kernel's model holds (the batched ones and gravity (3,))
 PACKED_PARAMS = (*BATCHED, "gravity")
 
-__all__ = ["BATCHED", "EFFECT_HEAD", "EFFECT_SLOTS", "PACKED_PARAMS", "NotNative",
-           "PackedModel", "effect_slots", "effects_block", "model_vector",
-           "pack_model"]  # fmt: skip
+__all__ = ["BATCHED", "EFFECT_HEAD", "EFFECT_SLOTS", "PACKED_PARAMS", "PER_SPRING",
+           "WINCH_PARAMS", "NotNative", "PackedModel", "effect_slots", "effects_block",
+           "model_vector", "pack_model"]  # fmt: skip
 
 
 class NotNative(ValueError):
@@ -91,6 +99,10 @@ def pack_model(
     """
     if params["gravity"].numel() != 3:
         raise NotNative("gravity is not one vector (3,)")
+    W = topology.n_winches
+    for k in WINCH_PARAMS:
+        if params[k].shape[-1:] != (W,):
+            raise NotNative(f"{k} has shape {tuple(params[k].shape)}, the robot {W} winch(es)")
     contact, block, radius = effects_block(effects, topology)
     batched = {k: params[k].dim() > n for k, n in BATCHED.items()}
     values: dict[str, np.ndarray]
@@ -116,7 +128,7 @@ def effects_block(
     effects: Sequence[object], topology: Topology
 ) -> tuple[dict[str, float] | None, np.ndarray, np.ndarray]:
     """The kernel's view of ``effects``: the ground contact's law (None without one),
-    the effects block (``native_step.c``'s layout, :data:`EFFECT_HEAD` + 3 S) and the
+    the effects block (``native_step.h``'s layout, :data:`EFFECT_HEAD` + 3 S) and the
     end caps' contact radii (R,) [m].
 
     Raises:
@@ -124,7 +136,7 @@ def effects_block(
             kernel takes (a batch of them).
     """
     S = topology.n_springs
-    block = np.zeros(EFFECT_HEAD + 3 * S)
+    block = np.zeros(EFFECT_HEAD + PER_SPRING * S)
     slots = effect_slots(S)
     contact, radius = None, None
     for e in effects:
@@ -142,7 +154,7 @@ def effects_block(
             if not all(v.numel() == 1 for v in values.values()):
                 raise NotNative(f"{name}: the kernel takes one value per parameter")
             contact = {k: float(v.detach()) for k, v in values.items()}
-            radius = e.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]
+            radius = e.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]  # the "contact" form carries end-cap radii
         elif form.kind == "mask":
             idx = values[form.keys[0]].cpu().numpy().astype(int)
             for slot in form.slots:
@@ -154,6 +166,8 @@ def effects_block(
                 if flat.size != width:
                     raise NotNative(f"{name}: the kernel takes {width} values, got {flat.size}")
                 block[at : at + width] += flat
+        for slot, value in form.constants:
+            block[slots[slot][0]] = value
     if radius is None:
         radius = np.zeros(topology.n_rods)
     return contact, block, radius
@@ -166,19 +180,24 @@ def model_vector(
     radius: np.ndarray,
     effects: np.ndarray | None = None,
 ) -> np.ndarray:
-    """The kernel's packed model (``native_step.c``'s layout) of ``topology`` with
+    """The kernel's packed model (``native_step.h``'s layout) of ``topology`` with
     ``params`` (arrays of :data:`PACKED_PARAMS`) and the ground contact's ``contact``
     values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R,) [m] the end caps'
-    contact radii; ``effects`` the effects block (:data:`EFFECT_HEAD` + 3 S entries;
-    None: no effect beside contact).
+    contact radii; ``effects`` the effects block (:data:`EFFECT_HEAD` + 4 S entries;
+    None: no effect beside contact). The winches' block follows: W, each spring's winch
+    (1 + its index, 0: none) (S,), then :data:`WINCH_PARAMS` (W,) each (absent from
+    ``params``: the topology has no winch).
 
     ``params`` may carry a batch dimension (stiffness (G, S), mass (G, R), inertia
-    (G, R, 3), control gain (G, ...)): one model per row, (G, L); else (L,).
+    (G, R, 3), control gain (G, ...), winch parameters (G, W)): one model per row,
+    (G, L); else (L,).
     """
-    S = topology.n_springs
+    S, W = topology.n_springs, topology.n_winches
     c = np.zeros(8) if contact is None else np.array([1.0, *(contact[k] for k in CONTACT_LAW)])
     if effects is None:
-        effects = np.zeros(EFFECT_HEAD + 3 * S)
+        effects = np.zeros(EFFECT_HEAD + PER_SPRING * S)
+    winch_of = np.zeros(S)
+    winch_of[np.asarray(topology.winches, dtype=int)] = np.arange(1, W + 1)
     stiffness = np.asarray(params["stiffness"], dtype=np.float64)
     G = stiffness.shape[0] if stiffness.ndim == 2 else 0
     rows = max(G, 1)
@@ -201,7 +220,9 @@ def model_vector(
         per_model(np.array([float(topology.n_points)]), 1),
         per_model(topology.point_rods.astype(float), topology.n_points),
         per_model(topology.point_offsets, 3 * topology.n_points),
-        per_model(effects, EFFECT_HEAD + 3 * S),
+        per_model(effects, EFFECT_HEAD + PER_SPRING * S),
+        per_model(np.array([float(W)]), 1), per_model(winch_of, S),
+        *(per_model(params.get(k, np.zeros(0)), W) for k in WINCH_PARAMS),
     ]  # fmt: skip
     out = np.ascontiguousarray(np.concatenate(parts, axis=1), dtype=np.float64)
     return out if G else out[0]

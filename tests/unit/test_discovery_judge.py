@@ -47,6 +47,7 @@ def scored(name: str, bic: float, physical: bool = True) -> Candidate[None]:
         (-20.0, 0.5, False, False, "rejected: unphysical (effect 'linear_drag'"),
         (-(MIN_BIC_DROP - 1), 0.5, True, False, "BIC drops only"),
         (float("nan"), 0.5, True, False, "BIC drops only"),
+        (5.0, 0.5, True, False, "BIC rises by 5 (it must drop by"),
         (-20.0, 0.1, True, False, "one-step error drops only 10.0%"),
         (-20.0, -np.inf, True, False, "drops only"),
     ],

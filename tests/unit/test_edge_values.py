@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from identification.data.dataset import read_dataset
-from identification.linear.regression import SpringRodIdentifier, check_anchor, parse_anchor
+from identification.linear.anchors import check_anchor, parse_anchor
+from identification.linear.regression import SpringRodIdentifier
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import effect_from_dict
 from tensegrity_env.io_utils import InputError, check_number

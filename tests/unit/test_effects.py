@@ -228,6 +228,29 @@ def test_contact_gate_no_force_above_the_floor(ico):
     assert torch.count_nonzero(f) == 0 and torch.count_nonzero(t) == 0
 
 
+def test_declared_gates_a_regression_reads(ico):
+    """A floor's clearance is each end cap's height above it less its radius; slack cables
+    lose their elastic tension only while shorter than rest; other effects declare neither."""
+    state = _random_state(ico.topology, lift=0.05)
+    eng = Engine(ico.topology, 1e-3)
+    kin = node_kinematics(state, eng.end_offsets, eng.anchors)
+    floor = GroundContact(ico.topology, height=0.02)
+    R = ico.topology.n_rods
+    caps = kin.x[:, : 2 * R].reshape(-1, R, 2, 3)[..., 2]
+    radius = torch.tensor([r.radius for r in ico.topology.rods], dtype=caps.dtype)
+    assert torch.allclose(floor.clearance(state, kin), caps - radius[None, :, None] - 0.02)
+    assert floor.floor_height() == pytest.approx(0.02)
+    length, _ = spring_lengths(kin, ico.topology)
+    rest = length[0].clone()
+    rest[[0, 3]] += 0.01  # springs 0 and 3 shorter than rest, spring 1 longer
+    rest[1] -= 0.01
+    slack = SlackSprings(ico.topology, springs=[0, 1]).elastic(length[:1], rest)
+    assert slack[0, :4].tolist() == [False, True, True, True] and bool(slack[0, 4:].all())
+    for e in _examples(ico.topology)[1:]:
+        assert e.floor_height() is None and e.clearance(state, kin) is None
+        assert e.name == "slack_springs" or e.elastic(length, rest) is None
+
+
 @pytest.mark.parametrize(("friction", "seed"), [(1.0, 0), (0.3, 4), (2.0, 7)])
 def test_ground_contact_reproduces_mujoco_one_step(friction, seed):
     data = planted_dataset(PlantSpec("ground_contact", friction, n_train=2, n_val=0, n_test=0,

@@ -51,6 +51,7 @@ def _effects(topology):  # type: ignore[no-untyped-def]
         fx.CubicStiffness(topology, stiffness=rng.normal(0, 2000, S)),
         fx.RestLengthOffset(topology, offset=rng.normal(0, 0.004, S)),
         fx.SlackSprings(topology, springs=[0, 3, 5, 7, 11]),
+        fx.SpringFriction(topology, friction=rng.uniform(0.5, 3.0, S)),
         fx.GroundContact(topology, friction=0.8, stiffness=2500.0, impedance=0.93),
     ]
 

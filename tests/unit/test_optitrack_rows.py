@@ -24,15 +24,16 @@ RATE = 120.0
 G = 9.81
 
 
-def motion(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Markers (F, 6, 3) [m], z up, 3 mm beyond the end caps along each rod: resting on
-    the floor, lifted and turned by a hand, dropped (free fall), resting again."""
+def motion(rest: np.ndarray, beyond: float = 0.003) -> tuple[np.ndarray, np.ndarray]:
+    """Markers (F, 6, 3) [m], z up, ``beyond`` [m] beyond the end caps along each rod:
+    resting on the floor, lifted and turned by a hand, dropped (free fall), resting
+    again."""
     time = np.arange(int(2.0 * RATE)) / RATE
     axis = rest[1::2] - rest[0::2]
     axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
     markers = rest.copy()
-    markers[0::2] -= 0.003 * axis
-    markers[1::2] += 0.003 * axis
+    markers[0::2] -= beyond * axis
+    markers[1::2] += beyond * axis
     centre = markers.mean(0)
     lift, fall = 0.8, 1.2  # [s]
     drop = np.sqrt(2 * 0.2 / G)
@@ -48,11 +49,15 @@ def motion(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return time, out
 
 
-def export(tmp_path: Path, rng: np.random.Generator) -> dict[str, object]:
-    """A row-format take of the prism in y-up file coordinates; returns what was planted."""
+def export(tmp_path: Path, rng: np.random.Generator, floor: float = 0.0) -> dict[str, object]:
+    """A row-format take of the prism in y-up file coordinates, its floor at height
+    ``floor`` [m] (the end caps resting one rod radius above it); returns what was
+    planted: ``truth`` the markers, ``caps`` the end caps (z-up)."""
     (tmp_path / "prism.yaml").write_text(PRISM)
     robot = from_ntrt(tmp_path / "prism.yaml")
-    time, truth = motion(robot.rest_caps)
+    lift = floor + robot.topology.rods[0].radius  # the rest pose's lowest caps lie at z = 0
+    time, truth = motion(robot.rest_caps + np.array([0, 0, lift]))
+    _, caps = motion(robot.rest_caps + np.array([0, 0, lift]), beyond=0.0)
     F = len(time)
     file_xyz = truth @ TO_Z_UP["y"]  # z-up -> the file's y-up
     pts = file_xyz + rng.normal(0, 5e-5, file_xyz.shape)
@@ -76,7 +81,7 @@ def export(tmp_path: Path, rng: np.random.Generator) -> dict[str, object]:
         visible[f], ids[f] = visible[f - 1], ids[f - 1]
     write_optitrack_rows(tmp_path / "take.csv", time, np.where(visible[..., None], pts, np.nan),
                          np.where(visible, ids, -1))  # fmt: skip
-    return {"time": time, "truth": truth, "visible": visible[:, :6], "repeated": repeated,
+    return {"time": time, "truth": truth, "caps": caps, "visible": visible[:, :6], "repeated": repeated,
             "ghost_samples": int(visible[~repeated, 6:].sum())}  # fmt: skip
 
 
@@ -105,7 +110,9 @@ def test_an_unlabelled_take_is_labelled_up_to_symmetry_and_set_upright(tmp_path:
     # the hand's lift (0.8-1.2 s) is found, the whole take kept as --segments names it
     assert "external 0.7" in r.stdout and "the fit uses 0.01-2.00 s" in r.stdout
     caps = read_dataset(tmp_path / "take.h5").split("train").nodes[0]  # tracking starts at frame 1
-    truth, visible, repeated = planted["truth"][1:], planted["visible"][1:], planted["repeated"][1:]  # type: ignore[index]
+    # the markers, 3 mm beyond the end caps, are placed onto them; the floor is at z = 0
+    assert "3.0 to 3.0 mm beyond the model's end caps along 3 rods" in r.stdout
+    truth, visible, repeated = planted["caps"][1:], planted["visible"][1:], planted["repeated"][1:]  # type: ignore[index]
     # one labelling of the robot's symmetric ones: a permutation of the caps keeping rods whole
     perm = np.array([int(np.argmin(np.linalg.norm(truth[0] - c, axis=-1))) for c in caps[0]])
     assert sorted(perm.tolist()) == list(range(6))

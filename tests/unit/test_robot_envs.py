@@ -21,7 +21,8 @@ from tensegrity_env.envs import (
     TensegritySRVectorEnv,
 )
 from tensegrity_env.envs.rendering import RenderingUnavailable, record_side_by_side
-from tensegrity_env.envs.robot_physics import DEFAULT_ROBOT
+from tensegrity_env.envs.robot_physics import DEFAULT_ROBOT, MJRobotBatch
+from tensegrity_env.envs.robot_rollout import MJRobotRollout
 from tensegrity_env.envs.robot_task import GoalTask, RobotSensors, ShapeTask, make_robot_task
 from tensegrity_env.envs.sr_env import ASSETS, DEFAULT_PARAMS
 from tensegrity_env.io_utils import InputError
@@ -225,6 +226,29 @@ def test_vector_env_equals_single_envs(env_id: str, vector: type, single: type) 
             o, r, *_ = e.step(a[i])
             np.testing.assert_allclose(obs[i], o, atol=1e-5)
             assert reward[i] == pytest.approx(r, abs=1e-9)
+
+
+def test_twins_through_a_rollout_equal_twins_stepped_one_at_a_time() -> None:
+    """The vector twin's rollout (the winding as tendon forces K (l0 - l_ref)) and the
+    twin's own steps (``springlength`` written before every ``mj_step``): the same rod
+    and winch states to round-off over 1 s of random commands."""
+    B = 3
+    fast, slow = MJRobotRollout(batch=B, threads=1), MJRobotBatch(batch=B)
+    rng = np.random.default_rng(4)
+    for i in range(B):
+        x = fast.rest_pose()
+        x[:, 3:6] += rng.normal(0, 0.05, (R, 3))
+        fast.set_state(x, None, i)
+        slow.set_state(x, None, i)
+    moved = fast.x.copy()
+    for _ in range(20):
+        u = rng.uniform(-1.3, 1.3, (B, W))
+        fast.step_batch(u)
+        slow.step_batch(u)
+    fast.close()
+    assert np.abs(fast.x - slow.x).max() < TWIN_ATOL
+    assert np.abs(fast.winch - slow.winch).max() < TWIN_ATOL
+    assert np.abs(fast.x - moved)[..., :3].max() > 1e-3  # the robots moved
 
 
 def test_sb3_adapter_on_the_batched_robot() -> None:

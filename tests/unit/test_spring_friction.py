@@ -22,7 +22,7 @@ from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.forces import spring_frames
 from tensegrity_env.engine.kinematics import node_kinematics
 from tensegrity_env.native.engine_step import FallbackLog
-from tensegrity_env.native.pack import NotNative, effects_block
+from tensegrity_env.native.pack import effect_slots, effects_block
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -87,16 +87,43 @@ def test_fit_coordinates_are_the_frictions_bounded_at_zero(ico):
     assert torch.allclose(back.values["friction"], torch.full((S,), 0.7, dtype=torch.float64))
 
 
-def test_no_c_form_is_declared_and_the_engine_says_why_it_steps_in_pytorch(ico, caplog):
-    with pytest.raises(NotNative, match=r"spring_friction.*per-spring friction slot"):
-        effects_block([SpringFriction(ico.topology, friction=0.5)], ico.topology)
-    engine = Engine(ico.topology, 1e-3, [SpringFriction(ico.topology, friction=0.5)], native=True)
-    engine.native_step.fallbacks = FallbackLog()  # type: ignore[union-attr]
-    with caplog.at_level(logging.INFO, logger="tensegrity_env.native"), torch.no_grad():
-        for _ in range(2):
-            engine.step(_moving(2), ico.params)
-    said = [r.getMessage() for r in caplog.records if r.name == "tensegrity_env.native"]
-    assert len(said) == 1 and "per-spring friction slot" in said[0]
+def test_the_c_kernel_steps_friction_as_the_engine(ico, caplog):
+    """Its C form: the per-spring slot holds F, the velocity slot v_ε; 200 steps of
+    icosahedra whose cables slide both faster and slower than v_ε, by the kernel and by
+    PyTorch, agree to round-off, and no step falls back."""
+    S = ico.topology.n_springs
+    friction = SpringFriction(ico.topology, friction=np.linspace(0.2, 3.0, S))
+    _, block, _ = effects_block([friction], ico.topology)
+    slots = effect_slots(S)
+    at, width = slots["spring_friction"]
+    np.testing.assert_array_equal(block[at : at + width], np.linspace(0.2, 3.0, S))
+    assert block[slots["friction_velocity"][0]] == REGULARISATION_VELOCITY
+    moving = _moving(5, seed=3)
+    slow = torch.tensor([1.0, 1.0, 1.0, 0.01, 0.01], dtype=torch.float64)[:, None, None]
+    start = State(moving.p, moving.v * slow, moving.q, moving.omega * slow)  # two nearly still
+    out = []
+    for native in (False, True):
+        engine = Engine(ico.topology, 1e-2, [friction], substeps=10, native=native)
+        if native:
+            engine.native_step.fallbacks = FallbackLog()  # type: ignore[union-attr]
+        s = start
+        with caplog.at_level(logging.INFO, logger="tensegrity_env.native"), torch.no_grad():
+            for _ in range(20):
+                s = engine.step(s, ico.params)
+        out.append(torch.cat(s.tensors(), dim=-1))
+    assert not [r for r in caplog.records if r.name == "tensegrity_env.native"]
+    assert float((out[0] - out[1]).abs().max()) <= 1e-10
+    ref = Engine(ico.topology, 1e-3)
+    kin = node_kinematics(start, ref.end_offsets, ref.anchors)
+    nodes = torch.as_tensor(ico.topology.spring_nodes)
+    rate = spring_frames(kin, nodes[:, 0], nodes[:, 1]).rate.abs()
+    assert bool((rate < REGULARISATION_VELOCITY).any()) and bool((rate > 0.1).any())
+    free = Engine(ico.topology, 1e-2, [], substeps=10, native=True)
+    with torch.no_grad():
+        s = start
+        for _ in range(20):
+            s = free.step(s, ico.params)
+    assert float((torch.cat(s.tensors(), dim=-1) - out[1]).abs().max()) > 1e-3  # it acts
 
 
 def test_regression_recovers_friction_planted_in_the_engine(ico):

@@ -2,7 +2,9 @@
 
 A lab logs the commands it sends to a cable-driven robot's motors on the controller's
 own clock and rate. One command file per take, a CSV: a header ``time`` followed by one
-column per cable actuator of the robot, in the robot file's actuator order; times [s]
+column per cable actuator of the robot, in the robot file's actuator order, then one per
+winch motor, in the robot file's winch order (a winch's command in [-1, 1] sets its
+cable's rest-length rate, positive lengthening: :mod:`tensegrity_env.engine.winch`); times [s]
 from the take's first frame (the two clocks aligned); one row per command sent. A
 command holds until the next row (zero-order hold, as a motor controller applies it):
 the command in force over the sample interval that starts at a frame is the last row
@@ -23,8 +25,9 @@ from tensegrity_env.io_utils import InputError, atomic_write_text
 TIME_TOL = 1e-6
 
 
-def read_commands(path: Path, n_actuators: int) -> tuple[np.ndarray, np.ndarray]:
-    """Command times (K,) [s] and values (K, C) of a command CSV; one-line errors."""
+def read_commands(path: Path, n_actuators: int, what: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """Command times (K,) [s] and values (K, n_actuators) of a command CSV (``what``
+    names the robot's motors in errors); one-line errors."""
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
             reader = csv.reader(f)
@@ -38,7 +41,7 @@ def read_commands(path: Path, n_actuators: int) -> tuple[np.ndarray, np.ndarray]
     header = rows[0][1]
     if len(header) - 1 != n_actuators:
         raise InputError(f"{path}: {len(header) - 1} command columns, the robot has "
-                         f"{n_actuators} cable actuators")  # fmt: skip
+                         f"{what or f'{n_actuators} cable actuators'}")  # fmt: skip
     if len(rows) < 2:
         raise InputError(f"{path}: no commands after the header")
     data = np.empty((len(rows) - 1, n_actuators + 1))

@@ -11,6 +11,7 @@ from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import cap_names
 from identification.data.mocap.labelling import LENGTH_TOL, initial_caps_from_shape, label_clouds
 from identification.data.mocap.marker_map import MarkerMap, default_map
+from identification.data.mocap.placement import Placement
 from identification.data.mocap.recording import MarkerRecording
 from identification.data.mocap.stretches import Stretch, assign_splits, pieces
 from identification.data.mocap.vertical import AXIS_ANGLE, find_vertical
@@ -85,13 +86,16 @@ def read_robot(
 class ImportedTake:
     """End caps of one take. ``caps`` (F, 2R, 3) [m], NaN unseen; ``time`` (F,) [s];
     ``track_of_cap`` (F, 2R): the file column each cap came from (-1 unseen);
-    ``commands`` (F, C): each cable actuator's command in force from each frame on
+    ``commands`` (F, C + W): each cable actuator's, then each winch motor's command in
+    force from each frame on
     [command units] (None: not logged, zero); ``rejected``: labelled samples read as
     unseen (:func:`checked_labels`, :func:`rods_off_their_length`); ``reacquired``
     (2R,): times each cap was found again after being lost (unlabelled takes);
     ``ids`` (F, M): the recording's marker ids (:attr:`MarkerRecording.ids`);
     ``stretches``: the take's stretches of which a fit uses those at rest, free or named
-    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used)."""
+    (:mod:`~identification.data.mocap.stretches`; None: the whole take is used);
+    ``placement``: how its markers were placed on the robot's end caps and floor
+    (:mod:`~identification.data.mocap.placement`; None: as recorded)."""
 
     source: Path
     time: np.ndarray
@@ -105,14 +109,15 @@ class ImportedTake:
     reacquired: np.ndarray | None = None
     ids: np.ndarray | None = None
     stretches: tuple[Stretch, ...] | None = None
+    placement: Placement | None = None
 
-    def piece(self, a: int = 0, b: int | None = None, n_cables: int = 0) -> Piece:
+    def piece(self, a: int = 0, b: int | None = None, n_commands: int = 0) -> Piece:
         """Frames ``a:b`` as (time, caps, commands (zero where not logged))."""
-        cmd = self.commands if self.commands is not None else np.zeros((len(self.time), n_cables))
+        cmd = self.commands if self.commands is not None else np.zeros((len(self.time), n_commands))
         return self.time[a:b], self.caps[a:b], cmd[a:b]
 
 
-#: one take's stretch for a split: time (F,), caps (F, 2R, 3), commands (F, C)
+#: one take's stretch for a split: time (F,), caps (F, 2R, 3), commands (F, C + W)
 Piece = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -280,11 +285,12 @@ def label_take(rec: MarkerRecording, robot: Robot, mmap: MarkerMap | None) -> Im
         first = initial_caps_from_shape(robot.rest_caps, rec.points[0, seen])
     # two passes: the rods' marker distances as tracked with the robot's lengths and a
     # loose gate, then tracked again with those
-    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids)
+    built = robot.rest_caps  # labelled by cap index, as the tracking is
+    lab = label_clouds(rec.points, rec.time, first, marker_distances(first, lengths), ids=rec.ids, built=built)
     apart = np.linalg.norm(lab.caps[:, 0::2] - lab.caps[:, 1::2], axis=-1)
     usual = np.array([np.median(a[np.isfinite(a)]) if np.isfinite(a).any() else np.nan for a in apart.T])
     lengths = np.where(np.isfinite(usual), usual, lengths)
-    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids)
+    lab = label_clouds(rec.points, rec.time, first, lengths, ids=rec.ids, built=built)
     caps, rejected = rods_off_their_length(lab.caps, rec.time, length_tolerance(rec))
     caps, held = without_placeholders(caps)
     rejected += held
@@ -408,22 +414,25 @@ def parse_fractions(text: str) -> tuple[float, float, float]:
         raise InputError(f"--split: {text!r} is not three fractions like 0.7,0.15,0.15") from None
     if len(parts) != 3 or min(parts) < 0 or abs(sum(parts) - 1) > 1e-6 or parts[0] <= 0:
         raise InputError(f"--split: {text!r} must be train,val,test fractions summing to 1")
-    return parts  # type: ignore[return-value]
+    return parts
 
 
-def _stack(pieces: list[Piece], n_rods: int) -> Split:
+def _stack(pieces: list[Piece], n_rods: int, n_cables: int) -> Split:
     """Takes of one split as trajectories of equal length: the shortest take's; longer
     takes are cut into as many whole pieces of that length as they hold (the rest of a
-    take, shorter than one piece, is left out). Cable commands (if the robot has cable
-    actuators) are those in force over each sample interval."""
+    take, shorter than one piece, is left out). Each sample keeps its own time (from the
+    piece's first). Cable and winch commands (the first ``n_cables`` columns, then the
+    winches') are those in force over each sample interval."""
     T1 = min(len(t) for t, _, _ in pieces)
     chunks = [(t[a : a + T1], c[a : a + T1], u[a : a + T1 - 1]) for t, c, u in pieces
               for a in range(0, len(t) - T1 + 1, T1)]  # fmt: skip
     nodes = np.stack([c for _, c, _ in chunks])
     time = np.stack([t - t[0] for t, _, _ in chunks])
-    cables = np.stack([u for _, _, u in chunks])
+    commands = np.stack([u for _, _, u in chunks])
+    cables, winches = commands[..., :n_cables], commands[..., n_cables:]
     return Split(nodes=nodes, control=np.zeros((len(chunks), T1 - 1, n_rods, 3)), time=time,
-                 cable_control=cables if cables.shape[-1] else None)  # fmt: skip
+                 cable_control=cables if cables.shape[-1] else None,
+                 winch_control=winches if winches.shape[-1] else None)  # fmt: skip
 
 
 def build_dataset(
@@ -435,13 +444,13 @@ def build_dataset(
     duration when it has no stretches). A take with stretches gives only pieces of
     ``piece`` [s] cut from the stretches a fit uses (:func:`~identification.data.mocap.
     stretches.pieces`), each whole in one split; the attrs record the stretches and
-    each split's pieces (file, start, end [s])."""
+    each split's pieces (file, time of its first and last sample [s])."""
     rates = np.array([t.rate for t in takes])
     if np.ptp(rates) > RATE_TOL * rates.min():
         raise InputError(f"takes have different frame rates ({sorted(set(rates.round(3)))} Hz); import them separately")
     groups: dict[str, list[Piece]] = {"train": [], "val": [], "test": []}
     where: dict[str, list[list[object]]] = {"train": [], "val": [], "test": []}
-    C = robot.topology.n_cables
+    C = robot.topology.n_cables + robot.topology.n_winches
 
     def add(t: ImportedTake, split: str, a: int = 0, b: int | None = None) -> None:
         groups[split].append(t.piece(a, b, C))
@@ -449,11 +458,13 @@ def build_dataset(
         where[split].append([t.source.name, round(float(t.time[a]), 4), round(float(t.time[end - 1]), 4)])
 
     def cut(t: ImportedTake) -> list[tuple[int, int | None]]:
-        ranges = pieces(list(t.stretches), t.time, piece) if t.stretches is not None else [(0, None)]
+        ranges: list[tuple[int, int | None]] = (
+            [*pieces(list(t.stretches), t.time, piece)] if t.stretches is not None else [(0, None)]
+        )
         if not ranges:
             raise InputError(f"{t.source}: no stretch a fit can use lasts {piece:g} s "
                              f"({', '.join(map(str, t.stretches or ()))})")  # fmt: skip
-        return ranges  # type: ignore[return-value]
+        return ranges
 
     if assign or len(takes) >= 3:
         if assign:
@@ -480,7 +491,7 @@ def build_dataset(
                 add(t, s, a, b)
     if not groups["train"]:
         raise InputError("no take left for the training split")
-    splits = {s: _stack(p, robot.topology.n_rods) for s, p in groups.items() if p}
+    splits = {s: _stack(p, robot.topology.n_rods, robot.topology.n_cables) for s, p in groups.items() if p}
     attrs: dict[str, object] = {
         "source": "import-mocap",
         "files": [str(t.source) for t in takes],
@@ -488,7 +499,9 @@ def build_dataset(
         "ghost_points": int(sum(t.ghosts for t in takes)),
         "rejected_samples": int(sum(t.rejected for t in takes)),
     }
+    if any(t.placement is not None for t in takes):
+        attrs["placement"] = {t.source.name: t.placement.to_dict() for t in takes if t.placement is not None}
     if any(t.stretches is not None for t in takes):
         attrs["stretches"] = {t.source.name: [x.to_dict() for x in t.stretches or ()] for t in takes}
-        attrs["pieces"] = {s: w for s, w in where.items() if w}
+    attrs["pieces"] = {s: w for s, w in where.items() if w}
     return Dataset(topology=robot.topology, dt=float(1.0 / np.median(rates)), splits=splits, attrs=attrs)

@@ -9,7 +9,9 @@ Then each end cap is tracked from frame to frame, its id ignored:
 * a cap seen within :data:`FRESH` is predicted at constant velocity from the last two
   frames it was seen, and matched within :data:`GATE` plus its step;
 * a cap lost for longer is predicted from the robot's shape: the last frame that saw
-  every cap, moved rigidly onto the caps seen now (Kabsch), and re-acquired within
+  every cap, or the robot's built shape where that fits the caps seen now better (a
+  robot whose shape changed while caps were lost: cables released in a jump), moved
+  rigidly onto the caps seen now (Kabsch), and re-acquired within
   :data:`REACQUIRE_GATE` of that, whatever id the camera system gave its marker;
 * a robot lost altogether (fewer than three caps tracked, as in a jump) is found again
   by placing the last frame that saw every cap on a frame showing as many points
@@ -21,7 +23,10 @@ Then each end cap is tracked from frame to frame, its id ignored:
   rod's length with the markers' offsets) to the partner cap's prediction; a cap may
   stay unseen at the cost of its gate;
 * a rod whose two assigned points are not ``L_r`` apart within ``length_tol`` loses
-  the one farther from its prediction. Points given to no end cap are ghosts.
+  the one farther from its prediction; a rod one of whose caps is found again after
+  being lost is kept within :data:`REACQUIRE_LENGTH` of ``L_r``, and its distance as
+  found becomes its ``L_r`` (markers move on their caps: an impact, cables wound in
+  and released). Points given to no end cap are ghosts.
 """
 
 from __future__ import annotations
@@ -43,6 +48,10 @@ FRESH = 0.05
 #: a lost cap is re-acquired within this distance [m] of where the robot's shape puts it
 #: (a tensegrity deforms by centimetres; its markers are tens of centimetres apart)
 REACQUIRE_GATE = 0.06
+#: a rod found again after being lost may show its markers this fraction of its marker
+#: distance nearer or farther apart than before (the ETH 6-bar's markers, 0.51 m apart,
+#: shift by up to 12 mm between its compressed rest and the landing after the jump)
+REACQUIRE_LENGTH = 0.05
 #: rotations tried to place the robot's shape on the first frame's cloud (one every
 #: ~10 degrees of the rotation group, then refined)
 SHAPE_TRIES = 3000
@@ -164,18 +173,21 @@ def label_clouds(
     gate: float = GATE,
     length_tol: float = LENGTH_TOL,
     ids: np.ndarray | None = None,
+    built: np.ndarray | None = None,
 ) -> Labelling:
     """Track ``2R`` end caps through ``points`` (F, M, 3) [m] (NaN: track absent).
 
     ``first`` (2R, 3): the end caps in frame 0 (NaN for caps not identified there);
     ``rod_lengths`` (R,) [m]: the distance of each rod's two markers; ``time`` (F,)
     [s]; ``ids`` (F, M): the capture system's id of each sample where a column holds
-    several ids in turn (for counting relabelled frames), else None.
+    several ids in turn (for counting relabelled frames), else None; ``built`` (2R, 3)
+    [m]: the robot's built shape, labelled as ``first`` (None: the last full frame's
+    only).
     """
     F = points.shape[0]
     n_caps = first.shape[0]
     partner = np.arange(n_caps) ^ 1
-    lengths = np.repeat(rod_lengths, 2)
+    lengths = np.repeat(rod_lengths, 2).astype(float)
     caps = np.full((F, n_caps, 3), np.nan)
     track = np.full((F, n_caps), -1)
     seen_at = np.full((n_caps, 2), -1)  # last two frames each cap was seen
@@ -198,10 +210,10 @@ def label_clouds(
     for f in range(1, F):
         present = np.flatnonzero(np.isfinite(points[f]).all(-1))
         cloud = points[f, present]
-        pred, reach, fresh = _predict(caps, time, seen_at, f, gate, shape)
+        pred, reach, fresh = _predict(caps, time, seen_at, f, gate, shape, built)
         known = np.isfinite(pred).all(-1)
         lost = fresh.sum() < 3 and shape is not None and len(cloud) >= n_caps
-        if lost and time[f] - tried_at >= REPLACE_EVERY:
+        if lost and shape is not None and time[f] - tried_at >= REPLACE_EVERY:
             tried_at = time[f]
             placed = initial_caps_from_shape(shape, cloud)
             pick = np.array([int(np.argmin(np.linalg.norm(cloud - c, axis=-1))) if np.isfinite(c).all()
@@ -225,12 +237,16 @@ def label_clouds(
         for r in range(n_caps // 2):
             i, k = 2 * r, 2 * r + 1
             if pick[i] >= 0 and pick[k] >= 0:
-                gap = abs(np.linalg.norm(cloud[pick[i]] - cloud[pick[k]]) - lengths[i])
-                if gap > length_tol:
+                apart = float(np.linalg.norm(cloud[pick[i]] - cloud[pick[k]]))
+                found = not (fresh[i] and fresh[k])  # one found again: a new distance is taken
+                tol = max(length_tol, REACQUIRE_LENGTH * lengths[i]) if found else length_tol
+                if abs(apart - lengths[i]) > tol:
                     worse = i if dist[i, pick[i]] > dist[k, pick[k]] else k
                     pick[worse] = -1
+                elif found:
+                    lengths[i] = lengths[k] = apart
         assigned = {}
-        for i in np.flatnonzero(pick >= 0):
+        for i in np.flatnonzero(pick >= 0).tolist():
             j = int(present[pick[i]])
             if seen_at[i, 0] >= 0 and not fresh[i]:
                 reacquired[i] += 1
@@ -248,10 +264,12 @@ def label_clouds(
 
 def _predict(
     caps: np.ndarray, time: np.ndarray, seen_at: np.ndarray, f: int, gate: float,
-    shape: np.ndarray | None,
+    shape: np.ndarray | None, built: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Each cap's predicted position in frame ``f`` (2R, 3) [m] (NaN: none), its gate
-    (2R,) [m] and whether it was seen within :data:`FRESH` (2R,)."""
+    (2R,) [m] and whether it was seen within :data:`FRESH` (2R,). Lost caps: from
+    ``shape`` or ``built`` (2R, 3), whichever lies closer to the fresh caps once moved
+    onto them."""
     n_caps = caps.shape[1]
     pred = np.full((n_caps, 3), np.nan)
     reach = np.full(n_caps, gate)
@@ -270,7 +288,13 @@ def _predict(
             reach[i] += 1.0 * (time[f] - time[a])  # up to 1 m/s unseen motion
     lost = ~fresh
     if shape is not None and lost.any() and fresh.sum() >= 3:
-        rot, t = rigid_align(shape[fresh], pred[fresh])
-        pred[lost] = shape[lost] @ rot.T + t
+        best = np.inf
+        for s in (shape, built):
+            if s is None:
+                continue
+            rot, t = rigid_align(s[fresh], pred[fresh])
+            misfit = float(np.linalg.norm(s[fresh] @ rot.T + t - pred[fresh], axis=-1).mean())
+            if misfit < best:
+                best, pred[lost] = misfit, s[lost] @ rot.T + t
         reach[lost] = REACQUIRE_GATE
     return pred, reach, fresh

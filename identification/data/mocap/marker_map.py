@@ -55,13 +55,13 @@ def read_marker_map(path: str | Path, topology: Topology) -> MarkerMap:
         raise InputError(f"{p}: needs a 'markers:' mapping of marker name -> {{rod, end}}")
     rods = {r.name: i for i, r in enumerate(topology.rods)}
     caps: dict[str, tuple[int, float]] = {}
-    for name, e in entries.items():
-        if not isinstance(e, dict) or "rod" not in e or e.get("end") not in (0, 1):
+    for name, entry in entries.items():
+        if not isinstance(entry, dict) or "rod" not in entry or entry.get("end") not in (0, 1):
             raise InputError(f"{p}: marker {name!r} needs 'rod' and 'end' (0 or 1)")
-        rod = rods.get(str(e["rod"]))
+        rod = rods.get(str(entry["rod"]))
         if rod is None:
-            raise InputError(f"{p}: marker {name!r}: no rod {e['rod']!r} in the robot (has {sorted(rods)})")
-        offset = e.get("offset", 0.0)
+            raise InputError(f"{p}: marker {name!r}: no rod {entry['rod']!r} in the robot (has {sorted(rods)})")
+        offset = entry.get("offset", 0.0)
         if isinstance(offset, list):
             raise InputError(
                 f"{p}: marker {name!r}: offset must be one number along the rod's axis "
@@ -71,9 +71,9 @@ def read_marker_map(path: str | Path, topology: Topology) -> MarkerMap:
                 or not math.isfinite(offset):
             raise InputError(f"{p}: marker {name!r}: offset {offset!r} is not a finite number [m]")
         offset = float(offset)
-        cap = 2 * rod + int(e["end"])
+        cap = 2 * rod + int(entry["end"])
         if cap in {c for c, _ in caps.values()}:
-            raise InputError(f"{p}: two markers map to end {e['end']} of rod {e['rod']!r}")
+            raise InputError(f"{p}: two markers map to end {entry['end']} of rod {entry['rod']!r}")
         caps[str(name)] = (cap, offset)
     return MarkerMap(caps, str(p))
 

@@ -108,14 +108,14 @@ def read_optitrack_rows(path: Path, rows: list[list[str]], units: str | None = N
     if declared is not None and declared != len(frames):
         raise InputError(f"{path}: 'info,framecount' declares {declared} frames, the file holds "
                          f"{len(frames)} frame rows (truncated?)")  # fmt: skip
-    time = np.array([t for t, _, _ in frames])
+    times = np.array([t for t, _, _ in frames])
     names = {m[4] for _, ms, _ in frames for m in ms}
     unlabelled = all(UNLABELLED_NAME.match(n) for n in names)
     points, ids, columns = _pack(path, frames) if unlabelled else _by_name(path, frames)
     scale = unit_scale("m" if units is None else units, path, None)
-    dt = np.diff(time)
+    dt = np.diff(times)
     rate = float(1.0 / np.median(dt)) if len(dt) else np.nan
-    return MarkerRecording(path, time - time[0], points * scale, columns, rate, ids=ids)
+    return MarkerRecording(path, times - times[0], points * scale, columns, rate, ids=ids)
 
 
 def _pack(path: Path, frames: list[Frame]) -> tuple[np.ndarray, np.ndarray, list[str]]:

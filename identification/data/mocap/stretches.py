@@ -189,7 +189,7 @@ def find_stretches(caps: np.ndarray, time: np.ndarray) -> list[Stretch]:
 
 def parse_segments(text: str) -> list[tuple[float, float]]:
     """``"0-7,11.5-20"`` -> [(0, 7), (11.5, 20)] [s]; one-line errors."""
-    out = []
+    out: list[tuple[float, float]] = []
     for part in text.split(","):
         a, sep, b = part.strip().partition("-")
         try:
@@ -204,9 +204,9 @@ def parse_segments(text: str) -> list[tuple[float, float]]:
             )
         out.append((lo, hi))
     out.sort()
-    for (_, b), (c, _) in itertools.pairwise(out):
-        if c < b:
-            raise InputError(f"--segments: {text!r}: segments overlap near {c:g} s")
+    for (_, end), (start, _) in itertools.pairwise(out):
+        if start < end:
+            raise InputError(f"--segments: {text!r}: segments overlap near {start:g} s")
     return out
 
 

@@ -23,6 +23,8 @@ Trained end to end on the MSE of the standardised next-state change; forces are 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -51,6 +53,9 @@ class RelationalCore(nn.Module):
         hidden, layers: MLP sizes.
         rod_frame_torque: give MLP2 the torque in the rod frame ``R^T τ`` (else world).
     """
+
+    spring_id: torch.Tensor  # buffers: one-hot spring (S, S) and rod (R, R) ids
+    rod_id: torch.Tensor
 
     def __init__(
         self,
@@ -124,7 +129,9 @@ class RelationalBaseline:
         raise NotImplementedError
 
     # -------------------------------------------------------------- shared
-    def _inputs(self, state: State) -> tuple[torch.Tensor, ...]:
+    def _inputs(
+        self, state: State
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, Kinematics]:
         kin = self.geometry_.kinematics(state)
         dp, dv = self.geometry_.spring_vectors(kin)
         return torch.cat([dp, dv], dim=-1), self.rod_features(state, kin), kin.arms, kin.rot, kin
@@ -164,7 +171,7 @@ class RelationalBaseline:
             self.geometry_, self.rod_in, self.n_out, cfg.hidden, cfg.layers, self.rod_frame_torque
         )
 
-        def loss(batch: list[torch.Tensor]) -> torch.Tensor:
+        def loss(batch: Sequence[torch.Tensor]) -> torch.Tensor:
             spring, rod, arms, rot, target = batch
             return F.mse_loss(self.core_(spring, rod, arms, rot), target)
 

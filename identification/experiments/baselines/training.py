@@ -88,6 +88,9 @@ class Standardizer(nn.Module):
             in the data) is not blown up into noise the model would chase.
     """
 
+    mean: torch.Tensor  # buffers (*shape)
+    std: torch.Tensor
+
     def __init__(self, x: torch.Tensor, floor: float = 1e-3) -> None:
         super().__init__()
         mean = x.mean(0)

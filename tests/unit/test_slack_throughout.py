@@ -1,0 +1,74 @@
+"""A declared tension-only spring that is slack throughout the data keeps its declared
+values: the fit sees nothing of it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from identification.commands.identify_end_caps import keep_declared, never_taut
+from identification.discovery.floor_fits import FloorIdentification
+from tensegrity_env.ntrt import EXAMPLE_PRISM, from_ntrt
+
+
+def test_a_cable_never_as_long_as_its_rest_length_keeps_its_declared_values(tmp_path: Path) -> None:
+    (tmp_path / "prism.yaml").write_text(EXAMPLE_PRISM)
+    robot = from_ntrt(tmp_path / "prism.yaml")
+    topo, declared = robot.topology, robot.params
+    rng = np.random.default_rng(0)
+    nodes = robot.rest_caps[None, None] + rng.normal(
+        0, 1e-4, (2, 50, 6, 3)
+    )  # the built pose, 0.1 mm noise
+    nodes[0, 10:20, 1] = np.nan  # gaps are no lengths
+    rest = declared.rest_length.numpy().copy()
+    length = np.linalg.norm(
+        robot.rest_caps[topo.spring_nodes[:, 0]] - robot.rest_caps[topo.spring_nodes[:, 1]], axis=-1
+    )
+    rest[3] = length[3] + 0.01  # spring 3 a centimetre longer than it ever is: slack throughout
+    effects = robot.declared_effects(ground=False)
+    assert never_taut(nodes, topo, effects, rest) == [3]
+    assert never_taut(nodes, topo, [], rest) == []  # a linear spring pushes when short: it is seen
+    drifted = replace(
+        declared, rest_length=torch.as_tensor(rest * 1e4), stiffness=declared.stiffness * 1e6
+    )
+    est = FloorIdentification(drifted, topo, {}, "absolute", {}, 0.0, True, [], effects[0])
+    keep_declared(est, declared, [3], topo)
+    assert float(est.params_.rest_length[3]) == float(declared.rest_length[3])
+    assert float(est.params_.stiffness[3]) == float(declared.stiffness[3])
+    assert float(est.params_.rest_length[2]) == rest[2] * 1e4  # the others as fitted
+    assert f"rest_length[{topo.springs[3].name}]" in est.notes_
+
+
+def test_diagnose_fits_the_declared_model_with_its_tension_only_springs(
+    tmp_path: Path, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
+    """``diagnose --params`` with an NTRT model: its cables' tension-only effect goes into
+    the declared model's fit, which the loop's every later fit starts from."""
+    import identification.discovery.multi_step as multi_step
+    from identification.commands.diagnose import multi_step_scorer
+    from identification.data.dataset import Dataset, Split
+    from tensegrity_sr.cli import build_parser
+
+    (tmp_path / "prism.yaml").write_text(EXAMPLE_PRISM)
+    robot = from_ntrt(tmp_path / "prism.yaml")
+    caps = robot.rest_caps[None, None] + np.random.default_rng(1).normal(0, 1e-4, (2, 40, 6, 3))
+    data = Dataset(robot.topology, 1 / 120, {s: Split(nodes=caps, control=np.zeros((2, 39, 3, 3)))
+                                             for s in ("train", "val", "test")})  # fmt: skip
+    args = build_parser().parse_args(["diagnose", str(tmp_path / "take.h5"), "--params",
+                                      str(tmp_path / "prism.yaml"), "-o", str(tmp_path / "out")])  # fmt: skip
+    scorer = multi_step_scorer(args, data)
+    seen: dict[str, object] = {}
+
+    def declared(data, settings, start=None, effects=(), values=None):  # type: ignore[no-untyped-def]
+        seen["effects"] = [e.name for e in effects]
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(multi_step, "fit_declared", declared)
+    try:
+        scorer.begin(data, lambda line: None)
+    except RuntimeError:
+        pass
+    assert seen["effects"] == ["slack_springs"]

@@ -2,8 +2,11 @@
 ``tensegrity-sr identify`` wrote and the plant's ground truth.
 
 - From the exact true model (start ``truth``): the fit stays at the noise, an end-cap
-  RMS of at most :data:`RMS_OVER_NOISE` times the plant's noise, and no parameter moves
-  from its true value by more than :data:`MAX_SE_MOVED` of its stated standard errors.
+  RMS of at most :data:`RMS_OVER_NOISE` times the plant's noise, and the parameters'
+  moves from their true values, in their stated standard errors, have an RMS of at
+  most :data:`MAX_SE_RMS` (honest standard errors give about 1). The largest move is
+  reported, not judged: of N honest ones it grows like ``sqrt(2 ln N)`` (2.9 for the
+  icosahedron's 89), so "none above 2" fails most honest fits.
 - From the default start (``default``): masses, perpendicular inertias and stiffnesses
   within :data:`STRUCTURE_TOL`, spring damping and the floor contact's stiffness,
   damping and friction within :data:`DISSIPATION_TOL` (a contact parameter the command
@@ -21,8 +24,9 @@ import numpy as np
 
 #: the fit from the truth may end at most this far above the noise (RMS / noise)
 RMS_OVER_NOISE = 1.2
-#: and move no parameter by more than this many of its stated standard errors
-MAX_SE_MOVED = 2.0
+#: and move the parameters by an RMS of at most this many of their stated standard
+#: errors (1 where they are honest; 1.5 allows them to understate the error by a third)
+MAX_SE_RMS = 1.5
 #: relative tolerance of masses, inertias and stiffnesses from the default start
 STRUCTURE_TOL = 0.03
 #: relative tolerance of spring damping and floor contact from the default start
@@ -78,7 +82,7 @@ def largest_move(
 
     With N honest standard errors the largest ratio grows like sqrt(2 ln N) (about 2.9
     for the icosahedron's 89), so the RMS is the check of the errors' honesty and the
-    largest one the check of :data:`MAX_SE_MOVED`."""
+    largest one is reported only."""
     names = named_values(doc)
     zs: dict[str, float] = {}
     for name, se in doc.get("uncertainty", {}).items():
@@ -124,9 +128,10 @@ def verdict(record: Mapping[str, Any]) -> str:
         if not ratio <= RMS_OVER_NOISE:
             return (f"fit from the truth: end-cap RMS {ratio:.3g} x noise "
                     f"> {RMS_OVER_NOISE:g}")  # fmt: skip
-        name, z = record["moved"]
-        if z > MAX_SE_MOVED:
-            return f"fit from the truth: {name} moved {z:.3g} standard errors > {MAX_SE_MOVED:g}"
+        name, z, rms = (*record["moved"], float("nan"))[:3]
+        if not rms <= MAX_SE_RMS:
+            return (f"fit from the truth: the parameters moved by an RMS of {rms:.3g} standard "
+                    f"errors > {MAX_SE_RMS:g} (largest: {name}, {z:.3g})")  # fmt: skip
         return ""
     misses = [f"{g} {100 * e:.3g} %" for g, e in record["worst"].items()
               if g in TOLERANCE and not e <= TOLERANCE[g]]  # fmt: skip

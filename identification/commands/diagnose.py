@@ -19,11 +19,9 @@ from identification.commands.declared import (
     declared_start,
 )
 from identification.commands.durations import describe, samples_of, seconds
+from identification.commands.effort import COUNTS, add_effort_option, apply_effort, effort_line
 from identification.defaults import (
-    FINAL_FLOOR_WINDOWS,
-    FINAL_ITERATIONS,
     FLOOR_WINDOW_S,
-    FLOOR_WINDOWS,
     PLANTS,
     STRENGTH_UNITS,
 )
@@ -50,8 +48,8 @@ if TYPE_CHECKING:  # the commands import torch, MuJoCo and SciPy when they run, 
 #: length squared (measured in docs/decisions.md)
 WINDOW_S = 0.2
 FIT_WINDOW_S = 0.3
-#: default random selection windows per split of the trajectory method
-WINDOWS = 8
+#: default random selection windows per split of the trajectory method (``--effort default``)
+WINDOWS = COUNTS["windows"]
 
 
 def register(sub: Any) -> None:
@@ -91,31 +89,11 @@ def register(sub: Any) -> None:
     p.add_argument("--window", type=seconds, default=None,
                    help=f"trajectory method: length of each window (default {WINDOW_S:g}s); on "
                    f"data that never leaves the floor, given, also of the floor fits' windows "
-                   f"(default there: --fit-window up to {FLOOR_WINDOW_S:g}s)")  # fmt: skip
-    p.add_argument("--windows", type=int, default=WINDOWS,
-                   help=f"trajectory method: random windows per split (default {WINDOWS})")  # fmt: skip
-    p.add_argument("--fit-windows", type=int, default=32,
-                   help="trajectory method: training windows of the declared and every accepted "
-                   "model's final fit (default 32)")  # fmt: skip
-    p.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS,
-                   help=f"trajectory method on data that never leaves the floor: training windows "
-                   f"of the joint fit of the declared model and ground contact (default "
-                   f"{FLOOR_WINDOWS}); more take proportionally longer and pin spring damping "
-                   "better")  # fmt: skip
-    p.add_argument("--final-floor-windows", type=int, default=FINAL_FLOOR_WINDOWS,
-                   help=f"trajectory method on such data: training windows of the final refit "
-                   f"of the selected model (default {FINAL_FLOOR_WINDOWS}; none at or below "
-                   "--floor-windows)")  # fmt: skip
-    p.add_argument("--final-floor-window", type=seconds, default=0.0,
-                   help="trajectory method on such data: length of each window of that refit "
-                   f"(default 0: as the joint fit's, up to {FLOOR_WINDOW_S:g}s)")  # fmt: skip
-    p.add_argument("--final-iterations", type=int, default=FINAL_ITERATIONS,
-                   help=f"trajectory method: most Levenberg-Marquardt iterations of the final "
-                   f"refit of the selected model (default {FINAL_ITERATIONS})")  # fmt: skip
-    p.add_argument("--fit-window", type=seconds, default=FIT_WINDOW_S,
-                   help=f"trajectory method: length of each window of that final fit (default "
-                   f"{FIT_WINDOW_S:g}s; 0: --window); longer windows carry more information per "
-                   "sample")  # fmt: skip
+                   f"(default there: up to {FLOOR_WINDOW_S:g}s, shortened where the data shows "
+                   "the windows' states cannot be fitted that long)")  # fmt: skip
+    add_effort_option(p, {"--windows": int, "--fit-windows": int, "--floor-windows": int,
+                          "--final-floor-windows": int, "--final-floor-window": seconds,
+                          "--final-iterations": int, "--fit-window": seconds})  # fmt: skip
     p.add_argument("--physics-dt", type=seconds, default=PHYSICS_DT,
                    help=f"trajectory method: longest physics step; the engine substeps between "
                    f"samples (default {PHYSICS_DT:g}s)")  # fmt: skip
@@ -185,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
     from identification.trajectory.floor_evidence import floor_evidence
 
     check_output_dir(args.output, args.force, inputs=[args.dataset, args.params])
+    apply_effort(args)
     check_number("--max-effects", args.max_effects, 0)
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--smoothing", args.smoothing, 0, strict=True)
@@ -267,8 +246,9 @@ def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
     if on_floor(dataset):
         floor = floor_steps(dt, s)
         final = s.final_floor_window or floor
-        how = (f"on the floor: windows of {describe(floor * dt, dt)}; final refit on windows "
-               f"of {describe(final * dt, dt)}")  # fmt: skip
+        up_to = "" if s.floor_window > 0 else "up to "
+        how = (f"on the floor: windows of {up_to}{describe(floor * dt, dt)}; final refit on "
+               f"windows of {up_to}{describe(final * dt, dt)}")  # fmt: skip
     else:
         how = (f"windows of {describe(s.window * dt, dt)}; final fit on windows of "
                f"{describe((s.fit_window or s.window) * dt, dt)}")  # fmt: skip
@@ -287,22 +267,24 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
     if args.params is not None:
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
     dt = dataset.dt
+    apply_effort(args)
+    fit_span = FIT_WINDOW_S if args.fit_window is None else args.fit_window
+    final_span = 0.0 if args.final_floor_window is None else args.final_floor_window
     span = WINDOW_S if args.window is None else args.window
     if span < 2 * dt or args.windows < 1 or args.fit_windows < 1:
         raise InputError(f"--window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} Hz), "
                          "--windows and --fit-windows >= 1")  # fmt: skip
-    if 0 < args.final_floor_window < 2 * dt:
+    if 0 < final_span < 2 * dt:
         raise InputError(f"--final-floor-window must span >= 2 samples ({2 * dt:.4g} s at "
                          f"{1 / dt:g} Hz), or be 0 (as the joint fit's)")  # fmt: skip
-    if 0 < args.fit_window < 2 * dt:
+    if 0 < fit_span < 2 * dt:
         raise InputError(f"--fit-window must span >= 2 samples ({2 * dt:.4g} s at {1 / dt:g} "
                          "Hz), or be 0 (the --window)")  # fmt: skip
     if not 0 < args.physics_dt:
         raise InputError("--physics-dt must be > 0")
     window = samples_of(span, dt, 2)
-    fit_window = samples_of(args.fit_window, dt, 2) if args.fit_window > 0 else 0
-    final_floor_window = (samples_of(args.final_floor_window, dt, 2)
-                          if args.final_floor_window > 0 else 0)  # fmt: skip
+    fit_window = samples_of(fit_span, dt, 2) if fit_span > 0 else 0
+    final_floor_window = samples_of(final_span, dt, 2) if final_span > 0 else 0
     floor_window = 0 if args.window is None else window
     settings = TrajectorySettings(anchors=anchors, window=window, train_windows=args.windows,
                                   val_windows=args.windows, test_windows=args.windows,
@@ -313,4 +295,7 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   floor_window=floor_window, final_iter=args.final_iterations,
                                   seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
     print(window_header(dataset, settings))
-    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs, effects=others)
+    print(effort_line(args, ("windows", "fit_windows", "floor_windows", "final_floor_windows",
+                             "final_iterations")))  # fmt: skip
+    return MultiStepScorer(settings, args.horizon, start, contact=contact, jobs=args.jobs,
+                           effects=others)  # fmt: skip

@@ -11,7 +11,7 @@ import numpy as np
 
 from identification.commands.declared import add_params_option, declared_model
 from identification.commands.durations import samples_of, seconds
-from identification.defaults import FLOOR_WINDOWS
+from identification.commands.effort import add_effort_option, apply_effort
 from tensegrity_env.defaults import PHYSICS_DT
 from tensegrity_env.io_utils import (
     InputError,
@@ -71,17 +71,12 @@ def register(sub: Any) -> None:
     q = p.add_argument_group("end-cap-only data (trajectory identification through the engine)")
     q.add_argument("--window", type=seconds, default=1.0,
                    help="longest window of the trajectory fit (default 1s)")  # fmt: skip
-    q.add_argument("--first-window", type=seconds, default=0.1,
-                   help="window of its first stage (default 0.1s)")  # fmt: skip
     q.add_argument("--smoothing", type=seconds, default=0.1,
                    help="Savitzky-Golay span of the starting regression (default 0.1s)")  # fmt: skip
     q.add_argument("--physics-dt", type=seconds, default=PHYSICS_DT,
                    help=f"longest physics step; the engine substeps between samples (default "
                    f"{PHYSICS_DT:g}s)")  # fmt: skip
-    q.add_argument("--floor-windows", type=int, default=FLOOR_WINDOWS,
-                   help=f"on data that never leaves the floor: windows of the joint fit of the "
-                   f"declared model and ground contact (default {FLOOR_WINDOWS}); more take "
-                   "proportionally longer and pin spring damping better")  # fmt: skip
+    add_effort_option(q, {"--floor-windows": int, "--first-window": seconds})
     p.set_defaults(func=run)
 
 
@@ -119,6 +114,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, args.force, inputs=[args.dataset, args.params])
     check_number("--horizon", args.horizon, 0, strict=True)
     check_number("--seed", args.seed, 0)
+    counts = apply_effort(args)
+    args.max_iter = counts["max_iter"]
+    if args.first_window is None:
+        args.first_window = 0.1  # the free-flight fit's first stage [s]
     check_number("--floor-windows", args.floor_windows, 1)
     raw = read_dataset(args.dataset)
     if raw.topology.n_winches and not raw.split(args.split).has_states:

@@ -174,20 +174,20 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         fit_window=samples_of(window, dt, 2), floor_windows=args.floor_windows,
     )  # fmt: skip
     if floor:
-        how = (f"the declared model and ground contact fitted on {args.floor_windows} windows "
-               f"of {describe(floor_steps(dt, settings) * dt, dt)}")  # fmt: skip
+        how = (f"the declared model and ground contact fitted on {args.floor_windows} or more "
+               f"windows of up to {describe(floor_steps(dt, settings) * dt, dt)}")  # fmt: skip
     else:
         how = (f"trajectory identification on windows growing from "
                f"{describe(args.first_window, dt)} to {describe(window, dt)}")  # fmt: skip
     print(f"{args.dataset}: end caps only at {1 / dt:g} Hz: {how}, physics step "
-          f"<= {args.physics_dt:g} s")  # fmt: skip
+          f"<= {args.physics_dt:g} s; effort {args.effort}")  # fmt: skip
     start, contact = None, None
     others: list[PhysicalEffect] = []
     if args.params is not None:
         start, contact, others = declared_start(args.params, dataset, args.dataset, anchors)
         print(f"starting from the model in {args.params}"
               + (f", keeping its {', '.join(e.name for e in others)}" if others else ""))  # fmt: skip
-    noise = noise_level(split.nodes)
+    noise = noise_level(split.nodes, rods=True)
     print(f"noise level estimated from the end caps: {noise * 1e3:.3g} mm")
     t0 = time.perf_counter()
     est: TrajectoryIdentifier | FloorIdentification
@@ -210,6 +210,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
             anchors=anchors, window=samples_of(window, dt, 2),
             first_window=samples_of(args.first_window, dt, 2), smoothing=args.smoothing,
             seed=args.seed, progress=True, physics_dt=args.physics_dt, start=start,
+            max_iter=args.max_iter,
         ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
     if start is not None:
@@ -251,7 +252,9 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
             "dataset": str(args.dataset), "split": args.split, "method": "trajectory",
             "window_s": window, "first_window_s": args.first_window,
             "smoothing_s": args.smoothing, "physics_dt_s": args.physics_dt,
-            "floor_windows": args.floor_windows if floor else None,
+            "effort": args.effort,
+            "floor_windows": est.stages_[-1]["windows"] if floor else None,
+            "floor_window_steps": est.stages_[-1]["window"] if floor else None,
             "end_cap_rms_m": est.rms_, "noise_level_m": noise, "converged": est.converged_,
             "stages": est.stages_, "fit_seconds": fit_time,
         },

@@ -31,8 +31,9 @@ from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_r
 from identification.trajectory.effect_coords import CONTACT_FREE
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
+from identification.trajectory.window_errors import better_states
 from identification.trajectory.window_states import fit_states
-from identification.trajectory.windowed_fit import better_states, fit_windows
+from identification.trajectory.windowed_fit import fit_windows
 from identification.trajectory.windows import STATE_KEYS, Windows, cut_windows, end_caps
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
@@ -48,7 +49,7 @@ FIT_WINDOW = 300
 
 #: a window whose states, fitted at the selected model, stay above this multiple of the
 #: noise level is left out of the final floor refit (stuck in another basin through an
-#: impact; :func:`~identification.trajectory.windowed_fit.windows_within`)
+#: impact; :func:`~identification.trajectory.window_errors.windows_within`)
 STUCK_WINDOW = 1.5
 
 
@@ -231,6 +232,8 @@ class EndCapData:
         #: limits of the contact's coordinates in every fit after the floor fit
         #: (:func:`~identification.trajectory.floor_fit.contact_box`; None: no limits)
         self.contact_box: dict[str, tuple[float, float]] | None = None
+        #: steps per window the floor fit chose (None: no floor fit yet)
+        self.floor_steps: int | None = None
 
     @property
     def spin(self) -> bool:
@@ -411,7 +414,7 @@ def heldout(
     The states start from smoothing, fitted on growing prefixes; ``warm``: from these
     windows' states instead (fitted at a nearby model), on the whole windows at once;
     ``warm`` and ``fresh``: both, each window keeping the state that fits it better
-    (:func:`~identification.trajectory.windowed_fit.better_states`). On the floor a model
+    (:func:`~identification.trajectory.window_errors.better_states`). On the floor a model
     accepted by the loop is scored so: its states from smoothing alone stopped in other
     basins through the impacts (the force-field cell's validation RMS went from 1.057 mm
     for the candidate to about 1.22 mm for its refit), and every later candidate was judged

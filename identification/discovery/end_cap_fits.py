@@ -58,8 +58,8 @@ from identification.trajectory.effect_coords import EffectCoords
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import find_touchdowns, search_contact
+from identification.trajectory.window_errors import windows_within
 from identification.trajectory.window_states import GROW, fit_states, prefix
-from identification.trajectory.windowed_fit import windows_within
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
@@ -153,7 +153,7 @@ def fit_many(
     (:func:`fit_states`), so a fit on windows whose smoothed states are poor (impacts)
     starts in the right basin. ``within`` [m]: the windows whose states stay above this
     end-cap RMS are left out
-    (:func:`~identification.trajectory.windowed_fit.windows_within`). ``bar``: the
+    (:func:`~identification.trajectory.window_errors.windows_within`). ``bar``: the
     description of a progress bar over the joint fit's iterations. With an effect
     that depends on the rods' roll about their axes (``sees_roll``: quadratic drag), each window's rolls are fitted too: on noisy
     quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to

@@ -25,6 +25,7 @@ import torch
 from identification.data.dataset import Dataset
 from identification.defaults import FLOOR_WINDOW_S
 from identification.discovery.end_cap_data import (
+    STUCK_WINDOW,
     EndCapData,
     TrajectorySettings,
     TrajFit,
@@ -37,15 +38,20 @@ from identification.linear.smoothed import parse_anchors
 from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
+    STATE_ITERS,
     bounded,
     fit_on_floor,
     floor_contact,
+    held_states,
     rods_leaning,
     rods_off_floor,
+    states_at,
     with_floor,
 )
 from identification.trajectory.identifier import TrajectoryIdentifier
-from identification.trajectory.param_vector import params_values
+from identification.trajectory.param_vector import ParamVector, params_values
+from identification.trajectory.stage_check import noise_level
+from identification.trajectory.window_errors import windows_within
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.params import Params
@@ -55,10 +61,56 @@ from tensegrity_env.topology import Topology
 def floor_steps(dt: float, s: TrajectorySettings) -> int:
     """Steps per window of the fits on the floor, at ``dt`` [s] between samples:
     ``s.floor_window`` where set, else ``s.fit_window`` (or ``s.window``) capped at
-    :data:`FLOOR_WINDOW_S` (at least 2)."""
+    :data:`FLOOR_WINDOW_S` (at least 2). The floor fit may shorten it
+    (:func:`windows_from_data`)."""
     if s.floor_window > 0:
         return max(2, s.floor_window)
     return max(2, min(s.fit_window or s.window, round(FLOOR_WINDOW_S / dt)))
+
+
+#: the floor fit's windows are shortened down to no fewer samples than this
+#: (:func:`windows_from_data`)
+MIN_FLOOR_STEPS = 4
+#: and their count raised to keep the samples fitted, by at most this factor
+MAX_WINDOW_GAIN = 4
+
+
+def windows_from_data(
+    data: EndCapData, vec: ParamVector, steps: int, count: int, noise: float
+) -> tuple[int, int, str]:
+    """Steps and count of the floor fit's windows, chosen on the data, and a line saying why.
+
+    A window's initial state is fitted through every contact in it, and how far a
+    state fit reaches depends on the motion: the faster a structure tumbles against
+    the rate, the narrower the basin of the true state. On a 1.9 m icosahedron rolling
+    at up to 5 m/s, 60 Hz and 0.13 mm of noise (``plant_family`` seed 9, the true model
+    held), the states of 15-sample windows fitted from smoothing stopped at 1.0 mm (median
+    0.6 mm; from the true states, 0.13 mm), of 4-sample windows at 0.26 mm. So: windows
+    of ``steps``, halved (down to :data:`MIN_FLOOR_STEPS` samples) while the median
+    window's states, fitted at the start model, stay above
+    :data:`~identification.discovery.end_cap_data.STUCK_WINDOW` times the ``noise``
+    [m]; none within it: the lowest median. The count grows as the windows shrink
+    (the samples fitted stay about the same, at most :data:`MAX_WINDOW_GAIN` times
+    ``count``).
+    """
+    tried: list[tuple[float, int]] = []
+    n = steps
+    while True:
+        w = data.cut("train", n, count, 3, lift_off=count // 2)
+        fit = states_at(data.engine, vec, vec.theta0(), w, STATE_ITERS)
+        err = windows_within(vec.engine(data.engine, vec.theta0()),
+                             held_states(vec, vec.theta0()), fit.windows,
+                             torch.zeros(0, dtype=torch.float64), np.inf)[1]  # fmt: skip
+        median = float(np.median(err))
+        tried.append((median, n))
+        shorter = max(MIN_FLOOR_STEPS, round(n / 2))
+        if median <= STUCK_WINDOW * noise or shorter >= n:
+            break
+        n = shorter
+    median, n = tried[-1] if tried[-1][0] <= STUCK_WINDOW * noise else min(tried)
+    k = min(MAX_WINDOW_GAIN * count, max(count, round(count * steps / n)))
+    why = ", ".join(f"{m:d} steps {e * 1e3:.3g} mm" for e, m in sorted(tried, key=lambda x: -x[1]))
+    return n, k, (f"median state fit at the start model: {why} (noise {noise * 1e3:.3g} mm)")
 
 
 @dataclass(frozen=True)
@@ -104,12 +156,16 @@ def floor_fit(
     begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
+    steps, count = floor_steps(data.dt, s), s.floor_windows
+    if s.floor_window <= 0:  # not set: from the data
+        noise = noise_level(data.train.nodes, rods=True)
+        steps, count, why = windows_from_data(data, vec, steps, count, noise)
+        data.log(f"    floor windows from the data: {count} of {steps} steps; {why}")
+    data.floor_steps = steps
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
-             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); windows of "
-             f"{floor_steps(data.dt, s)} steps")  # fmt: skip
-    count = s.floor_windows
-    many_windows = data.cut("train", floor_steps(data.dt, s), count, 3,
-                            lift_off=count // 2)  # fmt: skip
+             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); {count} "
+             f"windows of {steps} steps")  # fmt: skip
+    many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
     vec = bounded(vec, w.theta)
     m = w.windows.residuals

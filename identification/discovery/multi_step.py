@@ -38,7 +38,6 @@ RMS (which cannot fall below the noise) and, when the clean trajectories are kno
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -49,7 +48,6 @@ import numpy as np
 
 from identification.data.dataset import Dataset
 from identification.discovery.end_cap_data import (
-    STUCK_WINDOW,
     EndCapData,
     TrajectorySettings,
     TrajFit,
@@ -70,10 +68,11 @@ from identification.discovery.end_cap_residuals import (
     summarize_window_residuals,
     window_residuals,
 )
-from identification.discovery.floor_fits import FloorFit, adopt_floor_fit, floor_fit, floor_steps
-from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate, unphysical
+from identification.discovery.floor_fits import FloorFit, floor_fit
+from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate
 from identification.discovery.library import Proposal, contact_gate, propose
 from identification.discovery.negligible import NEGLIGIBLE
+from identification.discovery.refits import final_refit, floor_refit
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.rollout_plots import end_cap_rollout_plot
 from identification.discovery.scorer import CandidateSkipped, LoopScorer, Residual
@@ -91,24 +90,11 @@ from tensegrity_env.params import Params
 
 #: smoothed training samples per sample where candidates' forces are measured
 SAMPLE_STRIDE = 4
-#: a final refit whose fitted coordinates (log-parameters, effect coordinates) all moved
-#: less than this is reported as having stayed at the last fit: on the floor its
-#: Levenberg-Marquardt steps can all be rejected where impacts make the error jump
-STILL = 1e-6
-#: longest window of the final refit [s] (whole trajectories up to this long)
-FINAL_WINDOW_S = 1.0
 #: on the floor, a current model whose training and held-out end-cap RMS are both above
 #: this many times the noise level misses something (see
 #: :meth:`MultiStepScorer.second_look`); the floor-only controls of the measured
 #: benchmark fit to 1.04-1.07
 MISFIT = 1.25
-#: on the floor, an accepted model's joint refit that stopped at its iteration count
-#: above this many times the noise level goes on (:meth:`MultiStepScorer.fitted_on`)
-FIT_WELL = 1.1
-#: at most this many more joint fits of :attr:`~TrajectorySettings.base_iter` iterations
-MORE_ROUNDS = 2
-#: ... each of which must lower the sum of squared errors by this fraction
-MORE_GAIN = 0.01
 #: candidates fitted again with everything free then, largest held-out gain first
 SECOND_LOOKS = 2
 #: candidates told apart only when fitted the same way: one looked at again brings the
@@ -165,7 +151,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         self.data.log = log
         self.data.contact_start = self.contact
         t0 = time.perf_counter()
-        self.noise = noise_level(dataset.split("train").nodes)
+        self.noise = noise_level(dataset.split("train").nodes, rods=True)
         log(f"noise level estimated from the training end caps: {self.noise * 1e3:.3g} mm")
         final, base = fit_declared(self.data, self.settings, self.start, self.effects)
         log(f"declared model: end-cap RMS {final.rms * 1e3:.3f} mm on {final.windows.size} "
@@ -478,61 +464,8 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         self.data.windows.update(windows)
 
     def floor_refit(self, screened: TrajFit, afresh: FloorFit | None = None) -> TrajFit:
-        """The accepted candidate on the floor, refitted jointly on the floor windows: the
-        better (lower end-cap error on those windows) of two fits.
-
-        One starts from the candidate as screened (the declared parameters and the
-        contact at the current model's fit). The other is the floor fit of the declared
-        model done afresh with the candidate's effects in it, from the same start as the
-        first one (:func:`~identification.discovery.floor_fits.floor_fit`:
-        the regression, a contact search, the valley search). Where the current model's
-        contact has taken up what the candidate explains (a dissipation it lacked, on an
-        overdamped floor), the first stays there: on the bench's linear-drag floor cell
-        (seed 0) it ended at 2.15 mm (1 mm noise) with the drag at a quarter of the
-        plant's and the contact stiffness 95 % off, worse than the declared fit.
-        With :attr:`jobs` above 1 the two fits run side by side. The better goes on
-        (:meth:`fitted_on`) where it stopped short of fitting the data.
-        """
-        data, s = self.data, self.settings
-        effects = [e for e in screened.effects if not e.constraint]
-        tasks: list[Callable[[], Any]] = [
-            lambda: fit_many(data, screened.vec, screened.theta, s, s.base_iter)
-        ]
-        if afresh is None:  # (a candidate fitted jointly comes with it)
-            tasks.append(lambda: floor_fit(data, s, self.start, effects, contact=self.contact))
-        near, *fresh = side_by_side(tasks, self.jobs, self.log)
-        afresh = afresh or fresh[0]
-        self.log(f"    floor refit from the screened candidate {near.rms * 1e3:.3f} mm, afresh "
-                 f"{afresh.fit.rms * 1e3:.3f} mm")  # fmt: skip
-        if afresh.fit.sse < near.sse:
-            fit = self.fitted_on(afresh.fit)
-            adopt_floor_fit(data, FloorFit(fit))
-            return fit
-        return self.fitted_on(near)
-
-    def fitted_on(self, fit: TrajFit) -> TrajFit:
-        """``fit`` fitted on (joint fits of :attr:`~TrajectorySettings.base_iter`
-        iterations from where it stopped) while its last fit ran out of iterations with the
-        end-cap RMS above :data:`FIT_WELL` times the noise level, at most
-        :data:`MORE_ROUNDS` times, and only while each lowers the error by
-        :data:`MORE_GAIN`. Through impacts the Levenberg-Marquardt steps stay short: on
-        the bench's linear-drag floor cell (seed 0) the accepted model's refit was still
-        lowering its error at its 10th iteration, 1.34 mm (1 mm noise) where the declared
-        model had fitted to 1.06 mm.
-        """
-        s = self.settings
-        for _ in range(MORE_ROUNDS):
-            if fit.converged or not fit.rms > FIT_WELL * self.noise:
-                break
-            t0 = time.perf_counter()
-            more = fit_trajectory(self.data, fit.vec, fit.windows, fit.theta, s.base_iter)
-            more.origin = more.theta
-            self.log(f"    fitted on: end-cap RMS {fit.rms * 1e3:.3f} -> {more.rms * 1e3:.3f} mm "
-                     f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
-            if not more.sse < (1 - MORE_GAIN) * fit.sse:
-                return more if more.sse < fit.sse else fit
-            fit = more
-        return fit
+        """:func:`~identification.discovery.refits.floor_refit` of this scorer's fits."""
+        return floor_refit(self, screened, afresh)
 
     def sample_states(self) -> State | None:
         """Every :data:`SAMPLE_STRIDE`-th smoothed training state (defined ones only)."""
@@ -545,64 +478,8 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         return State.from_numpy(*(a[ok] for a in arrays))
 
     def finish(self, current: Candidate[EndCapFits]) -> Candidate[EndCapFits]:
-        """The final model refitted on more of the training split.
-
-        Selection fits on short windows (a model missing an effect drifts on long ones),
-        and the accepted models on :attr:`~TrajectorySettings.fit_windows` random ones;
-        the model written out is refitted from there on every training trajectory, cut
-        into windows of up to :data:`FINAL_WINDOW_S`: the spring damping, the weakest
-        group, is pinned by long windows (see :mod:`identification.trajectory.identifier`).
-        On data that never leaves the floor it is refitted on
-        :attr:`~TrajectorySettings.final_floor_windows` floor windows (selection used
-        :attr:`~TrajectorySettings.floor_windows`), less those whose states stay above
-        :data:`STUCK_WINDOW` times the noise level at the selected model; on drops the
-        fits stay on the airborne stretches and touchdowns. A refit that diverges, leaves
-        the physical domain or loses a standard error is not used.
-        """
-        data, s = self.data, self.settings
-        if data.on_floor:
-            count = s.final_floor_windows
-            if count <= s.floor_windows:
-                return current
-            steps = s.final_floor_window or floor_steps(data.dt, s)
-            windows = data.cut("train", steps, count, 5, lift_off=count // 2)
-            return self.refit(current, windows, within=STUCK_WINDOW * self.noise)
-        if contact_gate(data.train, data.topology)[0]:
-            return current
-        steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
-        return self.refit(current, data.cut("train", steps, sys.maxsize, 4))
-
-    def refit(
-        self, current: Candidate[EndCapFits], windows: Windows, within: float | None = None
-    ) -> Candidate[EndCapFits]:
-        """``current`` refitted on the training ``windows`` (those whose states fit to
-        ``within`` [m] end-cap RMS, if given: :func:`fit_many`), kept unless it diverges,
-        leaves the physical domain or loses a direction the last fit saw (a standard
-        error that was finite turns infinite: its curvature matrix is singular there)."""
-        t0 = time.perf_counter()
-        last = current.fit.final
-        s = self.settings
-        final = fit_many(self.data, last.vec, last.theta, s, s.final_iter, windows=windows,
-                         within=within, bar="final refit")  # fmt: skip
-        ds = self.dataset
-        model = final.fitted_model(ds.topology, ds.dt)
-        why = "diverged" if fit_diverged(final.rms, self.noise) else unphysical(model)
-        lost = int((np.isinf(final.stderr) & np.isfinite(last.stderr)).sum())
-        if not why and lost:
-            why = f"{lost} standard errors the last fit pinned are infinite"
-        moved = float((final.theta - last.theta).abs().max()) if len(last.theta) else 0.0
-        still = "" if moved > STILL else (
-            f"; its parameters stayed at the last fit's (largest change {moved:.2g}: no step "
-            "lowered the error on these windows)")  # fmt: skip
-        stop = "converged" if final.converged else "ran out"
-        self.log(f"final refit on {final.windows.size} training windows of {windows.steps} "
-                 f"steps: end-cap RMS {final.rms * 1e3:.3f} mm ({final.iterations} iterations, "
-                 f"{stop}; {time.perf_counter() - t0:.0f} s)"
-                 + (f"; not used ({why})" if why else still))  # fmt: skip
-        if why:
-            return current
-        fits = replace(current.fit, final=final)
-        return replace(current, fit=fits, model=model)
+        """:func:`~identification.discovery.refits.final_refit` of ``current``."""
+        return final_refit(self, current)
 
     # ------------------------------------------------------------------ what is left
     def residual(self, current: Candidate[EndCapFits], k: int, plots: Path | None) -> Residual:
@@ -657,8 +534,9 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
 
     def settings_summary(self) -> dict[str, Any]:
         s = self.settings
+        chosen = self.data.floor_steps if getattr(self, "data", None) is not None else None
         return {"anchors": dict(s.anchors), "window": s.window, "fit_windows": s.fit_windows,
-                "floor_windows": s.floor_windows,
+                "floor_windows": s.floor_windows, "floor_window_steps": chosen,
                 "final_floor_windows": s.final_floor_windows, "final_iterations": s.final_iter,
                 "min_bic_drop": MIN_BIC_DROP,
                 "min_chi2_gain": self.criteria.min_gain}  # fmt: skip

@@ -69,6 +69,7 @@ from identification.trajectory.param_vector import (
     DTYPE,
     GROUPS,
     ParamVector,
+    axial_per_mass,
     gain_sign,
     params_values,
 )
@@ -285,6 +286,7 @@ class TrajectoryIdentifier:
             free=torch.as_tensor(np.concatenate(free)),
             gravity=torch.tensor(self.gravity, dtype=DTYPE),
             cable_sign=cable_sign,
+            axial=axial_per_mass(start, axes),
         )
 
     @staticmethod

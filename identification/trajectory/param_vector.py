@@ -36,7 +36,10 @@ class ParamVector:
     """The trajectory fit's log-parameters: ``log [K, c, l0, M, I_perp, h]`` (n_full,).
 
     ``free`` marks the fitted entries; the others stay at ``start``. Inertia is
-    ``I_perp`` on both perpendicular axes and the assumed ``M r^2 / 2`` on the axis.
+    ``I_perp`` on both perpendicular axes and ``M a`` on the axis, with ``axial`` the
+    axial moment per unit mass ``a`` [m^2], (R,), held: the start model's where one is
+    given (its axial spin, which friction drives on a floor, depends on it), else the
+    solid cylinder's ``r^2 / 2`` (None).
     A cable actuator's gain is ``cable_sign * exp(log |h_c|)`` (a tendon actuator's gain
     may be negative: its sign comes from the start and is held).
     """
@@ -48,13 +51,14 @@ class ParamVector:
     gravity: torch.Tensor
     coords: EffectCoords | None = None
     cable_sign: torch.Tensor | None = None
+    axial: torch.Tensor | None = None
 
     @classmethod
     def at(cls, topology: Topology, params: Params) -> ParamVector:
         """``params`` with nothing free (rollouts and state-only fits at known values).
 
         Inertia follows the vector's convention: ``I_perp`` from a perpendicular axis,
-        ``M r^2 / 2`` on the end-cap axis. Unusable values (a control gain of 0 on data
+        ``params``' axial moment per unit mass on the end-cap axis. Unusable values (a control gain of 0 on data
         without control) become 1.
         """
         axes = RodAxes.of(topology)
@@ -66,7 +70,7 @@ class ParamVector:
         start = torch.as_tensor(np.log(v), dtype=DTYPE)
         free = torch.zeros(len(start), dtype=torch.bool)
         return cls(topology, axes, start, free, torch.as_tensor(params.gravity, dtype=DTYPE),
-                   cable_sign=sign)  # fmt: skip
+                   cable_sign=sign, axial=axial_per_mass(values, axes))  # fmt: skip
 
     @property
     def n_effect(self) -> int:
@@ -148,9 +152,10 @@ class ParamVector:
         val = torch.exp(log_full)
         g = {k: val[..., self.offset(k) : self.offset(k) + n] for k, n in self.sizes.items()}
         axial = torch.as_tensor(np.eye(3)[self.axes.axis], dtype=DTYPE)  # (R, 3)
-        r2 = torch.as_tensor(self.axes.radius**2 / 2, dtype=DTYPE)
+        a = self.axial if self.axial is not None else torch.as_tensor(self.axes.radius**2 / 2,
+                                                                      dtype=DTYPE)  # fmt: skip
         inertia = (
-            g["inertia_perp"].unsqueeze(-1) * (1 - axial) + (g["mass"] * r2).unsqueeze(-1) * axial
+            g["inertia_perp"].unsqueeze(-1) * (1 - axial) + (g["mass"] * a).unsqueeze(-1) * axial
         )
         gain = g["control_gain"][..., 0]
         sign = self.cable_sign if self.cable_sign is not None else torch.ones(self.sizes["cable_gain"], dtype=DTYPE)
@@ -175,11 +180,13 @@ class ParamVector:
 
 
 def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
-    """``params`` as the trajectory fit's groups (``inertia_perp``: a perpendicular axis)."""
+    """``params`` as the trajectory fit's groups (``inertia_perp``: a perpendicular axis)
+    and ``axial``: each rod's axial moment per unit mass (R,) [m^2], held by the fit."""
     p = params.numpy()
     inertia = np.asarray(p["inertia"])
     R = inertia.shape[0]
     return {
+        "axial": inertia[np.arange(R), axes.axis] / np.asarray(p["mass"], float),
         "stiffness": np.asarray(p["stiffness"], float),
         "damping": np.asarray(p["damping"], float),
         "rest_length": np.asarray(p["rest_length"], float),
@@ -188,6 +195,15 @@ def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
         "control_gain": np.atleast_1d(np.asarray(p["control_gain"], float)),
         "cable_gain": np.atleast_1d(np.asarray(p.get("cable_gain", ()), float)),
     }
+
+
+def axial_per_mass(values: dict[str, np.ndarray], axes: RodAxes) -> torch.Tensor | None:
+    """``values``' axial moment per unit mass (R,) [m^2] where given and usable (finite,
+    > 0, every rod), else None (the vector assumes ``r^2 / 2``)."""
+    a = values.get("axial")
+    if a is None or len(a) != len(axes.axis) or not bool(np.all(np.isfinite(a) & (a > 0))):
+        return None
+    return torch.as_tensor(np.asarray(a, float), dtype=DTYPE)
 
 
 def gain_sign(gain: np.ndarray) -> torch.Tensor:

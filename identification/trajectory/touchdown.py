@@ -82,6 +82,8 @@ class Touchdowns:
         traj, first: trajectory and sample of each touchdown, (N,).
         prefix_rms: end-cap RMS [m] of the airborne state fits (the noise, if the
             model without contact is right).
+        valid: which end caps were seen, (N, H+1, 2R) bool, or None (all); an unseen
+            one (a gap) counts in no residual, whatever ``obs`` holds there.
     """
 
     state: State
@@ -90,10 +92,16 @@ class Touchdowns:
     traj: np.ndarray
     first: np.ndarray
     prefix_rms: float
+    valid: torch.Tensor | None = None
 
     @property
     def size(self) -> int:
         return int(self.obs.shape[0])
+
+    def seen(self, steps: int) -> torch.Tensor:
+        """Which end caps count over the first ``steps`` steps, (N, steps+1, 2R) bool."""
+        shape = self.obs[:, : steps + 1].shape[:-1]
+        return torch.ones(shape, dtype=torch.bool) if self.valid is None else self.valid[:, : steps + 1]
 
 
 def find_touchdowns(
@@ -133,7 +141,7 @@ def find_touchdowns(
         with torch.no_grad():
             roll = engine.rollout(fit.windows.state, params, n, win.control)
         states.append(roll.index((slice(None), -1)))
-        obs.append(torch.as_tensor(nodes[i, n : n + horizon + 1]))
+        obs.append(torch.as_tensor(nodes[i, n : n + horizon + 1]))  # gaps: NaN until below
         ctrl.append(torch.as_tensor(control[i, n : n + horizon]))
         traj.append(i)
         first.append(n + LEAD)
@@ -141,9 +149,13 @@ def find_touchdowns(
         return None
     state = State(*(torch.cat([getattr(s, k) for s in states]) for k in STATE_KEYS))
     commands = torch.stack(ctrl)
+    seen_obs = torch.stack(obs)
+    valid = torch.isfinite(seen_obs).all(-1)
     return Touchdowns(
-        state=state, obs=torch.stack(obs), control=commands if bool(commands.any()) else None,
-        traj=np.array(traj), first=np.array(first), prefix_rms=float(np.sqrt(sse / m)),
+        state=state, obs=torch.nan_to_num(seen_obs, nan=0.0),
+        control=commands if bool(commands.any()) else None, traj=np.array(traj),
+        first=np.array(first), prefix_rms=float(np.sqrt(sse / m)),
+        valid=None if bool(valid.all()) else valid,
     )  # fmt: skip
 
 
@@ -164,12 +176,14 @@ def touchdown_residual(
     touch: Touchdowns,
     steps: int,
 ) -> torch.Tensor:
-    """Predicted minus measured end caps over ``steps`` after the touchdowns, (N, steps+1, 2R, 3)."""
+    """Predicted minus measured end caps over ``steps`` after the touchdowns,
+    (N, steps+1, 2R, 3); 0 where an end cap was not seen (:meth:`Touchdowns.seen`)."""
     eng = engine.with_effects([*others, contact])
     ctrl = None if touch.control is None else touch.control[:, :steps]
     with torch.no_grad():
         roll = eng.rollout(touch.state, params, steps, ctrl)
-        return end_caps(eng, roll.p, roll.q) - touch.obs[:, : steps + 1]
+        r = end_caps(eng, roll.p, roll.q) - touch.obs[:, : steps + 1]
+        return torch.where(touch.seen(steps)[..., None], r, torch.zeros_like(r))
 
 
 @dataclass(frozen=True)
@@ -208,7 +222,7 @@ def search_contact(
         nonlocal evals
         evals += 1
         r = touchdown_residual(engine, params, others, contact_at(start, x, keys), touch, steps)
-        value = float((r**2).mean())
+        value = float((r**2).sum()) / max(3 * int(touch.seen(steps).sum()), 1)
         return value if np.isfinite(value) else BLOWN_UP
 
     x = np.array([to_free(start.PARAMS[k], float(start.values[k].reshape(-1)[0]))
@@ -264,7 +278,7 @@ def _stderr(
         bread = np.linalg.inv(Jf.T @ Jf)
     except np.linalg.LinAlgError:
         return np.full(len(x), np.inf)
-    sigma2 = float(rf @ rf) / max(rf.size - len(x), 1)
+    sigma2 = float(rf @ rf) / max(3 * int(touch.seen(steps).sum()) - len(x), 1)
     g = np.einsum("imk,im->ik", J, r0)  # per-touchdown scores, (N, len(keys))
     n = touch.size
     sandwich = bread @ (g.T @ g) @ bread * (n / max(n - 1, 1))

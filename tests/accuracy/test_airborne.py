@@ -21,7 +21,7 @@ from identification.trajectory.airborne import (
     past_touchdown,
 )
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import window_sse
+from identification.trajectory.window_errors import window_sse
 from identification.trajectory.windows import STATE_KEYS, local_basis
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT

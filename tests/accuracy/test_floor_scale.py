@@ -20,7 +20,8 @@ import torch
 
 from identification.trajectory.floor_fit import SCALED, search_scale, with_floor
 from identification.trajectory.param_vector import ParamVector, params_values
-from identification.trajectory.windowed_fit import fit_windows, window_sse
+from identification.trajectory.window_errors import window_sse
+from identification.trajectory.windowed_fit import fit_windows
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact

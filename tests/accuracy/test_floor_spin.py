@@ -19,8 +19,8 @@ import torch
 
 from identification.trajectory.floor_fit import held_states, with_floor
 from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.window_errors import window_sse
 from identification.trajectory.window_states import fit_states
-from identification.trajectory.windowed_fit import window_sse
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact

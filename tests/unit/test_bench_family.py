@@ -64,14 +64,17 @@ def test_contact_errors_skip_what_the_data_cannot_pin() -> None:
 
 def _record(start: str, **kw: Any) -> dict[str, Any]:
     run = {"status": "ok", "message": ""}
-    return {"start": start, "identify": run, "rms_over_noise": 1.0, "moved": ["", 0.0],
+    return {"start": start, "identify": run, "rms_over_noise": 1.0, "moved": ["", 0.0, 0.0],
             "worst": dict.fromkeys(bench_family.GROUPS, 0.0), "contact": {}, **kw}  # fmt: skip
 
 
 def test_the_verdict_names_the_stage_and_why() -> None:
     assert verdict(_record("truth")) == ""
     assert "RMS 1.5 x noise" in verdict(_record("truth", rms_over_noise=1.5))
-    assert "mass[b] moved 3 standard errors" in verdict(_record("truth", moved=["mass[b]", 3.0]))
+    # the largest of many honest moves is ~3 standard errors: their RMS is judged
+    assert verdict(_record("truth", moved=["mass[b]", 3.0, 1.0])) == ""
+    miss = verdict(_record("truth", moved=["mass[b]", 3.0, 1.8]))
+    assert "an RMS of 1.8 standard errors > 1.5 (largest: mass[b], 3)" in miss
     assert "nan" in verdict(_record("truth", rms_over_noise=float("nan")))
     worst = {**dict.fromkeys(bench_family.GROUPS, 0.0), "mass": 0.02, "damping": 0.09,
              "rest_length": 0.5}  # fmt: skip

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from identification.discovery import multi_step
+from identification.discovery import multi_step, refits
 from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.end_cap_fits import EndCapFits
 from identification.discovery.judge import Candidate
@@ -31,8 +31,8 @@ def _scorer(
         fitted_model=lambda topology, dt: "refitted model",
         theta=torch.tensor([0.5, -0.2 + step, 1.0], dtype=torch.float64),
     )  # fmt: skip
-    monkeypatch.setattr(multi_step, "fit_many", lambda *a, **k: refitted)
-    monkeypatch.setattr(multi_step, "unphysical", lambda model: "")
+    monkeypatch.setattr(refits, "fit_many", lambda *a, **k: refitted)
+    monkeypatch.setattr(refits, "unphysical", lambda model: "")
     scorer = MultiStepScorer(TrajectorySettings())
     scorer.data, scorer.noise, scorer.log = None, 1.0e-3, lines.append
     scorer.dataset = SimpleNamespace(topology=None, dt=1 / 120)
@@ -53,7 +53,7 @@ def test_a_refit_that_loses_a_standard_error_is_not_used(stderr, kept, monkeypat
     lines: list[str] = []
     scorer, current = _scorer(stderr, monkeypatch, lines)
     windows = SimpleNamespace(steps=30)
-    out = scorer.refit(current, windows)
+    out = refits.refit(scorer, current, windows)
     assert (out.model == "refitted model") is kept
     assert (out is current) is not kept
     assert ("1 standard errors the last fit pinned are infinite" in lines[-1]) is not kept
@@ -63,27 +63,27 @@ def test_a_refit_that_loses_a_standard_error_is_not_used(stderr, kept, monkeypat
 def test_a_refit_whose_parameters_did_not_move_says_so(step, stayed, monkeypatch) -> None:
     lines: list[str] = []
     scorer, current = _scorer(np.array([0.01, 0.02, np.inf]), monkeypatch, lines, step)
-    out = scorer.refit(current, SimpleNamespace(steps=30))
+    out = refits.refit(scorer, current, SimpleNamespace(steps=30))
     assert out.model == "refitted model"  # kept either way: the same model, more windows
     assert ("its parameters stayed at the last fit's" in lines[-1]) is stayed
     assert "(20 iterations, ran out;" in lines[-1]
 
 
-@pytest.mark.parametrize(("final_windows", "refits"), [(24, True), (8, False)])
+@pytest.mark.parametrize(("final_windows", "refitted"), [(24, True), (8, False)])
 def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
-    final_windows, refits, monkeypatch
+    final_windows, refitted, monkeypatch
 ) -> None:
     scorer = MultiStepScorer(TrajectorySettings(floor_windows=8, final_floor_windows=final_windows))
     cuts: list[tuple] = []
     scorer.data = SimpleNamespace(
-        on_floor=True, dt=1 / 120,
+        on_floor=True, dt=1 / 120, floor_steps=None,
         cut=lambda *a, **k: cuts.append((a, k)) or SimpleNamespace(steps=a[1]),
     )  # fmt: skip
     scorer.noise = 1.0e-3
-    monkeypatch.setattr(scorer, "refit",
-                        lambda current, windows, within: ("refitted", windows.steps, within))  # fmt: skip
+    monkeypatch.setattr(refits, "refit", lambda scorer, current, windows, within: (
+        "refitted", windows.steps, within))  # fmt: skip
     out = scorer.finish("current")
-    if refits:
+    if refitted:
         (name, steps, count, _), kw = cuts[0]
         assert (name, count, kw["lift_off"]) == ("train", 24, 12)
         assert out[:2] == ("refitted", steps) and steps == 30  # at most 0.25 s at 120 Hz
@@ -134,7 +134,7 @@ def test_on_the_floor_slack_cables_are_fitted_afresh_from_their_regression(monke
 
     monkeypatch.setattr(multi_step, "floor_fit", fake_floor_fit)
     monkeypatch.setattr(multi_step, "fit_trajectory", fake_fit_trajectory)
-    monkeypatch.setattr(multi_step, "adopt_floor_fit",
+    monkeypatch.setattr(refits, "adopt_floor_fit",
                         lambda *a: pytest.fail("a candidate's floor fit was adopted"))  # fmt: skip
     scorer = MultiStepScorer(TrajectorySettings())
     scorer.data = SimpleNamespace(on_floor=True)
@@ -181,10 +181,10 @@ def test_an_accepted_floor_refit_goes_on_only_while_it_is_short_of_the_data(
         calls.append((vec, windows, theta, iters))
         return next(fits)
 
-    monkeypatch.setattr(multi_step, "fit_trajectory", fake_fit_trajectory)
+    monkeypatch.setattr(refits, "fit_trajectory", fake_fit_trajectory)
     scorer = MultiStepScorer(TrajectorySettings(base_iter=10))
     scorer.data, scorer.noise, scorer.log = None, 1.0e-3, lambda line: None
-    out = scorer.fitted_on(_trajfit(rms[0], converged))
+    out = refits.fitted_on(scorer, _trajfit(rms[0], converged))
     assert len(calls) == rounds
     assert out.rms == pytest.approx(expected)
     assert all(c[3] == 10 for c in calls) and (not calls or calls[0][2] == rms[0])

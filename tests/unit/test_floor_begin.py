@@ -36,8 +36,8 @@ def _begin(jobs: int, monkeypatch: pytest.MonkeyPatch) -> tuple[MultiStepScorer,
     base, final = Fit("base", 1.0e-3), Fit("final", 1.1e-3)
     monkeypatch.setattr(multi_step, "EndCapData", lambda dataset, settings: SimpleNamespace(
         on_floor=True, log=None, contact_start=None))  # fmt: skip
-    monkeypatch.setattr(multi_step, "noise_level", lambda nodes: 1.0e-3)
-    monkeypatch.setattr(multi_step, "fit_declared", lambda data, s, start: (final, base))
+    monkeypatch.setattr(multi_step, "noise_level", lambda nodes, rods=False: 1.0e-3)
+    monkeypatch.setattr(multi_step, "fit_declared", lambda data, s, start, effects=(): (final, base))
     monkeypatch.setattr(multi_step, "heldout", _heldout)
     monkeypatch.setattr(multi_step, "screen_with",
                         lambda data, now, effects, iters: Fit(f"reference of {now.name}", 1.05e-3))  # fmt: skip

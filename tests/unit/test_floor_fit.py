@@ -29,7 +29,7 @@ from identification.trajectory.floor_fit import (
     with_floor,
 )
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import better_states, window_errors, windows_within
+from identification.trajectory.window_errors import better_states, window_errors, windows_within
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env import assemblies
 from tensegrity_env.effects import GroundContact, LinearDrag

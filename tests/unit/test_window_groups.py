@@ -16,12 +16,12 @@ from identification.trajectory import forked
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.forked import side_by_side, window_groups, window_workers
 from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.window_errors import window_sse
 from identification.trajectory.windowed_fit import (
     FD_BATCH,
     SPLIT_WINDOWS,
     group_size,
     linearize,
-    window_sse,
 )
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
 from tensegrity_env.effects import GroundContact

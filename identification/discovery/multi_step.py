@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -363,7 +363,9 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
                   if not e.constraint and e.name not in left_out]  # fmt: skip
         contact = self.contact
         if proposal.start is not None:
-            contact = next((e for e in now.effects if e.constraint), contact)
+            # the one constraint effect is the floor contact (GroundContact is the only one)
+            found = next((e for e in now.effects if e.constraint), contact)
+            contact = cast("GroundContact | None", found)
         floor = floor_fit(data, s, self.start, [*others, proposal.effect], values=proposal.start,
                           contact=contact)  # fmt: skip
         fit = fit_trajectory(data, floor.fit.vec, now.windows, floor.fit.theta, s.candidate_iter)

@@ -118,7 +118,7 @@ def group_size(basis: torch.Tensor, theta: torch.Tensor, windows: int) -> int:
 def group_equations(
     engine: Engine, vec: ParamVector, win: Windows, basis: torch.Tensor, theta: torch.Tensor,
     step: float, exact_gradient: bool,
-) -> tuple[torch.Tensor, ...]:  # fmt: skip
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, float]:  # fmt: skip
     """One group of windows' share of :func:`linearize`: :func:`gauss_newton_fd`'s
     ``H_ll``, ``H_lg``, ``H_gg``, ``g_l`` and per-window ``g_g``, then the group's ``g_g``
     (exact where asked) and its ``rᵀr`` [m^2]."""
@@ -418,6 +418,7 @@ def fit_windows(
         if lam > 1e10:
             converged = True  # no step lowers the error any more
             break
+        assert d_theta is not None  # a step was taken: the loop above left with one
         windows, theta, now = trial, theta + d_theta, None
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
         _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)

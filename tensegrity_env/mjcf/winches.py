@@ -138,7 +138,8 @@ class Winding:
         """``steps`` physics steps of winding with the motor commands held.
 
         Args:
-            rest, speed: the winch state, (..., W) [m] and [m/s].
+            rest: the winch state's rest lengths, (..., W) [m].
+            speed: the winch state's winding speeds, (..., W) [m/s].
             command: the motors' commands (..., W), clipped to [-1, 1] (None: 0).
             steps: physics steps.
 

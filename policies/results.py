@@ -274,6 +274,11 @@ def main(argv: list[str] | None = None) -> int:
             doc["shipped"]["record"] = read_json(record, "--shipped (run record)")
             doc["seeds"] = [read_seeds(path) for path in args.seeds] or None
             doc["study"] = read_json(args.study, "--study") if args.study else None
+            out = args.output.with_suffix(".json")
+            if out.exists():  # the robots' results stay
+                old = read_json(out, "-o")
+                doc.update({k: v for k, v in old.items()
+                            if isinstance(v, dict) and v.get("kind") == "robot"})  # fmt: skip
             atomic_write_text(args.output.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
         atomic_write_text(args.output.with_suffix(".md"), markdown(doc))
     except InputError as e:

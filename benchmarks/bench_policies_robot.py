@@ -49,7 +49,11 @@ def run(argv: list[object], commands: list[str]) -> None:
     line = shlex.join(["tensegrity-sr", *args])
     print(f"\n$ {line}", flush=True)
     commands.append(line)
-    code = cli(args)
+    saved, sys.argv = sys.argv, ["tensegrity-sr", *args]  # the command a run record keeps
+    try:
+        code = cli(args)
+    finally:
+        sys.argv = saved
     if code:
         raise SystemExit(code)
 

@@ -43,6 +43,14 @@ ROBOT = Path(__file__).resolve().parent.parent / "tensegrity_env" / "assets" / "
 KEY = "lab_prism_winch"
 
 
+def shown(path: Path) -> Path:
+    """``path`` relative to the working folder where it lies below it (for the record)."""
+    try:
+        return path.resolve().relative_to(Path.cwd())
+    except ValueError:
+        return path
+
+
 def run(argv: list[object], commands: list[str]) -> None:
     """Run ``tensegrity-sr ARGV``, printing and recording the command; exit on failure."""
     args = [str(a) for a in argv]
@@ -92,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     identified = out / "params_hung.json"
     if not identified.exists():
         run(["identify", data, "--anchor", f"mass[r0]={float(truth.params.mass[0])!r}",
-             "--params", ROBOT, "--winch-lag", "auto", "-o", identified], commands)  # fmt: skip
+             "--params", shown(ROBOT), "--winch-lag", "auto", "-o", identified], commands)  # fmt: skip
     params = out / "params.json"
     Model.load(identified).replace(effects=Model.read(ROBOT).effects).save(params)
     print(f"env model: {identified} with {ROBOT.name}'s floor contact -> {params}")

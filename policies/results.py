@@ -200,7 +200,13 @@ def robot_table(name: str, doc: dict[str, Any]) -> list[str]:
     if pipe.get("commands"):
         lines.append("")
     table = seeds_table(doc["transfer"])
-    return [*lines, *table[1:]] if table[0].startswith("## ") else [*lines, *table]
+    table[0] = table[0].split("\n\n", 1)[-1]  # the runs and episodes, without the title
+    walls = [(r.get("record") or {}).get("wall_s") for r in runs]
+    if all(w is not None for w in walls):
+        table[0] = table[0].rstrip() + (
+            f" Training wall time per seed: {', '.join(f'{w:.0f}' for w in walls)} s.\n"
+        )
+    return [*lines, *table]
 
 
 def markdown(doc: dict[str, Any]) -> str:

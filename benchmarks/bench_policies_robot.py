@@ -1,6 +1,8 @@
 """A cable-driven robot from data to a policy that transfers to its MuJoCo twin.
 
-End to end on the lab 3-bar with six winches (``tensegrity_env/assets/lab_prism.xml``):
+End to end on a winch-driven robot on a floor (default: the lab 3-bar with six winches,
+``tensegrity_env/assets/lab_prism.xml``; ``--robot`` another, e.g. the icosahedron with
+twelve, ``icosahedron_winches.xml``, stored under ``--key``):
 
 1. ``tensegrity-sr generate``: MuJoCo data of the robot under random winch commands.
    The identification's regression on rod states models no contact, so the data is the
@@ -19,6 +21,8 @@ End to end on the lab 3-bar with six winches (``tensegrity_env/assets/lab_prism.
    ``docs/results/policies.json`` under ``lab_prism_winch``; ``policies.md`` regenerated.
 
     python benchmarks/bench_policies_robot.py -o runs/policies_robot
+    python benchmarks/bench_policies_robot.py --robot tensegrity_env/assets/icosahedron_winches.xml \
+        --key icosahedron_winch --timesteps 300000 -o runs/policies_icosahedron
 
 Every command is printed before it runs. Steps whose outputs exist in the output folder
 are reused (training runs are resumed to their budget), so an interrupted run continues.
@@ -71,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     p.add_argument("-o", "--output", type=Path, default=Path("runs/policies_robot"))
+    p.add_argument("--robot", type=Path, default=ROBOT, help="the robot's MJCF (with a floor)")
+    p.add_argument("--key", default=KEY, help="its key in policies.json (default %(default)s)")
     p.add_argument("--seeds", default="0-2", help="training seeds (default %(default)s)")
     p.add_argument("--timesteps", type=int, default=None,
                    help="budget per seed (default: the hyperparameters')")  # fmt: skip
@@ -80,14 +86,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="results stem (.json, .md) to add the robot to (default %(default)s)")  # fmt: skip
     args = p.parse_args(argv)
     out: Path = args.output
+    robot: Path = args.robot
     out.mkdir(parents=True, exist_ok=True)
     commands: list[str] = []
 
     # 1. data: the robot hung in the air (no floor) under random winch commands
-    text, floors = re.subn(r"<geom[^>]*type=\"plane\"[^>]*/>", "", ROBOT.read_text())
+    text, floors = re.subn(r"<geom[^>]*type=\"plane\"[^>]*/>", "", robot.read_text())
     if floors != 1:
-        raise SystemExit(f"{ROBOT}: expected one floor plane, found {floors}")
-    hung = atomic_write_text(out / "lab_prism_hung.xml", text)
+        raise SystemExit(f"{robot}: expected one floor plane, found {floors}")
+    hung = atomic_write_text(out / f"{robot.stem}_hung.xml", text)
     data = out / "data.h5"
     if not data.exists():
         run(["generate", "--mjcf", hung, "--n-train", args.n_train, "--n-val", 0,
@@ -99,16 +106,19 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"{data}: no ground truth to anchor the mass scale")
     identified = out / "params_hung.json"
     if not identified.exists():
-        run(["identify", data, "--anchor", f"mass[r0]={float(truth.params.mass[0])!r}",
-             "--params", shown(ROBOT), "--winch-lag", "auto", "-o", identified], commands)  # fmt: skip
+        rod0 = Model.read(robot).topology.rods[0].name
+        run(["identify", data, "--anchor", f"mass[{rod0}]={float(truth.params.mass[0])!r}",
+             "--params", shown(robot), "--winch-lag", "auto", "-o", identified], commands)  # fmt: skip
     params = out / "params.json"
-    Model.load(identified).replace(effects=Model.read(ROBOT).effects).save(params)
-    print(f"env model: {identified} with {ROBOT.name}'s floor contact -> {params}")
+    Model.load(identified).replace(effects=Model.read(robot).effects).save(params)
+    print(f"env model: {identified} with {robot.name}'s floor contact -> {params}")
 
     # 3. PPO on the identified model, one run per seed (resumed where one exists)
     runs = out / "runs"
     train = ["train", "ppo", "--env", "TensegritySR-v0", "--model", params,
              "--seeds", args.seeds, "-o", runs, "--resume", "--no-tensorboard"]  # fmt: skip
+    if robot.resolve() != ROBOT:  # the default robot is the env's own default
+        train += ["--robot", shown(robot)]
     if args.timesteps is not None:
         train += ["--timesteps", args.timesteps]
     run(train, commands)
@@ -125,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     this = shlex.join(["python", "benchmarks/bench_policies_robot.py", *sys.argv[1:]])
     pipeline = {
         "summary": (
-            f"The lab 3-bar (`{ROBOT.name}`, six winches) identified from MuJoCo data under "
+            f"`{robot.name}` ({len(Model.read(robot).topology.winches)} winches) identified "
+            "from MuJoCo data under "
             "random winch commands (the robot hung in the air: the regression models no "
             "contact; the env's model adds the robot file's floor contact), PPO trained on "
             "`TensegritySR-v0` with that model, evaluated in `TensegrityMJ-v0` (the robot "
@@ -136,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     pipe_path = atomic_write_text(out / "pipeline.json", json.dumps(pipeline, indent=2) + "\n")
     from policies.results import main as results
 
-    return results(["--robot", f"{KEY}={transfer / 'transfer.json'}", "--pipeline",
+    return results(["--robot", f"{args.key}={transfer / 'transfer.json'}", "--pipeline",
                     str(pipe_path), "-o", str(args.results)])  # fmt: skip
 
 

@@ -126,6 +126,8 @@ class LoadedPolicy:
         record: the run record ({} if none was saved).
         goal_frame: the network acts in the goal frame (:mod:`policies.goal_frame`):
             observations are turned into it and actions back into the world frame.
+        goal_frame_caps: None for the rolling task's layout; the robot's end caps for a
+            generic robot's goal task (:func:`~policies.goal_frame.to_goal_frame`).
     """
 
     model: BaseAlgorithm
@@ -133,6 +135,7 @@ class LoadedPolicy:
     path: Path
     record: dict[str, Any] = field(default_factory=dict)
     goal_frame: bool = False
+    goal_frame_caps: int | None = None
 
     def __post_init__(self) -> None:
         if self.vecnorm is not None:
@@ -151,10 +154,11 @@ class LoadedPolicy:
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Deterministic action(s) for observation(s) (75,) or (B, 75): (18,) or (B, 18)."""
-        seen = to_goal_frame(obs) if self.goal_frame else obs
+        caps = self.goal_frame_caps
+        seen = to_goal_frame(obs, caps) if self.goal_frame else obs
         action, _ = self.model.predict(self.normalize(seen), deterministic=True)
         if self.goal_frame:
-            action = to_world_actions(np.asarray(action), np.asarray(obs))
+            action = to_world_actions(np.asarray(action), np.asarray(obs), caps)
         return np.asarray(action, dtype=np.float32)
 
 
@@ -186,4 +190,8 @@ def load_policy(path: str | Path) -> LoadedPolicy:
         raise InputError(f"{s}: missing (the run record says the policy was normalized)")
     if vecnorm is not None and vecnorm.observation_space.shape != model.observation_space.shape:
         raise InputError(f"{s}: statistics do not match {p}'s observation space")
-    return LoadedPolicy(model, vecnorm, p, record, bool(record.get("goal_frame", False)))
+    caps = record.get("goal_frame_caps")
+    return LoadedPolicy(
+        model, vecnorm, p, record, bool(record.get("goal_frame", False)),
+        None if caps is None else int(caps),
+    )  # fmt: skip

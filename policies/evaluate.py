@@ -2,9 +2,12 @@
 
 The episodes are defined once, by a *source* environment: episode ``k`` starts from
 the state and goal that ``source.reset(seed=seed + k)`` draws. Every environment
-evaluated is then reset to exactly that state and goal
-(``reset(seed=seed + k, options={"state", "goal"})``), so the identified env and the
+evaluated is then reset to exactly that start
+(``reset(seed=seed + k, options=source.start_options())``: the rod state and goal, and
+for a generic robot its winch state and target), so the identified env and the
 MuJoCo twin see the same starts, and a policy's numbers differ only by the physics.
+Environment arguments (``env_kwargs``: a generic robot's ``model``, ``robot``,
+``task``) go to ``gym.make``.
 Episodes run in the registered single environment (``gym.make``, with its time limit)
 under the policy's deterministic action.
 """
@@ -12,7 +15,8 @@ under the policy's deterministic action.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -26,11 +30,20 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 @dataclass(frozen=True)
 class EpisodeStart:
-    """Where an episode begins: packed rod state (R, 13) and goal (2,) [m]; its seed."""
+    """Where an episode begins: packed rod state (R, 13) and goal (2,) [m]; its seed.
+
+    ``options``: every ``reset`` option of the start (the source env's
+    ``start_options()``; a generic robot's ``winch`` (W, 2) and ``target`` too).
+    """
 
     seed: int
     state: np.ndarray
     goal: np.ndarray
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def reset_options(self) -> dict[str, Any]:
+        """The options that reset an env to this start."""
+        return self.options or {"state": self.state, "goal": self.goal}
 
 
 @dataclass(frozen=True)
@@ -71,20 +84,22 @@ class EvalResult:
         return float(np.mean(self.steps[self.success]) * self.control_dt)
 
 
-def episode_starts(source_id: str, n: int, seed: int) -> list[EpisodeStart]:
+def episode_starts(
+    source_id: str, n: int, seed: int, env_kwargs: dict[str, Any] | None = None
+) -> list[EpisodeStart]:
     """``n`` starts drawn by ``source_id``'s seeded resets (seeds ``seed .. seed + n - 1``)."""
     env_spec(source_id)
-    env = gym.make(source_id)
+    env = gym.make(source_id, **(env_kwargs or {}))
     try:
-        if not all(hasattr(env.unwrapped, a) for a in ("state", "goal")):
-            raise InputError(
-                f"{source_id}: not a rolling-task env (no state and goal to start from)"
-            )
+        base = env.unwrapped
+        if not hasattr(base, "state") or not hasattr(base, "start_options"):
+            raise InputError(f"{source_id}: not a task env (no start state to begin from)")
         starts = []
         for k in range(n):
             env.reset(seed=seed + k)
-            base = env.unwrapped
-            starts.append(EpisodeStart(seed + k, base.state.copy(), base.goal.copy()))  # type: ignore[attr-defined]  # a rolling-task env, checked above
+            opts = base.start_options()
+            goal = opts.get("goal", opts.get("target"))
+            starts.append(EpisodeStart(seed + k, opts["state"], np.asarray(goal), opts))
     finally:
         env.close()
     return starts
@@ -92,7 +107,7 @@ def episode_starts(source_id: str, n: int, seed: int) -> list[EpisodeStart]:
 
 def run_episode(env: gym.Env, policy: Policy, start: EpisodeStart) -> tuple[float, bool, int]:
     """One episode from ``start``: (return, goal reached, steps)."""
-    obs, _ = env.reset(seed=start.seed, options={"state": start.state, "goal": start.goal})
+    obs, _ = env.reset(seed=start.seed, options=start.reset_options())
     total, steps = 0.0, 0
     while True:
         obs, reward, terminated, truncated, info = env.step(policy(obs))
@@ -102,10 +117,15 @@ def run_episode(env: gym.Env, policy: Policy, start: EpisodeStart) -> tuple[floa
             return total, bool(info.get("is_success", False)), steps
 
 
-def evaluate(policy: Policy, env_id: str, starts: list[EpisodeStart]) -> EvalResult:
+def evaluate(
+    policy: Policy,
+    env_id: str,
+    starts: list[EpisodeStart],
+    env_kwargs: dict[str, Any] | None = None,
+) -> EvalResult:
     """``policy`` over ``starts`` in ``env_id`` (see the module docstring)."""
     env_spec(env_id)
-    env = gym.make(env_id)
+    env = gym.make(env_id, **(env_kwargs or {}))
     try:
         space = getattr(getattr(policy, "model", None), "observation_space", None)
         if space is not None and space.shape != env.observation_space.shape:

@@ -14,6 +14,11 @@ centre height, then the goal vector (x, y) [m]. Each 3-vector and the goal vecto
 turned by ``-yaw``, ``yaw = atan2(goal_y, goal_x)``; the height is unchanged. Actions
 (R, 3) per rod are clipped to the unit ball (as the task does) and turned by ``+yaw``,
 so the task's own clipping then changes nothing.
+
+A generic robot (``TensegritySR-v0``'s goal task) observes ``caps`` end caps minus the
+centre (``caps`` world 3-vectors) first and the goal vector (x, y) last; those are
+turned, the rest (height, cable and motor lengths) is left as it is. Its actions are
+motor commands, which do not depend on the frame: they are only clipped to [-1, 1].
 """
 
 from __future__ import annotations
@@ -46,22 +51,41 @@ def _turn(v: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     return out
 
 
-def to_goal_frame(obs: np.ndarray) -> np.ndarray:
-    """Observations (B, 12R + 3) (or one (12R + 3,)) seen from the goal frame."""
+def _vectors(n_obs: int, caps: int | None) -> int:
+    """How many world 3-vectors an observation of ``n_obs`` entries starts with."""
+    if caps is None:
+        return 4 * _rods(n_obs)
+    if caps < 1 or 3 * caps + 2 > n_obs:
+        raise ValueError(f"{n_obs} observations cannot hold {caps} end caps and a goal")
+    return int(caps)
+
+
+def to_goal_frame(obs: np.ndarray, caps: int | None = None) -> np.ndarray:
+    """Observations (B, n) (or one (n,)) seen from the goal frame.
+
+    ``caps``: None for the rolling task's layout (n = 12R + 3); the number of end caps
+    for a generic robot's goal task (its first 3 ``caps`` entries are turned).
+    """
     single = obs.ndim == 1
     o = np.atleast_2d(np.asarray(obs, dtype=np.float64))
     B, n = o.shape
-    R = _rods(n)
+    V = _vectors(n, caps)
     yaw = -goal_yaw(o)
     out = o.copy()
-    out[:, : 12 * R] = _turn(o[:, : 12 * R].reshape(B, 4 * R, 3), yaw).reshape(B, 12 * R)
+    out[:, : 3 * V] = _turn(o[:, : 3 * V].reshape(B, V, 3), yaw).reshape(B, 3 * V)
     out[:, -2:] = _turn(o[:, None, -2:], yaw)[:, 0]
     out = out.astype(np.float32)
     return out[0] if single else out
 
 
-def to_world_actions(actions: np.ndarray, obs: np.ndarray) -> np.ndarray:
-    """Goal-frame actions (B, 3R) for world observations ``obs`` as world actions (B, 3R)."""
+def to_world_actions(actions: np.ndarray, obs: np.ndarray, caps: int | None = None) -> np.ndarray:
+    """Goal-frame actions (B, 3R) for world observations ``obs`` as world actions (B, 3R).
+
+    With ``caps`` (a generic robot) the actions are motor commands (B, W): clipped to
+    [-1, 1] and otherwise unchanged.
+    """
+    if caps is not None:
+        return np.clip(np.asarray(actions, dtype=np.float32), -1.0, 1.0)
     single = actions.ndim == 1
     a = np.atleast_2d(np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0))
     o = np.atleast_2d(obs)
@@ -73,29 +97,34 @@ def to_world_actions(actions: np.ndarray, obs: np.ndarray) -> np.ndarray:
 
 
 class VecGoalFrame(VecEnvWrapper):
-    """A rolling-task ``VecEnv`` seen from the goal frame (terminal observations too)."""
+    """A goal-task ``VecEnv`` seen from the goal frame (terminal observations too);
+    ``caps`` as :func:`to_goal_frame`."""
 
-    def __init__(self, venv: VecEnv) -> None:
+    def __init__(self, venv: VecEnv, caps: int | None = None) -> None:
         super().__init__(venv)
         assert venv.observation_space.shape is not None  # a Box
-        _rods(int(np.prod(venv.observation_space.shape)))
+        _vectors(int(np.prod(venv.observation_space.shape)), caps)
+        self.caps = caps
         self._world_obs: np.ndarray | None = None
 
     def reset(self) -> np.ndarray:
         obs = self.venv.reset()
         self._world_obs = np.asarray(obs)
-        return to_goal_frame(self._world_obs)
+        return to_goal_frame(self._world_obs, self.caps)
 
     def step_async(self, actions: np.ndarray) -> None:
         assert self._world_obs is not None, "reset first"
-        self.venv.step_async(to_world_actions(actions, self._world_obs))
+        self.venv.step_async(to_world_actions(actions, self._world_obs, self.caps))
 
     def step_wait(self) -> VecEnvStepReturn:
         obs, reward, done, infos = self.venv.step_wait()
         infos_out: list[dict[str, Any]] = []
         for info in infos:
             if "terminal_observation" in info:
-                info = {**info, "terminal_observation": to_goal_frame(info["terminal_observation"])}
+                info = {
+                    **info,
+                    "terminal_observation": to_goal_frame(info["terminal_observation"], self.caps),
+                }
             infos_out.append(info)
         self._world_obs = np.asarray(obs)
-        return to_goal_frame(self._world_obs), reward, done, infos_out
+        return to_goal_frame(self._world_obs, self.caps), reward, done, infos_out

@@ -13,6 +13,8 @@ constructor unchanged:
 ``policy_kwargs``   a mapping; ``activation_fn`` is a name (``tanh``, ``relu``)
 ``goal_frame``      the policy sees the scene turned so that the goal is on +x
                     (:mod:`policies.goal_frame`; default false)
+``env_kwargs``      a mapping of the environment's own arguments (``task``,
+                    task options such as ``goal_distance``)
 ==================  =========================================================
 """
 
@@ -51,6 +53,7 @@ class Hyperparams:
         algo_kwargs: every other key, for the SB3 constructor (policy_kwargs as in the file).
         source: the file they came from.
         goal_frame: the policy acts in the goal frame (:mod:`policies.goal_frame`).
+        env_kwargs: the environment's own arguments (passed to ``gym.make``).
     """
 
     algo: str
@@ -62,6 +65,7 @@ class Hyperparams:
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     source: str = ""
     goal_frame: bool = False
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
 
     def sb3_kwargs(self) -> dict[str, Any]:
         """Constructor kwargs with ``policy_kwargs.activation_fn`` turned into a class."""
@@ -81,6 +85,7 @@ class Hyperparams:
             "policy": self.policy,
             "normalize": self.normalize,
             "goal_frame": self.goal_frame,
+            **({"env_kwargs": self.env_kwargs} if self.env_kwargs else {}),
             **self.algo_kwargs,
         }
 
@@ -120,6 +125,9 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     goal_frame = entry.pop("goal_frame", False)
     if not isinstance(goal_frame, bool):
         raise InputError(f"{path}: {env_id}: goal_frame must be true or false")
+    env_kwargs = entry.pop("env_kwargs", None) or {}
+    if not isinstance(env_kwargs, dict):
+        raise InputError(f"{path}: {env_id}: env_kwargs must be a mapping")
     normalize = entry.pop("normalize", None)
     if normalize is True:
         normalize = {}
@@ -136,5 +144,6 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
             f"{path}: {env_id}: activation_fn {act!r} is not one of {', '.join(ACTIVATIONS)}"
         )
     return Hyperparams(
-        algo, env_id, n_envs, n_timesteps, policy, normalize, entry, str(path), goal_frame
-    )
+        algo, env_id, n_envs, n_timesteps, policy, normalize, entry, str(path), goal_frame,
+        env_kwargs,
+    )  # fmt: skip

@@ -8,6 +8,14 @@ writes ``policies.json`` (the inputs, unchanged, under ``shipped``, ``seeds`` (a
 one per ``--seeds``) and ``study``, with the run records of the policies) and ``policies.md`` (markdown tables
 generated from that JSON alone: ``--from-json docs/results/policies.json`` rewrites
 the markdown without re-reading the inputs).
+
+    python -m policies.results --robot lab_prism_winch=runs/robot/transfer/transfer.json \
+        [--pipeline runs/robot/pipeline.json] -o docs/results/policies
+
+adds (or replaces) one robot's results in an existing ``policies.json``, under the key
+``lab_prism_winch``: a ``transfer`` output over several seeds of a policy trained on a
+generic robot's identified model and evaluated in its twin, with the run records and
+the pipeline that produced the model (``--pipeline``: the commands, as a JSON object).
 """
 
 from __future__ import annotations
@@ -36,7 +44,8 @@ def read_json(path: Path, option: str) -> dict[str, Any]:
 
 
 #: what the seeds table keeps of each run's record
-RUN_KEYS = ("algo", "env_id", "seed", "timesteps", "wall_s", "hyperparams_file", "command")
+RUN_KEYS = ("algo", "env_id", "seed", "timesteps", "wall_s", "hyperparams_file", "command",
+            "env_kwargs")  # fmt: skip
 
 
 def repo_path(path: str | None) -> str:
@@ -175,6 +184,31 @@ def shipped_origin(shipped: dict[str, Any], study: dict[str, Any]) -> list[str]:
     ]
 
 
+def robot_table(name: str, doc: dict[str, Any]) -> list[str]:
+    """One robot's section: how its model was made, then its seeds table."""
+    pipe = doc.get("pipeline") or {}
+    runs = doc["transfer"]["runs"]
+    kw = (runs[0].get("record") or {}).get("env_kwargs") or {}
+    lines = [f"## Robot `{name}`\n"]
+    if pipe.get("summary"):
+        lines.append(pipe["summary"] + "\n")
+    if kw:
+        shown = {k: (Path(v).name if k in ("model", "robot") else v) for k, v in kw.items()}
+        lines.append(f"environment arguments: `{json.dumps(shown)}`\n")
+    for cmd in pipe.get("commands", []):
+        lines.append(f"    {cmd}")
+    if pipe.get("commands"):
+        lines.append("")
+    table = seeds_table(doc["transfer"])
+    table[0] = table[0].split("\n\n", 1)[-1]  # the runs and episodes, without the title
+    walls = [(r.get("record") or {}).get("wall_s") for r in runs]
+    if all(w is not None for w in walls):
+        table[0] = table[0].rstrip() + (
+            f" Training wall time per seed: {', '.join(f'{w:.0f}' for w in walls)} s.\n"
+        )
+    return [*lines, *table]
+
+
 def markdown(doc: dict[str, Any]) -> str:
     """The tables of a combined results document."""
     parts = [
@@ -190,6 +224,9 @@ def markdown(doc: dict[str, Any]) -> str:
         parts += [*seeds_table(group), ""]
     if doc.get("study") is not None:
         parts += [*study_table(doc["study"]), ""]
+    for name, robot in doc.items():
+        if isinstance(robot, dict) and robot.get("kind") == "robot":
+            parts += [*robot_table(name, robot), ""]
     return "\n".join(parts)
 
 
@@ -212,6 +249,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=Path, action="append", default=[],
                     help="transfer.json over several seeds of one recipe; repeatable")  # fmt: skip
     ap.add_argument("--study", type=Path, help="study.json of a search")
+    ap.add_argument("--robot", action="append", default=[], metavar="NAME=TRANSFER_JSON",
+                    help="a generic robot's transfer.json over several seeds, stored under "
+                         "NAME in the existing output JSON; repeatable")  # fmt: skip
+    ap.add_argument("--pipeline", type=Path,
+                    help="with --robot: JSON object describing how its model was made")  # fmt: skip
     ap.add_argument("--from-json", type=Path, help="rewrite the markdown of a policies.json")
     ap.add_argument("-o", "--output", type=Path, default=Path("docs/results/policies"),
                     help="output stem (default %(default)s: .json and .md)")  # fmt: skip
@@ -219,6 +261,17 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.from_json is not None:
             doc = read_json(args.from_json, "--from-json")
+        elif args.robot and args.shipped is None:
+            out = args.output.with_suffix(".json")
+            doc = read_json(out, "-o") if out.exists() else {}
+            pipeline = read_json(args.pipeline, "--pipeline") if args.pipeline else None
+            for spec in args.robot:
+                name, sep, path = spec.partition("=")
+                if not sep or not name or not path:
+                    raise InputError(f"--robot {spec!r}: expected NAME=TRANSFER_JSON")
+                doc[name] = {"kind": "robot", "pipeline": pipeline,
+                             "transfer": read_seeds(Path(path))}  # fmt: skip
+            atomic_write_text(out, json.dumps(doc, indent=2) + "\n")
         else:
             if args.shipped is None:
                 raise InputError("--shipped is required (or --from-json)")
@@ -227,6 +280,11 @@ def main(argv: list[str] | None = None) -> int:
             doc["shipped"]["record"] = read_json(record, "--shipped (run record)")
             doc["seeds"] = [read_seeds(path) for path in args.seeds] or None
             doc["study"] = read_json(args.study, "--study") if args.study else None
+            out = args.output.with_suffix(".json")
+            if out.exists():  # the robots' results stay
+                old = read_json(out, "-o")
+                doc.update({k: v for k, v in old.items()
+                            if isinstance(v, dict) and v.get("kind") == "robot"})  # fmt: skip
             atomic_write_text(args.output.with_suffix(".json"), json.dumps(doc, indent=2) + "\n")
         atomic_write_text(args.output.with_suffix(".md"), markdown(doc))
     except InputError as e:

@@ -154,13 +154,35 @@ def latest_checkpoint(out: Path) -> Path | None:
 
 
 # ---------------------------------------------------------------------- training
+def goal_frame_caps(venv: VecEnv) -> int | None:
+    """The end caps a generic robot's goal-frame observation turns (None: the rolling
+    task's layout); :class:`InputError` for a task without a goal (``shape``)."""
+    from tensegrity_env.envs.robot_task import GoalTask, ShapeTask
+
+    try:
+        task = venv.get_attr("task", [0])[0]
+    except AttributeError:
+        return None
+    if isinstance(task, ShapeTask):
+        raise InputError("goal_frame: true needs a goal task (the shape task has no goal)")
+    if isinstance(task, GoalTask):
+        return 2 * task.sensors.topology.n_rods
+    return None
+
+
 def build_model(
-    hp: Hyperparams, venv: VecEnv, seed: int, tb_dir: Path | None, verbose: int
+    hp: Hyperparams,
+    venv: VecEnv,
+    seed: int,
+    tb_dir: Path | None,
+    verbose: int,
+    caps: int | None = None,
 ) -> tuple[BaseAlgorithm, VecNormalize | None]:
-    """A fresh model on ``venv`` (wrapped in VecNormalize if the settings say so)."""
+    """A fresh model on ``venv`` (wrapped in VecNormalize if the settings say so);
+    ``caps`` as :class:`~policies.goal_frame.VecGoalFrame`."""
     kwargs = hp.sb3_kwargs()
     vecnorm = None
-    env: VecEnv = VecGoalFrame(venv) if hp.goal_frame else venv
+    env: VecEnv = VecGoalFrame(venv, caps) if hp.goal_frame else venv
     if hp.normalize is not None:
         gamma = float(kwargs.get("gamma", 0.99))
         vecnorm = env = VecNormalize(env, gamma=gamma, **hp.normalize)
@@ -172,11 +194,17 @@ def build_model(
 
 
 def resume_model(
-    ckpt: Path, algo: str, venv: VecEnv, tb_dir: Path | None, verbose: int, goal_frame: bool
+    ckpt: Path,
+    algo: str,
+    venv: VecEnv,
+    tb_dir: Path | None,
+    verbose: int,
+    goal_frame: bool,
+    caps: int | None = None,
 ) -> tuple[BaseAlgorithm, VecNormalize | None]:
     """The model, statistics (and replay buffer) of checkpoint ``ckpt`` on ``venv``."""
     vecnorm = None
-    env: VecEnv = VecGoalFrame(venv) if goal_frame else venv
+    env: VecEnv = VecGoalFrame(venv, caps) if goal_frame else venv
     if stats_path(ckpt).exists():
         vecnorm = load_vecnormalize(stats_path(ckpt))
         vecnorm.set_venv(env)
@@ -213,6 +241,7 @@ def train(
     verbose: int = 0,
     command: str | None = None,
     callbacks: Sequence[BaseCallback] = (),
+    env_kwargs: dict[str, Any] | None = None,
 ) -> TrainResult:
     """Train ``algo`` on ``env_id`` into the run folder ``out``.
 
@@ -235,6 +264,9 @@ def train(
         command: the command line to record (default: ``sys.argv``).
         callbacks: more SB3 callbacks run during learning (one returning False stops
             it; the policy reached so far is saved as the final one).
+        env_kwargs: the environment's own arguments (``TensegritySR-v0``: ``model``,
+            ``robot``, ``task``, task options), over the hyperparameters' ``env_kwargs``;
+            recorded with the run, so evaluation builds the same env.
     """
     if algo not in ALGOS:
         raise InputError(f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
@@ -249,8 +281,10 @@ def train(
         )
     if resume and ckpt is None:
         raise InputError(f"{out}: no checkpoint to resume from")
+    env_kw = {**hp.env_kwargs, **(env_kwargs or {})}
+    env_kw = {k: str(v) if isinstance(v, Path) else v for k, v in env_kw.items()}
     torch.set_num_threads(torch_threads)
-    venv = make_training_env(env_id, n_envs, seed, threads)
+    venv = make_training_env(env_id, n_envs, seed, threads, env_kw)
     tb_dir = out / "tb" if tensorboard else None
     before = {"wall_s": 0.0, "cpu_s": 0.0}
     if ckpt is not None:
@@ -261,11 +295,16 @@ def train(
                 f"not {algo} on {env_id}"
             )
         before = {k: float(prev.get(k, 0.0)) for k in before}
+        if prev.get("env_kwargs", env_kw) != env_kw:
+            raise InputError(f"{ckpt}: was trained with env arguments {prev.get('env_kwargs')}, "
+                             f"not {env_kw}")  # fmt: skip
         goal_frame = bool(prev.get("goal_frame", hp.goal_frame))
-        model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose, goal_frame)
+        caps = goal_frame_caps(venv) if goal_frame else None
+        model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose, goal_frame, caps)
     else:
         goal_frame = hp.goal_frame
-        model, vecnorm = build_model(hp, venv, seed, tb_dir, verbose)
+        caps = goal_frame_caps(venv) if goal_frame else None
+        model, vecnorm = build_model(hp, venv, seed, tb_dir, verbose, caps)
     if tb_dir is None:
         # SB3's default logger makes a folder in the temp directory even when it only
         # prints; log to stdout alone instead
@@ -281,6 +320,8 @@ def train(
         "hyperparams_file": hp.source,
         "vecnormalize": vecnorm is not None,
         "goal_frame": goal_frame,
+        "goal_frame_caps": caps,
+        "env_kwargs": env_kw,
         "torch_threads": torch_threads,
         "physics_threads": threads,
         "command": command if command is not None else " ".join(sys.argv),
@@ -304,7 +345,7 @@ def train(
     record = {**record, "timesteps": int(model.num_timesteps), **times}
     path = save_policy(model, vecnorm, out / "model.zip", record)
     venv.close()
-    policy = LoadedPolicy(model, vecnorm, path, record, goal_frame)
+    policy = LoadedPolicy(model, vecnorm, path, record, goal_frame, caps)
     return TrainResult(
         path, int(model.num_timesteps), times["wall_s"], times["cpu_s"], record, policy
     )

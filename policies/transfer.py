@@ -7,6 +7,11 @@ reports mean return, success rate and time to goal in each and the transfer rati
 ``target return / source return``. :func:`reference_table` sets it beside a policy of
 the same algorithm trained directly on the target with the same step budget.
 :func:`side_by_side_video` renders one episode in both envs under the policy.
+
+A generic robot's policy (``TensegritySR-v0`` on an identified ``model``) transfers to
+``TensegrityMJ-v0`` on the robot file: :func:`env_kwargs_of` reads the source env's
+arguments from the policy's run record and :func:`twin_kwargs` gives the twin's (the
+same robot, task and options, without the identified model).
 """
 
 from __future__ import annotations
@@ -25,6 +30,20 @@ if TYPE_CHECKING:
 
 SOURCE_ENV = "IcosahedronSR-v0"
 TARGET_ENV = "IcosahedronMJ-v0"
+#: each identified env and its MuJoCo twin
+TWINS = {"IcosahedronSR-v0": "IcosahedronMJ-v0", "TensegritySR-v0": "TensegrityMJ-v0"}
+#: arguments of an identified env that its twin does not take
+SOURCE_ONLY = ("model",)
+
+
+def env_kwargs_of(record: dict[str, Any]) -> dict[str, Any]:
+    """The environment arguments a policy was trained with (its run record's), or {}."""
+    return dict(record.get("env_kwargs") or {})
+
+
+def twin_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The twin's arguments for an identified env's ``kwargs``: all but ``model``."""
+    return {k: v for k, v in kwargs.items() if k not in SOURCE_ONLY}
 
 
 @dataclass(frozen=True)
@@ -60,10 +79,17 @@ def transfer(
     seed: int = 1000,
     source: str = SOURCE_ENV,
     target: str = TARGET_ENV,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> TransferResult:
-    """``policy`` over ``episodes`` seeded starts (drawn by ``source``) in both envs."""
-    starts = episode_starts(source, episodes, seed)
-    return TransferResult(evaluate(policy, source, starts), evaluate(policy, target, starts))
+    """``policy`` over ``episodes`` seeded starts (drawn by ``source``) in both envs.
+
+    ``env_kwargs``: the source env's arguments; the target gets :func:`twin_kwargs` of them.
+    """
+    kw = dict(env_kwargs or {})
+    starts = episode_starts(source, episodes, seed, kw)
+    return TransferResult(
+        evaluate(policy, source, starts, kw), evaluate(policy, target, starts, twin_kwargs(kw))
+    )
 
 
 def _fmt(x: float, spec: str) -> str:
@@ -147,21 +173,24 @@ def side_by_side_video(
     target: str = TARGET_ENV,
     width: int = 400,
     height: int = 300,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> Path:
     """One episode (seed ``seed``) in ``source`` (left) and ``target`` (right), to MP4/GIF.
 
     Both start from the source's seeded state and goal; the policy sees each env's own
     observation; each half is labelled with what it shows (identified model or MuJoCo).
     Written atomically (:func:`~tensegrity_env.envs.rendering.write_video`).
+    ``env_kwargs``: the source env's arguments (the target gets :func:`twin_kwargs`).
     """
     from tensegrity_env.envs.rendering import env_label, side_by_side, write_video
 
     kw: dict[str, Any] = {"render_mode": "rgb_array", "width": width, "height": height}
-    left, right = gym.make(source, **kw), gym.make(target, **kw)
+    src_kw = dict(env_kwargs or {})
+    left = gym.make(source, **kw, **src_kw)
+    right = gym.make(target, **kw, **twin_kwargs(src_kw))
     try:
         obs_l, _ = left.reset(seed=seed)
-        base = left.unwrapped
-        opts = {"state": base.state.copy(), "goal": base.goal.copy()}  # type: ignore[attr-defined]  # rolling-task envs
+        opts = left.unwrapped.start_options()  # type: ignore[attr-defined]  # goal-task envs (rolling or robot)
         obs_r, _ = right.reset(seed=seed, options=opts)
         names = env_label(left), env_label(right)
         frames = [side_by_side(left.render(), right.render(), *names)]  # type: ignore[arg-type]  # rgb_array: an image
@@ -204,8 +233,9 @@ def train_reference(
     if missing:
         raise InputError(f"the policy has no run record with {', '.join(missing)}: train it first")
     out = Path(out)
+    settings_doc = {k: v for k, v in record["hyperparams"].items() if k != "env_kwargs"}
     settings = atomic_write_text(
-        out / "hyperparams.yml", yaml.safe_dump({target: record["hyperparams"]}, sort_keys=False)
+        out / "hyperparams.yml", yaml.safe_dump({target: settings_doc}, sort_keys=False)
     )
     return train(
         record["algo"],
@@ -218,4 +248,5 @@ def train_reference(
         resume=latest_checkpoint(out) is not None,
         threads=threads,
         command=command,
+        env_kwargs=twin_kwargs(env_kwargs_of(record)),
     )

@@ -29,7 +29,13 @@ def env_spec(env_id: str) -> gym.envs.registration.EnvSpec:
         raise InputError(f"unknown environment id {env_id!r}") from None
 
 
-def make_training_env(env_id: str, n_envs: int, seed: int, threads: int | None = 1) -> VecEnv:
+def make_training_env(
+    env_id: str,
+    n_envs: int,
+    seed: int,
+    threads: int | None = 1,
+    env_kwargs: dict[str, Any] | None = None,
+) -> VecEnv:
     """``n_envs`` environments of ``env_id`` as one SB3 ``VecEnv``, seeded ``seed + i``.
 
     Args:
@@ -38,10 +44,12 @@ def make_training_env(env_id: str, n_envs: int, seed: int, threads: int | None =
         seed: environment ``i`` is reset with ``seed + i`` first.
         threads: CPU threads of a batched env's physics (None: every core), where the
             env takes a ``threads`` argument.
+        env_kwargs: the environment's own arguments (``TensegritySR-v0``: ``model``,
+            ``robot``, ``task`` and task options).
     """
     spec = env_spec(env_id)
     if spec.vector_entry_point is None:
-        venv = make_vec_env(env_id, n_envs=n_envs, seed=seed)
+        venv = make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
         return venv
     from tensegrity_env.envs.robot_vector import TensegritySRVectorEnv
     from tensegrity_env.envs.sb3 import SB3VecEnv
@@ -49,7 +57,7 @@ def make_training_env(env_id: str, n_envs: int, seed: int, threads: int | None =
 
     entry = spec.vector_entry_point
     creator = entry if callable(entry) else load_env_creator(entry)
-    kwargs: dict[str, Any] = {"num_envs": n_envs, **spec.kwargs}
+    kwargs: dict[str, Any] = {"num_envs": n_envs, **spec.kwargs, **(env_kwargs or {})}
     if spec.max_episode_steps is not None:
         kwargs.setdefault("max_episode_steps", spec.max_episode_steps)
     if "threads" in inspect.signature(creator).parameters:

@@ -428,6 +428,25 @@ def step_winch_robot(demo: Demo) -> None:
         print(f"no clip: {e}")
     gap = np.linalg.norm(sr.state[:, :3] - mj.state[:, :3], axis=1).max()
     print(f"at the end the rod centres of the two envs are at most {1e3 * gap:.2g} mm apart")
+    winch_policy_clip(demo, out / "lab_prism_env_model.json")
+
+
+def winch_policy_clip(demo: Demo, model: Path) -> None:
+    """The shipped 3-bar policy walking to a goal in the identified env and in MuJoCo."""
+    from policies.artifacts import load_policy, pretrained_path
+    from policies.transfer import env_kwargs_of, side_by_side_video
+    from tensegrity_env.envs import RenderingUnavailable
+
+    policy = load_policy(pretrained_path("ppo", "TensegritySR-v0"))
+    kw = {**env_kwargs_of(policy.record), "model": str(model)}
+    try:
+        clip = side_by_side_video(policy, demo.out / "winch_policy_side_by_side.mp4", seed=1000,
+                                  source="TensegritySR-v0", target="TensegrityMJ-v0",
+                                  env_kwargs=kw)  # fmt: skip
+        print(f"clip (left: identified model, right: MuJoCo twin, the shipped PPO policy "
+              f"walking the 3-bar to a goal from the same start): {clip}")  # fmt: skip
+    except RenderingUnavailable as e:
+        print(f"no clip: {e}")
 
 
 def step_ntrt_take(demo: Demo) -> None:

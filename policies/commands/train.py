@@ -30,6 +30,14 @@ def register(sub: Any) -> None:
     )
     p.add_argument("algo", choices=ALGO_NAMES, help="algorithm")
     p.add_argument("--env", default="IcosahedronSR-v0", help="environment id (default %(default)s)")
+    p.add_argument("--model", type=Path, default=None,
+                   help="TensegritySR-v0: the identified params file to train on")  # fmt: skip
+    p.add_argument("--robot", type=Path, default=None,
+                   help="TensegritySR-v0/TensegrityMJ-v0: the robot's MJCF (default: the "
+                        "shipped lab 3-bar)")  # fmt: skip
+    p.add_argument("--task", default=None,
+                   help="TensegritySR-v0/TensegrityMJ-v0: goal or shape (default: the "
+                        "hyperparameters' env_kwargs, else goal)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="run folder (default runs/<algo>_<env>_s<seed>)")  # fmt: skip
     p.add_argument("--timesteps", type=int, default=None,
@@ -56,6 +64,24 @@ def register(sub: Any) -> None:
     p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard logs")
     p.add_argument("-v", "--verbose", type=int, default=0, choices=(0, 1, 2), help="SB3 verbosity")
     p.set_defaults(func=run)
+
+
+def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The environment arguments of ``--model``, ``--robot`` and ``--task`` (files checked)."""
+    kw: dict[str, Any] = {}
+    for option, value in (("--model", args.model), ("--robot", args.robot)):
+        if value is not None:
+            if not value.is_file():
+                raise InputError(f"{option} {value}: no such file")
+            kw[option[2:]] = str(value.resolve())
+    if args.task is not None:
+        kw["task"] = args.task
+    if kw and not args.env.startswith("Tensegrity"):
+        raise InputError(f"--model/--robot/--task are options of TensegritySR-v0 and "
+                         f"TensegrityMJ-v0, not {args.env}")  # fmt: skip
+    if "model" in kw and args.env != "TensegritySR-v0":
+        raise InputError(f"--model: {args.env} has no identified model (TensegritySR-v0 has)")
+    return kw
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         tensorboard=not args.no_tensorboard,
         verbose=args.verbose,
         command=shlex.join(["tensegrity-sr", *sys.argv[1:]]),
+        env_kwargs=env_kwargs(args),
     )
     print(
         f"trained {result.timesteps:,} env steps in {result.wall_s:.0f} s: {result.model_path} "
@@ -111,6 +138,7 @@ def run_seeds(args: argparse.Namespace) -> int:
         checkpoint_every=args.checkpoint_every, resume=args.resume,
         threads=args.threads or None, tensorboard=not args.no_tensorboard,
         verbose=args.verbose, command=shlex.join(["tensegrity-sr", *sys.argv[1:]]),
+        env_kwargs=env_kwargs(args),
     )  # fmt: skip
     for seed, path, steps, wall in done:
         print(f"seed {seed}: {steps:,} env steps in {wall:.0f} s: {path}")

@@ -31,7 +31,10 @@ def register(sub: Any) -> None:
             "ratio (target return / source return), with a side-by-side video. With "
             "--train-reference DIR the same algorithm and hyperparameters are also trained "
             "directly on the target with the same env-step budget and seed, and compared; "
-            "--reference MODEL compares against such a policy trained earlier."
+            "--reference MODEL compares against such a policy trained earlier. A policy "
+            "trained on TensegritySR-v0 is evaluated with the environment arguments of its "
+            "run record (identified model, robot, task) and its twin TensegrityMJ-v0 on the "
+            "same robot file; --source/--target default to the pair it was trained for."
         ),
     )
     p.add_argument("policy", type=Path, nargs="*",
@@ -42,12 +45,10 @@ def register(sub: Any) -> None:
     p.add_argument("--episodes", type=int, default=20, help="episodes per env (default 20)")
     p.add_argument("--seed", type=int, default=1000,
                    help="episode k starts from the source's reset(seed=SEED+k) (default 1000)")  # fmt: skip
-    p.add_argument(
-        "--source", default="IcosahedronSR-v0", help="env trained in (default %(default)s)"
-    )
-    p.add_argument(
-        "--target", default="IcosahedronMJ-v0", help="env transferred to (default %(default)s)"
-    )
+    p.add_argument("--source", default=None,
+                   help="env trained in (default: the policy's, else IcosahedronSR-v0)")  # fmt: skip
+    p.add_argument("--target", default=None,
+                   help="env transferred to (default: the source's MuJoCo twin)")  # fmt: skip
     p.add_argument("-o", "--output", type=Path, default=Path("transfer"),
                    help="folder for transfer.md, transfer.json and the video (default %(default)s)")  # fmt: skip
     p.add_argument("--no-video", action="store_true", help="skip the side-by-side video")
@@ -63,14 +64,19 @@ def register(sub: Any) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from policies.artifacts import load_policy
+    from policies.artifacts import load_policy, read_record, resolve_model_path
     from policies.evaluate import episode_starts, evaluate
     from policies.transfer import (
+        SOURCE_ENV,
+        TARGET_ENV,
+        TWINS,
         TransferResult,
+        env_kwargs_of,
         reference_table,
         side_by_side_video,
         train_reference,
         transfer_table,
+        twin_kwargs,
     )
     from policies.vec import env_spec
 
@@ -83,21 +89,27 @@ def run(args: argparse.Namespace) -> int:
     check_number("--threads", args.threads, 0)
     if bool(args.policy) == (args.pretrained is not None):
         raise InputError("give POLICY (one or more) or --pretrained, not both or neither")
-    env_spec(args.source), env_spec(args.target)  # unknown ids fail before any work
     if args.pretrained is not None:
         from policies.artifacts import pretrained_path
 
-        args.policy = [pretrained_path(args.pretrained, args.source)]
+        args.policy = [pretrained_path(args.pretrained, args.source or SOURCE_ENV)]
+    first = read_record(resolve_model_path(args.policy[0]))
+    args.env_kwargs = env_kwargs_of(first)
+    args.source = args.source or first.get("env_id") or SOURCE_ENV
+    args.target = args.target or TWINS.get(args.source, TARGET_ENV)
+    env_spec(args.source), env_spec(args.target)  # unknown ids fail before any work
     if len(args.policy) > 1:
         return run_several(args)
     policy = load_policy(args.policy[0])
     label = f"{policy.algo} ({policy.path})"
-    starts = episode_starts(args.source, args.episodes, args.seed)
+    src_kw, tgt_kw = args.env_kwargs, twin_kwargs(args.env_kwargs)
+    starts = episode_starts(args.source, args.episodes, args.seed, src_kw)
     print(
         f"evaluating {policy.path} over {args.episodes} episodes in {args.source} and {args.target}"
     )
     result = TransferResult(
-        evaluate(policy, args.source, starts), evaluate(policy, args.target, starts)
+        evaluate(policy, args.source, starts, src_kw),
+        evaluate(policy, args.target, starts, tgt_kw),
     )
     report = [f"# Transfer of {policy.path}\n", transfer_table(result, label)]
     doc: dict[str, Any] = {"policy": str(policy.path), "seed": args.seed, **result.to_dict()}
@@ -111,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         ).model_path  # fmt: skip
     if ref_path is not None:
         ref = load_policy(ref_path)
-        ref_eval = evaluate(ref, args.target, starts)
+        ref_eval = evaluate(ref, args.target, starts, tgt_kw)
         rec = policy.record
         report += [
             f"\n## Against {ref.algo} trained directly on {args.target}\n",
@@ -138,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
             try:
                 video = side_by_side_video(
                     policy, out / "side_by_side.mp4", args.seed, source=args.source,
-                    target=args.target,
+                    target=args.target, env_kwargs=src_kw,
                 )  # fmt: skip
                 report.append(f"\nvideo (left {args.source}, right {args.target}): {video.name}")
                 written.append(args.output / video.name)
@@ -157,18 +169,24 @@ def run_several(args: argparse.Namespace) -> int:
     from policies.aggregate import aggregate, aggregate_table, to_dict
     from policies.artifacts import load_policy
     from policies.evaluate import episode_starts, evaluate
-    from policies.transfer import TransferResult, transfer_table
+    from policies.transfer import TransferResult, transfer_table, twin_kwargs
 
     if args.reference is not None or args.train_reference is not None:
         raise InputError("--reference/--train-reference take one POLICY, not several")
     policies = [load_policy(p) for p in args.policy]  # every file checked before any work
-    starts = episode_starts(args.source, args.episodes, args.seed)
+    for policy in policies[1:]:
+        if policy.record.get("env_kwargs", {}) != policies[0].record.get("env_kwargs", {}):
+            raise InputError(f"{policy.path}: trained with other environment arguments than "
+                             f"{policies[0].path}")  # fmt: skip
+    src_kw, tgt_kw = args.env_kwargs, twin_kwargs(args.env_kwargs)
+    starts = episode_starts(args.source, args.episodes, args.seed, src_kw)
     report = [f"# Transfer of {len(policies)} runs over {args.episodes} episodes\n"]
     runs, results = [], []
     for policy in policies:
         print(f"evaluating {policy.path} in {args.source} and {args.target}")
         r = TransferResult(
-            evaluate(policy, args.source, starts), evaluate(policy, args.target, starts)
+            evaluate(policy, args.source, starts, src_kw),
+            evaluate(policy, args.target, starts, tgt_kw),
         )
         results.append(r)
         report += [transfer_table(r, f"{policy.algo} ({policy.path})"), ""]

@@ -24,7 +24,6 @@ import pytest
 
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from tensegrity_env.effects import EFFECTS
 from tensegrity_env.rotations import np_quat_to_matrix
 from tensegrity_sr.cli import main
 
@@ -104,11 +103,6 @@ def test_identify_from_the_true_model_stays_at_the_noise(cell, tmp_path, capsys)
     assert len(z) > 70 and np.mean(np.array(z) <= 2) >= 0.9 and max(z) < 3.5, sorted(z)[-5:]
 
 
-#: the candidates the C kernel steps (spring friction has no C form, so its fit runs in
-#: PyTorch: most of the full run's time, left to the slow test)
-IN_C = ",".join(name for name, cls in EFFECTS.items() if vars(cls).get("native") is not None)
-
-
 def _diagnose(data, out: Path, capsys, *extra: str) -> None:
     """``diagnose`` from the true model: nothing added, held-out test windows and the
     stiffness at the noise."""
@@ -125,17 +119,7 @@ def _diagnose(data, out: Path, capsys, *extra: str) -> None:
     assert rel.max() < 0.01
 
 
-def test_diagnose_from_the_true_model_adds_none_of_the_c_kernels_candidates(cell, tmp_path, capsys):
-    """The fast form of the full run below: the same data, declared model, windows and
-    assertions, every candidate the C kernel steps tried (all but spring friction, whose
-    fit is the same machinery in PyTorch); nothing added, at the noise. Measured:
-    declared model 0.968 mm, held-out test windows 0.978 mm, nothing added."""
-    assert "spring_friction" not in IN_C.split(",") and "linear_drag" in IN_C.split(",")
-    _diagnose(cell[1], tmp_path / "diagnose", capsys, "--candidates", IN_C)
-
-
-@pytest.mark.slow
 def test_diagnose_from_the_true_model_adds_nothing_and_stays_at_the_noise(cell, tmp_path, capsys):
-    """Every candidate. Measured: declared model 0.968 mm, final refit 0.991 mm, held-out
-    test windows 0.978 mm, nothing added (77 s of CPU, 57 s of it the spring-friction fit)."""
+    """Every candidate, each stepped by the C kernel. Measured: declared model 0.968 mm,
+    final refit 0.991 mm, held-out test windows 0.978 mm, nothing added."""
     _diagnose(cell[1], tmp_path / "diagnose", capsys)

@@ -42,8 +42,8 @@ CHILD = textwrap.dedent(
 
     class SignalInFinalizer:
         def __del__(self):
-            signal.raise_signal(sig)  # to this thread: its C handler has run on return
-            for _ in range(1000):  # the Python handler runs here, inside the finalizer
+            os.kill(os.getpid(), sig)
+            for _ in range(1000):  # the handler runs here, inside the finalizer
                 pass
 
     def stop(point):
@@ -105,6 +105,13 @@ def source(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+def interactive() -> None:
+    """The child's Ctrl-C as a terminal's foreground job has it: whatever started the
+    tests (a CI runner, a background shell, an xdist worker) may ignore SIGINT, and an
+    ignored signal is inherited and stays ignored (the test below)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize(("sig", "code", "said"), [(signal.SIGINT, 130, "interrupted"),
                                                    (signal.SIGTERM, 143, "terminated")])  # fmt: skip
 def test_a_signal_at_any_point_of_the_write_ends_the_run_and_leaves_nothing(
@@ -118,7 +125,7 @@ def test_a_signal_at_any_point_of_the_write_ends_the_run_and_leaves_nothing(
         [sys.executable, "-c", CHILD, str(source), str(tmp_path), str(int(sig)),
          json.dumps(trials)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env=env,
+        env=env, preexec_fn=interactive,
     )  # fmt: skip
     assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
     results = []

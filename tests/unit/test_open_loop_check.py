@@ -129,7 +129,7 @@ def test_diagnose_refuses_when_every_model_diverges(cell) -> None:
     ds = read_dataset(cell.measured)
     p = cell.truth.params
     bad = Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt)
-    with pytest.raises(StageError, match="diagnose's models .* failed: the model diverges open-loop"):
+    with pytest.raises(StageError, match=r"diagnose's models .* failed: the model diverges open-loop"):
         keep_not_diverged(_result([bad, bad]), Scorer(), ds, 1e-3)
 
 

@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{error_text(scores['rollout_mean_position_error'], '.3e')}, final "
                 f"{error_text(scores['rollout_final_position_error'], '.3e')}"
             )
-    extra = {
+    extra: dict[str, Any] = {
         "identifiability": {
             "mode": est.mode_,
             "scale": "absolute (anchored)" if not ratios else f"ratios to {est.layout_.names[0]}",

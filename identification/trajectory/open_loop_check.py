@@ -176,9 +176,9 @@ def open_loop_check(
                 )
             )
             control = torch.as_tensor(np.stack([rows[i][2] for i in idx]), dtype=torch.float64)
-            cab = [rows[i][3] for i in idx]
-            cables = None if cab[0] is None else torch.as_tensor(np.stack(cab), dtype=torch.float64)
-            pred = rollout_caps(engine, model.params, init, control, cables).numpy()
+            cab = [c for i in idx if (c := rows[i][3]) is not None]
+            commands = torch.as_tensor(np.stack(cab), dtype=torch.float64) if cab else None
+            pred = rollout_caps(engine, model.params, init, control, commands).numpy()
             blown = ~np.isfinite(pred).all((1, 2, 3))  # (B,)
             lost += int(blown.sum())
             d2 = np.sum((pred - np.stack([rows[i][1] for i in idx])) ** 2, -1)  # (B, n+1, 2R)

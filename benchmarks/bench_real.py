@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import tempfile
@@ -104,11 +105,14 @@ def held_out(data: Dataset) -> np.ndarray:
     return np.concatenate([p[:, :T] for p in parts])
 
 
-def open_loop(model: Model, nodes: np.ndarray, dt: float, horizons: tuple[float, ...]) -> list[float]:
+def open_loop(model: Model, nodes: np.ndarray, dt: float,
+              horizons: tuple[float, ...]) -> tuple[list[float | None], list[str | None]]:  # fmt: skip
     """End-cap RMS error [m] of ``model`` at each of ``horizons`` [s], rolled out from the
     measured states of ``nodes`` (N, T, 2R, 3) [m] at starts every :data:`START_EVERY`,
-    read at the horizon's sample or, where that is a gap, the sample next to it; NaN for
-    a horizon no piece is long enough for."""
+    read at the horizon's sample or, where that is a gap, the sample next to it; and per
+    horizon why there is no value (None where there is one). No value where no piece is
+    long enough for the horizon, where no start has a measured state, and where a
+    rollout's end caps are non-finite by then (diverged: never averaged over the others)."""
     _, st = measured_rod_states(nodes, model.topology, dt, "gaussian", SMOOTHING)
     steps = [round(h / dt) for h in horizons]
     every = max(1, round(START_EVERY / dt))
@@ -120,7 +124,7 @@ def open_loop(model: Model, nodes: np.ndarray, dt: float, horizons: tuple[float,
             if hit.size:
                 starts.append((n, a + int(hit[0])))
     if not starts:
-        return [float("nan")] * len(horizons)
+        return [None] * len(horizons), ["no measured state to start from in the held-out pieces"] * len(horizons)
     idx = tuple(np.array(x) for x in zip(*starts, strict=True))
     init = State(*(torch.as_tensor(st[k][idx]) for k in ("p", "v", "q", "omega")))
     L = min(max(steps) + 1, nodes.shape[1] - 1)  # one step beyond the longest horizon (below)
@@ -128,19 +132,67 @@ def open_loop(model: Model, nodes: np.ndarray, dt: float, horizons: tuple[float,
     with torch.no_grad():
         pred = rollout_caps(engine, model.params, init,
                             torch.zeros(len(starts), L, model.topology.n_rods, 3, dtype=torch.float64)).numpy()  # fmt: skip
-    out = []
+    out: list[float | None] = []
+    why: list[str | None] = []
     for s in steps:
-        errs = []
+        errs, blown = [], 0
         for b, (n, t) in enumerate(starts):
             # at the horizon's sample, or the one next to it where that is a gap (a
             # capture system's repeated frame): a horizon read 1/120 s off
             for k in (s, s - 1, s + 1):
                 if 0 < k <= L and t + k < nodes.shape[1] and np.isfinite(nodes[n, t + k]).all(-1).any():
+                    blown += int(not np.isfinite(pred[b, : k + 1]).all())
                     d = np.linalg.norm(pred[b, k] - nodes[n, t + k], axis=-1)
-                    errs.append(d[np.isfinite(d)])
+                    errs.append(d[np.isfinite(nodes[n, t + k]).all(-1)])
                     break
         e = np.concatenate(errs) if errs else np.array([])
-        out.append(float(np.sqrt(np.mean(e**2))) if e.size else float("nan"))
+        if blown:
+            out.append(None)
+            why.append(f"diverged: non-finite end caps in {blown} of {len(errs)} rollouts by then")
+        elif not e.size:
+            out.append(None)
+            why.append("no held-out piece is that long after a start")
+        else:
+            out.append(float(np.sqrt(np.mean(e**2))))
+            why.append(None)
+    return out, why
+
+
+def missing(rec: dict[str, Any], key: str, reasons: list[str | None]) -> None:
+    """Record in ``rec["missing"]`` why each entry of list ``key`` (``"heldout.x"``) is null."""
+    for i, r in enumerate(reasons):
+        if r is not None:
+            rec.setdefault("missing", {})[f"{key}[{i}]"] = r
+
+
+def finite_json(x: Any, path: str = "", found: dict[str, str] | None = None) -> Any:
+    """``x`` with every non-finite float replaced by None (standard JSON), each noted in
+    ``found`` (path -> reason) unless a reason is already recorded there."""
+    found = {} if found is None else found
+    if isinstance(x, dict):
+        return {k: finite_json(v, f"{path}.{k}" if path else str(k), found) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [finite_json(v, f"{path}[{i}]", found) for i, v in enumerate(x)]
+    if isinstance(x, float) and not np.isfinite(x):
+        found.setdefault(path, f"not a finite number ({x})")
+        return None
+    return x
+
+
+def standard(results: dict[str, Any]) -> dict[str, Any]:
+    """``results`` as standard JSON: each take's (and each cross-take pair's) non-finite
+    numbers null, with a reason in its ``missing`` (path -> reason) where its producer
+    gave none."""
+    out = {}
+    for key, rec in results.items():
+        if key == "cross_take":  # a record per pair of takes
+            out[key] = standard(rec)
+        elif isinstance(rec, dict) and key != "meta":
+            found = dict(rec.get("missing", {}))
+            body = finite_json({k: v for k, v in rec.items() if k != "missing"}, "", found)
+            out[key] = {**body, **({"missing": found} if found else {})}
+        else:
+            out[key] = finite_json(rec)
     return out
 
 
@@ -169,10 +221,10 @@ def resting_piece(data: Dataset) -> np.ndarray | None:
     return None
 
 
-def rest_shape(model: Model, piece: np.ndarray, dt: float) -> float:
+def rest_shape(model: Model, piece: np.ndarray, dt: float) -> tuple[float | None, str | None]:
     """RMS [m] between the end caps ``model`` settles to from the measured resting state
     at the start of ``piece`` (T, 2R, 3) [m] (velocities zero) and the piece's median
-    end caps, after a rigid alignment."""
+    end caps, after a rigid alignment; or None and why (the rollout diverged)."""
     _, st = measured_rod_states(piece[None], model.topology, dt, "gaussian", SMOOTHING)
     t = int(np.flatnonzero(np.isfinite(st["p"][0]).all((-1, -2)))[0])
     init = State(torch.as_tensor(st["p"][:, t]), torch.zeros_like(torch.as_tensor(st["v"][:, t])),
@@ -180,10 +232,12 @@ def rest_shape(model: Model, piece: np.ndarray, dt: float) -> float:
     L = round(SETTLE / dt)
     with torch.no_grad():
         caps = rollout_caps(model.engine(), model.params, init,
-                            torch.zeros(1, L, model.topology.n_rods, 3, dtype=torch.float64))[0, -1].numpy()  # fmt: skip
+                            torch.zeros(1, L, model.topology.n_rods, 3, dtype=torch.float64))[0].numpy()  # fmt: skip
+    if not np.isfinite(caps).all():
+        return None, f"diverged: non-finite end caps within the {SETTLE:g} s of settling"
     measured = np.nanmedian(piece, axis=0)
     seen = np.isfinite(measured).all(-1)
-    return _kabsch_rms(caps[seen], measured[seen])
+    return _kabsch_rms(caps[-1][seen], measured[seen]), None
 
 
 def models(folder: Path, robot: Path, dt: float) -> dict[str, Model]:
@@ -255,11 +309,15 @@ def evaluate(rec: dict[str, Any], h5: Path, folder: Path, robot: Path) -> dict[s
                       "piece_s": round(nodes.shape[1] * data.dt, 3)}  # fmt: skip
     piece = resting_piece(data)
     rec["rest_shape_rms_m"], rec["parameters"] = {}, {}
+    rec.pop("missing", None)
     for name, model in models(folder, robot, data.dt).items():
         rec["parameters"][name] = parameter_summary(model)
-        rec["heldout"][f"{name}_rms_m"] = open_loop(model, nodes, data.dt, HORIZONS)
+        rec["heldout"][f"{name}_rms_m"], why = open_loop(model, nodes, data.dt, HORIZONS)
+        missing(rec, f"heldout.{name}_rms_m", why)
         if piece is not None:
-            rec["rest_shape_rms_m"][name] = rest_shape(model, piece, data.dt)
+            rec["rest_shape_rms_m"][name], reason = rest_shape(model, piece, data.dt)
+            if reason is not None:
+                rec.setdefault("missing", {})[f"rest_shape_rms_m.{name}"] = reason
     return rec
 
 
@@ -276,14 +334,37 @@ def cross_take(results: dict[str, Any], data_dir: Path, work: Path) -> dict[str,
             model = Model.read(path, dt=data.dt)
             nominal = Model.read(data_dir / TAKES[other][1], dt=data.dt)
             nodes = held_out(data)
-            out[f"{fit_on}->{other}"] = {"horizon_s": list(HORIZONS),
-                                         "identified_rms_m": open_loop(model, nodes, data.dt, HORIZONS),
-                                         "nominal_rms_m": open_loop(nominal, nodes, data.dt, HORIZONS)}  # fmt: skip
+            rec: dict[str, Any] = {"horizon_s": list(HORIZONS)}
+            for name, m in (("identified", model), ("nominal", nominal)):
+                rec[f"{name}_rms_m"], why = open_loop(m, nodes, data.dt, HORIZONS)
+                missing(rec, f"{name}_rms_m", why)
+            out[f"{fit_on}->{other}"] = rec
     return out
 
 
 def _cm(x: float | None) -> str:
-    return "-" if x is None or not np.isfinite(x) else f"{100 * x:.2f}"
+    return "-" if not _finite(x) else f"{100 * x:.2f}"  # type: ignore[operator]
+
+
+def _finite(x: float | None) -> bool:
+    return x is not None and bool(np.isfinite(x))
+
+
+def missing_lines(missing: dict[str, str], horizons: list[float]) -> list[str]:
+    """``- no value: <what>: <reason>`` for a record's ``missing`` (path -> reason), the
+    entries of one model and reason on one line."""
+    grouped: dict[tuple[str, str], list[str]] = {}
+    for path, reason in missing.items():
+        m = re.fullmatch(r"(?:heldout\.)?(\w+)_rms_m\[(\d+)\]", path)
+        r = re.fullmatch(r"rest_shape_rms_m\.(\w+)", path)
+        if m and int(m[2]) < len(horizons):
+            grouped.setdefault((m[1], reason), []).append(f"{horizons[int(m[2])]:g} s")
+        elif r:
+            grouped.setdefault((f"{r[1]} rest shape", reason), [])
+        else:
+            grouped.setdefault((path, reason), [])
+    return [f"- no value: {what}" + (f" at {', '.join(at)}" if at else "") + f": {reason}"
+            for (what, reason), at in grouped.items()]  # fmt: skip
 
 
 def markdown(results: dict[str, Any]) -> str:
@@ -317,10 +398,11 @@ def markdown(results: dict[str, Any]) -> str:
             for m in MODELS:
                 if f"{m}_rms_m" in h:
                     lines.append(f"| {m} | " + " | ".join(_cm(x) for x in h[f"{m}_rms_m"]) + " |")
+        lines += missing_lines(rec.get("missing", {}), h["horizon_s"] if h else list(HORIZONS))
         rest = rec.get("rest_shape_rms_m", {})
         if rest:
             lines += ["", "Rest shape, RMS after rigid alignment [mm]: "
-                      + ", ".join(f"{m} {1e3 * v:.2f}" for m, v in rest.items())]  # fmt: skip
+                      + ", ".join(f"{m} {'-' if v is None else f'{1e3 * v:.2f}'}" for m, v in rest.items())]  # fmt: skip
         params = rec.get("parameters", {})
         if params:
             lines += ["", "| parameter (min / median / max) | " + " | ".join(params) + " |",
@@ -337,6 +419,9 @@ def markdown(results: dict[str, Any]) -> str:
         for k, r in cross.items():
             for m in ("nominal", "identified"):
                 lines.append(f"| {k} | {m} | " + " | ".join(_cm(x) for x in r[f"{m}_rms_m"]) + " |")
+        for k, r in cross.items():
+            lines += [x.replace("- no value: ", f"- no value ({k}): ", 1)
+                      for x in missing_lines(r.get("missing", {}), list(HORIZONS))]  # fmt: skip
         lines.append("")
     notes = meta.get("notes", [])
     if notes:
@@ -355,15 +440,22 @@ def targets(rec: dict[str, Any]) -> list[str]:
     if ident is None or nom is None:
         return ["Targets: not evaluated (no identified model)."]
     i, n = ident[k], nom[k]
-    ok = np.isfinite(i) and np.isfinite(n) and i <= TARGET_RATIO * n
+    ok = _finite(i) and _finite(n) and i <= TARGET_RATIO * n
     out.append(f"- target identified <= 1/3 of nominal at 0.25 s: {'met' if ok else 'missed'} "
                f"({_cm(i)} cm against {_cm(n)} cm)")  # fmt: skip
-    ok = np.isfinite(i) and i <= TARGET_RMS
+    ok = _finite(i) and i <= TARGET_RMS
     out.append(f"- target identified <= 1 cm at 0.25 s: {'met' if ok else 'missed'} ({_cm(i)} cm)")
     rest = rec.get("rest_shape_rms_m", {}).get("identified")
     if rest is not None:
         out.append(f"- target rest shape <= 3 mm: {'met' if rest <= TARGET_REST else 'missed'} ({1e3 * rest:.2f} mm)")
     return out
+
+
+def write_results(path: Path, md: Path, results: dict[str, Any]) -> None:
+    """``results`` as standard JSON at ``path`` (:func:`standard`) and ``md`` generated from it."""
+    results = standard(results)
+    atomic_write_text(path, json.dumps(results, indent=1, allow_nan=False) + "\n")
+    atomic_write_text(md, markdown(results))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -405,15 +497,13 @@ def main(argv: list[str] | None = None) -> int:
     if len(ran) > 1:
         results["cross_take"] = cross_take({k: results[k] for k in ran}, args.data, work)
     if not ran:  # only the crawl: its record carries its command; the others' meta stays
-        atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
-        atomic_write_text(md, markdown(results))
+        write_results(args.json, md, results)
         print(f"wrote {args.json} and {md}")
         return 0
     command = ("python benchmarks/bench_real.py --data ../shared/real" + (" --quick" if args.quick else "")
                + (" (its commands' outputs evaluated again with --reuse)" if args.reuse else ""))  # fmt: skip
     results["meta"] = {"command": command, "seconds": round(time.perf_counter() - t0, 1), "notes": args.note}
-    atomic_write_text(args.json, json.dumps(results, indent=1) + "\n")
-    atomic_write_text(md, markdown(results))
+    write_results(args.json, md, results)
     print(f"wrote {args.json} and {md}")
     return 0
 

@@ -109,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
         parameter_table,
         relative_errors,
     )
+    from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
+    from identification.trajectory.stage_check import noise_level
     from tensegrity_env.model import Model
 
     check_output_file(args.output, args.force, inputs=[args.dataset, args.params])
@@ -161,9 +163,15 @@ def run(args: argparse.Namespace) -> int:
                          f"transitions of '{args.split}')",
                          "more or longer trajectories in which every spring stretches and every "
                          "rod turns, or --shared") from None  # fmt: skip
+    ratios = est.mode_ == "ratios"
+    model = Model(dataset.topology, est.params_, dt=dataset.dt)
+    # ratios roll out as absolute values do: M, I, K, c and h scaled alike leave every
+    # acceleration, gravity's included, unchanged
+    check = open_loop_check(model, dataset, noise_level(dataset.split(args.split).nodes, rods=True))
+    check_open_loop("the regression", check, "more or longer trajectories in which every "
+                    "spring stretches and every rod turns, or --shared")  # fmt: skip
     truth = read_ground_truth(args.dataset)
     truth_params = truth.params if truth is not None else None
-    ratios = est.mode_ == "ratios"
     print(f"\nIdentified from {est.n_transitions_} transitions of '{args.split}' in {fit_time:.2f} s "
           f"(solver {args.solver}, condition number {est.condition_number_:.3g}).")  # fmt: skip
     if ratios:
@@ -190,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{error_text(scores['rollout_mean_position_error'], '.3e')}, final "
                 f"{error_text(scores['rollout_final_position_error'], '.3e')}"
             )
-    extra = {
+    extra: dict[str, Any] = {
         "identifiability": {
             "mode": est.mode_,
             "scale": "absolute (anchored)" if not ratios else f"ratios to {est.layout_.names[0]}",
@@ -215,6 +223,9 @@ def run(args: argparse.Namespace) -> int:
         extra["relative_error_vs_ground_truth"] = {
             r.name: e for r, e in zip(est.table_, errs, strict=True) if np.isfinite(e)
         }
-    Model(dataset.topology, est.params_, dt=dataset.dt).save(args.output, extra)
+    if check is not None:
+        print(check.line())
+        extra["provenance"]["open_loop_check"] = check.as_dict()
+    model.save(args.output, extra)
     print(f"\nwrote {args.output}")
     return 0

@@ -42,6 +42,7 @@ from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
 from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
+from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
 from identification.trajectory.stage_check import check_stage, noise_level
 from tensegrity_env.effects import SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
@@ -50,6 +51,10 @@ from tensegrity_env.io_utils import InputError, StageError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
+
+#: what to try when the fitted model leaves the data open-loop
+OPEN_LOOP_ADVICE = ("shorter windows (--window), a smaller --physics-dt, a fit on the free stretches "
+                    "only (import-mocap --segments), or 'diagnose'")  # fmt: skip
 
 UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
          "rest_length": "m", "control_gain": "1", "cable_gain": "N/unit"}  # fmt: skip
@@ -228,6 +233,9 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     except InputError as e:
         raise StageError("the trajectory fit", f"{e} (not written)",
                          "an --anchor on the parameter, or longer trajectories") from None  # fmt: skip
+    check = open_loop_check(Model(dataset.topology, est.params_, tuple(effects), dt=dt), dataset,
+                            noise, args.physics_dt)  # fmt: skip
+    check_open_loop("the trajectory fit", check, OPEN_LOOP_ADVICE)
     ratios = est.mode_ == "ratios"
     rows = parameter_rows(est, anchors)
     truth = read_ground_truth(args.dataset)
@@ -264,6 +272,9 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         extra["relative_error_vs_ground_truth"] = {
             r.name: e for r, e in zip(rows, errs, strict=True) if np.isfinite(e)
         }
+    if check is not None:
+        print(check.line())
+        extra["provenance"]["open_loop_check"] = check.as_dict()
     physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
     if effects:
         print("\n" + "\n".join(e.describe() for e in effects))

@@ -115,6 +115,10 @@ class DiscoveryResult:
             held-out (test) one-step error (NOT a physical effect, not part of ``model``).
         rollout_plot: PNG of measured end caps against the declared and the final model
             rolled out over a test stretch, or None.
+        earlier: the models the loop passed through before ``model``, newest first (the
+            current model before the final refit, each iteration's, the declared fit).
+        open_loop: what the open-loop check before writing found (one line or two), ``""``
+            before it ran.
     """
 
     method: str
@@ -130,16 +134,19 @@ class DiscoveryResult:
     settings: dict[str, Any] = field(default_factory=dict)
     residual_network: ResidualFit | None = None
     rollout_plot: Path | None = None
+    earlier: list[Candidate[Any]] = field(default_factory=list)
+    open_loop: str = ""
 
     @property
     def added(self) -> list[str]:
-        """Effects added, in order, less those a later one replaced or made unneeded."""
+        """Effects added, in order, less those a later one replaced or made unneeded (and
+        those not in ``model``, where it is an earlier model the check fell back to)."""
         names: list[str] = []
         for it in self.iterations:
             if it.chosen is not None:
                 names = [n for n in names if n not in it.replaced] + [it.chosen.name]
                 names = [n for n in names if n not in it.removed]
-        return names
+        return [n for n in names if n in self.model.names]
 
 
 class EffectDiscovery:
@@ -218,8 +225,10 @@ class EffectDiscovery:
             log(f"added {it.chosen.name}{instead}{note}")
             for name, why in it.removed.items():
                 log(f"removed {name}: {why}")
+        earlier = [it.added for it in reversed(iterations) if it.added is not None] + [start]
         final = scorer.finish(current)
         if final is not current:
+            earlier = [current, *earlier] if current is not earlier[0] else earlier
             current, test_now = final, scorer.test_errors(final)
         unexplained, network = scorer.leftover(current)
         rollouts = None
@@ -230,6 +239,7 @@ class EffectDiscovery:
             model=current.model, baseline_test=baseline, final_test=test_now,
             test_labels=scorer.test_labels(), criteria=scorer.criteria, final_residual=residual, unexplained=unexplained,
             settings=scorer.settings_summary(), residual_network=network, rollout_plot=rollouts,
+            earlier=[c for c in earlier if c is not current],
         )  # fmt: skip
         return self
 

@@ -112,6 +112,8 @@ def write_report(
     L = [f"# Residual loop: {source} ({data})", "", result.description, ""]
     L += ["## Result", "", test_table(result.baseline_test, result.final_test, labels), ""]
     L += [f"Added: **{', '.join(result.model.names) or 'nothing'}**", ""]
+    if result.open_loop:
+        L += [result.open_loop, ""]
     if result.rollout_plot is not None:
         L += [f"![measured end caps against the declared and the final model]"
               f"({result.rollout_plot.name})", ""]  # fmt: skip

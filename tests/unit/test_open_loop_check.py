@@ -1,0 +1,145 @@
+"""The open-loop check before ``identify`` and ``diagnose`` write a model: a model that
+leaves the data when rolled out from measured states is never written silently."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+
+from measured_plant import Cell, write_cell
+
+from tensegrity_sr.cli import main as cli
+
+#: stiffness times this: a spring-mass frequency far beyond what a 1 ms physics step
+#: integrates (0.1 kg rods, springs of 1e3 N/m: omega ~ 1e5 rad/s)
+BLOW_UP = 1e6
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    """A small free-flight take at 120 Hz with 0.1 mm of noise, and its true parameters."""
+    return write_cell(Cell("flight", 120.0, 1e-4, 0.0, "none"), tmp_path_factory.mktemp("cell"))
+
+
+def test_the_true_model_passes_and_a_blowing_up_one_is_flagged(cell) -> None:
+    from identification.data.dataset import read_dataset
+    from identification.trajectory.open_loop_check import NOISE_LEVELS, open_loop_check
+    from tensegrity_env.model import Model
+
+    ds = read_dataset(cell.measured)
+    p = cell.truth.params
+    good = open_loop_check(Model(ds.topology, p, dt=ds.dt), ds, 1e-4, 1e-3)
+    assert good is not None and not good.diverged
+    assert good.splits == ("val", "test") and good.starts > 0 and good.non_finite == 0
+    # the limit is the data's extent (a thrown robot: metres), far above the true model's error
+    assert good.limit_m == max(good.extent_m, NOISE_LEVELS * 1e-4) and good.extent_m > 0.5
+    assert good.worst_rms_m < 0.1 * good.limit_m
+    bad = open_loop_check(Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt),
+                          ds, 1e-4, 1e-3)  # fmt: skip
+    assert bad is not None and bad.diverged and bad.non_finite > 0
+    assert "non-finite end caps" in bad.line() and "limit" in bad.line()
+
+
+def test_a_model_further_off_than_the_data_spans_has_diverged() -> None:
+    from identification.trajectory.open_loop_check import OpenLoopCheck
+
+    def check(worst: float) -> OpenLoopCheck:
+        return OpenLoopCheck(("val",), 4, 1.0, worst, 0.5, 0.6, 0.6, 1e-4)
+
+    assert not check(0.59).diverged and check(0.61).diverged
+
+
+def test_identify_writes_nothing_for_a_fit_that_diverges_open_loop(cell, tmp_path, capsys, monkeypatch) -> None:
+    """The fit's own windows (a fitted initial state each) can look fine while the model
+    blows up from a measured state: here the fit reports 0.1 mm on its windows."""
+    from identification.commands import identify_end_caps
+
+    stiff = replace(cell.truth.params, stiffness=cell.truth.params.stiffness * BLOW_UP)
+
+    class Fit:
+        def __init__(self, **kwargs) -> None:
+            pass
+
+        def fit(self, dataset, split):
+            return SimpleNamespace(params_=stiff, rms_=1e-4, mode_="absolute", notes_={}, stderr_={},
+                                   topology_=dataset.topology, converged_=True, stages_=[])  # fmt: skip
+
+    monkeypatch.setattr(identify_end_caps, "TrajectoryIdentifier", Fit)
+    out = tmp_path / "p.json"
+    assert cli(["identify", str(cell.measured), "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert err.startswith("error: the trajectory fit failed: the model diverges open-loop")
+    assert "non-finite end caps" in err and "nothing written" in err
+    assert not out.exists()
+
+
+def _result(models):
+    """A DiscoveryResult whose final model is ``models[0]``, the others earlier (newest first)."""
+    from identification.discovery.judge import Candidate, Criteria
+    from identification.discovery.library import FittedModel
+    from identification.discovery.loop import DiscoveryResult
+
+    fitted = [FittedModel(m, 0) for m in models]
+    cands = [Candidate("nothing", None, f) for f in fitted[1:]]
+    return DiscoveryResult(method="multi_step", description="", iterations=[], model=fitted[0],
+                           baseline_test={}, final_test={"before": 1.0}, test_labels={},
+                           criteria=Criteria("held-out error", 0.1, True, 0.0), final_residual=None,  # type: ignore[arg-type]
+                           earlier=cands)  # fmt: skip
+
+
+class Scorer:
+    noise = 1e-4
+
+    def test_errors(self, cand):
+        return {"scored_again": 1.0}
+
+
+def test_diagnose_falls_back_to_the_last_model_that_does_not_diverge(cell, capsys) -> None:
+    from identification.data.dataset import read_dataset
+    from identification.discovery.open_loop import keep_not_diverged
+    from tensegrity_env.model import Model
+
+    ds = read_dataset(cell.measured)
+    p = cell.truth.params
+    good = Model(ds.topology, p, dt=ds.dt)
+    bad = Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt)
+    kept = keep_not_diverged(_result([good, bad]), Scorer(), ds, 1e-3)
+    assert kept.model.model is good and kept.final_test == {"before": 1.0}
+    assert kept.open_loop.startswith("The final model rolled out: open-loop check")
+    out = keep_not_diverged(_result([bad, bad, good]), Scorer(), ds, 1e-3)
+    assert out.model.model is good and out.final_test == {"scored_again": 1.0}
+    assert "diverges open-loop" in out.open_loop and "the declared model's fit" in out.open_loop
+    assert "written instead is the last model that does not" in capsys.readouterr().out
+
+
+def test_diagnose_refuses_when_every_model_diverges(cell) -> None:
+    from identification.data.dataset import read_dataset
+    from identification.discovery.open_loop import keep_not_diverged
+    from tensegrity_env.io_utils import StageError
+    from tensegrity_env.model import Model
+
+    ds = read_dataset(cell.measured)
+    p = cell.truth.params
+    bad = Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt)
+    with pytest.raises(StageError, match=r"diagnose's models .* failed: the model diverges open-loop"):
+        keep_not_diverged(_result([bad, bad]), Scorer(), ds, 1e-3)
+
+
+def test_the_check_skips_data_without_a_start() -> None:
+    from identification.data.dataset import Dataset, Split
+    from identification.trajectory.open_loop_check import open_loop_check
+    from tensegrity_env.assemblies import icosahedron
+    from tensegrity_env.model import Model
+
+    asm = icosahedron()
+    nodes = np.full((1, 3, 12, 3), np.nan)
+    ds = Dataset(asm.topology, 1 / 120, {"train": Split(nodes=nodes, control=np.zeros((1, 2, 6, 3)))})
+    assert open_loop_check(Model(asm.topology, asm.params, dt=ds.dt), ds, 1e-4) is None

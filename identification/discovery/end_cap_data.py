@@ -6,9 +6,10 @@ windowed trajectory fit of :mod:`identification.trajectory.identifier`: maximum
 likelihood under Gaussian position noise), each candidate's effect parameters
 appended to the fitted vector (:class:`~identification.trajectory.effect_coords.EffectCoords`).
 A held-out score fits only the windows' initial states, the model held
-(:func:`heldout`). The rods' **axial spins** are never fitted: under 1 mm noise the
-spin is barely seen, and the fit stepped to spins of 100+ rad/s whose explicit
-gyroscopic integration (as in MuJoCo's Euler integrator) blew up on longer windows.
+(:func:`heldout`). In flight the rods' **axial spins** are not fitted until a roll is:
+under millimetre noise the spin is barely seen, and a fit free to step to large spins
+meets the explicit gyroscopic integration's (as in MuJoCo's Euler integrator) blow-up
+on long windows.
 A rod's **roll** about its own axis is fitted once an effect that depends on it is in
 the model (:attr:`EndCapData.roll`).
 """
@@ -241,9 +242,8 @@ class EndCapData:
 
         On the floor (friction turns a rod about its axis), and once the rolls are
         fitted: the spin turns the roll that such an effect sees (box-form quadratic
-        drag of a thin rod in free flight: 1.8 rad/s of axial spin, mean over the rods
-        of a measured-benchmark flight, set to zero moved the true model's 1-s rollout
-        by 49 mm).
+        drag of a thin rod: a spin set to zero moves the true model's rollout by far
+        more than the noise).
         """
         return self.on_floor or self.roll
 
@@ -253,12 +253,10 @@ class EndCapData:
 
         Drawn at random, nearly all of them lie on the floor, where friction holds a
         horizontal force and the contact's fitted stiffness and damping take up a
-        vertical one or a drag. On the bench's quadratic-drag floor cell (seed 0) the
-        screens gain 1639 (quadratic drag) and 1239 (linear drag) on these windows, where
-        on random ones no candidate passed (quadratic drag 5.5). The windows' flights are
-        5 to 26 samples short: a force field on the floor shows only with the screens'
-        line search (:func:`fit_trajectory`): held-out gain 0.12 without it; with it,
-        judged against the screened reference (``MultiStepScorer.with_reference``), 506.
+        vertical one or a drag, so that a drag's screen gains little. The windows'
+        flights are short: a force field on the floor shows only with the screens' line
+        search (:func:`fit_trajectory`), judged against the screened reference
+        (``MultiStepScorer.with_reference``).
         """
         for name in ("train", "val"):
             count = self.counts[name]
@@ -356,10 +354,8 @@ def fit_trajectory(
     On the floor the states include each rod's axial spin
     (:mod:`identification.trajectory.floor_fit`), and a rejected step is tried shorter
     before more damping (``fit_windows``' line search): the error jumps where an impact
-    crosses a physics step, and the damped steps turn towards the jumps. A force field screened so on the bench's force-field floor cell (seed 0,
-    declared parameters and contact held at ``identify``'s) moved to (0.13, -0.10,
-    0.08) N and lowered the training chi-square by 363; without the line search it
-    stayed at 1e-5 N (plant: (0.4, -0.3, 0.5) N).
+    crosses a physics step, and the damped steps turn towards the jumps, so that without
+    the line search a force field's screen on the floor stays near zero.
     """
     roll = data.roll if roll is None else roll
     fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1,
@@ -399,8 +395,8 @@ def hold_declared(vec: ParamVector) -> ParamVector:
     """``vec`` with the declared parameters held where they are (contact searched).
 
     With a floor in the data they were fitted on airborne windows; fitted again through
-    the impacts (the states' fits there are poorer: no axial spins, the contact's
-    small jumps) they drift, by 3.7 mm RMS on the airborne prefixes in a trial.
+    the impacts (the states' fits there are poorer: the contact's small jumps) they
+    drift away from what the airborne samples say.
     """
     return replace(vec, free=torch.zeros_like(vec.free))
 
@@ -415,10 +411,8 @@ def heldout(
     windows' states instead (fitted at a nearby model), on the whole windows at once;
     ``warm`` and ``fresh``: both, each window keeping the state that fits it better
     (:func:`~identification.trajectory.window_errors.better_states`). On the floor a model
-    accepted by the loop is scored so: its states from smoothing alone stopped in other
-    basins through the impacts (the force-field cell's validation RMS went from 1.057 mm
-    for the candidate to about 1.22 mm for its refit), and every later candidate was judged
-    against them.
+    accepted by the loop is scored so: its states from smoothing alone stop in other
+    basins through the impacts, and every later candidate would be judged against those.
     """
     engine, vec = fixed_engine(data, fit)
     start = data.windows[split] if warm is None else warm

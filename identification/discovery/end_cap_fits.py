@@ -10,9 +10,8 @@ fit. Without a params file the declared model starts from the regression on smoo
 end caps; its fit on the many windows brings it near the optimum before anything is
 compared. On data with a floor the declared model is fitted apart from contact, on
 the airborne samples and then on every **airborne stretch whole** (one window each,
-however long): cut into 100-step windows, each with its own initial state (1.3 s of
-the 1.8 s fit into them), they gave stiffness to 1 % and masses to 1.2 %; whole,
-0.17 % and 0.08 % (seed 0, 1 mm noise). Once the contact is searched on the
+however long): cut into short windows, each window's own initial state absorbs part
+of the motion the parameters should explain. Once the contact is searched on the
 touchdowns, the declared model is refitted on those stretches run on
 :data:`PAST_TOUCHDOWN` steps past the touchdowns (contact held), then held.
 
@@ -155,16 +154,13 @@ def fit_many(
     end-cap RMS are left out
     (:func:`~identification.trajectory.window_errors.windows_within`). ``bar``: the
     description of a progress bar over the joint fit's iterations. With an effect
-    that depends on the rods' roll about their axes (``sees_roll``: quadratic drag), each window's rolls are fitted too: on noisy
-    quadratic drag (seed 0, 24 windows of 333 steps) the fit went from 4.65 mm RMS to
-    1.13 mm (1 mm noise), and the drag coefficients from 8 % to 1 % off. The rolls are
-    fitted in a second pass, from the fit without them: from a small drag (0.058 of
-    1.44 after the candidate's 10 iterations) a joint fit stopped at 4.3 mm. The second
-    pass fits each rod's axial spin too: it turns the roll the drag sees
-    (:mod:`identification.trajectory.window_states`). Selection's first fits leave the roll out: from
-    zero drag its columns are zero, and the quadratic drag candidate then converged
-    more slowly than the linear one. Once such an effect is accepted, every later fit
-    and score fits the rolls (``data.roll``).
+    that depends on the rods' roll about their axes (``sees_roll``: quadratic drag),
+    each window's rolls are fitted too, in a second pass from the fit without them: from
+    a drag still far below its value a joint fit of rolls and parameters stops in
+    another basin. The second pass fits each rod's axial spin too: it turns the roll the
+    drag sees (:mod:`identification.trajectory.window_states`). Selection's first fits
+    leave the roll out: from zero drag its columns are zero. Once such an effect is
+    accepted, every later fit and score fits the rolls (``data.roll``).
     """
     engine = vec.engine(data.engine, theta.detach())
     fixed = held(vec, theta)

@@ -82,10 +82,8 @@ def windows_from_data(
 
     A window's initial state is fitted through every contact in it, and how far a
     state fit reaches depends on the motion: the faster a structure tumbles against
-    the rate, the narrower the basin of the true state. On a 1.9 m icosahedron rolling
-    at up to 5 m/s, 60 Hz and 0.13 mm of noise (``plant_family`` seed 9, the true model
-    held), the states of 15-sample windows fitted from smoothing stopped at 1.0 mm (median
-    0.6 mm; from the true states, 0.13 mm), of 4-sample windows at 0.26 mm. So: windows
+    the rate, the narrower the basin of the true state, and shorter windows fit from
+    smoothing closer to it (the measurement is in docs/decisions.md). So: windows
     of ``steps``, halved (down to :data:`MIN_FLOOR_STEPS` samples) while the median
     window's states, fitted at the start model, stay above
     :data:`~identification.discovery.end_cap_data.STUCK_WINDOW` times the ``noise``

@@ -32,17 +32,12 @@ through the engine, on short windows that touch the floor:
    contact, states), with a line search along rejected steps (``line_search``); the
    first round holds the **spring damping** at its start (:data:`FIRST_ROUND_HELD`).
    Its states are still those of the starting model, several times the noise off, and
-   the damping, the weakest group, takes up their misfit: on the bench's
-   quadratic-drag floor cell (seed 0), the floor fit with quadratic drag (as ``diagnose``
-   refits an accepted candidate) drove one spring's damping from 1.11 to 0.13 N*s/m in
-   the first round (plant 1.25), ended at 0.51 N*s/m and 1.116 mm end-cap RMS after the
-   second, and in ``diagnose``'s own run at 0.002 N*s/m; held through the first round,
-   it ended at 0.93 N*s/m and 1.050 mm (1 mm noise). From
-   the first search on, the contact stays within :data:`CONTACT_RANGE` of the searched
-   values (:func:`contact_box`): a trial step or search point outside is cut at the
-   edge or rejected. Without the range, a declared model missing an effect (linear
-   drag) traded it against the contact, to a stiffness of 105 1/s² (true 2770) and a
-   floor 12 mm up.
+   the damping, the weakest group, would take up their misfit and be driven towards
+   zero, from where later rounds do not bring it back. From the first search on, the
+   contact stays within :data:`CONTACT_RANGE` of the searched values
+   (:func:`contact_box`): a trial step or search point outside is cut at the edge or
+   rejected. Without the range, a declared model missing an effect (a drag) trades it
+   against the contact: a far softer floor, raised by millimetres.
 
    The end-cap error jumps where an impact moves across a physics step. The jumps
    stall Gauss-Newton steps on the contact (hence the first search), and they stall
@@ -72,9 +67,9 @@ only through a tiny gyroscopic term, but on the floor friction acts at the end c
 contact point, one radius off the axis: it spins a rod about its axis (tens of rad/s
 for a rod rolling on the floor, with its tiny axial inertia), and that spin sets how
 the contact point slips. A window started without it (end caps cannot show it) misses
-the rolling: on clean data of the benchmark's icosahedron (8 windows of 30 steps) the
-true model's windows fitted without it stay 3 mm off (exact at the true states), and
-the declared parameters bend to absorb the difference.
+the rolling: even on clean data the true model's windows fitted without it stay off
+by more than millimetre noise, and the declared parameters bend to absorb the
+difference.
 """
 
 from __future__ import annotations
@@ -208,8 +203,8 @@ def contact_box(
 
     Later fits on the floor (candidate effects, accepted models) start from the floor
     fit's contact; without limits, a joint fit of a few short windows trades the
-    contact against the new effect until the floor is nearly gone (stiffness 3e-4
-    1/s^2, floor 1.9 cm up on linear-drag data). Within them, a step that would leave
+    contact against the new effect until the floor is nearly gone (a stiffness near
+    zero, the floor centimetres up). Within them, a step that would leave
     the range is cut at its edge (:func:`~identification.trajectory.windowed_fit.fit_windows`).
     """
     out = {}
@@ -285,8 +280,8 @@ def scale_directions(vec: ParamVector, theta: torch.Tensor) -> torch.Tensor:
     Scaling every mass, inertia, stiffness and damping together leaves the motion
     unchanged (gravity and the contact, per unit effective mass, scale with the
     masses) if the effects' forces scale too: a drag held at its value while the
-    masses move is no valley (on the floor's linear-drag cell, seed 0, the search stayed
-    at scale 1.000 with every free mass 10 % low). Only the anchored parameters pin the
+    masses move is no valley (the search stays at scale 1 with the masses off
+    together). Only the anchored parameters pin the
     scale, through the rods they act on. Shorter rest lengths with softer springs keep
     the pretension.
     """
@@ -423,10 +418,8 @@ def states_at(
     model held at ``theta``, from two seeds, each window keeping the better: its own
     state (smoothing) and one from its first samples alone
     (:func:`~identification.trajectory.window_states.forward_seeds`). Through impacts
-    each stops in another basin in some windows: on ``plant_family`` seed 9 (60 Hz,
-    0.13 mm noise, the true model held), 30 windows of 4 samples fitted from smoothing
-    to 0.09-44.6 mm, from their first samples to 0.09-4.75 mm, the better of the two to
-    at most 4.75 mm and mostly the noise."""
+    each stops in another basin in some windows, not the same ones from the two seeds
+    (the measurement is in docs/decisions.md)."""
     eng, held = vec.engine(engine, theta), held_states(vec, theta)
     a = fit_states(eng, held, windows, iters, spin=True)
     b = fit_states(eng, held, forward_seeds(windows, vec.axes, engine.dt), iters, spin=True)
@@ -449,10 +442,9 @@ def reseeded(
     better.
 
     The first round fits the states at the starting model, which can be far off (a
-    regression biased by smoothing through the impacts: 7.6 mm end-cap RMS on the bench's
-    floor cell, seed 0); through an impact, a state fitted there can stay in another
-    basin while the joint fit moves the model (the joint fit stopped at 1.47 mm where the
-    true model's states fit to 1.11 mm on the same windows). Afresh means from ``seeds``
+    regression biased by smoothing through the impacts); through an impact, a state
+    fitted there can stay in another basin while the joint fit moves the model, which
+    then stops above the error the true model's states reach. Afresh means from ``seeds``
     (the states from smoothing) on growing prefixes at the current model; the windows are
     independent given the model, so each keeps the better of its two states. ``seeds``
     may hold windows a joint fit left out (:func:`fit_windows`); those stay out.

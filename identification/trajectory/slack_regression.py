@@ -4,19 +4,17 @@ A cable pulls like a spring when longer than its rest length ``l0`` and does not
 when shorter. Fitted without that, a spring model makes up for it with a lower
 stiffness and a shorter rest length, and a fit through the windows that starts from
 there (a stiffness change in compression, jointly with everything else) stays near that
-compromise: on noisy planted data (12 of 24 springs slack, 1 mm noise) it found 5.
+compromise and misses most of the cables on noisy data.
 
 Here the question is put to the stage-1 regression instead (:func:`smoothed_regression`
 on Savitzky-Golay smoothed end caps), which is linear and so has no compromise to stop
 in: every spring gets a stiffness change ``ΔK_s`` below a knot, the knot is tied to its
 own fitted rest length, and the two are iterated to a fixed point (segmented regression
 with the break point at ``l0``). A cable shows ``ΔK_s ≈ -K_s``; a spring ``ΔK_s ≈ 0``.
-Smoothing biases the stiffnesses low (by ~10 % on fast data), but the ratio
-``-ΔK/K`` is a ratio of two biased numbers. On that data it gave 1.00 to 1.02 on all
-12 cables (≥ 370 standard errors) and at most 0.04 on the other springs.
-Where cables go slack only briefly (5-20 % of samples at 120 Hz, 1 mm noise) the
-ratio overshoots 1 (up to 8), so a cable is a spring that loses at least
-:data:`CABLE_LOSS` of its stiffness, significantly.
+Smoothing biases the stiffnesses low on fast data, but the ratio ``-ΔK/K`` is a ratio
+of two numbers biased alike. Where cables go slack only briefly and shallowly (a small
+fraction of the samples at a motion-capture rate) the ratio overshoots 1, so a cable
+is a spring that loses at least :data:`CABLE_LOSS` of its stiffness, significantly.
 """
 
 from __future__ import annotations
@@ -32,15 +30,11 @@ from identification.linear.smoothed import smoothed_regression
 from tensegrity_env.topology import Topology
 
 #: a spring is a cable when compressing it loses at least this fraction of its stiffness
-#: (a cable loses all of it: 1.00 to 1.04 measured on 36 cables of three seeds at
-#: 1 kHz). With cables that go slack only briefly and shallowly (the measured
-#: benchmark's 120 Hz flights, 5-20 % of samples) the smoothed ratio overshoots: 1.09
-#: to 8.0 on the 36 cables of seeds 0, 3 and 4, so there is no upper bound (a spring
-#: cannot lose more than all of its push; noise is the significance's job) ...
+#: (a cable loses all of it; no upper bound: briefly slack cables overshoot 1, and noise
+#: is the significance's job) ...
 CABLE_LOSS = 0.75
-#: ... by at least this many standard errors (cables: 320 to 660 at 1 kHz; at 120 Hz
-#: 34 of those 36 cables above 12.7, the other two at 3.2 and 6.0; springs losing more
-#: than ``CABLE_LOSS`` on the measured benchmark's plants, drag included: at most 6.5)
+#: ... by at least this many standard errors (above what springs without slack reach
+#: on noisy plants with a drag, below what most briefly slack cables reach)
 CABLE_SIGNIFICANCE = 10.0
 
 

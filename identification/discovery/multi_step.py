@@ -92,8 +92,7 @@ from tensegrity_env.params import Params
 SAMPLE_STRIDE = 4
 #: on the floor, a current model whose training and held-out end-cap RMS are both above
 #: this many times the noise level misses something (see
-#: :meth:`MultiStepScorer.second_look`); the floor-only controls of the measured
-#: benchmark fit to 1.04-1.07
+#: :meth:`MultiStepScorer.second_look`); a model with nothing missing fits to about 1
 MISFIT = 1.25
 #: candidates fitted again with everything free then, largest held-out gain first
 SECOND_LOOKS = 2
@@ -177,18 +176,14 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         """``fits`` of the current model with its reference: the model refitted as every
         candidate will be (:func:`fit_with`, from ``fits.fit``'s origin and windows, the
         candidates' iterations), so a candidate's gain and BIC drop measure its effect,
-        not the iterations it had on top of the current fit. Without it, once the rolls
-        and spins were fitted (quadratic drag), the current model refitted with nothing
-        added gained 33 in held-out chi-square and 92 in BIC (seed 0), and a negative
-        linear drag passed beside the quadratic drag. On the floor the reference is
+        not the iterations it had on top of the current fit: without it, the current
+        model refitted with nothing added gains in held-out chi-square and BIC, and a
+        candidate with coefficients near zero passes. On the floor the reference is
         screened as the candidates are (:func:`screen_with`: the contact held, the
         linear effects' coordinates and the states fitted): against the current model as
-        fitted, a force field's screen (0.13 N) gained 471 in held-out chi-square on the
-        floor data it was planted in, but on floor data with nothing planted every
-        candidate gained about 300 with coefficients near zero (seed 0); against the
-        screened reference, the field gained 506 and the best of those on the control
-        -4 (ΔBIC +77). Not on floor data without a touchdown (its candidates are fitted
-        with the contact, see :meth:`fit_candidate`).
+        fitted, every screened candidate gains on floor data with nothing planted. Not on
+        floor data without a touchdown (its candidates are fitted with the contact, see
+        :meth:`fit_candidate`).
         """
         now = fits.fit
         if self.data.on_floor:
@@ -206,9 +201,9 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
 
         On the floor a candidate's states start from ``near``'s (the current model's)
         fitted ones: refitted from smoothing, each model's windows stop in other basins
-        (the impacts make the error jump), which gave a candidate whose coefficients
-        stayed at 1e-6 (a copy of the current model) a held-out chi-square gain of 62 on
-        floor data with nothing planted (seed 0); from the current model's states, 0.002.
+        (the impacts make the error jump), which gives a copy of the current model (a
+        candidate whose coefficients stay near zero) a held-out chi-square gain on floor
+        data with nothing planted; from the current model's states, none.
         ``fresh``: from smoothing too, each window keeping the better state (an accepted
         model, the next candidates' ``near``; see :func:`heldout`).
         """
@@ -307,22 +302,17 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
 
         A screen holds the declared parameters and the contact where the current model's
         fit left them; where that fit made up for a missing effect they stay there, and the
-        effect cannot show. On the bench's joint-damping floor cell (seed 0) the declared
-        fit ended at 2.7 mm (1 mm noise) with a common scale of 0.97 and the contact
-        stiffness a sixth of the plant's, and no screened candidate passed (largest
-        held-out chi-square gain 8.2). The held-out windows' states are fitted from
-        smoothing and from the last model's, the better kept, while the training windows
-        keep the states of their joint fit, which through the impacts can stop in other
-        basins: on the bench's slack-cable floor cell (seed 0) the accepted cables' fit
-        ended at 1.273 mm on its 8 training windows (1 mm noise) where the candidates after
-        it predicted the held-out windows to 1.05-1.06 mm, and the final refit of that
-        model reached 1.071 mm; the second look there (cubic stiffness with everything
-        free) took 10 min and was rejected.
+        effect cannot show (a declared fit that made up for a missing drag with its
+        common scale and the contact's stiffness leaves no screen passing). Both errors
+        must be high: the held-out windows' states are fitted from smoothing and from the
+        last model's, the better kept, while the training windows keep the states of
+        their joint fit, which through the impacts can stop in other basins, so the
+        training error alone can be high for a model that misses nothing.
 
         A drag looked at again brings its rival (:data:`RIVALS`) if that was screened with a
         force that is not negligible, whatever its screened gain: the two are compared on
-        fits made the same way. On the bench's quadratic-drag floor cell (seed 0) the screens
-        put quadratic drag third, and linear drag, fitted again alone, passed.
+        fits made the same way (screened, the true drag can rank below its rival, which
+        fitted again alone would then pass).
         """
         if not self.data.on_floor or any(c.accepted for c in tried):
             return []
@@ -445,11 +435,8 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
     def refusal(self, added: Candidate[EndCapFits], before: Candidate[EndCapFits]) -> str:
         """On the floor, a refit that fits the floor windows worse than ``before`` did:
         with one more effect the model can fit them at least as well, so the fits with it
-        stopped short (through impacts) and judge nothing. On the bench's floor-only
-        control (seed 1) quadratic drag passed its screen (held-out chi-square gain 346,
-        ΔBIC -90; the other candidates gained 310-415 with the BIC up), and its refit
-        reached 1.074 mm where the declared model fitted the same windows to 1.039 mm
-        (1 mm noise); accepted, it raised the test error from 1.04 to 1.48 mm."""
+        stopped short (through impacts) and judge nothing; accepted, such a candidate
+        raises the test error."""
         now, then = added.fit.final, before.fit.final
         if not self.data.on_floor or now.m != then.m or not now.sse > then.sse:
             return ""

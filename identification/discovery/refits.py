@@ -72,9 +72,8 @@ def floor_refit(
     first one (:func:`~identification.discovery.floor_fits.floor_fit`:
     the regression, a contact search, the valley search). Where the current model's
     contact has taken up what the candidate explains (a dissipation it lacked, on an
-    overdamped floor), the first stays there: on the bench's linear-drag floor cell
-    (seed 0) it ended at 2.15 mm (1 mm noise) with the drag at a quarter of the
-    plant's and the contact stiffness 95 % off, worse than the declared fit.
+    overdamped floor), the first stays there, with the candidate's force far below
+    its value and the fit worse than the declared model's.
     With the scorer's ``jobs`` above 1 the two fits run side by side. The better goes on
     (:func:`fitted_on`) where it stopped short of fitting the data.
     """
@@ -100,10 +99,9 @@ def fitted_on(scorer: MultiStepScorer, fit: TrajFit) -> TrajFit:
     iterations from where it stopped) while its last fit ran out of iterations with the
     end-cap RMS above :data:`FIT_WELL` times the noise level, at most
     :data:`MORE_ROUNDS` times, and only while each lowers the error by
-    :data:`MORE_GAIN`. Through impacts the Levenberg-Marquardt steps stay short: on
-    the bench's linear-drag floor cell (seed 0) the accepted model's refit was still
-    lowering its error at its 10th iteration, 1.34 mm (1 mm noise) where the declared
-    model had fitted to 1.06 mm.
+    :data:`MORE_GAIN`. Through impacts the Levenberg-Marquardt steps stay short, so an
+    accepted model's refit can run out of iterations while still lowering its error,
+    above the declared model's.
     """
     s = scorer.settings
     for _ in range(MORE_ROUNDS):

@@ -80,13 +80,9 @@ def windows_within(
     at most ``rms`` [m], or the better half where fewer are; and every window's RMS,
     (B,) [m].
 
-    Through an impact a window's fitted state can stay in another basin: on the bench's
-    force-field floor cell (seed 0, 24 windows of 0.25 s, 1 mm noise) the states fitted
-    at the true model left 4 windows at 1.75-2.8 mm where their true states fit to
-    0.95-1.03 mm. Such a window pulls a joint fit towards a wrong model or stalls it:
-    there the final floor refit with all 24 windows stayed where it started (1.26 mm,
-    spring damping 11.4 % off at most); without the 4 above 1.5 mm it reached 1.07 mm and
-    10.0 % (``bench_measured.py --settings floor --effects force_field``).
+    Through an impact a window's fitted state can stay in another basin, even at the
+    true model. Such a window pulls a joint fit towards a wrong model or stalls it
+    (measured in docs/decisions.md, "Windows left out of the final floor refit").
     """
     sse = window_errors(engine, vec, windows, theta).numpy()
     n = windows.window_residuals()

@@ -14,8 +14,7 @@ End caps that reach a floor (:func:`~identification.discovery.library.contact_ga
 are fitted with ground contact in the model (the floor fit,
 :func:`~identification.discovery.floor_fits.identify_on_floor`), whether or not the data
 also hold airborne stretches: the declared model alone, fitted through the impacts,
-diverged (the measured benchmark's floor cell at 1000 Hz, whose drops are airborne for
-50 samples and more, ended with a non-finite end-cap RMS).
+can diverge.
 """
 
 from __future__ import annotations

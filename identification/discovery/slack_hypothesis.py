@@ -11,8 +11,8 @@ Once the model has cables, a spring the regression sees losing its stiffness in
 compression less clearly (:data:`FURTHER_SIGNIFICANCE` standard errors) is asked of
 the trajectories instead: switched to a cable in the current model, does the
 training windows' chi-square drop, their states refitted? Smoothing hides a cable
-that goes slack only in short dips (at 120 Hz, 1 mm noise: a cable slack in 6 % of
-the samples came out at 3.2 standard errors, behind a spring at 6.5).
+that goes slack only in short dips at a motion-capture rate: its loss of stiffness can
+come out less significant than a spring's.
 """
 
 from __future__ import annotations

@@ -5,9 +5,8 @@ not, because the multi-step end-cap error is **discontinuous** in its parameters
 MuJoCo's soft contact (which the engine copies) applies its damping force from the
 first step an end cap is below the floor. A change of parameters that moves an impact
 across a time step therefore makes the error jump; the Gauss-Newton model promises
-what no step delivers, and the fit stalls far from the optimum. On the planted bench
-(1 mm noise) it stopped at stiffness 2041 1/s² for 2770 and friction 0.70 for 1.0, and
-a 2-s drop of that model ended 0.35 m away from MuJoCo.
+what no step delivers, and the fit stalls far from the optimum (the contact's
+stiffness and friction well off, and a drop of that model ending far from MuJoCo's).
 
 Instead:
 

@@ -38,8 +38,8 @@ def noise_level(nodes: np.ndarray, rods: bool = False) -> float:
     rod): ``1.4826 MAD / √2``, since isotropic noise of std σ on both caps moves the
     length by std ``√2 σ``. No motion enters a rigid rod's length, at any sample rate or
     through impacts; the third differences below read motion as noise where the
-    samples are sparse for it (a 1.9 m icosahedron tumbling on a floor at 60 Hz, 0.13 mm
-    of noise: 1.14 mm from third differences).
+    samples are sparse for it (a fast tumble at 60 Hz reads as several times its noise;
+    measured in docs/decisions.md).
 
     Otherwise (or with fewer than :data:`LEAST_LENGTHS` lengths) a robust scale of the third differences along time
     (:func:`~identification.data.quality.third_difference_noise`): white noise of std σ

@@ -105,8 +105,8 @@ def group_size(basis: torch.Tensor, theta: torch.Tensor, windows: int) -> int:
     the windows' states only (``theta`` empty) takes at most half of them from
     :data:`SPLIT_WINDOWS` windows on: its windows are independent, each one's equations
     the same in any group. A joint fit's shared blocks sum over its groups, and the
-    order of that sum moves a fit through round-off (a free-flight slack-cable fit ended
-    at 1.20 mm instead of 1.09 mm), so its grouping is left to the batch. Depends on the
+    order of that sum moves a fit through round-off (enough to end a fit in another
+    basin), so its grouping is left to the batch. Depends on the
     fit's sizes only (never on the workers), so the arithmetic is the same for any
     ``--jobs``."""
     most = max(1, FD_BATCH // (basis.shape[0] + len(theta) + 1))

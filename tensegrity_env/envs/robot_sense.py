@@ -13,6 +13,7 @@ round-off (tests/unit/test_robot_sense.py). Where no C compiler works,
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -72,6 +73,31 @@ class NativeSense:
         if code != 0:
             raise ValueError(f"{t.name}: too large for the sensing kernel (code {code})")
         return obs, error, centre
+
+    def one(
+        self,
+    ) -> Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, float, np.ndarray]]:
+        """A reader of one robot, ``(x (R, 13), winch (W, 2), target (k,)) -> (obs (n_obs,)
+        float32, error [m], centre (3,) [m])``: :meth:`__call__` on a batch of one, through
+        buffers whose addresses are taken once (a single environment reads every step)."""
+        t = self.topology
+        x, winch = np.zeros((1, t.n_rods, 13)), np.zeros((1, t.n_winches, 2))
+        target = np.zeros((1, self.target_size))
+        obs, error, centre = np.empty((1, self.size), np.float32), np.empty(1), np.empty((1, 3))
+        args = (1, *self._dims, x.ctypes.data, winch.ctypes.data, target.ctypes.data,
+                *self._robot, obs.ctypes.data, error.ctypes.data, centre.ctypes.data)  # fmt: skip
+        sense = self._lib.tsr_sense
+
+        def read(
+            xs: np.ndarray, ws: np.ndarray, gs: np.ndarray
+        ) -> tuple[np.ndarray, float, np.ndarray]:
+            x[0], winch[0], target[0] = xs, ws, gs
+            code = sense(*args)
+            if code != 0:
+                raise ValueError(f"{t.name}: too large for the sensing kernel (code {code})")
+            return obs[0].copy(), float(error[0]), centre[0].copy()
+
+        return read
 
 
 def native_sense(topology: Topology, task: str) -> NativeSense | None:

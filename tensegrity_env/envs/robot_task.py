@@ -177,7 +177,7 @@ def _sense(
 def _mean_square(command: np.ndarray) -> float:
     """The mean squared motor command of one robot (W,), summed as the batched rewards
     sum their (1, W) rows (NumPy's pairwise order), so both give the same bits."""
-    return float((command * command).sum() / command.shape[-1])
+    return float(np.add.reduce(command * command) / command.shape[-1])
 
 
 @dataclass(frozen=True)

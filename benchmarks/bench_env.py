@@ -26,11 +26,18 @@ the best of ``--repeats`` kept per side, so background load hits both alike:
    :mod:`tensegrity_env.envs.robot_rollout`), the same threads a side (target: ratio
    >= 50 at N = 4096).
 
+5. **Kernel builds** (``--sections lanes``): the C kernel alone, one control step of
+   the lab 3-bar (50 physics steps, its winches winding) through its 8-lane build and
+   its 4-lane build (:data:`~tensegrity_env.native.kernel.NARROW_LANES`), for one robot
+   and for a batch of 1024 on one thread: why one environment steps through the narrow
+   build and a batch through the wide one (the same numbers bit for bit).
+
 Ratios are printed, never asserted::
 
     .venv/bin/python benchmarks/bench_env.py
     .venv/bin/python benchmarks/bench_env.py --num-envs 1024 --repeats 2
     .venv/bin/python benchmarks/bench_env.py --sections robot --robot-num-envs 4096
+    .venv/bin/python benchmarks/bench_env.py --sections lanes
 """
 
 from __future__ import annotations
@@ -56,9 +63,11 @@ from tensegrity_env.envs import (
     TensegritySREnv,
     TensegritySRVectorEnv,
 )
-from tensegrity_env.envs.physics import default_threads
+from tensegrity_env.envs.physics import NativeStepper, default_threads
+from tensegrity_env.envs.robot_physics import SRRobotSimulator
 from tensegrity_env.envs.twin import twin_assembly
 from tensegrity_env.model import Model
+from tensegrity_env.native.kernel import LANES, NARROW_LANES, load_kernel
 
 
 def per_step(
@@ -210,6 +219,47 @@ def robot(num_envs: int, steps: int, mj_steps: int, single_steps: int, threads: 
     twins.close()
 
 
+def kernel_timing(
+    build: int, stepper: NativeStepper, x0: np.ndarray, w0: np.ndarray, commands: np.ndarray
+) -> Callable[[], float]:
+    """A timing function: the build with ``build`` lanes winding copies of ``x0`` (B, R,
+    13), ``w0`` (B, W, 2) under each of ``commands`` (T, B, W), one thread."""
+    lib, t = load_kernel(build)[0], stepper.topology
+    x, w = x0.copy(), w0.copy()
+
+    def one(c: np.ndarray) -> None:
+        lib.tsr_step(len(x), t.n_rods, t.n_springs, t.n_anchors, stepper.frame_skip,
+                     stepper.dt, stepper.iterations, x.ctypes.data, None, stepper._model_ptr,
+                     stepper._springs_ptr, 1, w.ctypes.data,
+                     np.ascontiguousarray(c).ctypes.data)  # fmt: skip
+
+    def reset() -> None:
+        x[...], w[...] = x0, w0
+
+    return per_step(one, commands, reset)
+
+
+def lanes(steps: int, repeats: int) -> None:
+    """The kernel's two builds on one robot and on 1024, one thread (see the docstring)."""
+    sim = SRRobotSimulator()
+    stepper = sim.stepper
+    if not isinstance(stepper, NativeStepper):
+        print("\n5. Kernel builds: the C kernel does not build here")
+        return
+    t = sim.topology
+    rng = np.random.default_rng(3)
+    print("\n5. Kernel builds, lab 3-bar, one control step (50 physics steps), one thread")
+    for B, n in ((1, steps), (1024, max(2, steps // 100))):
+        x0 = np.repeat(sim.rest_pose()[None], B, axis=0)
+        x0[..., 3:6] += rng.normal(0, 0.05, x0[..., 3:6].shape)
+        w0 = np.repeat(sim.rest_winch[None], B, axis=0)
+        commands = rng.uniform(-1, 1, (n, B, t.n_winches))
+        wide, narrow = best_of([kernel_timing(b, stepper, x0, w0, commands)
+                                for b in (LANES, NARROW_LANES)], repeats)  # fmt: skip
+        print(f"   {B:5d} robot(s): {LANES} lanes {wide * 1e3:9.3f} ms, {NARROW_LANES} lanes "
+              f"{narrow * 1e3:9.3f} ms (narrow / wide {narrow / wide:.2f})")  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--num-envs", type=int, default=4096, help="batch size N (default 4096)")
@@ -223,7 +273,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robot-steps", type=int, default=10, help="timed batched robot SR steps")
     ap.add_argument("--robot-mj-steps", type=int, default=2, help="timed batched robot MJ steps")
     ap.add_argument("--sections", default="batched,single,fidelity,robot",
-                    help="comma-separated sections to run (default: all four)")  # fmt: skip
+                    help="comma-separated sections to run (default: these four; also: lanes)")  # fmt: skip
     args = ap.parse_args(argv)
     threads = args.threads or default_threads()
     sections = set(args.sections.split(","))
@@ -237,6 +287,8 @@ def main(argv: list[str] | None = None) -> int:
     if "robot" in sections:
         robot(args.robot_num_envs, args.robot_steps, args.robot_mj_steps, args.single_steps,
               threads, args.repeats)  # fmt: skip
+    if "lanes" in sections:
+        lanes(args.single_steps, args.repeats)
     return 0
 
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, Literal, Protocol
 
@@ -40,7 +40,7 @@ from tensegrity_env.engine import Engine, State
 from tensegrity_env.engine.effects import Effect
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.native.build import NativeUnavailable
-from tensegrity_env.native.kernel import load_kernel
+from tensegrity_env.native.kernel import NARROW_LANES, load_kernel
 from tensegrity_env.native.pack import PACKED_PARAMS, pack_model
 from tensegrity_env.params import Params
 from tensegrity_env.rotations import np_quat_to_matrix
@@ -118,6 +118,10 @@ class NativeStepper:
     ) -> None:
         packed = pack_model(topology, {k: getattr(params, k) for k in PACKED_PARAMS}, effects)
         self._lib, self.openmp = load_kernel()
+        try:  # the narrow build, for a few assemblies (the same numbers, less latency)
+            self._narrow = load_kernel(NARROW_LANES)[0]
+        except NativeUnavailable:
+            self._narrow = self._lib
         if (
             topology.n_rods > self._lib.tsr_max_rods()
             or topology.n_nodes > self._lib.tsr_max_nodes()
@@ -215,6 +219,51 @@ class NativeStepper:
         u = None if control is None else np.ascontiguousarray(control, dtype=np.float64)
         self._run(x, u, winch, c)
 
+    def bind(self, x: np.ndarray, winch: np.ndarray, commands: np.ndarray) -> Callable[[], None]:
+        """A call that does ``wind(x, winch, commands)`` on these arrays, checked once here
+        (the shapes and layouts of :meth:`wind`; ``commands`` are read as they are at each
+        call, and must lie in [-1, 1] or be clipped by the kernel): one environment's
+        step, without re-checking its own buffers every step."""
+        B, W = x.shape[0], self.topology.n_winches
+        for name, a, shape in (
+            ("states", x, (B, self.topology.n_rods, STATE_SIZE)),
+            ("winch states", winch, (B, W, 2)),
+            ("commands", commands, (B, W)),
+        ):
+            if a.shape != shape or a.dtype != np.float64 or not a.flags.c_contiguous:
+                raise ValueError(f"{name} must be a C-contiguous float64 array {shape}")
+        args = self._args(x, None, winch, commands)
+        step = self._lib_for(B).tsr_step
+
+        def bound(_arrays: tuple[np.ndarray, ...] = (x, winch, commands)) -> None:
+            # _arrays: the call holds them, so the addresses in args stay valid
+            code = step(*args)
+            if code != 0:
+                raise RuntimeError(f"native kernel failed with code {code}")
+
+        return bound
+
+    def _lib_for(self, batch: int) -> Any:
+        """The build that steps ``batch`` assemblies fastest: the narrow one for a few."""
+        return self._narrow if batch <= NARROW_LANES else self._lib
+
+    def _args(
+        self,
+        x: np.ndarray,
+        u: np.ndarray | None,
+        winch: np.ndarray | None,
+        commands: np.ndarray | None,
+    ) -> tuple[Any, ...]:
+        """``tsr_step``'s arguments for these arrays."""
+        t = self.topology
+        return (
+            x.shape[0], t.n_rods, t.n_springs, t.n_anchors, self.frame_skip, self.dt,
+            self.iterations, x.ctypes.data, None if u is None else u.ctypes.data,
+            self._model_ptr, self._springs_ptr, self.threads,
+            None if winch is None else winch.ctypes.data,
+            None if commands is None else commands.ctypes.data,
+        )  # fmt: skip
+
     def _run(
         self,
         x: np.ndarray,
@@ -224,14 +273,7 @@ class NativeStepper:
     ) -> None:
         if x.dtype != np.float64 or not x.flags.c_contiguous:
             raise ValueError("states must be a C-contiguous float64 array (B, R, 13)")
-        t = self.topology
-        code = self._lib.tsr_step(
-            x.shape[0], t.n_rods, t.n_springs, t.n_anchors, self.frame_skip, self.dt,
-            self.iterations, x.ctypes.data, None if u is None else u.ctypes.data,
-            self._model_ptr, self._springs_ptr, self.threads,
-            None if winch is None else winch.ctypes.data,
-            None if commands is None else commands.ctypes.data,
-        )  # fmt: skip
+        code = self._lib_for(x.shape[0]).tsr_step(*self._args(x, u, winch, commands))
         if code != 0:
             raise RuntimeError(f"native kernel failed with code {code}")
 

@@ -78,6 +78,10 @@ class RobotEnv(SceneEnv):
         self.winch = sim.get_winch()
         self.target = np.zeros(self.task.target_size())
         self._error = 0.0
+        self._centre = self.state[:, 0:3].sum(axis=0) / self.state.shape[0]
+        self._no_terms = dict.fromkeys(ROBOT_REWARD_TERMS, 0.0)
+        # the readings of this one robot in C where the kernel builds (the batch's numbers)
+        self._read_one = None if self.task.native is None else self.task.native.one()
         self._needs_reset = True
 
     # ------------------------------------------------------------------ gym API
@@ -98,33 +102,37 @@ class RobotEnv(SceneEnv):
         winch = options.get("winch")
         self.sim.set_state(x, None if winch is None else np.asarray(winch, float).reshape(-1, 2))
         self.state, self.winch, self.target = self.sim.get_state(), self.sim.get_winch(), target
-        self._error = float(self.task.error(self.state[None], self.target[None])[0])
+        obs = self._sense()
         self._needs_reset = False
-        return self._obs(), self._info()
+        return obs, self._info()
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """One control step: the task's batched code on one robot, read in one call
+        (:meth:`~tensegrity_env.envs.robot_task.GoalTask.sense`) and rewarded in floats
+        (``reward_one``): the same numbers as the batch of one."""
         if self._needs_reset:
             raise gym.error.ResetNeeded("call reset() before step()")
         a = check_action(action, self.action_space.shape, "one command per motor")
-        command = np.clip(a, -1.0, 1.0)
+        command = np.minimum(np.maximum(a, -1.0), 1.0)  # np.clip's values, in fewer calls
         self.sim.step(command)
         x = self.sim.get_state()
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             # the physics blew up: end the episode on the last finite state
-            info = {**self._info(), "physics_diverged": True}
-            info.update({k: 0.0 for k in ROBOT_REWARD_TERMS})
-            return self._obs(), 0.0, True, False, info
+            obs = self._sense()  # of the last finite state
+            info = {**self._info(), "physics_diverged": True, **self._no_terms}
+            return obs, 0.0, True, False, info
         self.state, self.winch = x, self.sim.get_winch()
-        error = self.task.error(x[None], self.target[None])
-        reward, success, terms = self.task.reward(np.array([self._error]), error, command[None])
-        self._error = float(error[0])
-        info = {**self._info(), **{k: 0.0 for k in ROBOT_REWARD_TERMS}}
-        info.update({k: float(v[0]) for k, v in terms.items()})
-        info["is_success"] = bool(success[0])
-        terminated = bool(success[0]) and isinstance(self.task, GoalTask)
+        prev = self._error
+        obs = self._sense()
+        reward, success, terms = self.task.reward_one(prev, self._error, command)
+        info = self._info()
+        info.update(self._no_terms)
+        info.update(terms)
+        info["is_success"] = success
+        terminated = success and isinstance(self.task, GoalTask)
         if self.render_mode == "human":
             self.render()
-        return self._obs(), float(reward[0]), terminated, False, info
+        return obs, reward, terminated, False, info
 
     def start_options(self) -> dict[str, np.ndarray]:
         return {
@@ -141,16 +149,21 @@ class RobotEnv(SceneEnv):
         result: np.ndarray = self.state[:, 0:2].mean(axis=0)
         return result
 
-    def _obs(self) -> np.ndarray:
-        result: np.ndarray = self.task.observe(self.state[None], self.winch[None], self.target[None])[0]
+    def _sense(self) -> np.ndarray:
+        """Read the robot now: its observation; the task error and the rods' centre kept."""
+        if self._read_one is not None:
+            obs, self._error, self._centre = self._read_one(self.state, self.winch, self.target)
+            return obs
+        batch = self.task.sense(self.state[None], self.winch[None], self.target[None])
+        self._error, self._centre = float(batch[1][0]), batch[2][0]
+        result: np.ndarray = batch[0][0]
         return result
 
     def _info(self) -> dict[str, Any]:
-        c = self.state[:, 0:3].sum(axis=0) / self.state.shape[0]  # the rods' mean centre
         return {
             "task_error": self._error,
-            "x_position": float(c[0]),
-            "y_position": float(c[1]),
+            "x_position": float(self._centre[0]),  # the rods' mean centre
+            "y_position": float(self._centre[1]),
             "target": self.target.copy(),
         }
 

@@ -31,7 +31,7 @@ import torch
 from tensegrity_env.engine.winch import initial_winch_state
 from tensegrity_env.envs.base import settle
 from tensegrity_env.envs.mj_env import MJPhysics, pack_mj
-from tensegrity_env.envs.physics import Backend, make_stepper
+from tensegrity_env.envs.physics import Backend, NativeStepper, make_stepper
 from tensegrity_env.envs.sr_env import ASSETS
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
@@ -111,6 +111,13 @@ class SRRobotSimulator:
         self.rest_winch = initial_winch_state(t, self.params.to(dtype=torch.float64), 1)[0].numpy()
         self.x = np.zeros((batch, t.n_rods, 13))
         self.winch = np.repeat(self.rest_winch[None], batch, axis=0)
+        # copy 0's step on its own buffers, bound once where the kernel steps
+        self._command = np.zeros((1, t.n_winches))
+        self._step_first = (
+            self.stepper.bind(self.x[:1], self.winch[:1], self._command)
+            if isinstance(self.stepper, NativeStepper)
+            else None
+        )
 
     def set_state(self, x: np.ndarray, winch: np.ndarray | None = None, i: int = 0) -> None:
         """Set copy ``i``: rod state (R, 13), winch state (W, 2) (None: at rest)."""
@@ -127,7 +134,12 @@ class SRRobotSimulator:
 
     def step(self, command: np.ndarray) -> None:
         """Advance copy 0 under motor commands (W,) (in place: its rows are contiguous)."""
-        self.stepper.wind(self.x[:1], self.winch[:1], np.asarray(command, dtype=np.float64)[None])
+        if self._step_first is None:
+            self.stepper.wind(self.x[:1], self.winch[:1],
+                              np.asarray(command, dtype=np.float64)[None])  # fmt: skip
+            return
+        self._command[0] = command
+        self._step_first()
 
     def step_batch(self, commands: np.ndarray) -> None:
         """Advance every copy under motor commands (B, W)."""

@@ -12,7 +12,10 @@ rods' velocities or orientations. :class:`RobotSensors` turns packed rod states 
 * :class:`ShapeTask`: hold target lengths of the wound cables.
 
 Both take motor commands in [-1, 1] (one per winch, or per cable actuator) and work on
-any batch size, so the single envs and their twins run the same code.
+any batch size, so the single envs and their twins run the same code. ``observe`` and
+``error`` state the readings in NumPy; ``sense`` gives both (and the rods' centre) in one
+call of the C kernel where it builds (:mod:`~tensegrity_env.envs.robot_sense`: the same
+numbers), which is what the environments call every step.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tensegrity_env.envs.robot_sense import NativeSense, native_sense
 from tensegrity_env.envs.task import RollingTask, TaskOptions
 from tensegrity_env.topology import Topology
 
@@ -148,9 +152,32 @@ class RobotTask(Protocol):
 
     def error(self, x: np.ndarray, target: np.ndarray) -> np.ndarray: ...
 
+    def sense(
+        self, x: np.ndarray, winch: np.ndarray, target: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
     def reward(
         self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]: ...
+
+    def reward_one(
+        self, prev: float, error: float, command: np.ndarray
+    ) -> tuple[float, bool, dict[str, float]]: ...
+
+
+def _sense(
+    task: GoalTask | ShapeTask, x: np.ndarray, winch: np.ndarray, target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(observe, error, centre)`` of robots (B, ...): the kernel's where it builds."""
+    if task.native is not None:
+        return task.native(x, winch, target)
+    return task.observe(x, winch, target), task.error(x, target), RollingTask.centre(x)
+
+
+def _mean_square(command: np.ndarray) -> float:
+    """The mean squared motor command of one robot (W,), summed as the batched rewards
+    sum their (1, W) rows (NumPy's pairwise order), so both give the same bits."""
+    return float(np.add.reduce(command * command) / command.shape[-1])
 
 
 @dataclass(frozen=True)
@@ -165,6 +192,8 @@ class GoalTask:
 
     sensors: RobotSensors
     rolling: RollingTask
+    #: the readings in C (None: NumPy's, where the kernel does not build)
+    native: NativeSense | None = field(default=None, repr=False, compare=False)
 
     @property
     def control_dt(self) -> float:
@@ -197,11 +226,31 @@ class GoalTask:
         """Horizontal distance from the centre to the goal, (B,) [m]."""
         return self.rolling.distance(x, target)
 
+    def sense(
+        self, x: np.ndarray, winch: np.ndarray, target: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`observe` (B, n_obs), :meth:`error` (B,) and the centre (B, 3) [m]."""
+        return _sense(self, x, winch, target)
+
     def reward(
         self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Reward (B,), success (B,) and terms from distances before/after and commands (B, W)."""
         return self.rolling.reward(prev, error, commands[..., None])
+
+    def reward_one(
+        self, prev: float, error: float, command: np.ndarray
+    ) -> tuple[float, bool, dict[str, float]]:
+        """:meth:`reward` of one robot (command (W,)), in floats: the same numbers."""
+        r = self.rolling
+        reached = error < r.goal_radius
+        terms = {
+            "reward_progress": r.progress_weight * (prev - error) / r.control_dt,
+            "reward_control": -r.control_weight * _mean_square(command) / r.max_command**2,
+            "reward_goal": r.goal_bonus * float(reached),
+        }
+        total = terms["reward_progress"] + terms["reward_control"] + terms["reward_goal"]
+        return total, reached, terms
 
 
 @dataclass(frozen=True)
@@ -233,6 +282,8 @@ class ShapeTask:
     reset_noise_scale: float = 5e-3
     control_dt: float = 0.05
     goal_radius: float = field(default=0.0, init=False)
+    #: the readings in C (None: NumPy's, where the kernel does not build)
+    native: NativeSense | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not (0 <= self.shape_range < 1 and self.shape_tolerance > 0 and self.control_dt > 0):
@@ -268,6 +319,12 @@ class ShapeTask:
         result: np.ndarray = np.abs(target - self._wound(x)).max(axis=-1)
         return result
 
+    def sense(
+        self, x: np.ndarray, winch: np.ndarray, target: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`observe` (B, n_obs), :meth:`error` (B,) and the rods' centre (B, 3) [m]."""
+        return _sense(self, x, winch, target)
+
     def reward(
         self, prev: np.ndarray, error: np.ndarray, commands: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
@@ -279,6 +336,16 @@ class ShapeTask:
             * ((commands**2).sum(axis=-1) / commands.shape[-1]),
         }
         return terms["reward_shape"] + terms["reward_control"], held, terms
+
+    def reward_one(
+        self, prev: float, error: float, command: np.ndarray
+    ) -> tuple[float, bool, dict[str, float]]:
+        """:meth:`reward` of one robot (command (W,)), in floats: the same numbers."""
+        terms = {
+            "reward_shape": -self.shape_weight * error,
+            "reward_control": -self.control_weight * _mean_square(command),
+        }
+        return terms["reward_shape"] + terms["reward_control"], error <= self.shape_tolerance, terms
 
 
 #: the options each task takes, besides ``control_dt``
@@ -305,12 +372,13 @@ def make_robot_task(
         if "goal_distance" in opts:
             opts["goal_distance"] = tuple(float(d) for d in opts["goal_distance"])
         rolling = RollingTask(control_dt=control_dt, max_command=1.0, **opts)
-        return GoalTask(sensors, rolling)
+        return GoalTask(sensors, rolling, native_sense(topology, "goal"))
     if name == "shape":
         unknown = sorted(set(options) - set(SHAPE_OPTIONS))
         if unknown:
             raise TypeError(
                 f"unknown shape-task option(s) {unknown}; it takes {list(SHAPE_OPTIONS)}"
             )
-        return ShapeTask(sensors, control_dt=control_dt, **options)
+        return ShapeTask(sensors, control_dt=control_dt, native=native_sense(topology, "shape"),
+                         **options)  # fmt: skip
     raise ValueError(f"task must be one of {TASKS}, got {name!r}")

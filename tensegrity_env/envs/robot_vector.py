@@ -68,6 +68,7 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         self._rngs = [seeding.np_random(None)[0] for _ in range(self.num_envs)]
         self.targets = np.zeros((self.num_envs, self.task.target_size()))
         self._error = np.zeros(self.num_envs)
+        self._centre = np.zeros((self.num_envs, 3))
         self._elapsed = np.zeros(self.num_envs, dtype=np.int64)
         self._last_obs = np.zeros((self.num_envs, n_obs), dtype=np.float32)
         self._needs_reset = True
@@ -79,8 +80,7 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         for i, s in enumerate(env_seeds(seed, self.num_envs)):
             if s is not None:
                 self._rngs[i] = seeding.np_random(s)[0]
-        self._reset_envs(np.arange(self.num_envs))
-        obs = self._observe()
+        obs = self._reset_envs(np.arange(self.num_envs))
         self._last_obs, self._needs_reset = obs, False
         return obs, self._base_info()
 
@@ -94,8 +94,8 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         commands = np.clip(a, -1.0, 1.0)
         self.sim.step_batch(commands)
         x = self.sim.x
-        bad = ~np.all(np.isfinite(x), axis=(1, 2))
-        error = self.task.error(x, self.targets)
+        bad = ~np.isfinite(x).all(axis=(1, 2))
+        obs, error, self._centre = self.task.sense(x, self.sim.winch, self.targets)
         error[bad] = self._error[bad]
         reward, success, terms = self.task.reward(self._error, error, commands)
         reward[bad] = 0.0
@@ -109,33 +109,34 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         truncated = np.zeros(self.num_envs, dtype=bool)
         if self.max_episode_steps is not None:
             truncated = (self._elapsed >= self.max_episode_steps) & ~terminated
-        obs = self._observe()
         obs[bad] = self._last_obs[bad]
         infos.update(self._base_info())
         infos["is_success"], infos["physics_diverged"] = success & ~bad, bad
         done = terminated | truncated
         if done.any():
             ended = record_final(obs, infos, done)
-            self._reset_envs(ended)
-            obs[ended] = self._observe()[ended]
+            obs[ended] = self._reset_envs(ended)
         self._last_obs = obs
         return obs, reward, terminated, truncated, infos
 
-    def _observe(self) -> np.ndarray:
-        return self.task.observe(self.sim.x, self.sim.winch, self.targets)
-
-    def _reset_envs(self, idx: np.ndarray) -> None:
+    def _reset_envs(self, idx: np.ndarray) -> np.ndarray:
+        """Reset the envs ``idx`` (seeded draws); their observations (len(idx), n_obs)."""
         for i in idx:
             x, self.targets[i] = self.task.sample_reset(
                 self._rngs[i], self.rest, self.sim.rest_winch
             )
             self.sim.set_state(x, None, int(i))
         self._elapsed[idx] = 0
-        self._error[idx] = self.task.error(self.sim.x[idx], self.targets[idx])
+        obs, self._error[idx], self._centre[idx] = self.task.sense(
+            self.sim.x[idx], self.sim.winch[idx], self.targets[idx]
+        )
+        return obs
 
     def _base_info(self) -> dict[str, Any]:
-        c = self.sim.x[..., 0:3].mean(axis=1)
-        return {"task_error": self._error.copy(), "x_position": c[:, 0], "y_position": c[:, 1]}
+        c = self._centre  # the rods' mean centre, as the single env's info (copies: a reset
+        # rewrites the ended envs' rows)
+        return {"task_error": self._error.copy(), "x_position": c[:, 0].copy(),
+                "y_position": c[:, 1].copy()}  # fmt: skip
 
 
 def _batch_size(num_envs: int) -> int:

@@ -71,11 +71,14 @@ def _compile(cc: str, sources: list[Path], flags: tuple[str, ...], out: Path) ->
     return True
 
 
-def build_and_load(source: Path | Sequence[Path]) -> tuple[ctypes.CDLL, bool]:
+def build_and_load(
+    source: Path | Sequence[Path], defines: Sequence[str] = ()
+) -> tuple[ctypes.CDLL, bool]:
     """Compile ``source`` (cached) and load it: the library and whether it has OpenMP.
 
     ``source`` is one C file or a kernel's files (its ``.c`` files compiled together,
-    its headers found beside them); the library is named after the first.
+    its headers found beside them); the library is named after the first. ``defines``:
+    preprocessor definitions (``"NAME=VALUE"``, passed as ``-D``), part of the key.
 
     Raises:
         NativeUnavailable: no compiler, or no flag set builds and loads.
@@ -86,7 +89,8 @@ def build_and_load(source: Path | Sequence[Path]) -> tuple[ctypes.CDLL, bool]:
         raise NativeUnavailable("no C compiler found (set CC)")
     text = b"".join(f.name.encode() + b"\0" + f.read_bytes() for f in files)
     units = [f for f in files if f.suffix == ".c"]
-    for flags in FLAG_SETS:
+    for flag_set in FLAG_SETS:
+        flags = (*flag_set, *(f"-D{d}" for d in defines))
         key = hashlib.sha256(
             text + " ".join((cc, *flags)).encode() + _cpu_signature().encode()
         ).hexdigest()[:16]

@@ -1,11 +1,12 @@
 """The C kernel (``native_step.h`` and the ``native_*.c`` files it lists), loaded: the
-identified model's step and the ground contact's forces.
+identified model's step, the ground contact's forces and a robot's sensor readings.
 
 Built once per machine by :mod:`tensegrity_env.native.build` (about a second). Its
 callers: the environments' stepper (:class:`~tensegrity_env.envs.physics.NativeStepper`),
 the engine's no-gradient step (:mod:`tensegrity_env.native.engine_step`) and the ground
 contact's law where no gradient is wanted
-(:meth:`~tensegrity_env.effects.ground_contact.GroundContact.contact_forces`). When no
+(:meth:`~tensegrity_env.effects.ground_contact.GroundContact.contact_forces`) and the
+generic environments' observation (:mod:`tensegrity_env.envs.robot_sense`). When no
 compiler works, :func:`load_kernel` raises :class:`NativeUnavailable` and
 :func:`usable_kernel` returns None: the callers step PyTorch instead.
 """
@@ -23,8 +24,13 @@ from tensegrity_env.native.build import NativeUnavailable, build_and_load
 #: the kernel's files, compiled together (what each holds: ``native_step.h``)
 SOURCES = tuple(
     Path(__file__).with_name(f"native_{part}")
-    for part in ("step.h", "step.c", "model.c", "forces.c", "contact.c", "winch.c")
+    for part in ("step.h", "step.c", "model.c", "forces.c", "contact.c", "winch.c", "sense.c")
 )
+#: assemblies per SIMD block of the kernel's two builds: the wide one for batches, the
+#: narrow one for a few assemblies (one environment), whose shorter vectors cost less
+#: latency; both give the same numbers bit for bit (native_step.h)
+LANES = 8
+NARROW_LANES = 4
 
 #: whether the kernel may stand in for PyTorch where no gradient is wanted (the ground
 #: contact's law and ``Engine(native=True)``); tests and benchmarks switch it off to
@@ -41,14 +47,18 @@ GRADIENT_WANTED = "a gradient is wanted"
 #: the reason given where :data:`USE_NATIVE` is off
 SWITCHED_OFF = "the C kernel is switched off (tensegrity_env.native.kernel.USE_NATIVE)"
 
-__all__ = ["CONTACT_LAW", "GRADIENT_WANTED", "SOURCES", "SWITCHED_OFF", "USE_NATIVE",
-           "NativeUnavailable", "load_kernel", "unusable_reason", "usable_kernel"]  # fmt: skip
+__all__ = ["CONTACT_LAW", "GRADIENT_WANTED", "LANES", "NARROW_LANES", "SOURCES", "SWITCHED_OFF",
+           "USE_NATIVE", "NativeUnavailable", "load_kernel", "unusable_reason",
+           "usable_kernel"]  # fmt: skip
 
 
-@lru_cache(maxsize=1)
-def load_kernel() -> tuple[ctypes.CDLL, bool]:
-    """The loaded library and whether it has OpenMP. Raises :class:`NativeUnavailable`."""
-    lib, openmp = build_and_load(SOURCES)
+@lru_cache(maxsize=2)
+def load_kernel(lanes: int = LANES) -> tuple[ctypes.CDLL, bool]:
+    """The loaded library with ``lanes`` assemblies per SIMD block (:data:`LANES` or
+    :data:`NARROW_LANES`) and whether it has OpenMP. Raises :class:`NativeUnavailable`."""
+    if lanes not in (LANES, NARROW_LANES):
+        raise ValueError(f"the kernel is built with {LANES} or {NARROW_LANES} lanes, not {lanes}")
+    lib, openmp = build_and_load(SOURCES, () if lanes == LANES else (f"TSR_W={lanes}",))
     c_int = ctypes.c_int
     # the last two: the winch states (B, W, 2) in/out and their commands (B, W) (None: no
     # winding / motors at 0)
@@ -73,6 +83,9 @@ def load_kernel() -> tuple[ctypes.CDLL, bool]:
     lib.tsr_max_nodes.restype = c_int
     lib.tsr_max_points.restype = c_int
     lib.tsr_max_winches.restype = c_int
+    lib.tsr_lanes.restype = c_int
+    lib.tsr_sense.argtypes = [ctypes.c_long, c_int, c_int, c_int, c_int, c_int, *[ptr] * 10]
+    lib.tsr_sense.restype = c_int
     return lib, openmp
 
 

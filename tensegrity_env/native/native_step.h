@@ -13,6 +13,8 @@
  *   native_winch.c    the winches: loading, winding and storing their states
  *   native_step.c     Newton-Euler and the integration, the batch over threads and
  *                     the entry points tsr_step and tsr_step_groups
+ *   native_sense.c    a robot's sensor readings and task error (the environments'
+ *                     observation, tensegrity_env/envs/robot_sense.py)
  *
  * Exactly the physics of tensegrity_env.engine.Engine.step with the effects the
  * packing lists (tests/unit/test_envs.py and tests/unit/test_native_engine_path.py
@@ -40,7 +42,10 @@
  *
  * TSR_W assemblies are stepped together, one per SIMD lane (GCC vector extensions);
  * the frame_skip substeps of a control step run with the states in registers and
- * L1, and OpenMP threads take blocks of assemblies.
+ * L1, and OpenMP threads take blocks of assemblies. The library is built twice, with 8
+ * lanes and with 4 (-DTSR_W=4): a batch of a few assemblies (one environment) steps
+ * through the narrow one, whose shorter vectors cost less latency; the lanes never mix,
+ * so both give the same numbers bit for bit (tests/unit/test_native_lanes.py).
  *
  * Layouts (all double, row-major):
  *   state   (B, R, 13): p[3] v[3] q[4] (w x y z) omega[3], world frame; in/out
@@ -79,7 +84,9 @@
 
 #define TSR_MAX_RODS 16
 #define TSR_MAX_NODES 64
-#define TSR_W 8 /* assemblies per SIMD block */
+#ifndef TSR_W
+#define TSR_W 8 /* assemblies per SIMD block (the build may set 4: a narrow copy for small batches) */
+#endif
 #define TSR_MAX_EDGES 8
 #define TSR_MAX_POINTS 32
 #define TSR_MAX_WINCHES 32 /* winch states held per SIMD block on the stack (a robot has a few) */

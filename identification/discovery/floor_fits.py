@@ -77,7 +77,7 @@ MAX_WINDOW_GAIN = 4
 ROD_STATE = 12
 
 
-def fit_floor_ratio(steps: int) -> float:
+def state_fit_ratio(steps: int) -> float:
     """The RMS a window's state fit leaves at the true model, as a fraction of the noise.
 
     A window of ``steps`` steps holds ``steps + 1`` samples of a rod's 6 end-cap
@@ -109,7 +109,7 @@ def state_fits(
     """The median state fit [m] of ``count`` training windows of each of ``lengths``
     steps (longest first) with the model held at ``theta``, and the length; it stops at
     the first length whose median is within :data:`STUCK_WINDOW` times the ``noise``
-    [m] scaled by :func:`fit_floor_ratio` (the last tried is then the one chosen)."""
+    [m] scaled by :func:`state_fit_ratio` (the last tried is then the one chosen)."""
     tried: list[tuple[float, int]] = []
     engine, held = vec.engine(data.engine, theta), held_states(vec, theta)
     for n in lengths:
@@ -125,9 +125,9 @@ def state_fits(
 
 def within(tried: tuple[float, int], noise: float) -> bool:
     """Whether a median state fit ``(median [m], steps)`` is within :data:`STUCK_WINDOW`
-    times the ``noise`` [m] left by a fit at the true state (:func:`fit_floor_ratio`)."""
+    times the ``noise`` [m] left by a fit at the true state (:func:`state_fit_ratio`)."""
     median, n = tried
-    return median <= STUCK_WINDOW * noise * fit_floor_ratio(n)
+    return median <= STUCK_WINDOW * noise * state_fit_ratio(n)
 
 
 def window_count(count: int, steps: int, n: int) -> int:
@@ -153,9 +153,10 @@ def windows_from_data(
     the rate, the narrower the basin of the true state, and shorter windows fit from
     smoothing closer to it (the measurement is in docs/decisions.md). So: windows
     of ``steps``, halved (down to :data:`MIN_FLOOR_STEPS` samples) while the median
-    window's states, fitted at the start model, stay above :data:`STUCK_WINDOW` times
+    window's states, fitted at the start model, stay above
+    :data:`~identification.discovery.end_cap_data.STUCK_WINDOW` times
     the ``noise`` [m] (:func:`within`); none within it: the lowest median against its
-    length's :func:`fit_floor_ratio`. The count grows as the windows shrink
+    length's :func:`state_fit_ratio`. The count grows as the windows shrink
     (:func:`window_count`). At a start model far from the plant, long windows miss
     for the model's error rather than the state's basin: :func:`floor_fit` goes on
     to longer windows from its fit (:func:`longer_windows`).
@@ -164,7 +165,7 @@ def windows_from_data(
     best = (
         tried[-1]
         if within(tried[-1], noise)
-        else min(tried, key=lambda t: t[0] / fit_floor_ratio(t[1]))
+        else min(tried, key=lambda t: t[0] / state_fit_ratio(t[1]))
     )
     why = f"median state fit at the start model: {describe(tried, noise)}"
     return best[1], window_count(count, steps, best[1]), why

@@ -24,10 +24,10 @@ from identification.discovery.end_cap_data import (
 from identification.discovery.floor_fits import (
     MIN_FLOOR_STEPS,
     ROD_STATE,
-    fit_floor_ratio,
     floor_rows,
     halvings,
     longer_windows,
+    state_fit_ratio,
     state_fits,
     within,
 )
@@ -47,9 +47,9 @@ def test_a_least_squares_fit_of_the_state_leaves_the_noise_less_its_degrees_of_f
         y = a @ rng.normal(size=ROD_STATE) + rng.normal(0.0, sigma, n)
         r = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
         rms.append(np.mean(r**2))
-    assert np.sqrt(np.mean(rms)) / sigma == pytest.approx(fit_floor_ratio(steps), rel=0.02)
+    assert np.sqrt(np.mean(rms)) / sigma == pytest.approx(state_fit_ratio(steps), rel=0.02)
     # so a short window's fit looks closer to the noise than a long one's
-    assert fit_floor_ratio(4) < fit_floor_ratio(8) < fit_floor_ratio(30) < 1.0
+    assert state_fit_ratio(4) < state_fit_ratio(8) < state_fit_ratio(30) < 1.0
     assert within((0.9e-3, 30), 1e-3) and not within((1.2e-3, 4), 1e-3)
 
 

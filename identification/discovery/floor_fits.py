@@ -73,12 +73,80 @@ def floor_steps(dt: float, s: TrajectorySettings) -> int:
 MIN_FLOOR_STEPS = 4
 #: and their count raised to keep the samples fitted, by at most this factor
 MAX_WINDOW_GAIN = 4
+#: a rod's unknowns in a window's state fit: position, orientation and their rates
+ROD_STATE = 12
+
+
+def state_fit_ratio(steps: int) -> float:
+    """The RMS a window's state fit leaves at the true model, as a fraction of the noise.
+
+    A window of ``steps`` steps holds ``steps + 1`` samples of a rod's 6 end-cap
+    coordinates against :data:`ROD_STATE` state unknowns, and a least-squares fit
+    absorbs that many of the noise's degrees of freedom: ``sqrt(1 - 12 / (6 (steps + 1)))``
+    (0.77 on 4 steps, 0.97 on 30), so short windows look closer to the noise than
+    they are.
+    """
+    n = 6 * (steps + 1)
+    return float(np.sqrt(max(n - ROD_STATE, 1) / n))
+
+
+def halvings(steps: int) -> list[int]:
+    """``steps`` and its halvings down to :data:`MIN_FLOOR_STEPS`, longest first."""
+    out = [steps]
+    while (shorter := max(MIN_FLOOR_STEPS, round(out[-1] / 2))) < out[-1]:
+        out.append(shorter)
+    return out
+
+
+def state_fits(
+    data: EndCapData,
+    vec: ParamVector,
+    theta: torch.Tensor,
+    lengths: Sequence[int],
+    count: int,
+    noise: float,
+) -> list[tuple[float, int]]:
+    """The median state fit [m] of ``count`` training windows of each of ``lengths``
+    steps (longest first) with the model held at ``theta``, and the length; it stops at
+    the first length whose median is within :data:`STUCK_WINDOW` times the ``noise``
+    [m] scaled by :func:`state_fit_ratio` (the last tried is then the one chosen)."""
+    tried: list[tuple[float, int]] = []
+    engine, held = vec.engine(data.engine, theta), held_states(vec, theta)
+    for n in lengths:
+        w = data.cut("train", n, count, 3, lift_off=count // 2)
+        fit = states_at(data.engine, vec, theta, w, STATE_ITERS)
+        err = windows_within(engine, held, fit.windows, torch.zeros(0, dtype=torch.float64),
+                             np.inf)[1]  # fmt: skip
+        tried.append((float(np.median(err)), n))
+        if within(tried[-1], noise):
+            break
+    return tried
+
+
+def within(tried: tuple[float, int], noise: float) -> bool:
+    """Whether a median state fit ``(median [m], steps)`` is within :data:`STUCK_WINDOW`
+    times the ``noise`` [m] left by a fit at the true state (:func:`state_fit_ratio`)."""
+    median, n = tried
+    return median <= STUCK_WINDOW * noise * state_fit_ratio(n)
+
+
+def window_count(count: int, steps: int, n: int) -> int:
+    """Windows of ``n`` steps fitting about the samples of ``count`` of ``steps``, at
+    most :data:`MAX_WINDOW_GAIN` times ``count``."""
+    return min(MAX_WINDOW_GAIN * count, max(count, round(count * steps / n)))
+
+
+def describe(tried: Sequence[tuple[float, int]], noise: float) -> str:
+    """The state fits tried, longest first, against the noise [m]."""
+    why = ", ".join(f"{m:d} steps {e * 1e3:.3g} mm" for e, m in sorted(tried, key=lambda x: -x[1]))
+    return f"{why} (noise {noise * 1e3:.3g} mm)"
 
 
 def windows_from_data(
     data: EndCapData, vec: ParamVector, steps: int, count: int, noise: float
 ) -> tuple[int, int, str]:
-    """Steps and count of the floor fit's windows, chosen on the data, and a line saying why.
+    """Steps and count of the floor fit's first windows, chosen on the data, and a line
+    saying why.
 
     A window's initial state is fitted through every contact in it, and how far a
     state fit reaches depends on the motion: the faster a structure tumbles against
@@ -86,29 +154,47 @@ def windows_from_data(
     smoothing closer to it (the measurement is in docs/decisions.md). So: windows
     of ``steps``, halved (down to :data:`MIN_FLOOR_STEPS` samples) while the median
     window's states, fitted at the start model, stay above
-    :data:`~identification.discovery.end_cap_data.STUCK_WINDOW` times the ``noise``
-    [m]; none within it: the lowest median. The count grows as the windows shrink
-    (the samples fitted stay about the same, at most :data:`MAX_WINDOW_GAIN` times
-    ``count``).
+    :data:`~identification.discovery.end_cap_data.STUCK_WINDOW` times
+    the ``noise`` [m] (:func:`within`); none within it: the lowest median against its
+    length's :func:`state_fit_ratio`. The count grows as the windows shrink
+    (:func:`window_count`). At a start model far from the plant, long windows miss
+    for the model's error rather than the state's basin: :func:`floor_fit` goes on
+    to longer windows from its fit (:func:`longer_windows`).
     """
-    tried: list[tuple[float, int]] = []
-    n = steps
-    while True:
-        w = data.cut("train", n, count, 3, lift_off=count // 2)
-        fit = states_at(data.engine, vec, vec.theta0(), w, STATE_ITERS)
-        err = windows_within(vec.engine(data.engine, vec.theta0()),
-                             held_states(vec, vec.theta0()), fit.windows,
-                             torch.zeros(0, dtype=torch.float64), np.inf)[1]  # fmt: skip
-        median = float(np.median(err))
-        tried.append((median, n))
-        shorter = max(MIN_FLOOR_STEPS, round(n / 2))
-        if median <= STUCK_WINDOW * noise or shorter >= n:
-            break
-        n = shorter
-    median, n = tried[-1] if tried[-1][0] <= STUCK_WINDOW * noise else min(tried)
-    k = min(MAX_WINDOW_GAIN * count, max(count, round(count * steps / n)))
-    why = ", ".join(f"{m:d} steps {e * 1e3:.3g} mm" for e, m in sorted(tried, key=lambda x: -x[1]))
-    return n, k, (f"median state fit at the start model: {why} (noise {noise * 1e3:.3g} mm)")
+    tried = state_fits(data, vec, vec.theta0(), halvings(steps), count, noise)
+    best = (
+        tried[-1]
+        if within(tried[-1], noise)
+        else min(tried, key=lambda t: t[0] / state_fit_ratio(t[1]))
+    )
+    why = f"median state fit at the start model: {describe(tried, noise)}"
+    return best[1], window_count(count, steps, best[1]), why
+
+
+def longer_windows(
+    data: EndCapData,
+    vec: ParamVector,
+    theta: torch.Tensor,
+    steps: int,
+    now: int,
+    count: int,
+    noise: float,
+) -> tuple[int, int, str] | None:
+    """Windows longer than ``now`` steps (of ``steps`` and its :func:`halvings`) whose
+    median state fit at the fitted model ``theta`` is :func:`within` the ``noise`` [m]:
+    their steps, count (:func:`window_count` of ``count`` of ``steps``) and a line saying
+    why; None where none is. Longer windows span more of the motion between contacts,
+    which pins the parameters' scale that a few samples cannot."""
+    lengths = [n for n in halvings(steps) if n > now]
+    if not lengths:
+        return None
+    tried = state_fits(data, bounded(vec, theta), theta, lengths, count, noise)
+    why = f"median state fit at the fitted model: {describe(tried, noise)}"
+    if not within(tried[-1], noise):
+        data.log(f"    floor windows stay at {now} steps; {why}")
+        return None
+    n = tried[-1][1]
+    return n, window_count(count, steps, n), why
 
 
 @dataclass(frozen=True)
@@ -154,17 +240,26 @@ def floor_fit(
     begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
-    steps, count = floor_steps(data.dt, s), s.floor_windows
+    longest, count0 = floor_steps(data.dt, s), s.floor_windows
+    steps, count, noise = longest, count0, 0.0
     if s.floor_window <= 0:  # not set: from the data
         noise = noise_level(data.train.nodes, rods=True)
-        steps, count, why = windows_from_data(data, vec, steps, count, noise)
+        steps, count, why = windows_from_data(data, vec, longest, count0, noise)
         data.log(f"    floor windows from the data: {count} of {steps} steps; {why}")
-    data.floor_steps = steps
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); {count} "
              f"windows of {steps} steps")  # fmt: skip
     many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
+    while s.floor_window <= 0 and steps < longest:  # on to longer windows from the fit
+        longer = longer_windows(data, vec, w.theta, longest, steps, count0, noise)
+        if longer is None:
+            break
+        steps, count, why = longer
+        data.log(f"    floor windows from the fit: {count} of {steps} steps; {why}")
+        many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
+        w = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter, log=data.log)
+    data.floor_steps = steps
     vec = bounded(vec, w.theta)
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)

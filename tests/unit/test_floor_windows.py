@@ -1,0 +1,90 @@
+"""The floor fit's windows chosen on the data (identification.discovery.floor_fits):
+the state fit's expected residual, the halvings, and longer windows once the model fits."""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+
+from measured_plant import clean_rolling
+
+from identification.data.end_caps import dataset_from_end_caps
+from identification.discovery.end_cap_data import (
+    EndCapData,
+    TrajectorySettings,
+    declared_start,
+    held_drag_axis,
+)
+from identification.discovery.floor_fits import (
+    MIN_FLOOR_STEPS,
+    ROD_STATE,
+    floor_rows,
+    halvings,
+    longer_windows,
+    state_fit_ratio,
+    state_fits,
+    within,
+)
+from identification.trajectory.floor_fit import floor_contact, with_floor
+from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.effects import GroundContact
+from tensegrity_env.mjcf import from_mjcf
+from tensegrity_env.mjcf_checks import FEATURES, IgnoredFeatureWarning
+
+
+@pytest.mark.parametrize("steps", [4, 8, 30])
+def test_a_least_squares_fit_of_the_state_leaves_the_noise_less_its_degrees_of_freedom(steps):
+    rng = np.random.default_rng(0)
+    n, sigma, rms = 6 * (steps + 1), 1e-3, []
+    for _ in range(400):  # a rod's window: 6 coordinates per sample, 12 state unknowns
+        a = rng.normal(size=(n, ROD_STATE))
+        y = a @ rng.normal(size=ROD_STATE) + rng.normal(0.0, sigma, n)
+        r = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+        rms.append(np.mean(r**2))
+    assert np.sqrt(np.mean(rms)) / sigma == pytest.approx(state_fit_ratio(steps), rel=0.02)
+    # so a short window's fit looks closer to the noise than a long one's
+    assert state_fit_ratio(4) < state_fit_ratio(8) < state_fit_ratio(30) < 1.0
+    assert within((0.9e-3, 30), 1e-3) and not within((1.2e-3, 4), 1e-3)
+
+
+def test_windows_are_halved_down_to_the_fewest_steps() -> None:
+    assert halvings(30) == [30, 15, 8, 4]
+    assert halvings(12) == [12, 6, 4]
+    assert halvings(MIN_FLOOR_STEPS) == [MIN_FLOOR_STEPS]
+
+
+@pytest.fixture(scope="module")
+def rolling():
+    """Rolling icosahedron data (2 s, 120 Hz, 1 mm noise) and its declared-model vector
+    at the true parameters and contact."""
+    truth, split = clean_rolling(0, duration=2.0)
+    nodes = split.nodes + np.random.default_rng(2).normal(0.0, 1e-3, split.nodes.shape)
+    topo = icosahedron().topology
+    data = EndCapData(dataset_from_end_caps(topo, 1 / 120, {"train": nodes, "test": nodes}),
+                       TrajectorySettings())  # fmt: skip
+    data.on_floor = True
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IgnoredFeatureWarning)
+        contact = from_mjcf("<plant>", xml=truth.xml, ignore=tuple(FEATURES)).contact
+    true_contact = GroundContact(topo, **{**contact, "height": 0.0})
+    vec = declared_start(data, {}, truth.params, None, rod_keep=floor_rows(data))
+    begin = floor_contact(topo, nodes, true_contact)
+    return data, with_floor(vec, [], begin, held_drag_axis(data)), truth
+
+
+def test_longer_windows_are_taken_where_their_states_fit_at_the_model(rolling) -> None:
+    data, vec, _ = rolling
+    at_truth = longer_windows(data, vec, vec.theta0(), 30, MIN_FLOOR_STEPS, 8, 1e-3)
+    assert at_truth is not None and at_truth[0] > MIN_FLOOR_STEPS, at_truth
+    steps, count, _ = at_truth
+    assert count == max(8, min(32, round(8 * 30 / steps)))  # about the samples of 8 x 30
+    tried = state_fits(data, vec, vec.theta0(), halvings(30), 8, 1e-3)
+    assert tried[-1][1] == steps and within(tried[-1], 1e-3)
+    assert not any(within(t, 1e-3) for t in tried[:-1])  # the longest within is taken
+    assert longer_windows(data, vec, vec.theta0(), 30, steps, 8, 1e-3) is None

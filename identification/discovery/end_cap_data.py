@@ -48,8 +48,8 @@ from tensegrity_env.topology import Topology
 FIT_WINDOW = 300
 
 #: a window whose states, fitted at the selected model, stay above this multiple of the
-#: noise level is left out of the final floor refit, and from its second round on of the
-#: floor fit (stuck in another basin through an impact;
+#: noise level is left out of the final floor refit and of the floor fit's rounds
+#: (stuck in another basin through an impact;
 #: :func:`~identification.trajectory.window_errors.windows_within`)
 STUCK_WINDOW = 1.5
 

@@ -92,8 +92,8 @@ def windows_from_data(
     [m]; none within it: the lowest median. The count grows as the windows shrink
     (the samples fitted stay about the same, at most :data:`MAX_WINDOW_GAIN` times
     ``count``), and where the median is within, also by one over the share of windows
-    within: the others' states are stuck, and the floor fit leaves them out from its
-    second round (:func:`~identification.trajectory.floor_fit.fit_on_floor`'s ``stuck``).
+    within: the others' states are stuck, and the floor fit leaves them out
+    (:func:`~identification.trajectory.floor_fit.fit_on_floor`'s ``stuck``).
     On a drawn plant (``plant_family`` seed 16, 200 Hz, 0.30 mm noise, from the true
     model) 7 of 16 windows were left out, and the 9 others pinned the spring damping
     to 2 % standard errors it missed by up to 14 of them (23 %); from 32 windows, 15 kept,

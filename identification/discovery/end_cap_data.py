@@ -49,8 +49,9 @@ from tensegrity_env.topology import Topology
 FIT_WINDOW = 300
 
 #: a window whose states, fitted at the selected model, stay above this multiple of the
-#: noise level is left out of the final floor refit (stuck in another basin through an
-#: impact; :func:`~identification.trajectory.window_errors.windows_within`)
+#: noise level is left out of the final floor refit and of the floor fit's rounds
+#: (stuck in another basin through an impact;
+#: :func:`~identification.trajectory.window_errors.windows_within`)
 STUCK_WINDOW = 1.5
 
 

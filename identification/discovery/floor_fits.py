@@ -105,41 +105,47 @@ def state_fits(
     lengths: Sequence[int],
     count: int,
     noise: float,
-) -> list[tuple[float, int]]:
+) -> list[tuple[float, int, float]]:
     """The median state fit [m] of ``count`` training windows of each of ``lengths``
-    steps (longest first) with the model held at ``theta``, and the length; it stops at
+    steps (longest first) with the model held at ``theta``, the length, and the share
+    of the windows whose state fit is within :data:`STUCK_WINDOW` times the ``noise``
+    (the others' states are stuck: the floor fit leaves them out); it stops at
     the first length whose median is within :data:`STUCK_WINDOW` times the ``noise``
     [m] scaled by :func:`state_fit_ratio` (the last tried is then the one chosen)."""
-    tried: list[tuple[float, int]] = []
+    tried: list[tuple[float, int, float]] = []
     engine, held = vec.engine(data.engine, theta), held_states(vec, theta)
     for n in lengths:
         w = data.cut("train", n, count, 3, lift_off=count // 2)
         fit = states_at(data.engine, vec, theta, w, STATE_ITERS)
         err = windows_within(engine, held, fit.windows, torch.zeros(0, dtype=torch.float64),
                              np.inf)[1]  # fmt: skip
-        tried.append((float(np.median(err)), n))
+        tried.append((float(np.median(err)), n, float(np.mean(err <= STUCK_WINDOW * noise))))
         if within(tried[-1], noise):
             break
     return tried
 
 
-def within(tried: tuple[float, int], noise: float) -> bool:
-    """Whether a median state fit ``(median [m], steps)`` is within :data:`STUCK_WINDOW`
+def within(tried: tuple[float, int, float], noise: float) -> bool:
+    """Whether a median state fit ``(median [m], steps, share)`` is within :data:`STUCK_WINDOW`
     times the ``noise`` [m] left by a fit at the true state (:func:`state_fit_ratio`)."""
-    median, n = tried
+    median, n = tried[:2]
     return median <= STUCK_WINDOW * noise * state_fit_ratio(n)
 
 
-def window_count(count: int, steps: int, n: int) -> int:
-    """Windows of ``n`` steps fitting about the samples of ``count`` of ``steps``, at
-    most :data:`MAX_WINDOW_GAIN` times ``count``."""
-    return min(MAX_WINDOW_GAIN * count, max(count, round(count * steps / n)))
+def window_count(count: int, steps: int, n: int, share: float = 1.0) -> int:
+    """Windows of ``n`` steps fitting about the samples of ``count`` of ``steps``, and
+    more by one over the ``share`` of windows whose states fit (the others are left
+    out), at most :data:`MAX_WINDOW_GAIN` times ``count``."""
+    gain = steps / n / max(share, 0.5)
+    return min(MAX_WINDOW_GAIN * count, max(count, round(count * gain)))
 
 
-def describe(tried: Sequence[tuple[float, int]], noise: float) -> str:
-    """The state fits tried, longest first, against the noise [m]."""
-    why = ", ".join(f"{m:d} steps {e * 1e3:.3g} mm" for e, m in sorted(tried, key=lambda x: -x[1]))
-    return f"{why} (noise {noise * 1e3:.3g} mm)"
+def describe(tried: Sequence[tuple[float, int, float]], noise: float) -> str:
+    """The state fits tried, longest first, against the noise [m], and the share of
+    windows within of the last."""
+    why = ", ".join(f"{m:d} steps {e * 1e3:.3g} mm" for e, m, _ in sorted(tried, key=lambda x: -x[1]))
+    share = f"; {100 * tried[-1][2]:.0f} % of the windows within {STUCK_WINDOW:g} of it"
+    return f"{why} (noise {noise * 1e3:.3g} mm{share if within(tried[-1], noise) else ''})"
 
 
 def windows_from_data(
@@ -168,7 +174,8 @@ def windows_from_data(
         else min(tried, key=lambda t: t[0] / state_fit_ratio(t[1]))
     )
     why = f"median state fit at the start model: {describe(tried, noise)}"
-    return best[1], window_count(count, steps, best[1]), why
+    share = best[2] if within(best, noise) else 1.0
+    return best[1], window_count(count, steps, best[1], share), why
 
 
 def longer_windows(
@@ -194,7 +201,7 @@ def longer_windows(
         data.log(f"    floor windows stay at {now} steps; {why}")
         return None
     n = tried[-1][1]
-    return n, window_count(count, steps, n), why
+    return n, window_count(count, steps, n, tried[-1][2]), why
 
 
 @dataclass(frozen=True)
@@ -241,16 +248,17 @@ def floor_fit(
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
     longest, count0 = floor_steps(data.dt, s), s.floor_windows
-    steps, count, noise = longest, count0, 0.0
+    steps, count = longest, count0
+    noise = noise_level(data.train.nodes, rods=True)
     if s.floor_window <= 0:  # not set: from the data
-        noise = noise_level(data.train.nodes, rods=True)
         steps, count, why = windows_from_data(data, vec, longest, count0, noise)
         data.log(f"    floor windows from the data: {count} of {steps} steps; {why}")
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); {count} "
              f"windows of {steps} steps")  # fmt: skip
     many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
-    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
+    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log,
+                     stuck=STUCK_WINDOW * noise)  # fmt: skip
     while s.floor_window <= 0 and steps < longest:  # on to longer windows from the fit
         longer = longer_windows(data, vec, w.theta, longest, steps, count0, noise)
         if longer is None:
@@ -258,7 +266,8 @@ def floor_fit(
         steps, count, why = longer
         data.log(f"    floor windows from the fit: {count} of {steps} steps; {why}")
         many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
-        w = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter, log=data.log)
+        w = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter, log=data.log,
+                         stuck=STUCK_WINDOW * noise)  # fmt: skip
     data.floor_steps = steps
     vec = bounded(vec, w.theta)
     m = w.windows.residuals

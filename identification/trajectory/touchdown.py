@@ -135,10 +135,12 @@ def find_touchdowns(
         win = cut_windows(nodes[i : i + 1, : n + 1], control[i : i + 1, :n],
                           {k: grid[k][i : i + 1] for k in STATE_KEYS}, n)  # fmt: skip
         fit = fit_states(engine, vec, win, iters)
-        sse += float(fit.history[-1]) * win.obs.numel()
-        m += win.obs.numel()
+        sse += float(fit.history[-1]) * win.residuals
+        m += win.residuals
+        left = n - int(win.start[0])  # the window starts later where the smoothing starts in a gap
         with torch.no_grad():
-            roll = engine.rollout(fit.windows.state, params, n, win.control)
+            ctrl_k = None if win.control is None else win.control[:, :left]
+            roll = engine.rollout(fit.windows.state, params, left, ctrl_k)
         states.append(roll.index((slice(None), -1)))
         obs.append(torch.as_tensor(nodes[i, n : n + horizon + 1]))  # gaps: NaN until below
         ctrl.append(torch.as_tensor(control[i, n : n + horizon]))

@@ -107,7 +107,10 @@ def cut_windows(
     (fewer than that many steps are left over at its end). End caps that were not seen
     (NaN in ``nodes``) get ``valid`` False and count in no residual. A window whose
     initial state is undefined in ``grid`` (a gap too long for the smoothing to bridge)
-    starts at the first later sample where it is defined, within its tile, or is left out.
+    starts at the first later sample where it is defined, within its tile, or is left out
+    (see :func:`defined_starts`); one that then runs past its trajectory's end (a window
+    over the whole trajectory whose first samples fall in a gap) ends there: the samples
+    past the end have ``valid`` False.
     """
     N, T1 = nodes.shape[:2]
     W = (T1 - 1) // max(1, (T1 - 1) // window)
@@ -124,14 +127,18 @@ def cut_windows(
                 "the gaps are too long or too frequent for windows this long"
             )
     span = start[:, None] + np.arange(W + 1)
+    inside = span < T1  # a moved start's window ends with its trajectory
+    span = np.minimum(span, T1 - 1)
     obs_np = nodes[traj[:, None], span]
-    seen = np.isfinite(obs_np).all(-1)  # (B, W+1, 2R): a gap is compared with nothing
+    # (B, W+1, 2R): a gap, or a sample past the end, is compared with nothing
+    seen = np.isfinite(obs_np).all(-1) & inside[..., None]
     obs = torch.as_tensor(np.where(seen[..., None], obs_np, 0.0), dtype=DTYPE)
-    ctrl = control[traj[:, None], span[:, :-1]]
+    ctrl = control[traj[:, None], np.minimum(span[:, :-1], T1 - 2)]
     state = State.from_numpy(*(grid[k][traj, start] for k in STATE_KEYS))
     ctrl_t = torch.as_tensor(ctrl, dtype=DTYPE) if np.any(ctrl != 0) else None
     valid = None if seen.all() else torch.as_tensor(seen)
-    return Windows(obs, ctrl_t, state, traj, start, valid, cable_windows(cables, traj, span))
+    cable = cable_windows(cables, traj, np.minimum(span, T1 - 2))
+    return Windows(obs, ctrl_t, state, traj, start, valid, cable)
 
 
 def cable_windows(cables: np.ndarray | None, traj: np.ndarray, span: np.ndarray) -> torch.Tensor | None:
@@ -146,12 +153,17 @@ def defined_starts(
     defined: np.ndarray, traj: np.ndarray, start: np.ndarray, steps: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """Window starts moved to the first sample in ``[start, start + steps)`` where
-    ``defined`` (N, T+1) holds and a window of ``steps`` still fits; windows with no such
-    sample are dropped. Returns the kept ``traj`` and ``start``."""
+    ``defined`` (N, T+1) holds and at least half a window of ``steps`` is left before the
+    trajectory's end (the window is cut there: :func:`cut_windows`); windows with no such
+    sample are dropped. Returns the kept ``traj`` and ``start``.
+
+    A window over the whole trajectory has nowhere to move but towards its end: with
+    gaps in its first samples it would otherwise be dropped, and with it the only window
+    of a one-trajectory split."""
     T1 = defined.shape[1]
     keep_t, keep_s = [], []
     for n, s0 in zip(traj, start, strict=True):
-        ok = np.flatnonzero(defined[n, s0 : min(s0 + steps, T1 - steps)])
+        ok = np.flatnonzero(defined[n, s0 : min(s0 + steps, T1 - (steps + 1) // 2)])
         if len(ok):
             keep_t.append(n)
             keep_s.append(s0 + ok[0])
@@ -162,11 +174,13 @@ def defined_starts(
 def fill_grid(
     engine: Engine, params: Params, windows: Windows, grid: dict[str, np.ndarray]
 ) -> None:
-    """Write the rollout of every fitted window into ``grid`` (N, T+1, R, ·), in place."""
+    """Write the rollout of every fitted window into ``grid`` (N, T+1, R, ·), in place
+    (up to each trajectory's end: a window cut there runs past it, not written)."""
     roll = engine.rollout(windows.state, params, windows.steps, windows.control, windows.cables)
     span = windows.start[:, None] + np.arange(windows.steps + 1)
+    b, j = np.nonzero(span < grid["p"].shape[1])
     for k, arr in roll.numpy().items():
-        grid[k][windows.traj[:, None], span] = arr
+        grid[k][windows.traj[b], span[b, j]] = arr[b, j]
 
 
 def local_basis(axes: RodAxes, spin: bool = True, roll: bool = False) -> torch.Tensor:

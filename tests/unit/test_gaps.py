@@ -19,8 +19,9 @@ from identification.data.end_caps import (
     smooth_nodes,
     smooth_rod_states,
 )
-from identification.trajectory.windows import cut_windows
+from identification.trajectory.windows import cut_windows, fill_grid
 from tensegrity_env.assemblies import icosahedron
+from tensegrity_env.engine import Engine
 from tensegrity_env.io_utils import InputError
 
 
@@ -93,6 +94,37 @@ def test_windows_start_where_the_smoothing_is_defined() -> None:
     assert not any(t == 1 and s < 30 for t, s in pairs) and (1, 30) in pairs  # 0 dropped, 29 moved
     assert all(torch.isfinite(x).all() for x in win.state.tensors())
     assert all(s + win.steps <= 119 for s in win.start)
+
+
+def test_a_window_over_the_whole_trajectory_starts_after_a_gap_and_ends_with_it() -> None:
+    """A gap in the first samples leaves the smoothing undefined there; a window over the
+    whole trajectory then starts at the first sample where it is defined and ends where
+    the trajectory does (its samples past the end count in no residual), and its rollout
+    is written back up to that end only."""
+    topo = icosahedron().topology
+    dt = 0.01
+    nodes = np.repeat(cubic_caps()[:1, :, :1], 12, axis=2) + topo.end_offsets.reshape(1, 1, 12, 3)
+    nodes[0, 2:6, 7] = np.nan  # 4 samples of one end cap lost near the start
+    smooth = smooth_rod_states(nodes, dt, RodAxes.of(topo), 7)
+    grid = {k: getattr(smooth, k) for k in ("p", "v", "q", "omega")}
+    first = int(np.flatnonzero(smooth.finite[0])[0])
+    assert 0 < first < 10  # the smoothing starts in the gap
+    T = nodes.shape[1] - 1
+    win = cut_windows(nodes, np.zeros((1, T, 6, 3)), grid, T)
+    assert win.size == 1 and win.steps == T and int(win.start[0]) == first
+    assert win.valid is not None and all(torch.isfinite(x).all() for x in win.state.tensors())
+    seen = win.seen()[0]
+    assert not seen[T - first + 1 :].any()  # past the trajectory's end
+    mine = seen[: T - first + 1].numpy()
+    np.testing.assert_array_equal(mine, np.isfinite(nodes[0, first:]).all(-1))
+    np.testing.assert_array_equal(win.obs[0, : T - first + 1].numpy()[mine], nodes[0, first:][mine])
+    engine = Engine(topo, dt)
+    filled = {k: v.copy() for k, v in grid.items()}
+    fill_grid(engine, icosahedron().params, win, filled)
+    for k in filled:
+        np.testing.assert_array_equal(filled[k][0, :first], grid[k][0, :first])
+    np.testing.assert_allclose(filled["p"][0, first], grid["p"][0, first], atol=1e-12)
+    assert not np.allclose(filled["p"][0, -1], grid["p"][0, -1])  # the rollout reaches the end
 
 
 def test_an_end_cap_never_seen_is_refused_by_name() -> None:

@@ -140,6 +140,11 @@ SCALE_EVALS = 200
 #: parameters (stiffness, damping), logit units on the fractions (impedance, friction),
 #: metres on the floor height
 CONTACT_RANGE = {"factor": 3.0, "logit": 1.0, "height": 0.003}
+#: how far [m] the first contact search may move the floor from where the end caps are
+#: seen touching it (:func:`floor_height`): the band that measurement reads the caps in.
+#: Unbounded, a search on a few short windows of a gapped take (a real 6-bar's jump) put
+#: the floor 68 mm above the resting caps, a floor they would be sunk in
+FLOOR_SEARCH_RANGE = TOUCH
 
 
 def rods_off_floor(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
@@ -251,7 +256,9 @@ def search_floor_contact(
     """``theta`` with the contact's coordinates from a Nelder-Mead search on ``windows``.
 
     The declared parameters, the other effects and the windows' states are held. The
-    contact is ``vec``'s last effect, its coordinates the last of ``theta``.
+    contact is ``vec``'s last effect, its coordinates the last of ``theta``. The floor
+    height stays within :data:`FLOOR_SEARCH_RANGE` of its start (where the end caps are
+    seen touching, :func:`floor_height`).
     """
     assert vec.coords is not None
     n = vec.n_free
@@ -262,9 +269,11 @@ def search_floor_contact(
     touch = Touchdowns(state=windows.state, obs=windows.obs, control=windows.control,
                        traj=windows.traj, first=windows.start, prefix_rms=float("nan"),
                        valid=windows.seen())  # fmt: skip
+    h = float(contact.values["height"].reshape(-1)[0])
     found = search_contact(engine, params, others, contact, touch, log,
                            horizons=(windows.steps,), keys=FLOOR_FREE,
-                           restarts=SEARCH_RESTARTS, what="contact search on floor windows")  # fmt: skip
+                           restarts=SEARCH_RESTARTS, what="contact search on floor windows",
+                           bounds={"height": (h - FLOOR_SEARCH_RANGE, h + FLOOR_SEARCH_RANGE)})  # fmt: skip
     k = len(FLOOR_FREE)
     x = torch.tensor([float(v) for v in _coords(found.contact)], dtype=theta.dtype)
     return torch.cat([theta[: len(theta) - k], x])

@@ -167,7 +167,7 @@ def floor_fit(
              f"windows of {steps} steps")  # fmt: skip
     many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
     w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log)
-    vec = bounded(vec, w.theta)
+    vec = bounded(vec, w.theta, float(begin.values["height"].reshape(-1)[0]))
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
     fit.origin = fit.theta

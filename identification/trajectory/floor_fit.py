@@ -206,7 +206,7 @@ def with_floor(
 
 
 def contact_box(
-    contact: GroundContact, keys: Sequence[str] = FLOOR_FREE
+    contact: GroundContact, keys: Sequence[str] = FLOOR_FREE, floor: float | None = None
 ) -> dict[str, tuple[float, float]]:
     """Limits (lo, hi) of ``contact``'s ``keys`` in the fit's coordinates (log, logit, m)
     within :data:`CONTACT_RANGE` of its values.
@@ -216,6 +216,9 @@ def contact_box(
     contact against the new effect until the floor is nearly gone (stiffness 3e-4
     1/s^2, floor 1.9 cm up on linear-drag data). Within them, a step that would leave
     the range is cut at its edge (:func:`~identification.trajectory.windowed_fit.fit_windows`).
+    ``floor``: where the end caps are seen touching the floor [m] (:func:`floor_height`):
+    the height stays within :data:`FLOOR_SEARCH_RANGE` of it too, however many fits
+    follow each other (each range is around the last fit's values).
     """
     out = {}
     for k in keys:
@@ -227,17 +230,28 @@ def contact_box(
             r = float(np.log(CONTACT_RANGE["factor"]))
         else:
             r = CONTACT_RANGE["height"]
-        out[k] = (x - r, x + r)
+        lo, hi = x - r, x + r
+        if k == "height" and floor is not None:
+            lo, hi = max(lo, floor - FLOOR_SEARCH_RANGE), min(hi, floor + FLOOR_SEARCH_RANGE)
+            lo, hi = min(lo, x), max(hi, x)  # the value itself stays inside
+        out[k] = (lo, hi)
     return out
 
 
-def bounded(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
+def bounded(vec: ParamVector, theta: torch.Tensor, floor: float | None = None) -> ParamVector:
     """``vec`` with its contact (the last effect) limited to :func:`contact_box` of its
-    values at ``theta``."""
+    values at ``theta`` (the height near ``floor`` [m] where given)."""
     assert vec.coords is not None
     contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
     assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
-    return replace(vec, coords=vec.coords.with_box(contact_box(contact)))
+    return replace(vec, coords=vec.coords.with_box(contact_box(contact, floor=floor)))
+
+
+def contact_height(vec: ParamVector, theta: torch.Tensor) -> float:
+    """The floor height [m] of ``vec``'s contact (its last effect) at ``theta``."""
+    assert vec.coords is not None
+    contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
+    return float(contact.values["height"].reshape(-1)[0])
 
 
 def held_states(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
@@ -396,8 +410,9 @@ def fit_on_floor(
             states = states_at(engine, vec, theta, windows, state_iters)
             windows = states.windows
             log(f"    states {np.sqrt(states.history[-1]) * 1e3:.3f} mm")
+            floor = contact_height(vec, theta)  # the start: where the caps touch, or a given contact's
             theta = search_floor_contact(engine, vec, windows, theta, log)
-            vec = bounded(vec, theta)
+            vec = bounded(vec, theta, floor)
         else:
             assert fit is not None
             theta, windows = search_scale(engine, vec, fit, log)

@@ -96,7 +96,7 @@ class Windows:
 
 def cut_windows(
     nodes: np.ndarray, control: np.ndarray, grid: dict[str, np.ndarray], window: int,
-    cables: np.ndarray | None = None,
+    cables: np.ndarray | None = None, least: int = 0,
 ) -> Windows:  # fmt: skip
     """Non-overlapping windows of about ``window`` steps over every trajectory.
 
@@ -107,9 +107,10 @@ def cut_windows(
     (fewer than that many steps are left over at its end). End caps that were not seen
     (NaN in ``nodes``) get ``valid`` False and count in no residual. A window whose
     initial state is undefined in ``grid`` (a gap too long for the smoothing to bridge)
-    starts at the first later sample where it is defined, within its tile, or is left out;
-    as many windows as were left out start at other samples where it is defined,
-    overlapping the tiles (:func:`refill_starts`).
+    starts at the first later sample where it is defined, within its tile, or is left out.
+    Where that leaves fewer than ``least`` windows, windows up to that many (and no more
+    than were left out) start at other samples where it is defined, overlapping the
+    tiles (:func:`refill_starts`); with enough tiles the windows never overlap.
     """
     N, T1 = nodes.shape[:2]
     W = (T1 - 1) // max(1, (T1 - 1) // window)
@@ -121,7 +122,7 @@ def cut_windows(
     if not defined[traj, start].all():
         tiles = len(start)
         traj, start = defined_starts(defined, traj, start, W)
-        traj, start = refill_starts(defined, traj, start, W, tiles - len(start))
+        traj, start = refill_starts(defined, traj, start, W, min(tiles, least) - len(start))
         if len(start) == 0:
             raise InputError(
                 f"no window of {W} steps starts where the end caps' smoothing is defined: "
@@ -172,8 +173,8 @@ def refill_starts(
     On a gapped take the rods' states are defined only in short stretches (on a real
     6-bar's jump, 11 % of the samples, in runs of 17 and 8): tiles of 30 samples kept
     one window there, and the floor fit's window search shortened them to 4 samples to
-    get six. Windows that overlap the kept ones fit those stretches' samples from more
-    starts instead of leaving them out.
+    get six of the 32 it asked for. Windows that overlap the kept ones fit those
+    stretches' samples from more starts instead of leaving them out.
     """
     T1 = defined.shape[1]
     taken = set(zip(traj.tolist(), start.tolist(), strict=True))

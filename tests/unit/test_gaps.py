@@ -155,13 +155,16 @@ def test_windows_the_gaps_left_out_start_at_other_defined_samples() -> None:
     grid["q"][..., 0] = 1.0
     grid["p"][:] = np.nan
     grid["p"][0, 40:52] = 0.0  # states defined over 12 samples of trajectory 0 only
-    win = cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20)
-    # 2 x 5 tiles of 23 samples: two keep a start (40 and 46), the other 8 start within 40-51
+    win = cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20, least=10)
+    # 2 x 5 tiles of 23 samples: two keep a start (40 and 46), 8 more start within 40-51
     starts = win.start.tolist()
     assert win.traj.tolist() == [0] * len(starts) and len(starts) == 10
     assert starts == sorted(starts) and len(set(starts)) == len(starts)
     assert all(40 <= s < 52 for s in starts) and 40 in starts and 46 in starts
     assert all(torch.isfinite(x).all() for x in win.state.tensors())
+    # up to ``least`` windows only, and none where the tiles give enough
+    assert cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20, least=4).size == 4
+    assert cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20).size == 2
     # without gaps the tiling is as it was: no overlapping windows
     grid["p"][:] = 0.0
     full = cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20)

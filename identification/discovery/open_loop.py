@@ -105,32 +105,45 @@ def keep_predicting(
     for c in chain:
         model = result.model.model if c is None else c.model.model
         checks.append(open_loop_check(model, dataset, float(noise), physics_dt, ("val",)))
+
+    def label(i: int) -> str:
+        names = (result.model if chain[i] is None else chain[i].model).names
+        if chain[i] is None:
+            return f"the final model ({', '.join(names) or 'no effects'})"
+        if i == 0:
+            return f"the declared model's fit ({', '.join(names) or 'no effects'})"
+        if i == len(chain) - 2 and names == result.model.names:
+            return "the same model before the final refit"
+        return _label(names)
+
     kept = 0
     lines = []
     for i in range(1, len(chain)):
         new, old = checks[i], checks[kept]
         if new is None or old is None:
             continue
-        names = (result.model if chain[i] is None else chain[i].model).names
         why = worse_prediction(new, old)
         if why:
-            lines.append(
-                f"{_label(names)} predicts worse than {_label(chain[kept].model.names)}: {why}"
-            )
+            lines.append(f"{label(i)} predicts worse than {label(kept)}: {why}")
         else:
             kept = i
     if checks[-1] is not None:
         errs = ", ".join("-" if v is None else f"{v * 1e3:.3g}" for v in checks[-1].at())
-        log(f"held-out prediction on 'val' at {', '.join(f'{h:g}' for h in HORIZONS_S)} s: "
-            f"end-cap RMS {errs} mm ({_label(result.model.names)})")  # fmt: skip
+        log(
+            f"held-out prediction on 'val' at {', '.join(f'{h:g}' for h in HORIZONS_S)} s: "
+            f"end-cap RMS {errs} mm ({label(len(chain) - 1)})"
+        )
     if chain[kept] is None or kept == len(chain) - 1:
         return result
     cand = chain[kept]
     errs = ", ".join("-" if v is None else f"{v * 1e3:.3g}" for v in checks[kept].at())  # type: ignore[union-attr]
-    note = (f"Written instead of {_label(result.model.names)}: {_label(cand.model.names)}, whose "
-            f"open-loop prediction of the validation split is no worse at any horizon "
-            f"(end-cap RMS {errs} mm at {', '.join(f'{h:g}' for h in HORIZONS_S)} s); "
-            + "; ".join(lines) + ".")  # fmt: skip
+    note = (
+        f"Written instead of {label(len(chain) - 1)}: {label(kept)}, the newest model "
+        f"that predicts the validation split open-loop no worse than the one kept before it "
+        f"(end-cap RMS {errs} mm at {', '.join(f'{h:g}' for h in HORIZONS_S)} s); "
+        + "; ".join(lines)
+        + "."
+    )
     log(note)
     prefix = f"{result.open_loop} " if result.open_loop else ""
     return replace(result, model=cand.model, final_test=scorer.test_errors(cand), residual_network=None,

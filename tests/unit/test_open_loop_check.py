@@ -201,7 +201,8 @@ def test_diagnose_keeps_an_addition_only_where_held_out_prediction_does_not_get_
     # the final model (with an effect) predicts worse than the declared fit: the declared one is written
     out = keep_predicting(_result([off, good]), Scorer(), ds, 1e-3)
     assert out.model.model is good and out.final_test == {"scored_again": 1.0}
-    assert "predicts worse than the model with no effects" in out.open_loop
+    assert "predicts worse than the declared model's fit (no effects)" in out.open_loop
+    assert out.open_loop.startswith("Written instead of the final model (no effects): the declared")
     assert "Written instead of" in capsys.readouterr().out
     # one that predicts better is kept as it is
     kept = keep_predicting(_result([good, off]), Scorer(), ds, 1e-3)

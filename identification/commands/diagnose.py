@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     from identification.data.sample_grid import on_nominal_grid
     from identification.discovery.choose import choose_scorer, uses_trajectories
     from identification.discovery.loop import EffectDiscovery
-    from identification.discovery.open_loop import keep_not_diverged
+    from identification.discovery.open_loop import keep_not_diverged, keep_predicting
     from identification.discovery.report import fmt_unit, ratio, write_params, write_report
     from identification.trajectory.floor_evidence import floor_evidence
 
@@ -198,6 +198,8 @@ def run(args: argparse.Namespace) -> int:
             result = loop.fit(dataset).result_
             # nothing is written for a model that leaves the data open-loop
             result = keep_not_diverged(result, scorer, dataset, args.physics_dt)
+            # nor one that predicts held-out motion worse than a model before it
+            result = keep_predicting(result, scorer, dataset, args.physics_dt)
         truth = read_ground_truth(args.dataset)
         floors = [h for e in result.model.effects if (h := e.floor_height()) is not None]
         evidence = [floor_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,

@@ -286,7 +286,7 @@ class EndCapData:
         if name not in self.smooth:
             self.smooth[name] = smooth_rod_states(split.nodes, self.dt, self.axes, self.sg)
         grid = {key: getattr(self.smooth[name], key) for key in STATE_KEYS}
-        win = cut_windows(split.nodes, split.control, grid, steps, split.cable_control)
+        win = cut_windows(split.nodes, split.control, grid, steps, split.cable_control, least=count)
         if airborne:
             gap = seen_gaps(win, self.topology)
             win = win.take(np.flatnonzero((gap.amin(dim=(1, 2)) > AIRBORNE).numpy()))

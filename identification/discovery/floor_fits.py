@@ -269,7 +269,7 @@ def floor_fit(
         w = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter, log=data.log,
                          stuck=STUCK_WINDOW * noise)  # fmt: skip
     data.floor_steps = steps
-    vec = bounded(vec, w.theta)
+    vec = bounded(vec, w.theta, float(begin.values["height"].reshape(-1)[0]))
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
     fit.origin = fit.theta

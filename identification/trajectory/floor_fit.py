@@ -135,6 +135,11 @@ SCALE_EVALS = 200
 #: parameters (stiffness, damping), logit units on the fractions (impedance, friction),
 #: metres on the floor height
 CONTACT_RANGE = {"factor": 3.0, "logit": 1.0, "height": 0.003}
+#: how far [m] the first contact search may move the floor from where the end caps are
+#: seen touching it (:func:`floor_height`): the band that measurement reads the caps in.
+#: Unbounded, a search on a few short windows of a gapped take (a real 6-bar's jump) put
+#: the floor 68 mm above the resting caps, a floor they would be sunk in
+FLOOR_SEARCH_RANGE = TOUCH
 
 
 def rods_off_floor(nodes: np.ndarray, topology: Topology, span: int) -> np.ndarray:
@@ -196,7 +201,7 @@ def with_floor(
 
 
 def contact_box(
-    contact: GroundContact, keys: Sequence[str] = FLOOR_FREE
+    contact: GroundContact, keys: Sequence[str] = FLOOR_FREE, floor: float | None = None
 ) -> dict[str, tuple[float, float]]:
     """Limits (lo, hi) of ``contact``'s ``keys`` in the fit's coordinates (log, logit, m)
     within :data:`CONTACT_RANGE` of its values.
@@ -206,6 +211,9 @@ def contact_box(
     contact against the new effect until the floor is nearly gone (a stiffness near
     zero, the floor centimetres up). Within them, a step that would leave
     the range is cut at its edge (:func:`~identification.trajectory.windowed_fit.fit_windows`).
+    ``floor``: where the end caps are seen touching the floor [m] (:func:`floor_height`):
+    the height stays within :data:`FLOOR_SEARCH_RANGE` of it too, however many fits
+    follow each other (each range is around the last fit's values).
     """
     out = {}
     for k in keys:
@@ -217,17 +225,28 @@ def contact_box(
             r = float(np.log(CONTACT_RANGE["factor"]))
         else:
             r = CONTACT_RANGE["height"]
-        out[k] = (x - r, x + r)
+        lo, hi = x - r, x + r
+        if k == "height" and floor is not None:
+            lo, hi = max(lo, floor - FLOOR_SEARCH_RANGE), min(hi, floor + FLOOR_SEARCH_RANGE)
+            lo, hi = min(lo, x), max(hi, x)  # the value itself stays inside
+        out[k] = (lo, hi)
     return out
 
 
-def bounded(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
+def bounded(vec: ParamVector, theta: torch.Tensor, floor: float | None = None) -> ParamVector:
     """``vec`` with its contact (the last effect) limited to :func:`contact_box` of its
-    values at ``theta``."""
+    values at ``theta`` (the height near ``floor`` [m] where given)."""
     assert vec.coords is not None
     contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
     assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
-    return replace(vec, coords=vec.coords.with_box(contact_box(contact)))
+    return replace(vec, coords=vec.coords.with_box(contact_box(contact, floor=floor)))
+
+
+def contact_height(vec: ParamVector, theta: torch.Tensor) -> float:
+    """The floor height [m] of ``vec``'s contact (its last effect) at ``theta``."""
+    assert vec.coords is not None
+    contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
+    return float(contact.values["height"].reshape(-1)[0])
 
 
 def held_states(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
@@ -246,7 +265,9 @@ def search_floor_contact(
     """``theta`` with the contact's coordinates from a Nelder-Mead search on ``windows``.
 
     The declared parameters, the other effects and the windows' states are held. The
-    contact is ``vec``'s last effect, its coordinates the last of ``theta``.
+    contact is ``vec``'s last effect, its coordinates the last of ``theta``. The floor
+    height stays within :data:`FLOOR_SEARCH_RANGE` of its start (where the end caps are
+    seen touching, :func:`floor_height`).
     """
     assert vec.coords is not None
     n = vec.n_free
@@ -257,9 +278,11 @@ def search_floor_contact(
     touch = Touchdowns(state=windows.state, obs=windows.obs, control=windows.control,
                        traj=windows.traj, first=windows.start, prefix_rms=float("nan"),
                        valid=windows.seen())  # fmt: skip
+    h = float(contact.values["height"].reshape(-1)[0])
     found = search_contact(engine, params, others, contact, touch, log,
                            horizons=(windows.steps,), keys=FLOOR_FREE,
-                           restarts=SEARCH_RESTARTS, what="contact search on floor windows")  # fmt: skip
+                           restarts=SEARCH_RESTARTS, what="contact search on floor windows",
+                           bounds={"height": (h - FLOOR_SEARCH_RANGE, h + FLOOR_SEARCH_RANGE)})  # fmt: skip
     k = len(FLOOR_FREE)
     x = torch.tensor([float(v) for v in _coords(found.contact)], dtype=theta.dtype)
     return torch.cat([theta[: len(theta) - k], x])
@@ -397,8 +420,9 @@ def fit_on_floor(
             log(f"    states {np.sqrt(states.history[-1]) * 1e3:.3f} mm")
             if stuck is not None:
                 windows = without_stuck(engine, vec, theta, windows, stuck, log, near=True)
+            floor = contact_height(vec, theta)  # the start: where the caps touch, or a given contact's
             theta = search_floor_contact(engine, vec, windows, theta, log)
-            vec = bounded(vec, theta)
+            vec = bounded(vec, theta, floor)
         else:
             assert fit is not None
             theta, windows = search_scale(engine, vec, fit, log)

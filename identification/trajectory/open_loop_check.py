@@ -48,6 +48,9 @@ SMOOTHING_S = 0.01
 NOISE_LEVELS = 100.0
 #: the fewest samples a start's horizon holds (shorter pieces give no start)
 LEAST_STEPS = 2
+#: the horizons [s] at which held-out prediction is compared between models (the ones
+#: ``benchmarks/bench_real.py`` reports)
+HORIZONS_S = (0.1, 0.25, 0.5, 1.0)
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,10 @@ class OpenLoopCheck:
         extent_m: the data's extent over a start's horizon [m], median over starts.
         noise_m: the data's noise level [m].
         non_finite: starts whose rollout reached a non-finite end cap.
+        rms_m: the end-cap RMS [m] over the starts at each step 1..n of the horizon
+            (step k is k sample periods after the starts; NaN where no cap was seen),
+            shape (n,).
+        dt: the sample period [s].
     """
 
     splits: tuple[str, ...]
@@ -76,6 +83,20 @@ class OpenLoopCheck:
     extent_m: float
     noise_m: float
     non_finite: int = 0
+    rms_m: tuple[float, ...] = ()
+    dt: float = 0.0
+
+    def at(self, horizons: tuple[float, ...] = HORIZONS_S) -> list[float | None]:
+        """The end-cap RMS [m] at each of ``horizons`` [s] (None beyond the rollouts; inf
+        where a rollout left the finite numbers)."""
+        out: list[float | None] = []
+        for h in horizons:
+            k = round(h / self.dt) if self.dt > 0 else 0
+            if not 1 <= k <= len(self.rms_m) or np.isnan(self.rms_m[k - 1]):
+                out.append(None)
+            else:
+                out.append(float("inf") if self.non_finite else self.rms_m[k - 1])
+        return out
 
     @property
     def diverged(self) -> bool:
@@ -129,15 +150,20 @@ def _starts(known: np.ndarray, every: int, steps: int) -> list[tuple[int, int]]:
 
 
 def open_loop_check(
-    model: Model, dataset: Dataset, noise: float, physics_dt: float | None = None
+    model: Model,
+    dataset: Dataset,
+    noise: float,
+    physics_dt: float | None = None,
+    splits: tuple[str, ...] | None = None,
 ) -> OpenLoopCheck | None:
     """Roll ``model`` open-loop from measured states of ``dataset``'s held-out splits
     (:func:`check_splits`) and compare its end caps with the measured ones (see the
     module docstring). ``noise``: the data's noise std [m]; ``physics_dt``: the longest
     physics step [s] (the engine substeps between samples). None where no split has a
     measured state with :data:`LEAST_STEPS` samples after it, or where a split carries
-    winch commands (their rollout needs the winding, not modelled here)."""
-    splits = check_splits(dataset)
+    winch commands (their rollout needs the winding, not modelled here). ``splits``: the
+    splits to start from (default :func:`check_splits`)."""
+    splits = check_splits(dataset) if splits is None else splits
     if any(dataset.split(s).has_winch_commands for s in splits):
         return None
     dt = dataset.dt
@@ -191,7 +217,25 @@ def open_loop_check(
     at = float((int(rms.argmax()) + 1) * dt)
     extent = float(np.median(extents))
     return OpenLoopCheck(tuple(dict.fromkeys(starts)), len(rows), L * dt, worst, at,
-                         extent_limit(extent, noise), extent, noise, lost)  # fmt: skip
+                         extent_limit(extent, noise), extent, noise, lost,
+                         tuple(float(x) if c else float("nan") for x, c in zip(rms, count[1:], strict=True)), dt)  # fmt: skip
+
+
+def worse_prediction(
+    new: OpenLoopCheck, old: OpenLoopCheck, horizons: tuple[float, ...] = HORIZONS_S
+) -> str:
+    """Why ``new`` predicts worse than ``old`` (both rolled out from the same starts): the
+    horizons at which its end-cap RMS exceeds ``old``'s by more than the noise level (a
+    difference below it is not one the markers can show); "" where it does not."""
+    a, b = new.at(horizons), old.at(horizons)
+    worse = [i for i, (x, y) in enumerate(zip(a, b, strict=True))
+             if x is not None and y is not None and not x <= y + old.noise_m]  # fmt: skip
+    if not worse:
+        return ""
+    mm = lambda v: "inf" if v is None or not np.isfinite(v) else f"{v * 1e3:.3g}"  # noqa: E731
+    return ("end-cap RMS at " + ", ".join(f"{horizons[i]:g} s {mm(a[i])} mm against {mm(b[i])} mm"
+                                          for i in worse)
+            + f" open-loop from measured states on {', '.join(repr(s) for s in new.splits)}")  # fmt: skip
 
 
 def _diameter(points: np.ndarray) -> float:

@@ -207,6 +207,7 @@ def search_contact(
     keys: Sequence[str] = CONTACT_FREE,
     restarts: int = RESTARTS,
     what: str = "touchdowns",
+    bounds: dict[str, tuple[float, float]] | None = None,
 ) -> ContactSearch:
     """Contact parameters from the touchdowns (module docstring, steps 2 and 3).
 
@@ -215,7 +216,8 @@ def search_contact(
     parameters outside ``keys`` are kept); ``horizons``: steps after the touchdowns
     fitted in turn (at most the touchdowns' length); ``keys``: the contact parameters
     searched (default :data:`CONTACT_FREE`); ``restarts``: Nelder-Mead runs per horizon; ``what``: the
-    windows' name in the log.
+    windows' name in the log; ``bounds``: limits (lo, hi) of some of ``keys`` in the
+    search's coordinates (log, logit, m), the simplex and the search kept within them.
     """
     evals = 0
 
@@ -228,11 +230,18 @@ def search_contact(
 
     x = np.array([to_free(start.PARAMS[k], float(start.values[k].reshape(-1)[0]))
                   for k in keys])  # fmt: skip
+    box = [(bounds or {}).get(k, (-np.inf, np.inf)) for k in keys]
+    lo, hi = np.array([b[0] for b in box]), np.array([b[1] for b in box])
+    x = np.clip(x, lo, hi)
+    # a bounded coordinate's simplex edge: at most half its range (a vertex clipped onto
+    # the bound would leave the simplex flat in it)
+    step = np.minimum(SIMPLEX_STEP, (hi - lo) / 2)
     rms: dict[int, float] = {}
     for steps in horizons:
         for _ in range(restarts):
-            simplex = np.vstack([x, x + SIMPLEX_STEP * np.eye(len(x))])
+            simplex = np.vstack([x, x + np.diag(np.where(x + step <= hi, step, -step))])
             res = minimize(error, x, args=(steps,), method="Nelder-Mead",
+                           bounds=list(zip(lo, hi, strict=True)) if bounds else None,
                            options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-14,
                                     "maxfev": MAX_EVALS})  # fmt: skip
             x = res.x

@@ -96,7 +96,7 @@ class Windows:
 
 def cut_windows(
     nodes: np.ndarray, control: np.ndarray, grid: dict[str, np.ndarray], window: int,
-    cables: np.ndarray | None = None,
+    cables: np.ndarray | None = None, least: int = 0,
 ) -> Windows:  # fmt: skip
     """Non-overlapping windows of about ``window`` steps over every trajectory.
 
@@ -110,7 +110,10 @@ def cut_windows(
     starts at the first later sample where it is defined, within its tile, or is left out
     (see :func:`defined_starts`); one that then runs past its trajectory's end (a window
     over the whole trajectory whose first samples fall in a gap) ends there: the samples
-    past the end have ``valid`` False.
+    past the end have ``valid`` False. Where that leaves fewer than ``least`` windows,
+    windows up to that many (and no more than were left out) start at other samples where
+    it is defined, overlapping the tiles (:func:`refill_starts`); with enough tiles the
+    windows never overlap.
     """
     N, T1 = nodes.shape[:2]
     W = (T1 - 1) // max(1, (T1 - 1) // window)
@@ -120,7 +123,9 @@ def cut_windows(
         [np.isfinite(grid[k]).all(axis=(2, 3)) for k in STATE_KEYS]
     )  # (N, T+1)
     if not defined[traj, start].all():
+        tiles = len(start)
         traj, start = defined_starts(defined, traj, start, W)
+        traj, start = refill_starts(defined, traj, start, W, min(tiles, least) - len(start))
         if len(start) == 0:
             raise InputError(
                 f"no window of {W} steps starts where the end caps' smoothing is defined: "
@@ -168,6 +173,31 @@ def defined_starts(
             keep_t.append(n)
             keep_s.append(s0 + ok[0])
     return np.array(keep_t, dtype=int), np.array(keep_s, dtype=int)
+
+
+def refill_starts(
+    defined: np.ndarray, traj: np.ndarray, start: np.ndarray, steps: int, lost: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``traj`` and ``start`` with up to ``lost`` more window starts, at samples where
+    ``defined`` (N, T+1) holds and a window of ``steps`` fits that are no start yet,
+    spread evenly over them; sorted by trajectory and start.
+
+    On a take with many gaps the rods' states are defined only in short stretches, and
+    fixed tiles keep few windows there; windows that overlap the kept ones fit those
+    stretches' samples from more starts instead of leaving them out (the measurement on a
+    real take is in docs/decisions.md).
+    """
+    T1 = defined.shape[1]
+    taken = set(zip(traj.tolist(), start.tolist(), strict=True))
+    free = [(n, int(t)) for n in range(defined.shape[0]) for t in np.flatnonzero(defined[n, : max(T1 - steps, 0)])
+            if (n, int(t)) not in taken]  # fmt: skip
+    if lost <= 0 or not free:
+        return traj, start
+    pick = [free[int(i)] for i in np.unique(np.linspace(0, len(free) - 1, min(lost, len(free))).round())]
+    t = np.concatenate([traj, np.array([p[0] for p in pick], dtype=int)])
+    s0 = np.concatenate([start, np.array([p[1] for p in pick], dtype=int)])
+    order = np.lexsort((s0, t))
+    return t[order], s0[order]
 
 
 @torch.no_grad()

@@ -64,3 +64,26 @@ def test_the_first_round_holds_every_free_spring_damping_and_nothing_else() -> N
     held = [n for n, h in zip(names, hold.tolist(), strict=False) if h]
     assert held == [f"damping[{s.name}]" for s in topo.springs]
     assert not bool(hold[len(names) :].any())  # the effects and the contact are fitted
+
+
+def test_the_floor_height_stays_near_where_the_caps_touch_however_many_fits_follow() -> None:
+    from identification.trajectory.floor_fit import FLOOR_SEARCH_RANGE
+
+    topo = assemblies.icosahedron().topology
+    # a contact the last fit moved 8 mm above the measured floor (z = 0)
+    contact = GroundContact(
+        topo, stiffness=1200.0, damping=80.0, friction=0.6, impedance=0.9, height=0.008
+    )
+    free = contact_box(contact)["height"]
+    assert free[1] == pytest.approx(0.008 + CONTACT_RANGE["height"])  # alone: 11 mm, then 14 ...
+    lo, hi = contact_box(contact, floor=0.0)["height"]
+    assert lo == pytest.approx(0.008 - CONTACT_RANGE["height"]) and hi == pytest.approx(
+        FLOOR_SEARCH_RANGE
+    )
+    # a value already outside the band keeps its own place in the range (never cut off)
+    far = contact_box(replace_height(contact, 0.012), floor=0.0)["height"]
+    assert far[0] <= 0.012 <= far[1] and far[1] == pytest.approx(0.012)
+
+
+def replace_height(contact: GroundContact, h: float) -> GroundContact:
+    return contact.with_values(height=torch.tensor(h, dtype=torch.float64))

@@ -205,6 +205,7 @@ def test_an_accepted_floor_refit_worse_than_the_current_model_is_refused(
     scorer = MultiStepScorer(TrajectorySettings())
     scorer.data = SimpleNamespace(on_floor=on_floor, windows={"fit": "before"},
                                   contact_box=None, roll=False)  # fmt: skip
+    scorer.dataset = SimpleNamespace(splits={})  # no validation split: no open-loop comparison
     before = _trajfit(1.039e-3, True)
     added = replace_rms(_trajfit(rms_added, True), m_added)
     reason = scorer.refusal(Candidate("quadratic_drag", EndCapFits(added, added), "model"),

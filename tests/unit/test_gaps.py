@@ -176,3 +176,28 @@ def test_diagnose_runs_through_an_import_with_gaps(tmp_path: Path) -> None:
     assert found is not None, r.stdout
     rms = float(found.group(1))
     assert rms < 1.3  # the declared model explains free flight to the 1 mm marker noise
+
+
+def test_windows_the_gaps_left_out_start_at_other_defined_samples() -> None:
+    """A gapped take's rod states are defined in short stretches: a tile per window keeps
+    one window in a stretch; the windows the gaps removed start in those stretches
+    instead (overlapping), so that the samples seen are fitted."""
+    nodes = cubic_caps()
+    grid = {k: np.zeros((2, 120, 2, w)) for k, w in (("p", 3), ("v", 3), ("q", 4), ("omega", 3))}
+    grid["q"][..., 0] = 1.0
+    grid["p"][:] = np.nan
+    grid["p"][0, 40:52] = 0.0  # states defined over 12 samples of trajectory 0 only
+    win = cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20, least=10)
+    # 2 x 5 tiles of 23 samples: two keep a start (40 and 46), 8 more start within 40-51
+    starts = win.start.tolist()
+    assert win.traj.tolist() == [0] * len(starts) and len(starts) == 10
+    assert starts == sorted(starts) and len(set(starts)) == len(starts)
+    assert all(40 <= s < 52 for s in starts) and 40 in starts and 46 in starts
+    assert all(torch.isfinite(x).all() for x in win.state.tensors())
+    # up to ``least`` windows only, and none where the tiles give enough
+    assert cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20, least=4).size == 4
+    assert cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20).size == 2
+    # without gaps the tiling is as it was: no overlapping windows
+    grid["p"][:] = 0.0
+    full = cut_windows(nodes, np.zeros((2, 119, 2, 3)), grid, 20)
+    assert full.size == 10 and np.all(np.diff(full.start[full.traj == 0]) == full.steps)

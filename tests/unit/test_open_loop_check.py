@@ -56,7 +56,9 @@ def test_a_model_further_off_than_the_data_spans_has_diverged() -> None:
     assert not check(0.59).diverged and check(0.61).diverged
 
 
-def test_identify_writes_nothing_for_a_fit_that_diverges_open_loop(cell, tmp_path, capsys, monkeypatch) -> None:
+def test_identify_writes_nothing_for_a_fit_that_diverges_open_loop(
+    cell, tmp_path, capsys, monkeypatch
+) -> None:
     """The fit's own windows (a fitted initial state each) can look fine while the model
     blows up from a measured state: here the fit reports 0.1 mm on its windows."""
     from identification.commands import identify_end_caps
@@ -129,7 +131,9 @@ def test_diagnose_refuses_when_every_model_diverges(cell) -> None:
     ds = read_dataset(cell.measured)
     p = cell.truth.params
     bad = Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt)
-    with pytest.raises(StageError, match=r"diagnose's models .* failed: the model diverges open-loop"):
+    with pytest.raises(
+        StageError, match=r"diagnose's models .* failed: the model diverges open-loop"
+    ):
         keep_not_diverged(_result([bad, bad]), Scorer(), ds, 1e-3)
 
 
@@ -141,5 +145,82 @@ def test_the_check_skips_data_without_a_start() -> None:
 
     asm = icosahedron()
     nodes = np.full((1, 3, 12, 3), np.nan)
-    ds = Dataset(asm.topology, 1 / 120, {"train": Split(nodes=nodes, control=np.zeros((1, 2, 6, 3)))})
+    ds = Dataset(
+        asm.topology, 1 / 120, {"train": Split(nodes=nodes, control=np.zeros((1, 2, 6, 3)))}
+    )
     assert open_loop_check(Model(asm.topology, asm.params, dt=ds.dt), ds, 1e-4) is None
+
+
+def test_worse_prediction_names_the_horizons_beyond_the_noise() -> None:
+    from identification.trajectory.open_loop_check import OpenLoopCheck, worse_prediction
+
+    dt = 0.05  # horizons 0.1, 0.25, 0.5, 1 s at steps 2, 5, 10, 20
+
+    def check(rms: list[float]) -> OpenLoopCheck:
+        return OpenLoopCheck(("val",), 4, 1.0, max(rms), 1.0, 1.0, 1.0, 1e-4, 0, tuple(rms), dt)
+
+    old = check([1e-3] * 20)
+    assert check([1e-3] * 20).at() == [1e-3] * 4
+    assert worse_prediction(check([1.05e-3] * 20), old) == ""  # within the noise level
+    better_early = check([5e-4] * 4 + [3e-3] * 16)  # better at 0.1 s, worse from 0.25 s on
+    why = worse_prediction(better_early, old)
+    assert why.startswith("end-cap RMS at 0.25 s 3 mm against 1 mm") and "0.1 s" not in why
+    assert "1 s 3 mm" in why and "'val'" in why
+    assert check([1e-3] * 8).at() == [1e-3, 1e-3, None, None]  # shorter rollouts: no value
+
+
+@pytest.fixture(scope="module")
+def models(cell):
+    """The cell's dataset, its true model and one with springs 40 % stiffer (it stays with
+    the data, further off the longer it is rolled out)."""
+    from identification.data.dataset import read_dataset
+    from tensegrity_env.model import Model
+
+    ds = read_dataset(cell.measured)
+    p = cell.truth.params
+    return (
+        ds,
+        Model(ds.topology, p, dt=ds.dt),
+        Model(ds.topology, replace(p, stiffness=p.stiffness * 1.4), dt=ds.dt),
+    )
+
+
+def test_diagnose_keeps_an_addition_only_where_held_out_prediction_does_not_get_worse(
+    models, capsys
+) -> None:
+    from identification.discovery.open_loop import keep_predicting
+    from identification.trajectory.open_loop_check import open_loop_check
+
+    ds, good, off = models
+    a, b = (
+        open_loop_check(off, ds, 1e-4, 1e-3, ("val",)),
+        open_loop_check(good, ds, 1e-4, 1e-3, ("val",)),
+    )
+    assert a is not None and b is not None and not a.diverged  # a poor model, not a diverged one
+    assert a.at()[2] > 1.5 * b.at()[2]  # at 0.5 s (the held-out pieces are 0.6 s long)
+    # the final model (with an effect) predicts worse than the declared fit: the declared one is written
+    out = keep_predicting(_result([off, good]), Scorer(), ds, 1e-3)
+    assert out.model.model is good and out.final_test == {"scored_again": 1.0}
+    assert "predicts worse than the declared model's fit (no effects)" in out.open_loop
+    assert out.open_loop.startswith("Written instead of the final model (no effects): the declared")
+    assert "Written instead of" in capsys.readouterr().out
+    # one that predicts better is kept as it is
+    kept = keep_predicting(_result([good, off]), Scorer(), ds, 1e-3)
+    assert kept.model.model is good and kept.final_test == {"before": 1.0} and kept.open_loop == ""
+    # the newest model no worse than the one kept before it: declared (off) -> good -> off again
+    out = keep_predicting(_result([off, good, off]), Scorer(), ds, 1e-3)
+    assert out.model.model is good
+
+
+def test_the_loop_refuses_a_refit_that_predicts_held_out_motion_worse(models) -> None:
+    from identification.discovery.multi_step import MultiStepScorer
+
+    ds, good, off = models
+    scorer = SimpleNamespace(dataset=ds, noise=1e-4, settings=SimpleNamespace(physics_dt=1e-3))
+
+    def cand(m):
+        return SimpleNamespace(model=SimpleNamespace(model=m))
+
+    why = MultiStepScorer.predicts_worse(scorer, cand(off), cand(good))  # type: ignore[arg-type]
+    assert why.startswith("predicts held-out motion worse than the current model (end-cap RMS at")
+    assert MultiStepScorer.predicts_worse(scorer, cand(good), cand(off)) == ""  # type: ignore[arg-type]

@@ -8,7 +8,8 @@ splits (``val`` and ``test``; the fitted split where there are none) before they
 anything:
 
 * starts every :data:`EVERY_S` of each trajectory (at most :data:`MAX_STARTS` per split), each
-  from the measured state there (Gaussian smoothing :data:`SMOOTHING_S`, as the
+  from the measured state there (the recorded rod states where the data has them,
+  else the end caps' Gaussian smoothing :data:`SMOOTHING_S`, as the
   benchmarks start their rollouts), rolled :data:`HORIZON_S` (or as long as the
   trajectory allows) under the split's recorded controls;
 * at each step of the horizon, the end-cap RMS error over the starts and the seen caps;
@@ -160,7 +161,8 @@ def open_loop_check(
     (:func:`check_splits`) and compare its end caps with the measured ones (see the
     module docstring). ``noise``: the data's noise std [m]; ``physics_dt``: the longest
     physics step [s] (the engine substeps between samples). None where no split has a
-    measured state with :data:`LEAST_STEPS` samples after it, or where a split carries
+    measured state with :data:`LEAST_STEPS` samples after it (rod states as recorded, else
+    from the end caps, which need no twist: no spring attached off a rod's axis), or where a split carries
     winch commands (their rollout needs the winding, not modelled here). ``splits``: the
     splits to start from (default :func:`check_splits`)."""
     splits = check_splits(dataset) if splits is None else splits
@@ -173,7 +175,12 @@ def open_loop_check(
     for name in splits:
         split = dataset.split(name)
         nodes = split.nodes
-        _, st = measured_rod_states(nodes, dataset.topology, dt, "gaussian", SMOOTHING_S)
+        if split.has_states:  # recorded rod states: the measured state itself
+            st = {k: np.asarray(getattr(split, k)) for k in ("p", "v", "q", "omega")}
+        elif dataset.topology.off_axis_points():  # states from end caps need the twist
+            continue
+        else:
+            _, st = measured_rod_states(nodes, dataset.topology, dt, "gaussian", SMOOTHING_S)
         known = np.isfinite(st["p"]).all((-1, -2)) & np.isfinite(st["omega"]).all((-1, -2))
         for n, t in _starts(known, every, horizon):
             L = min(horizon, nodes.shape[1] - 1 - t)

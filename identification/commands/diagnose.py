@@ -200,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
             result = keep_not_diverged(result, scorer, dataset, args.physics_dt)
             # nor one that predicts held-out motion worse than a model before it
             result = keep_predicting(result, scorer, dataset, args.physics_dt)
+        # nothing outside the physical domain is written (one line naming the field)
+        result.model.model.params.validate(dataset.topology, "diagnose's model")
         truth = read_ground_truth(args.dataset)
         floors = [h for e in result.model.effects if (h := e.floor_height()) is not None]
         evidence = [floor_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,

@@ -36,6 +36,7 @@ from identification.trajectory.open_loop_check import (
     worse_prediction,
 )
 from identification.trajectory.stage_check import noise_level
+from tensegrity_env.io_utils import InputError
 
 ADVICE = ("a fit on the free stretches only (import-mocap --segments), shorter windows "
           "(--window), or a smaller --physics-dt")  # fmt: skip
@@ -62,6 +63,8 @@ def keep_not_diverged(
     if not final.diverged:
         return replace(result, open_loop=f"The final model rolled out: {final.line()}.")
     for k, cand in enumerate(result.earlier):
+        if not _physical(cand.model.model.params, dataset):
+            continue
         check = open_loop_check(cand.model.model, dataset, float(noise), physics_dt)
         if check is not None and not check.diverged:
             which = "the declared model's fit" if k == len(result.earlier) - 1 else (
@@ -80,6 +83,16 @@ def _label(names: list[str]) -> str:
     return f"the model with {', '.join(names) or 'no effects'}"
 
 
+def _physical(params: Any, dataset: Dataset) -> bool:
+    """Whether ``params`` lie in the physical domain of ``dataset``'s topology
+    (:meth:`~tensegrity_env.params.Params.validate`)."""
+    try:
+        params.validate(dataset.topology)
+    except InputError:
+        return False
+    return True
+
+
 def keep_predicting(
     result: DiscoveryResult,
     scorer: LoopScorer[Any],
@@ -90,8 +103,11 @@ def keep_predicting(
     """``result``, or where its model predicts the validation split open-loop worse than
     a model the loop passed through before it, the newest model that does not (see the
     module docstring; its test errors scored again, no residual network). Unchanged where
-    the data has no validation split or nothing was rolled out."""
-    if "val" not in dataset.splits or not result.earlier:
+    the data has no validation split or nothing was rolled out, and on recorded rod states:
+    there the loop's own held-out errors start from the exact states, where a rollout from
+    a mid-trajectory start would miss what the data does not hold (an actuator filter's
+    state). A model outside the physical domain is never kept."""
+    if "val" not in dataset.splits or not result.earlier or dataset.split("val").has_states:
         return result
     noise = getattr(scorer, "noise", None)
     if noise is None:
@@ -104,7 +120,9 @@ def keep_predicting(
     checks: list[OpenLoopCheck | None] = []
     for c in chain:
         model = result.model.model if c is None else c.model.model
-        checks.append(open_loop_check(model, dataset, float(noise), physics_dt, ("val",)))
+        physical = _physical(model.params, dataset)
+        checks.append(open_loop_check(model, dataset, float(noise), physics_dt, ("val",))
+                      if physical or c is None else None)  # fmt: skip
 
     def label(i: int) -> str:
         names = (result.model if chain[i] is None else chain[i].model).names

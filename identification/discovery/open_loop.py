@@ -134,9 +134,10 @@ def keep_predicting(
             return "the same model before the final refit"
         return _label(names)
 
-    kept = 0
+    # the oldest model rolled out (one outside the physical domain is not) is kept first
+    kept = next((i for i, c in enumerate(checks) if c is not None), len(chain) - 1)
     lines = []
-    for i in range(1, len(chain)):
+    for i in range(kept + 1, len(chain)):
         new, old = checks[i], checks[kept]
         if new is None or old is None:
             continue

@@ -248,3 +248,22 @@ def test_recorded_rod_states_start_the_check_where_end_caps_cannot(tmp_path: Pat
     # the true model from the true states, well inside the limit (not at round-off: the
     # actuators' filter state at a start is not in the data and starts at rest)
     assert check.worst_rms_m < 0.1 * check.limit_m
+
+
+def test_a_model_outside_the_physical_domain_is_never_kept(models) -> None:
+    """An earlier model of the loop whose inertias break the triangle inequality predicts
+    no worse, but is no rod: neither fallback keeps it."""
+    from identification.discovery.open_loop import keep_not_diverged, keep_predicting
+    from tensegrity_env.model import Model
+
+    ds, good, off = models
+    p = good.params
+    inertia = p.inertia.clone()
+    inertia[0] = inertia[0, 0] * inertia.new_tensor([1.0, 1.0, 3.0])  # I3 > I1 + I2
+    unphysical = Model(ds.topology, replace(p, inertia=inertia), dt=ds.dt)
+    # the final model (off) predicts worse than the declared one, which is not physical
+    out = keep_predicting(_result([off, unphysical]), Scorer(), ds, 1e-3)
+    assert out.model.model is off
+    bad = Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt)
+    out = keep_not_diverged(_result([bad, unphysical, good]), Scorer(), ds, 1e-3)
+    assert out.model.model is good

@@ -114,6 +114,7 @@ def never_taut(
     between two end caps whose measured length in ``nodes`` (N, T, 2R, 3) [m] never
     reaches ``rest_length`` (S,) [m]: slack throughout, they pull on nothing, so the data
     holds nothing of their stiffness, damping or rest length."""
+    # narrowing to the class: only tension-only springs can be slack throughout
     slack = [
         int(s) for e in effects if isinstance(e, SlackSprings) for s in e.values["springs"].tolist()
     ]

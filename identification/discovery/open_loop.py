@@ -42,6 +42,15 @@ ADVICE = ("a fit on the free stretches only (import-mocap --segments), shorter w
           "(--window), or a smaller --physics-dt")  # fmt: skip
 
 
+def _noise(scorer: LoopScorer[Any], dataset: Dataset) -> float:
+    """The data's noise level [m]: the scorer's where it has one, else from the training
+    split's rod lengths."""
+    noise = getattr(scorer, "noise", None)
+    if noise is None:
+        noise = noise_level(dataset.split("train").nodes, rods=True)
+    return float(noise)
+
+
 def keep_not_diverged(
     result: DiscoveryResult,
     scorer: LoopScorer[Any],
@@ -53,9 +62,7 @@ def keep_not_diverged(
     with the last earlier model that does not (its test errors scored again, no residual
     network: that was fitted beside the diverged model). ``physics_dt``: the longest
     physics step [s] of the rollouts. Raises ``StageError`` when every model diverges."""
-    noise = getattr(scorer, "noise", None)
-    if noise is None:
-        noise = noise_level(dataset.split("train").nodes, rods=True)
+    noise = _noise(scorer, dataset)
     final = open_loop_check(result.model.model, dataset, float(noise), physics_dt)
     if final is None:
         return result
@@ -109,9 +116,7 @@ def keep_predicting(
     state). A model outside the physical domain is never kept."""
     if "val" not in dataset.splits or not result.earlier or dataset.split("val").has_states:
         return result
-    noise = getattr(scorer, "noise", None)
-    if noise is None:
-        noise = noise_level(dataset.split("train").nodes, rods=True)
+    noise = _noise(scorer, dataset)
     chain: list[Any] = [*reversed(result.earlier), None]  # oldest first; None: the final model
     if any(c is not None and c.model is result.model for c in chain):  # fell back already
         chain = chain[

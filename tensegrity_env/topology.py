@@ -64,6 +64,9 @@ class Rod:
             contact frame (see :mod:`tensegrity_env.effects.ground_contact`).
         attachments: more points springs attach to, in the rod's principal frame [m],
             each (x, y, z); not tracked by motion capture.
+        cap_radius: each end cap's contact radius against a floor [m], (end 0, end 1),
+            where the robot file gives the caps their own size (a sphere at each end);
+            None: both are ``radius``.
     """
 
     name: str
@@ -74,6 +77,7 @@ class Rod:
     frame_origin: Vec3 = (0.0, 0.0, 0.0)
     end_cap: str = "capsule"
     attachments: tuple[Vec3, ...] = ()
+    cap_radius: tuple[float, float] | None = None
 
     def ends(self) -> np.ndarray:
         """End-cap offsets in the rod frame, shape (2, 3) [m]; default ±length/2 along z."""
@@ -136,6 +140,10 @@ class Topology:
                 raise TopologyError(f"rod '{rod.name}': length must be positive, got {rod.length}")
             if not np.isfinite(rod.radius) or rod.radius < 0:
                 raise TopologyError(f"rod '{rod.name}': radius must be >= 0, got {rod.radius}")
+            if rod.cap_radius is not None and (
+                len(rod.cap_radius) != 2 or not all(np.isfinite(c) and c >= 0 for c in rod.cap_radius)
+            ):
+                raise TopologyError(f"rod '{rod.name}': cap_radius must be two radii >= 0, got {rod.cap_radius}")
             ends = rod.ends()
             if ends.shape != (2, 3) or not np.all(np.isfinite(ends)):
                 raise TopologyError(f"rod '{rod.name}': end_offsets must be two finite 3-vectors")
@@ -280,6 +288,12 @@ class Topology:
         return np.array([r.frame_origin for r in self.rods], dtype=float).reshape(-1, 3)
 
     @property
+    def cap_radii(self) -> np.ndarray:
+        """Each end cap's contact radius as the robot file gives it, (n_rods, 2) [m]
+        (:attr:`Rod.cap_radius`, else the rod's radius at both ends)."""
+        return np.array([r.cap_radius or (r.radius, r.radius) for r in self.rods], dtype=float).reshape(-1, 2)
+
+    @property
     def anchor_positions(self) -> np.ndarray:
         """World anchors, shape (n_anchors, 3) [m]."""
         return np.array(self.anchors, dtype=float).reshape(-1, 3)
@@ -344,6 +358,7 @@ class Topology:
                     "frame_origin": list(r.frame_origin),
                     "end_cap": r.end_cap,
                     "attachments": [list(a) for a in r.attachments],
+                    **({} if r.cap_radius is None else {"cap_radius": list(r.cap_radius)}),
                 }
                 for r in self.rods
             ],
@@ -369,6 +384,7 @@ class Topology:
                     frame_origin=tuple(map(float, r.get("frame_origin", (0, 0, 0)))),  # type: ignore[arg-type]  # as end_offsets
                     end_cap=str(r.get("end_cap", "capsule")),
                     attachments=tuple(tuple(map(float, a)) for a in r.get("attachments", [])),  # type: ignore[misc]  # as end_offsets
+                    cap_radius=None if r.get("cap_radius") is None else tuple(map(float, r["cap_radius"])),  # type: ignore[arg-type]  # as end_offsets
                 )
                 for r in d["rods"]
             )

@@ -23,8 +23,8 @@ MIN_STRETCH = 50
 
 
 def cap_radii(topology: Topology) -> np.ndarray:
-    """Radius of every end cap, (2R,) [m] (each rod's, twice)."""
-    return np.repeat([r.radius for r in topology.rods], 2)
+    """Contact radius of every end cap as the robot file gives it, (2R,) [m]."""
+    return topology.cap_radii.reshape(-1)
 
 
 def lowest_seen(gap: np.ndarray) -> np.ndarray:

@@ -1,8 +1,10 @@
 """Ground contact: a soft floor with normal stiffness and damping and Coulomb friction.
 
-Each rod end cap is a sphere of the rod's radius ``r`` (MuJoCo's capsule ends); the
-floor is the plane ``z = height``. The **gate**: an end cap touches the floor when
-its distance ``dist = z - r - height`` is below zero. The contact law is MuJoCo's
+Each rod end cap is a sphere of its contact radius ``r`` (``cap_radius``, one per end
+cap: by default the robot file's, :attr:`~tensegrity_env.topology.Topology.cap_radii`,
+the rod's radius at both ends for MuJoCo's capsule ends); the floor is the plane
+``z = height``. The **gate**: an end cap touches the floor when its distance
+``dist = z - r - height`` is below zero. The contact law is MuJoCo's
 soft constraint (so the engine reproduces the MuJoCo twin), written in each rod's
 own frame of contacts:
 
@@ -23,7 +25,9 @@ own frame of contacts:
 * so the net force on a cap is a normal force ``Σ f`` and a friction force of at
   most ``μ Σ f`` (Coulomb's cone, as a four-sided pyramid), both soft.
 
-Parameters are shared by every end cap. :data:`MUJOCO_DEFAULT` are MuJoCo's
+The law's parameters are shared by every end cap; the contact radius is each cap's own
+(a real robot's caps differ in size, and its markers sit on their surfaces).
+:data:`MUJOCO_DEFAULT` are MuJoCo's
 defaults (``solref = 0.02 1``, ``solimp = 0.9 0.95 0.001 0.5 2``, friction 1);
 ``identification.trajectory.effect_fit`` fits them to measured trajectories.
 
@@ -49,6 +53,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import numpy as np
 import torch
 
 from tensegrity_env.effects.base import FitForm, Gate, NativeForm, ParamSpec, PhysicalEffect
@@ -85,6 +90,10 @@ CONTACT_START: dict[str, float] = {
     "friction": 0.5,
     "impedance": 0.9,
 }
+#: the smallest default contact radius [m]: a rod file without one (radius 0) still gets
+#: end caps that reach the floor before their centres do
+MIN_CAP_RADIUS = 1e-3
+
 #: contact parameters fitted through the engine
 CONTACT_FREE = ("stiffness", "damping", "friction", "impedance")
 
@@ -111,7 +120,9 @@ class GroundContact(PhysicalEffect):
 
     Parameters: ``stiffness`` K [1/s²], ``damping`` B [1/s] (per unit effective
     mass), ``impedance`` d_max and ``impedance_min`` d_min [-], ``width`` [m] (the
-    penetration over which d rises), ``friction`` μ [-], ``height`` [m].
+    penetration over which d rises), ``friction`` μ [-], ``height`` [m], and
+    ``cap_radius`` (R, 2) [m] each end cap's contact radius (default: the robot
+    file's, at least :data:`MIN_CAP_RADIUS`).
     """
 
     name: ClassVar[str] = "ground_contact"
@@ -127,6 +138,7 @@ class GroundContact(PhysicalEffect):
         "width": ParamSpec("m", MUJOCO_DEFAULT["width"]),
         "friction": ParamSpec("1", MUJOCO_DEFAULT["friction"]),
         "height": ParamSpec("m", MUJOCO_DEFAULT["height"], positive=False),
+        "cap_radius": ParamSpec("m", MIN_CAP_RADIUS, per="rod", shape=(2,)),
     }
     gate: ClassVar[Gate] = Gate("end caps reach a floor that stops them", needs="floor")
     #: fitted through the engine in two stages: the impedance is held at its start until
@@ -143,11 +155,9 @@ class GroundContact(PhysicalEffect):
     def __init__(
         self, topology: Topology, uncertainty: Any = None, *, validate: bool = True, **values: Any
     ) -> None:
+        if "cap_radius" not in values:
+            values["cap_radius"] = np.maximum(topology.cap_radii, MIN_CAP_RADIUS)
         super().__init__(topology, uncertainty, validate=validate, **values)
-        #: each rod's end-cap radius, (R,) [m]
-        self.radius = torch.tensor(
-            [max(r.radius, 1e-3) for r in topology.rods], dtype=torch.float64
-        )
         nodes = torch.as_tensor(topology.spring_nodes, dtype=torch.long)
         self._node_a, self._node_b = nodes[:, 0], nodes[:, 1]
         inc = torch.zeros(topology.n_nodes, topology.n_springs, dtype=torch.float64)
@@ -162,9 +172,28 @@ class GroundContact(PhysicalEffect):
         self._origins = torch.as_tensor(origins) if origins.any() else None
         self._seen: tuple[Kinematics, SpringFrame, torch.Tensor] | None = None
 
+    @property
+    def radius(self) -> torch.Tensor:
+        """Each end cap's contact radius, (R, 2) [m]."""
+        return self.values["cap_radius"]
+
+    def default_radius(self) -> bool:
+        """Whether every end cap has the robot file's contact radius (the default)."""
+        default = np.maximum(self.topology.cap_radii, MIN_CAP_RADIUS)
+        return bool(np.array_equal(self.radius.detach().cpu().numpy(), default))
+
+    def to_dict(self) -> dict[str, Any]:
+        """As :meth:`PhysicalEffect.to_dict`; the contact radii only where they are not the
+        robot file's (a document of the default contact is unchanged by them)."""
+        out = super().to_dict()
+        if self.default_radius() and "cap_radius" not in self.uncertainty:
+            out["params"].pop("cap_radius")
+            out["units"].pop("cap_radius")
+        return out
+
     def check(self) -> None:
         v = {k: float(t.detach().min()) for k, t in self.values.items()}
-        for key in ("stiffness", "damping", "friction", "width"):
+        for key in ("stiffness", "damping", "friction", "width", "cap_radius"):
             if v[key] < 0:
                 raise InputError(f"effect '{self.name}': '{key}' must be >= 0")
         for key in ("impedance", "impedance_min"):
@@ -220,7 +249,7 @@ class GroundContact(PhysicalEffect):
         """
         B, R = state.p.shape[:2]
         caps = kin.x[:, : 2 * R].reshape(B, R, 2, 3)
-        radius = self.radius.to(caps)[None, :, None]
+        radius = self.value("cap_radius", caps)[None]
         dist = caps[..., 2] - radius - self.value("height", caps)
         point = torch.cat([caps[..., :2], (self.value("height", caps) + dist / 2)[..., None]], -1)
         arm = point - state.p.unsqueeze(2)
@@ -300,7 +329,7 @@ class GroundContact(PhysicalEffect):
         """:meth:`contact_forces` by the C kernel (``tsr_contact_forces``: the geometry
         and the law, rod by rod), where
         :func:`~tensegrity_env.native.kernel.usable_kernel` takes the inputs and the
-        contact's parameters are shared by every end cap; else None."""
+        contact law's parameters are shared by every end cap; else None."""
         B, R = state.p.shape[:2]
         law = [self.value(k, state.p) for k in CONTACT_LAW]
         mass, inertia = params.mass, params.inertia
@@ -310,7 +339,7 @@ class GroundContact(PhysicalEffect):
         if per_assembly and inertia.shape != (B, R, 3):
             return None
         rows = [state.p, state.v, state.omega, kin.rot, kin.arms]
-        others = [*rows, mass, inertia, params.gravity, *law]
+        others = [*rows, mass, inertia, params.gravity, *law, self.radius]
         if not all(v.numel() == 1 for v in law) or usable_kernel(*others) is None:
             return None  # (before the spring wrench: the PyTorch law computes its own)
         f_s, t_s = self._spring_wrench(kin, params) if applied is None else applied
@@ -320,7 +349,7 @@ class GroundContact(PhysicalEffect):
         rows = [x.detach().contiguous() for x in rows]
         wrench = [x.detach().expand(B, R, 3).contiguous() for x in (f_s, t_s)]
         mass, inertia = mass.detach().contiguous(), inertia.detach().contiguous()
-        radius = self.radius.to(state.p).contiguous()
+        radius = self.radius.detach().to(state.p).contiguous()
         sphere = self._sphere.to(torch.uint8).contiguous()
         origins = None if self._origins is None else self._origins.to(state.p).contiguous()
         gravity = params.gravity.detach().reshape(3).contiguous()

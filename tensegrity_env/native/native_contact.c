@@ -140,19 +140,19 @@ static void vcontact_solve(const Model *m, int caps, vl lanes, vl second, const 
 /* The contact on one rod, every lane. In, per lane: p, v, w the rod's centre of mass,
  * its velocity and angular velocity (world); M (3 x 3, body to world); arms[k] end cap
  * k's offset from the centre of mass; f_s, t_s the applied force and torque; inv_m = 1 /
- * mass, I (principal inertia) and isI = 1 / sqrt(I), radius (the end caps' contact
+ * mass, I (principal inertia) and isI = 1 / sqrt(I), radius[k] (end cap k's contact
  * radius), sphere (sphere end caps);
  * origin the body-frame origin in the principal frame, or NULL (at the centre of mass).
  * Out: fk[k] the contact force on end cap k (0 off the floor), carm[k] its arm (contact
  * point - centre of mass). Returns whether any lane touches. */
 static int vrod_contact(const Model *m, const vd *p, const vd *v, const vd *w, const vd *M,
                         vd arms[2][3], const vd *f_s, const vd *t_s, vd inv_m, const vd *I,
-                        const vd *isI, vd radius, vl sphere, const vd *origin, vd fk[2][3],
+                        const vd *isI, const vd *radius, vl sphere, const vd *origin, vd fk[2][3],
                         vd carm[2][3]) {
     vd dist[2];
     vl act[2];
     for (int k = 0; k < 2; k++) {
-        dist[k] = p[2] + arms[k][2] - radius - m->height;
+        dist[k] = p[2] + arms[k][2] - radius[k] - m->height;
         act[k] = dist[k] < 0;
         carm[k][0] = arms[k][0];
         carm[k][1] = arms[k][1];
@@ -193,9 +193,10 @@ void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[2][3],
     const vd isI[3] = {vsplat(1.0 / sqrt(I[0])), vsplat(1.0 / sqrt(I[1])), vsplat(1.0 / sqrt(I[2]))};
     const vd ov[3] = {vsplat(o[0]), vsplat(o[1]), vsplat(o[2])};
     const vl sphere = vsplat(m->sphere[r]) != 0.0;
+    const vd rad[2] = {vsplat(m->radius[2 * r]), vsplat(m->radius[2 * r + 1])};
     vd fk[2][3], carm[2][3];
     if (!vrod_contact(m, x->p, x->v, x->w, M, arms, f_s, t_s, vsplat(1.0 / m->mass[r]), Iv, isI,
-                      vsplat(m->radius[r]), sphere, m->has_origin ? ov : NULL, fk, carm))
+                      rad, sphere, m->has_origin ? ov : NULL, fk, carm))
         return;
     for (int k = 0; k < 2; k++) {
         vd tk[3];
@@ -210,7 +211,7 @@ void vcontact(const Model *m, int r, const VRod *x, const vd *M, vd arms[2][3],
  * In: p, v, omega (B, R, 3) world frame; rot (B, R, 3, 3) body to world, row-major;
  * arms (B, R, 2, 3) the end caps' offsets from the rods' centres; mass (B, R) and
  * inertia (B, R, 3) or, with per_assembly = 0, (R) and (R, 3); f_s, t_s (B, R, 3) the
- * applied wrench; radius (R); sphere (R) bytes (1: sphere end caps, contact frame t_1 =
+ * applied wrench; radius (R, 2) each end cap's contact radius; sphere (R) bytes (1: sphere end caps, contact frame t_1 =
  * y); origin (R, 3) body-frame origins or NULL; gravity[3]; law[7] = {stiffness,
  * damping, impedance, impedance_min, width, friction, height} (the model's contact
  * block without its on flag).
@@ -230,7 +231,7 @@ int tsr_contact_forces(long B, int R, const double *p, const double *v, const do
     m.iterations = iterations;
     const long rows = B * R;
     for (long blk = 0; blk < rows; blk += TSR_W) {
-        vd P[3], V[3], Wv[3], M[9], A[2][3], fs[3], ts[3], im, I[3], isI[3], rad, o[3];
+        vd P[3], V[3], Wv[3], M[9], A[2][3], fs[3], ts[3], im, I[3], isI[3], rad[2], o[3];
         vl sph;
         for (int l = 0; l < TSR_W; l++) {
             const long q = blk + l < rows ? blk + l : rows - 1; /* the last block padded */
@@ -246,7 +247,8 @@ int tsr_contact_forces(long B, int R, const double *p, const double *v, const do
             }
             for (int i = 0; i < 9; i++) M[i][l] = rot[9 * q + i];
             im[l] = 1.0 / mass[at];
-            rad[l] = radius[r];
+            rad[0][l] = radius[2 * r];
+            rad[1][l] = radius[2 * r + 1];
             sph[l] = sphere[r] ? -1 : 0;
         }
         vd fk[2][3], carm[2][3];

@@ -19,7 +19,7 @@ long unpack_model(Model *m, const double *w, const int *springs, int R, int S, i
     m->k_c = w[1]; m->b_c = w[2]; m->d_max = w[3]; m->d_min = w[4];
     m->width = w[5]; m->mu = w[6]; m->height = w[7]; w += 8;
     m->soft = 2.0 * m->mu * m->mu * (1.0 + m->mu * m->mu); /* R = (1-d)/d soft / M */
-    m->radius = w; w += R;
+    m->radius = w; w += 2 * R;
     m->origin = w;
     m->sphere = w + 3 * R;
     m->has_origin = 0;

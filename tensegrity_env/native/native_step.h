@@ -53,7 +53,7 @@
  *   springs (S, 2):     node indices (end caps 2r, 2r+1, then anchors, then attachment points)
  *   model:  end[R][2][3], arm_u[R][3], anchors[A][3], K[S], c[S], l0[S], mass[R],
  *           inertia[R][3], gain, gravity[3], contact[8] = {on, stiffness, damping,
- *           impedance, impedance_min, width, friction, height}, radius[R],
+ *           impedance, impedance_min, width, friction, height}, radius[R][2] (each end cap's contact radius),
  *           origin[R][3] (each rod's body-frame origin in its principal frame: the point
  *           MuJoCo's free joint integrates, tensegrity_env/engine/integration.py),
  *           sphere[R] (1: sphere end caps, whose contact frame is fixed in the world),

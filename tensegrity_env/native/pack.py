@@ -151,10 +151,11 @@ def effects_block(
         if form.kind == "contact":
             if contact is not None:
                 raise NotNative(f"more than one {name} effect")
-            if not all(v.numel() == 1 for v in values.values()):
-                raise NotNative(f"{name}: the kernel takes one value per parameter")
-            contact = {k: float(v.detach()) for k, v in values.items()}
-            radius = e.radius.detach().cpu().double().numpy()  # type: ignore[attr-defined]  # the "contact" form carries end-cap radii
+            law = {k: v for k, v in values.items() if k in CONTACT_LAW}
+            if not all(v.numel() == 1 for v in law.values()):
+                raise NotNative(f"{name}: the kernel takes one value per parameter of the law")
+            contact = {k: float(v.detach()) for k, v in law.items()}
+            radius = e.radius.detach().cpu().double().numpy().reshape(-1, 2)  # type: ignore[attr-defined]  # the "contact" form carries end-cap radii
         elif form.kind == "mask":
             idx = values[form.keys[0]].cpu().numpy().astype(int)
             for slot in form.slots:
@@ -169,7 +170,7 @@ def effects_block(
         for slot, value in form.constants:
             block[slots[slot][0]] = value
     if radius is None:
-        radius = np.zeros(topology.n_rods)
+        radius = np.zeros((topology.n_rods, 2))
     return contact, block, radius
 
 
@@ -182,7 +183,7 @@ def model_vector(
 ) -> np.ndarray:
     """The kernel's packed model (``native_step.h``'s layout) of ``topology`` with
     ``params`` (arrays of :data:`PACKED_PARAMS`) and the ground contact's ``contact``
-    values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R,) [m] the end caps'
+    values (:data:`CONTACT_LAW`; None: no contact); ``radius`` (R, 2) [m] the end caps'
     contact radii; ``effects`` the effects block (:data:`EFFECT_HEAD` + 4 S entries;
     None: no effect beside contact). The winches' block follows: W, each spring's winch
     (1 + its index, 0: none) (S,), then :data:`WINCH_PARAMS` (W,) each (absent from
@@ -214,7 +215,7 @@ def model_vector(
         per_model(stiffness, S), per_model(params["damping"], S),
         per_model(params["rest_length"], S), per_model(params["mass"], R),
         per_model(params["inertia"], 3 * R), per_model(params["control_gain"], 1),
-        per_model(params["gravity"], 3), per_model(c, 8), per_model(radius, R),
+        per_model(params["gravity"], 3), per_model(c, 8), per_model(radius, 2 * R),
         per_model(topology.frame_origins, 3 * R),
         per_model(np.array([float(r.end_cap == "sphere") for r in topology.rods]), R),
         per_model(np.array([float(topology.n_points)]), 1),

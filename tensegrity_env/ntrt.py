@@ -15,7 +15,10 @@ What is read, with NTRT's meaning:
   principal inertia are the sum of its cylinders' (and of the spheres at its nodes).
   Its end caps are the two nodes of its heaviest cylinder; springs attached at its
   other nodes attach to attachment points. ``tgSphereInfo``: a solid sphere at every
-  node carrying the builder's tag, its mass added to the rod through that node.
+  node carrying the builder's tag, its mass added to the rod through that node; a
+  sphere at an end cap larger than the rod's radius is that end cap's contact radius
+  against a floor (:attr:`~tensegrity_env.topology.Rod.cap_radius`). The contact is
+  at the end caps: rods beyond them (NTRT's ``extensions``) add their mass only.
   ``tgBasicActuatorInfo``: a tension-only cable (NTRT's cables push nothing), stiffness
   ``stiffness``, damping ``damping``, rest length the built length minus
   ``pretension / stiffness``. A cable whose builder tag starts with ``activ`` or
@@ -301,6 +304,7 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
     on_rod = {n for a, b, _, _ in pieces for n in (a, b)}
     bodies = sorted({root(a) for a, _, _, _ in pieces}, key=lambda g: min(a for a, _, _, _ in pieces if root(a) == g))
     spheres: list[tuple[int, float]] = []  # node, mass [kg]
+    sphere_radius: dict[int, float] = {}  # node -> the largest sphere's radius there [m]
     for key, b_ in s.builders.items():
         if b_["class"] != SPHERE:
             continue
@@ -311,6 +315,7 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
                 if n not in on_rod:
                     raise InputError(f"{path}: sphere {key!r} at node {sorted(tags)} is on no rod")
                 spheres.append((n, rho * 4.0 / 3.0 * np.pi * r**3))
+                sphere_radius[n] = max(r, sphere_radius.get(n, 0.0))
     tied = {n for a, b, _, _ in cables for n in (a, b)}  # nodes cables attach to
     rods, masses, inertias, caps, points, poses = [], [], [], [], [], []
     for k, g in enumerate(bodies):
@@ -340,6 +345,7 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
         ends = (frame.T @ (pos[main[0]] - com), frame.T @ (pos[main[1]] - com))
         others = [n for n in range(len(pos)) if root(n) == g and n not in main[:2] and n in on_rod and n in tied]
         points.append({n: i for i, n in enumerate(others)})
+        cap_r = tuple(max(main[3], sphere_radius.get(n, 0.0)) for n in main[:2])
         rods.append(Rod(
             name=f"rod{k}",
             length=float(np.linalg.norm(pos[main[1]] - pos[main[0]])),
@@ -347,6 +353,7 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
             end_offsets=(tuple(ends[0].tolist()), tuple(ends[1].tolist())),
             end_cap="capsule",
             attachments=tuple(tuple((frame.T @ (pos[n] - com)).tolist()) for n in others),
+            cap_radius=cap_r if max(cap_r) > main[3] else None,  # type: ignore[arg-type]  # two radii
         ))  # fmt: skip
         masses.append(mass)
         inertias.append(inertia)

@@ -431,5 +431,6 @@ class Topology:
                 "frame_origins",
                 "anchor_positions",
                 "point_offsets",
+                "cap_radii",
             )
         ) and np.allclose([r.length for r in self.rods], [r.length for r in other.rods], atol=atol)

@@ -1,4 +1,4 @@
-"""A rod's end caps in an MJCF model: which sites they are, and their contact radius."""
+"""A rod's end caps in an MJCF model: which sites they are, and their contact radii."""
 
 from __future__ import annotations
 
@@ -108,17 +108,17 @@ CAP_TYPES = {
 
 def end_cap_radius(
     m: mujoco.MjModel, body: int, sites: list[int], floor: list[int], src: str
-) -> tuple[float, list[int]]:
-    """Contact radius of a rod's end caps [m]: the geom found at each end-cap site.
+) -> tuple[list[float], list[int]]:
+    """Contact radius of each of a rod's end caps [m]: the geom found at each end-cap site.
 
     A geom is at a site when it is a sphere centred there or a capsule/cylinder whose
     axis ends there; with a floor, only geoms that can collide with it count. Where
     several are, the largest radius is the one that meets the floor. 0 without a floor
-    and no such geom; refused when a floor is present and an end cap has none, or
-    when the two end caps' radii differ (one contact radius per rod).
+    and no such geom; refused when a floor is present and an end cap has none. The two
+    end caps may differ (a sphere of its own size at each end).
 
     Returns:
-        the radius [m] and the end-cap geoms (ids).
+        the radii [m], in the order of ``sites``, and the end-cap geoms (ids).
     """
     radii, cap_geoms = [], []
     for s in sites:
@@ -148,9 +148,4 @@ def end_cap_radius(
             )
         radii.append(max(found))
         cap_geoms.append(geoms[int(np.argmax(found))])
-    if abs(radii[0] - radii[1]) > 1e-12 * (1.0 + max(radii)):
-        raise InputError(
-            f"{src}: rod '{mj_name(m, mujoco.mjtObj.mjOBJ_BODY, body)}': end caps of different"
-            f" radii {radii} (the contact model has one radius per rod)"
-        )
-    return max(radii), [g for g in cap_geoms if g >= 0]
+    return radii, [g for g in cap_geoms if g >= 0]

@@ -235,7 +235,9 @@ def from_mjcf(
             raise InputError(f"{src}: rod '{mj_name(m, BODY, b)}': length must be positive, got "
                              f"0.0 (end-cap sites '{mj_name(m, SITE, rod_ends[i][0])}' and "
                              f"'{mj_name(m, SITE, rod_ends[i][1])}' coincide)")  # fmt: skip
-        radius, geoms = end_cap_radius(m, b, rod_ends[i], floor, src)
+        radii, geoms = end_cap_radius(m, b, rod_ends[i], floor, src)
+        radius = max(radii)
+        own = abs(radii[0] - radii[1]) > 1e-12 * (1.0 + radius)  # caps of their own sizes
         cap_geoms += geoms
         shapes = {CAP_TYPES[int(m.geom_type[g])] for g in geoms}
         if floor and "cylinder" in shapes:
@@ -257,6 +259,7 @@ def from_mjcf(
                 frame_origin=to_inertial(i, np.zeros(3)),
                 end_cap="sphere" if shapes == {"sphere"} else "capsule",
                 attachments=tuple(to_inertial(i, m.site_pos[s]) for s in rod_points[i]),
+                cap_radius=(radii[0], radii[1]) if own else None,
             )
         )
 

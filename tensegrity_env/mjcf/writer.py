@@ -111,12 +111,19 @@ def to_mjcf(
             mass=_f(P["mass"][r]),
             diaginertia=_v(P["inertia"][r]),
         )
+        own = rod.cap_radius is not None  # end caps of their own sizes: a sphere at each end
         ET.SubElement(
             body, "geom", name=f"{rod.name}_geom", type="capsule",
             fromto=_v(np.concatenate([ends[r, 0] - o, ends[r, 1] - o])),
-            size=_f(max(rod.radius, 1e-3)), contype=rod_type, conaffinity=rod_aff,
-            rgba="0.8 0.3 0.2 1", mass="0",
+            size=_f(max(rod.radius, 1e-3)), contype="0" if own else rod_type,
+            conaffinity="0" if own else rod_aff, rgba="0.8 0.3 0.2 1", mass="0",
         )  # fmt: skip
+        for e in range(2) if own else ():
+            ET.SubElement(
+                body, "geom", name=f"{rod.name}_cap{e}", type="sphere", pos=_v(ends[r, e] - o),
+                size=_f(max(rod.cap_radius[e], 1e-3)), contype=rod_type,  # type: ignore[index]  # own: set
+                conaffinity=rod_aff, rgba="0.8 0.3 0.2 1", mass="0",
+            )  # fmt: skip
         for e in range(2):
             ET.SubElement(
                 body, "site", name=f"{rod.name}_end{e}", pos=_v(ends[r, e] - o), size="0.02"

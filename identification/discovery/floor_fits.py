@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -36,6 +36,7 @@ from identification.discovery.end_cap_data import (
 from identification.discovery.library import contact_gate
 from identification.linear.smoothed import parse_anchors
 from identification.trajectory.airborne import has_airborne_stretch
+from identification.trajectory.cap_radius_fit import fit_cap_radii, resting_pieces
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     STATE_ITERS,
@@ -245,6 +246,8 @@ def floor_fit(
     others = [e for e in effects if not e.constraint]
     given = [e for e in effects if e.constraint]
     begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
+    rest = resting_pieces(data.dataset, "train")
+    begin = rest_radii(data, vec.params(vec.full(vec.theta0())), [*others, begin], rest)[-1]
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
     longest, count0 = floor_steps(data.dt, s), s.floor_windows
@@ -272,8 +275,29 @@ def floor_fit(
     vec = bounded(vec, w.theta, float(begin.values["height"].reshape(-1)[0]))
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
+    fitted = rest_radii(data, fit.params, fit.effects, rest)[-1]
+    assert vec.coords is not None and isinstance(fitted, GroundContact)  # as bounded's
+    if not fitted.default_radius():  # the fitted radii, in the contact the fit's coordinates move
+        last = vec.coords.effects[-1].with_values(cap_radius=fitted.radius)
+        if "cap_radius" in fitted.uncertainty:
+            last.uncertainty["cap_radius"] = fitted.uncertainty["cap_radius"]
+        vec = replace(vec, coords=replace(vec.coords, effects=(*vec.coords.effects[:-1], last)))
+        fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
     fit.origin = fit.theta
     return FloorFit(fit)
+
+
+def rest_radii(data: EndCapData, params: Params, effects: list[PhysicalEffect],
+               rest: list[np.ndarray]) -> list[PhysicalEffect]:  # fmt: skip
+    """``effects`` with the contact (the last) given each end cap's radius the resting
+    pieces ``rest`` show (:func:`~identification.trajectory.cap_radius_fit.fit_cap_radii`,
+    where it lowers their residual), logged; as given without resting pieces."""
+    found = fit_cap_radii(data.engine, params, effects, rest) if rest else None
+    if found is None:
+        return effects
+    for line in found.lines():
+        data.log(f"    {line}")
+    return [*effects[:-1], found.contact] if found.kept else effects
 
 
 def adopt_floor_fit(data: EndCapData, floor: FloorFit) -> None:

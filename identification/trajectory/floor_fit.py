@@ -184,7 +184,12 @@ def floor_contact(
     values: dict[str, Any] = dict(CONTACT_START)  # parameter name -> value
     values["height"] = floor_height(nodes, topology)
     if start is not None:
-        values.update({k: float(start.values[k].reshape(-1)[0]) for k in start.PARAMS})
+        values.update({k: float(start.values[k].reshape(-1)[0]) for k in start.PARAMS
+                       if start.PARAMS[k].per == ""})  # fmt: skip
+        values.update({k: start.values[k] for k in start.PARAMS if start.PARAMS[k].per != ""})
+        radius_se = start.uncertainty.get("cap_radius")
+        if radius_se is not None:  # the start's radii, with their standard errors
+            return GroundContact(topology, {"cap_radius": radius_se}, **values)
     return GroundContact(topology, **values)
 
 

@@ -91,7 +91,9 @@ class CapRadii:
     def lines(self) -> list[str]:
         """What the fit did, in a few lines."""
         r = self.contact.radius.detach().cpu().numpy()
-        se = np.broadcast_to(np.asarray(self.contact.uncertainty.get("cap_radius", np.inf), float), r.shape)
+        se = np.broadcast_to(
+            np.asarray(self.contact.uncertainty.get("cap_radius", np.inf), float), r.shape
+        )
         caps = [f"{self.contact.topology.rods[i].name}.{e} {1e3 * r[i, e]:.2f} ± {1e3 * se[i, e]:.2f} mm"
                 for i, e in zip(*np.nonzero(self.free), strict=True)]  # fmt: skip
         verdict = "kept" if self.kept else "not kept (no better)"

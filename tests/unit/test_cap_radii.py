@@ -45,8 +45,16 @@ def plant():
     rods = tuple(replace(r, cap_radius=RADII[i]) for i, r in enumerate(a.topology.rods))
     topo = replace(a.topology, rods=rods)
     lift = 0.08 - node_positions(topo, a.pose_p, a.pose_q)[:, 2].min()
-    xml = to_mjcf(topo, a.params, SimOptions(ground=True, control=False), a.pose_p + [0, 0, lift], a.pose_q)
-    xml = re.sub(r'<freejoint name="([^"]+)"\s*/>', r'<joint type="free" name="\1" damping="3"/>', xml)
+    xml = to_mjcf(
+        topo,
+        a.params,
+        SimOptions(ground=True, control=False),
+        a.pose_p + np.array([0.0, 0.0, lift]),
+        a.pose_q,
+    )
+    xml = re.sub(
+        r'<freejoint name="([^"]+)"\s*/>', r'<joint type="free" name="\1" damping="3"/>', xml
+    )
     return from_mjcf("<icosahedron>", xml=xml)
 
 
@@ -99,7 +107,12 @@ def test_engine_and_kernel_step_caps_of_different_radii_as_mujoco() -> None:
         mujoco.mj_step(m, d)
         state = engine.step(state, asm.params)
         ref = mj_rod_state(asm, d)
-        errors.append(max(float((getattr(state, k) - getattr(ref, k)).abs().max()) for k in ("p", "v", "q", "omega")))
+        errors.append(
+            max(
+                float((getattr(state, k) - getattr(ref, k)).abs().max())
+                for k in ("p", "v", "q", "omega")
+            )
+        )
     assert max(errors) <= 1e-9
     stepper = NativeStepper(asm.topology, asm.params, [contact, drag], m.opt.timestep, 2, threads=1)
     assert stepper.verify(asm.params, [contact, drag]) <= 1e-12

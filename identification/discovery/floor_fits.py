@@ -247,7 +247,7 @@ def floor_fit(
     given = [e for e in effects if e.constraint]
     begin = floor_contact(data.topology, data.train.nodes, given[0] if given else contact)
     rest = resting_pieces(data.dataset, "train")
-    begin = rest_radii(data, vec.params(vec.full(vec.theta0())), [*others, begin], rest)[-1]
+    begin = rest_radii(data, vec.params(vec.full(vec.theta0())), others, begin, rest)
     vec = with_floor(vec, others, begin, held_drag_axis(data))
     data.contact_free = FLOOR_FREE
     longest, count0 = floor_steps(data.dt, s), s.floor_windows
@@ -275,8 +275,9 @@ def floor_fit(
     vec = bounded(vec, w.theta, float(begin.values["height"].reshape(-1)[0]))
     m = w.windows.residuals
     fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
-    fitted = rest_radii(data, fit.params, fit.effects, rest)[-1]
-    assert vec.coords is not None and isinstance(fitted, GroundContact)  # as bounded's
+    *fitted_others, last = fit.effects
+    assert vec.coords is not None and isinstance(last, GroundContact)  # as bounded's
+    fitted = rest_radii(data, fit.params, fitted_others, last, rest)
     if not fitted.default_radius():  # the fitted radii, in the contact the fit's coordinates move
         last = vec.coords.effects[-1].with_values(cap_radius=fitted.radius)
         if "cap_radius" in fitted.uncertainty:
@@ -287,17 +288,18 @@ def floor_fit(
     return FloorFit(fit)
 
 
-def rest_radii(data: EndCapData, params: Params, effects: list[PhysicalEffect],
-               rest: list[np.ndarray]) -> list[PhysicalEffect]:  # fmt: skip
-    """``effects`` with the contact (the last) given each end cap's radius the resting
-    pieces ``rest`` show (:func:`~identification.trajectory.cap_radius_fit.fit_cap_radii`,
-    where it lowers their residual), logged; as given without resting pieces."""
-    found = fit_cap_radii(data.engine, params, effects, rest) if rest else None
+def rest_radii(data: EndCapData, params: Params, others: Sequence[PhysicalEffect],
+               contact: GroundContact, rest: list[np.ndarray]) -> GroundContact:  # fmt: skip
+    """``contact`` with each end cap's radius the resting pieces ``rest`` show (end caps
+    (T, 2R, 3) [m]; :func:`~identification.trajectory.cap_radius_fit.fit_cap_radii` with
+    ``params`` and the ``others`` effects, where it lowers their residual), logged; as
+    given without resting pieces."""
+    found = fit_cap_radii(data.engine, params, [*others, contact], rest) if rest else None
     if found is None:
-        return effects
+        return contact
     for line in found.lines():
         data.log(f"    {line}")
-    return [*effects[:-1], found.contact] if found.kept else effects
+    return found.contact
 
 
 def adopt_floor_fit(data: EndCapData, floor: FloorFit) -> None:

@@ -26,6 +26,7 @@ from tensegrity_env.engine import Engine, State
 from tensegrity_env.envs.physics import NativeStepper
 from tensegrity_env.mjcf import from_mjcf, to_mjcf
 from tensegrity_env.mjcf.writer import SimOptions
+from tensegrity_env.model import Model
 from tensegrity_env.topology import Topology
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -92,6 +93,19 @@ def test_each_end_caps_radius_is_read_from_its_sphere() -> None:
     assert "cap_radius" not in contact.to_dict()["params"]
     moved = contact.with_values(cap_radius=contact.radius + 0.001)
     assert np.allclose(moved.to_dict()["params"]["cap_radius"], np.array(RADII) + 0.001)
+
+
+def test_fitted_radii_and_their_errors_survive_a_params_file(tmp_path) -> None:
+    asm = plant()
+    contact = asm.declared_effects()[0]
+    se = np.full((6, 2), np.inf)  # a cap the data does not see
+    se[0, 0] = 1e-4
+    fitted = contact.with_values(cap_radius=contact.radius + 0.002)
+    fitted.uncertainty["cap_radius"] = se
+    Model(asm.topology, asm.params, [fitted]).save(tmp_path / "params.json")
+    again = Model.read(tmp_path / "params.json").effects[0]
+    assert np.array_equal(again.radius.numpy(), fitted.radius.numpy())
+    assert np.array_equal(np.asarray(again.uncertainty["cap_radius"], float), se)
 
 
 def test_engine_and_kernel_step_caps_of_different_radii_as_mujoco() -> None:

@@ -172,3 +172,22 @@ def test_the_rest_pose_is_rebuilt_from_each_rods_principal_frame(files: tuple[Pa
     np.testing.assert_allclose(np.linalg.norm(robot.rest_q, axis=-1), 1.0, atol=1e-12)
     nodes = node_positions(robot.topology, robot.rest_p, robot.rest_q)
     np.testing.assert_allclose(nodes[: 2 * robot.topology.n_rods], robot.rest_caps, atol=1e-12)
+
+
+def test_a_sphere_on_an_end_cap_is_that_caps_contact_radius(tmp_path: Path) -> None:
+    from tensegrity_env.ntrt import EXAMPLE_PRISM
+
+    text = EXAMPLE_PRISM.replace(
+        "nodes:\n  bottom1:", "  ball: {class: tgSphereInfo, parameters: {density: 0.1, radius: 0.3}}\nnodes:\n  bottom1 ball:"
+    ).replace("[bottom1, top2]", "[ball, top2]").replace("[bottom1, bottom2]", "[ball, bottom2]")
+    text = text.replace("[bottom1, bottom3]", "[ball, bottom3]").replace("[bottom1, top1]", "[ball, top1]")
+    path = tmp_path / "prism.yaml"
+    path.write_text(text)
+    topo = from_ntrt(path).topology
+    # 0.3 dm sphere at one end of the first rod; every other cap keeps the rod's 0.1 dm
+    radii = np.full((3, 2), 0.01)
+    radii[0, 0] = 0.03
+    assert np.allclose(topo.cap_radii, radii, rtol=1e-12)
+    contact = Model.read(path).effects[0]
+    assert isinstance(contact, GroundContact)
+    assert np.allclose(contact.radius.numpy(), radii, rtol=1e-12)

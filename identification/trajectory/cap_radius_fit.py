@@ -115,7 +115,7 @@ def resting_pieces(dataset: Dataset, split: str = "train") -> list[np.ndarray]:
                    for s in stretches.get(name, []))]  # fmt: skip
 
 
-def _starts(pieces: Sequence[np.ndarray], engine: Engine) -> tuple[State, np.ndarray] | None:
+def rest_states(pieces: Sequence[np.ndarray], engine: Engine) -> tuple[State, np.ndarray] | None:
     """Measured states at rest (zero velocity), (K,) rows, and the measured end caps
     (K, L+1, 2R, 3) over :data:`REST_HORIZON` from each; None where there is none."""
     dt, L = engine.dt, max(1, round(REST_HORIZON / engine.dt))
@@ -153,7 +153,7 @@ def fit_cap_radii(
     [m]. None where there is no contact, no resting state, or no cap near the floor.
     """
     contact = next((e for e in effects if isinstance(e, GroundContact)), None)
-    start = None if contact is None else _starts(pieces, engine)
+    start = None if contact is None else rest_states(pieces, engine)
     if contact is None or start is None:
         return None
     init, measured = start

@@ -22,6 +22,7 @@ The script measures what the adjustment does to the rest shape and to held-out
 prediction (docs/decisions.md has the numbers and why it is not in ``identify``):
 
     python benchmarks/rest_balance.py take W/eth_T2_drop   # a bench_real take folder
+    python benchmarks/rest_balance.py take W/eth_T2_drop --params robot.yaml
     python benchmarks/rest_balance.py plant                # the MuJoCo plant of the tests
 """
 
@@ -218,10 +219,11 @@ def fit_rest_equilibrium(
     return RestEquilibrium(l0n + change if kept else l0n, change, before, after, B, touching, kept)
 
 
-def check_take(folder: Path) -> None:
+def check_take(folder: Path, params: Path | None = None) -> None:
     """The identified model of a ``bench_real`` take folder (``take.h5``,
-    ``identified.json``) with and without the balanced rest lengths: the fit, the rest
-    shape and the held-out end-cap RMS at each horizon, printed."""
+    ``identified.json``; ``params`` another model file) with and without the balanced
+    rest lengths: the fit, the rest shape and the held-out end-cap RMS at each horizon,
+    printed."""
     import bench_real as br
 
     from identification.data.dataset import read_dataset
@@ -231,7 +233,7 @@ def check_take(folder: Path) -> None:
     from tensegrity_env.model import Model
 
     data, _ = on_nominal_grid(read_dataset(folder / "take.h5"))
-    model = Model.read(folder / "identified.json", dt=data.dt)
+    model = Model.read(params or folder / "identified.json", dt=data.dt)
     engine = model.engine()
     noise = noise_level(data.split("train").nodes, rods=True)
     found = fit_rest_equilibrium(engine.with_effects([]), model.params, list(engine.effects),
@@ -244,7 +246,7 @@ def check_take(folder: Path) -> None:
     balanced = model.params.replace(
         rest_length=torch.as_tensor(found.rest_length + (0 if found.kept else found.change))
     )
-    for name, params in (("identified", model.params), ("balanced", balanced)):
+    for name, params in (("given", model.params), ("balanced", balanced)):
         m = model.replace(params=params)
         shape, _ = br.rest_shape(m, piece, data.dt) if piece is not None else (None, None)
         rms, _ = br.open_loop(m, nodes, data.dt, br.HORIZONS)
@@ -290,17 +292,20 @@ def main(argv: list[str] | None = None) -> int:
     sub = ap.add_subparsers(dest="what", required=True)
     take = sub.add_parser("take", help="a bench_real take folder (take.h5, identified.json)")
     take.add_argument("folder", type=Path)
+    take.add_argument(
+        "--params", type=Path, help="the model file (default: the folder's identified.json)"
+    )
     sub.add_parser("plant", help="the tests' MuJoCo icosahedron at rest")
     args = ap.parse_args(argv)
     if args.what == "plant":
         check_plant()
         return 0
-    for name in ("take.h5", "identified.json"):
-        if not (args.folder / name).is_file():
-            print(f"rest_balance: {args.folder}: no {name} (a bench_real --workdir take folder has it)",
+    for path in (args.folder / "take.h5", args.params or args.folder / "identified.json"):
+        if not path.is_file():
+            print(f"rest_balance: {path}: no such file (a bench_real --workdir take folder has take.h5 and identified.json)",
                   file=sys.stderr)  # fmt: skip
             return 2
-    check_take(args.folder)
+    check_take(args.folder, args.params)
     return 0
 
 

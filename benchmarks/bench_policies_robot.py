@@ -24,7 +24,7 @@ twelve, ``icosahedron_winches.xml``, stored under ``--key``):
     python benchmarks/bench_policies_robot.py -o runs/policies_robot --workers 2
     python benchmarks/bench_policies_robot.py --robot tensegrity_env/assets/icosahedron_winches.xml \
         --key icosahedron_winch --timesteps 300000 \
-        --hyperparams docs/results/ppo_icosahedron_winch.yml -o runs/policies_icosahedron
+        --hyperparams docs/results/ppo_robot_gamma099.yml -o runs/policies_icosahedron
 
 Every command is printed before it runs. Steps whose outputs exist in the output folder
 are reused (training runs are resumed to their budget), so an interrupted run continues.

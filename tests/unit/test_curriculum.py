@@ -109,3 +109,21 @@ def test_training_records_the_level_and_a_resumed_run_keeps_it(tmp_path: Path) -
                   resume=True, progress=False, tensorboard=False)  # fmt: skip
     assert again.record["curriculum_level"] >= first.record["curriculum_level"]
     assert read_record(again.model_path)["curriculum_level"] == again.record["curriculum_level"]
+
+
+def test_both_goal_envs_take_a_goal_distance_and_the_shape_task_refuses_it() -> None:
+    for env_id, kw in (("IcosahedronSR-v0", {}), ("TensegritySR-v0", TASK)):
+        venv = make_training_env(env_id, 2, seed=0, env_kwargs=dict(kw))
+        venv.env_method("set_goal_distance", 0.1, 0.2, indices=[0])
+        assert task_goal_distance(venv) == (0.1, 0.2), env_id
+        venv.reset()
+        goals = venv.get_attr("goals" if env_id == "IcosahedronSR-v0" else "targets")[0]
+        assert np.all((np.linalg.norm(goals, axis=1) >= 0.1 - 1e-9)
+                      & (np.linalg.norm(goals, axis=1) <= 0.2 + 1e-9)), env_id  # fmt: skip
+        venv.close()
+    shape = make_training_env("TensegritySR-v0", 2, seed=0, env_kwargs={"task": "shape"})
+    with pytest.raises(InputError, match="needs a goal task"):
+        task_goal_distance(shape)
+    with pytest.raises(ValueError, match="no goal distance"):
+        shape.env_method("set_goal_distance", 0.1, 0.2, indices=[0])
+    shape.close()

@@ -11,8 +11,9 @@ twelve, ``icosahedron_winches.xml``, stored under ``--key``):
    lags from that data (winch ranges, never reached in it, from the robot file); the
    env's model is the identified parameters with the robot file's floor contact.
 3. ``tensegrity-sr train ppo --env TensegritySR-v0 --model params.json --seeds ...``:
-   PPO (``policies/hyperparams/ppo.yml``: task and goal distances in its
-   ``env_kwargs``) on the identified model, one run per seed.
+   PPO (``policies/hyperparams/ppo.yml``, or ``--hyperparams``: task and goal distances
+   in its ``env_kwargs``, the goal-distance curriculum) on the identified model, one run
+   per seed (``--workers`` at a time).
 4. ``tensegrity-sr transfer``: every seed over the same seeded episodes in
    ``TensegritySR-v0`` and in its twin ``TensegrityMJ-v0`` (the robot file in MuJoCo):
    success rate, transfer ratio (twin return / identified-env return), IQM with 95 %
@@ -20,9 +21,10 @@ twelve, ``icosahedron_winches.xml``, stored under ``--key``):
 5. ``python -m policies.results --robot lab_prism_winch=...``: stored in
    ``docs/results/policies.json`` under ``lab_prism_winch``; ``policies.md`` regenerated.
 
-    python benchmarks/bench_policies_robot.py -o runs/policies_robot
+    python benchmarks/bench_policies_robot.py -o runs/policies_robot --workers 2
     python benchmarks/bench_policies_robot.py --robot tensegrity_env/assets/icosahedron_winches.xml \
-        --key icosahedron_winch --timesteps 300000 -o runs/policies_icosahedron
+        --key icosahedron_winch --timesteps 300000 \
+        --hyperparams docs/results/ppo_robot_gamma099.yml -o runs/policies_icosahedron
 
 Every command is printed before it runs. Steps whose outputs exist in the output folder
 are reused (training runs are resumed to their budget), so an interrupted run continues.
@@ -78,6 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--robot", type=Path, default=ROBOT, help="the robot's MJCF (with a floor)")
     p.add_argument("--key", default=KEY, help="its key in policies.json (default %(default)s)")
     p.add_argument("--seeds", default="0-2", help="training seeds (default %(default)s)")
+    p.add_argument("--hyperparams", type=Path, default=None,
+                   help="PPO settings (default: the shipped policies/hyperparams/ppo.yml)")  # fmt: skip
+    p.add_argument("--workers", type=int, default=1,
+                   help="seeds trained at once, one process each (default %(default)s)")  # fmt: skip
     p.add_argument("--timesteps", type=int, default=None,
                    help="budget per seed (default: the hyperparameters')")  # fmt: skip
     p.add_argument("--episodes", type=int, default=100, help="evaluation episodes per env")
@@ -121,6 +127,10 @@ def main(argv: list[str] | None = None) -> int:
         train += ["--robot", shown(robot)]
     if args.timesteps is not None:
         train += ["--timesteps", args.timesteps]
+    if args.hyperparams is not None:
+        train += ["--hyperparams", shown(args.hyperparams)]
+    if args.workers != 1:
+        train += ["--workers", args.workers]
     run(train, commands)
 
     # 4. every seed in the identified env and in the twin, same episodes

@@ -11,7 +11,11 @@ policy's own env arguments (its run record: model, task options), and prints
   with the median distance they ended from the goal; or it **stayed** on its face, with
   the median end distance and how many winches ended within 5 mm of a range limit (a
   lean that ran out of cable);
-* the mean episode length of the successes against the time limit.
+* the mean episode length of the successes against the time limit;
+* the success rate by the goal's bearing from the centre of the base (the three lowest
+  end caps at the start), as the angle to the nearest base end cap: 0 deg, the goal lies
+  beyond a corner of the base; 60 deg, beyond the middle of an edge (the near and the far
+  half of the goal distances apart).
 
     python benchmarks/robot_policy_failures.py policies/pretrained/ppo_TensegritySR-v0.zip
     python benchmarks/robot_policy_failures.py runs/policies_robot/runs/s0/model.zip --episodes 100
@@ -38,14 +42,29 @@ ON_FLOOR = 0.02
 AT_LIMIT = 5e-3
 
 
-def episode(env: gym.Env, policy: object, seed: int) -> tuple[bool, float, float, bool, int, int]:
-    """(success, start distance [m], end distance [m], tipped, winches at a limit, steps)."""
+def bearing(caps: np.ndarray, goal: np.ndarray) -> float:
+    """Angle [deg] between the goal and the nearest base end cap as seen from the base's
+    centre (0-60: 0 beyond a corner, 60 beyond an edge); caps (2R, 3), goal (2,) [m]."""
+    base = caps[np.argsort(caps[:, 2])[:3], :2]
+    c = base.mean(axis=0)
+    to_goal = np.arctan2(goal[1] - c[1], goal[0] - c[0])
+    to_caps = np.arctan2(base[:, 1] - c[1], base[:, 0] - c[0])
+    off = np.abs((np.degrees(to_caps - to_goal) + 180.0) % 360.0 - 180.0)
+    return float(off.min())
+
+
+def episode(
+    env: gym.Env, policy: object, seed: int
+) -> tuple[bool, float, float, bool, int, int, float]:
+    """(success, start distance [m], end distance [m], tipped, winches at a limit, steps,
+    the goal's bearing off the nearest base corner at the start [deg])."""
     u = env.unwrapped
     sensors = RobotSensors(u.sim.topology)  # type: ignore[attr-defined]
     params = u.sim.params  # type: ignore[attr-defined]
     lo, hi = params.winch_min.numpy(), params.winch_max.numpy()
     obs, info = env.reset(seed=seed)
     start, first, tipped, steps = info["task_error"], None, False, 0
+    off = bearing(sensors.end_caps(u.state[None])[0], u.target)  # type: ignore[attr-defined]
     while True:
         caps = sensors.end_caps(u.state[None])[0]  # type: ignore[attr-defined]
         low = frozenset(np.flatnonzero(caps[:, 2] < caps[:, 2].min() + ON_FLOOR).tolist())
@@ -57,7 +76,7 @@ def episode(env: gym.Env, policy: object, seed: int) -> tuple[bool, float, float
             break
     rest = u.winch[:, 0]  # type: ignore[attr-defined]
     limit = int(np.sum((rest - lo < AT_LIMIT) | (hi - rest < AT_LIMIT)))
-    return bool(info["is_success"]), start, info["task_error"], tipped, limit, steps
+    return bool(info["is_success"]), start, info["task_error"], tipped, limit, steps, off
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,8 +92,9 @@ def main(argv: list[str] | None = None) -> int:
     policy = load_policy(args.policy)
     rows = np.array([episode(env, policy, args.seed + k) for k in range(args.episodes)],
                     dtype=float)  # fmt: skip
-    ok, start, end, tipped, limit, steps = (rows[:, 0] > 0, rows[:, 1], rows[:, 2],
-                                            rows[:, 3] > 0, rows[:, 4], rows[:, 5])  # fmt: skip
+    ok, start, end, tipped, limit, steps, off = (rows[:, 0] > 0, rows[:, 1], rows[:, 2],
+                                                 rows[:, 3] > 0, rows[:, 4], rows[:, 5],
+                                                 rows[:, 6])  # fmt: skip
     W = env.unwrapped.sim.topology.n_winches  # type: ignore[attr-defined]
     limit_s = env.spec.max_episode_steps if env.spec else None
     print(f"{args.policy}: {args.episodes} episodes from seed {args.seed}, env arguments "
@@ -96,6 +116,14 @@ def main(argv: list[str] | None = None) -> int:
                 f"median; winches at a range limit: median {np.median(limit[m]):.0f} of {W})"
             )
     print(f"  succeeded and tipped on the way: {np.sum(ok & tipped)}")
+    mid = (lo + hi) / 2
+    for near, m_d in ((f"{lo:.2f}-{mid:.2f}", start < mid), (f"{mid:.2f}-{hi:.2f}", start >= mid)):
+        parts = []
+        for a, b in ((0, 20), (20, 40), (40, 60)):
+            m = m_d & (off >= a) & ((off <= b) if b == 60 else (off < b))
+            rate = f"{ok[m].mean():.2f}" if m.any() else "-"
+            parts.append(f"{a}-{b} deg {rate} of {m.sum()}")
+        print(f"  goal {near} m away, by bearing off a base corner: " + ", ".join(parts))
     env.close()
     return 0
 

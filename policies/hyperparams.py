@@ -1,7 +1,7 @@
 """Hyperparameters from YAML files keyed by environment id (the rl-zoo3 convention).
 
 ``policies/hyperparams/<algo>.yml`` maps an environment id to one algorithm's
-settings. This module reads four keys itself and passes every other one to the SB3
+settings. This module reads these keys itself and passes every other one to the SB3
 constructor unchanged:
 
 ==================  =========================================================
@@ -15,6 +15,9 @@ constructor unchanged:
                     (:mod:`policies.goal_frame`; default false)
 ``env_kwargs``      a mapping of the environment's own arguments (``task``,
                     task options such as ``goal_distance``)
+``curriculum``      near goals first, widened to the task's ``goal_distance`` as
+                    the training episodes succeed (:mod:`policies.curriculum`;
+                    default none)
 ==================  =========================================================
 """
 
@@ -27,6 +30,7 @@ from typing import Any
 import torch.nn as nn
 import yaml
 
+from policies.curriculum import GoalCurriculum
 from tensegrity_env.io_utils import InputError, parse_error
 
 #: the YAML files that ship with the package, one per algorithm
@@ -54,6 +58,7 @@ class Hyperparams:
         source: the file they came from.
         goal_frame: the policy acts in the goal frame (:mod:`policies.goal_frame`).
         env_kwargs: the environment's own arguments (passed to ``gym.make``).
+        curriculum: the goal-distance curriculum of training, None for none.
     """
 
     algo: str
@@ -66,6 +71,7 @@ class Hyperparams:
     source: str = ""
     goal_frame: bool = False
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    curriculum: GoalCurriculum | None = None
 
     def sb3_kwargs(self) -> dict[str, Any]:
         """Constructor kwargs with ``policy_kwargs.activation_fn`` turned into a class."""
@@ -86,6 +92,7 @@ class Hyperparams:
             "normalize": self.normalize,
             "goal_frame": self.goal_frame,
             **({"env_kwargs": self.env_kwargs} if self.env_kwargs else {}),
+            **({"curriculum": self.curriculum.to_dict()} if self.curriculum else {}),
             **self.algo_kwargs,
         }
 
@@ -128,6 +135,9 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     env_kwargs = entry.pop("env_kwargs", None) or {}
     if not isinstance(env_kwargs, dict):
         raise InputError(f"{path}: {env_id}: env_kwargs must be a mapping")
+    curriculum = entry.pop("curriculum", None)
+    if curriculum is not None:
+        curriculum = GoalCurriculum.from_config(curriculum, f"{path}: {env_id}")
     normalize = entry.pop("normalize", None)
     if normalize is True:
         normalize = {}
@@ -145,5 +155,5 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
         )
     return Hyperparams(
         algo, env_id, n_envs, n_timesteps, policy, normalize, entry, str(path), goal_frame,
-        env_kwargs,
+        env_kwargs, curriculum,
     )  # fmt: skip

@@ -230,12 +230,32 @@ def markdown(doc: dict[str, Any]) -> str:
     return "\n".join(parts)
 
 
+def relative(path: str) -> str:
+    """``path`` relative to the working folder where it lies below it (a record names the
+    files of the machine it ran on; the results name them as the reproduce line does)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except (ValueError, OSError):
+        return path
+
+
 def read_seeds(path: Path) -> dict[str, Any]:
-    """A ``transfer`` output over several runs, each run with its record's main keys."""
+    """A ``transfer`` output over several runs, each run with its record's main keys (the
+    hyperparameters file by its path in the repository, the env's files relative to the
+    working folder)."""
     doc = read_json(path, "--seeds")
     for run in doc.get("runs", []):
         rec = read_json(Path(run["policy"]).with_suffix(".json"), "--seeds (run record)")
         run["record"] = {k: rec.get(k) for k in RUN_KEYS}
+        if run["record"].get("hyperparams_file"):
+            run["record"]["hyperparams_file"] = repo_path(run["record"]["hyperparams_file"])
+        kw = run["record"].get("env_kwargs")
+        if isinstance(kw, dict):
+            run["record"]["env_kwargs"] = {
+                k: relative(v) if k in ("model", "robot") and isinstance(v, str) else v
+                for k, v in kw.items()
+            }
+        run["policy"] = relative(run["policy"])
     return doc
 
 

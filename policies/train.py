@@ -40,6 +40,7 @@ from policies.artifacts import (
     save_policy,
     stats_path,
 )
+from policies.curriculum import CurriculumCallback, task_goal_distance
 from policies.goal_frame import VecGoalFrame
 from policies.hyperparams import Hyperparams, load_hyperparams
 from policies.vec import make_training_env
@@ -331,6 +332,12 @@ def train(
         Checkpoint(out / "checkpoints", max(1, checkpoint_every), record, clock),
         *callbacks,
     ]
+    if hp.curriculum is not None:  # near goals first (policies/curriculum.py)
+        level = int(read_record(ckpt).get("curriculum_level", 0)) if ckpt is not None else 0
+        task = task_goal_distance(venv)
+        # before learn()'s first reset, so that the first episodes draw this level's goals
+        venv.env_method("set_goal_distance", *hp.curriculum.distance(level, task), indices=[0])
+        steps.append(CurriculumCallback(hp.curriculum, task, record, level))
     if progress:
         steps.append(ProgressBar())
     remaining = total - model.num_timesteps

@@ -21,6 +21,7 @@ handling of bad input are those of
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -118,6 +119,18 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             obs[ended] = self._reset_envs(ended)
         self._last_obs = obs
         return obs, reward, terminated, truncated, infos
+
+    def set_goal_distance(self, low: float, high: float) -> None:
+        """Draw the goals of episodes reset from now on ``low``-``high`` m away (the goal
+        task's ``goal_distance``; a training curriculum widens it as the policy learns).
+
+        Raises:
+            ValueError: the task has no goal (``shape``), or not ``0 <= low <= high``.
+        """
+        if not isinstance(self.task, GoalTask):
+            raise ValueError("the shape task has no goal distance")
+        rolling = replace(self.task.rolling, goal_distance=(float(low), float(high)))
+        self.task = replace(self.task, rolling=rolling)
 
     def _reset_envs(self, idx: np.ndarray) -> np.ndarray:
         """Reset the envs ``idx`` (seeded draws); their observations (len(idx), n_obs)."""

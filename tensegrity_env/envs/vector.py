@@ -25,6 +25,7 @@ diverged physics ends that env's episode (``infos["physics_diverged"]``).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Unpack
 
@@ -216,6 +217,15 @@ class RollingVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
             self._renderer = None
 
     # ------------------------------------------------------------------ helpers
+    def set_goal_distance(self, low: float, high: float) -> None:
+        """Draw the goals of episodes reset from now on ``low``-``high`` m away (the task's
+        ``goal_distance``; a training curriculum widens it as the policy learns).
+
+        Raises:
+            ValueError: not ``0 <= low <= high``.
+        """
+        self.task = replace(self.task, goal_distance=(float(low), float(high)))
+
     def _reset_envs(self, idx: np.ndarray) -> None:
         states = np.empty((len(idx), self.n_rods, 13))
         for k, i in enumerate(idx):

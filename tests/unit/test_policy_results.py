@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
-from policies.results import markdown
+import json
+from pathlib import Path
+
+import pytest
+
+from policies.results import markdown, read_seeds
 
 
 def trial(
@@ -49,3 +54,24 @@ def test_seeds_section_names_the_recipe_of_its_runs() -> None:
     assert text.count("## Seeds of `policies/hyperparams/ppo.yml`") == 2
     assert "2 runs trained with `policies/hyperparams/ppo.yml` for 3,002,368 env steps" in text
     assert "| 1 | 51.00 | 90% | 51.00 | 90% | 1.000 |" in text
+
+
+def test_robot_records_name_files_relative_to_the_working_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a run record names the files of the machine it ran on by absolute paths; the
+    # results keep them as the reproduce line names them
+    monkeypatch.chdir(tmp_path)
+    run = tmp_path / "runs" / "s0"
+    run.mkdir(parents=True)
+    record = {"algo": "ppo", "seed": 0, "env_kwargs": {"task": "goal",
+              "model": str(tmp_path / "runs" / "params.json")},
+              "hyperparams_file": "/somewhere/else/policies/hyperparams/ppo.yml"}  # fmt: skip
+    (run / "model.json").write_text(json.dumps(record))
+    transfer = tmp_path / "transfer.json"
+    transfer.write_text(json.dumps({"runs": [{"policy": str(run / "model.zip"), "seed": 0}]}))
+    doc = read_seeds(transfer)
+    got = doc["runs"][0]
+    assert got["policy"] == "runs/s0/model.zip"
+    assert got["record"]["env_kwargs"] == {"task": "goal", "model": "runs/params.json"}
+    assert got["record"]["hyperparams_file"] == "policies/hyperparams/ppo.yml"

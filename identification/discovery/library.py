@@ -22,7 +22,9 @@ from scipy.optimize import minimize_scalar
 
 from identification.data.dataset import Dataset, Split
 from identification.linear.extended import ExtendedIdentifier, acting_split
+from identification.trajectory.airborne import contact_gate
 from identification.trajectory.effect_fit import fit_effect_params, sample_windows
+from identification.trajectory.fitted_model import FittedModel
 from tensegrity_env.effects import EFFECTS, ControlLag, SlackSprings
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
 from tensegrity_env.model import Model
@@ -33,9 +35,6 @@ from tensegrity_env.topology import Topology
 SLACK_LOSS = 0.5
 #: ... by at least this many standard errors
 SLACK_SIGNIFICANCE = 5.0
-#: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
-#: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
-FLOOR_DEPTH = 0.3
 #: control lag time constants tried first [s]
 LAG_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 #: the lag search ends when log τ is known to this (a relative tolerance on τ)
@@ -62,37 +61,6 @@ class FitSettings:
     contact_windows: tuple[tuple[int, int], ...] = ((1, 2000),)
     contact_iterations: int = 20
     seed: int = 0
-
-
-@dataclass(frozen=True)
-class FittedModel:
-    """A model fitted by the residual loop, with the bookkeeping of the fit.
-
-    Attributes:
-        model: topology, declared parameters, effects (identified values and
-            uncertainty) and time step.
-        n_params: number of fitted parameters (for the information criterion).
-        notes: remarks from the fit (effect name -> text).
-        uncertainty: standard errors of the fitted declared parameters by name (e.g.
-            ``stiffness[s0]``), in their units; empty where the fit states none.
-    """
-
-    model: Model
-    n_params: int
-    notes: dict[str, str] = field(default_factory=dict)
-    uncertainty: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def params(self) -> Params:
-        return self.model.params
-
-    @property
-    def effects(self) -> list[PhysicalEffect]:
-        return list(self.model.effects)
-
-    @property
-    def names(self) -> list[str]:
-        return self.model.effect_names
 
 
 def _through_engine(e: PhysicalEffect) -> bool:
@@ -258,26 +226,6 @@ def floor_proposal(name: str, split: Split, topology: Topology) -> Proposal:
 def contact_proposal(split: Split, topology: Topology) -> Proposal:
     """Ground contact where end caps reach the floor and the floor stops them."""
     return floor_proposal("ground_contact", split, topology)
-
-
-def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
-    """Whether end caps reach the floor and the floor stops them, and why (one line).
-
-    Over the seen end-cap samples only: a gap (NaN) is neither low nor deep."""
-    radius = np.array([r.radius for r in topology.rods]).repeat(2)
-    height = split.nodes[..., 2] - radius
-    seen = height[np.isfinite(height)]
-    if seen.size == 0:
-        return False, "no end cap is seen"
-    low, deepest = float((seen <= 0).mean()), float(seen.min())
-    if low > 0 and deepest > -FLOOR_DEPTH:
-        return True, (
-            f"{low:.1%} of end-cap samples at or below z - r = 0; "
-            f"none deeper than {-deepest * 1e3:.1f} mm"
-        )
-    if low == 0:
-        return False, "no end cap reaches the floor"
-    return False, f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them"
 
 
 def slack_probe(

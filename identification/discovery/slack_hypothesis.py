@@ -21,7 +21,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from identification.discovery.end_cap_data import (
+from identification.discovery.judge import MIN_CHI2_GAIN
+from identification.discovery.library import Proposal
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     TrajFit,
@@ -29,10 +31,8 @@ from identification.discovery.end_cap_data import (
     contact_searched,
     held,
 )
-from identification.discovery.end_cap_fits import fit_declared, fit_with
-from identification.discovery.floor_fits import leaning_rows
-from identification.discovery.judge import MIN_CHI2_GAIN
-from identification.discovery.library import Proposal
+from identification.trajectory.end_cap_fits import fit_declared, fit_with
+from identification.trajectory.floor_fits import leaning_rows
 from identification.trajectory.slack_regression import (
     CABLE_LOSS,
     CABLE_SIGNIFICANCE,
@@ -50,7 +50,7 @@ def slack_hypothesis(data: EndCapData, current: TrajFit, anchors: dict[str, floa
     The candidate holds every cable of ``current``, old and new (its effect None when
     no new one shows), and starts from the regression's parameter values. On the floor
     the regression uses the rods away from it and the moments of those leaning on it
-    about their contact points (:func:`~identification.discovery.floor_fits.leaning_rows`),
+    about their contact points (:func:`~identification.trajectory.floor_fits.leaning_rows`),
     else the airborne samples.
     """
     old = [e for e in current.effects if e.name == SlackSprings.name]

@@ -50,7 +50,7 @@ through the engine, on short windows that touch the floor:
    jumps.
 
 Where some windows start in the air (a throw or drop before it lands), half the floor
-windows are drawn from those (:meth:`~identification.discovery.end_cap_data.EndCapData.cut`,
+windows are drawn from those (:meth:`~identification.trajectory.end_cap_data.EndCapData.cut`,
 ``lift_off``): in that flight nothing but the declared model, gravity and a drag acts,
 so they pin the masses and a drag that the contact would otherwise take up.
 

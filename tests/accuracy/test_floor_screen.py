@@ -24,14 +24,14 @@ import pytest
 import torch
 
 from identification.data.dataset import read_dataset, read_ground_truth
-from identification.discovery.end_cap_data import (
+from identification.discovery.judge import MIN_BIC_DROP
+from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     fit_trajectory,
     held,
 )
-from identification.discovery.judge import MIN_BIC_DROP
-from identification.trajectory.effect_coords import EffectCoords
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states

@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from identification.discovery import multi_step, refits
-from identification.discovery.end_cap_data import TrajectorySettings
-from identification.discovery.end_cap_fits import EndCapFits
 from identification.discovery.judge import Candidate
 from identification.discovery.library import Proposal
 from identification.discovery.multi_step import MultiStepScorer
+from identification.trajectory.end_cap_data import TrajectorySettings
+from identification.trajectory.end_cap_fits import EndCapFits
 from tensegrity_env.effects import GroundContact
 
 
@@ -95,7 +95,7 @@ def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
 def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch) -> None:
     """``fit_many(within=...)`` fits the states, then hands the joint fit only the windows
     ``windows_within`` kept; without ``within`` every window."""
-    from identification.discovery import end_cap_fits
+    from identification.trajectory import end_cap_fits
 
     passed: list = []
     fitted = SimpleNamespace(theta="theta", origin=None)

@@ -12,10 +12,10 @@ import pytest
 import torch
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.end_cap_data import held_drag_axis
 from identification.linear.smoothed import smoothed_regression
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from identification.trajectory.effect_coords import CONTACT_START, EffectCoords
+from identification.trajectory.end_cap_data import held_drag_axis
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     fit_on_floor,
@@ -273,8 +273,8 @@ def test_floor_windows_take_the_flight_before_touchdown_first() -> None:
     """Half the floor windows start in the air where some do: a drop's flight before it lands
     pins drag and masses apart from the contact."""
     from identification.data.dataset import Dataset
-    from identification.discovery.end_cap_data import EndCapData, TrajectorySettings
     from identification.trajectory.airborne import AIRBORNE, cap_radii
+    from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings
 
     flight, _ = generate_dataset(GenerateSpec(n_train=2, n_val=1, n_test=1, steps=300, seed=3))
     train = flight.split("train")

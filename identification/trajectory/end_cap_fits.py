@@ -3,7 +3,7 @@ candidate effects, the refit of an accepted one on many windows, and what the sc
 keeps of each candidate (:class:`EndCapFits`).
 
 The declared model and every accepted one are fitted on **many** windows of the
-training split (:attr:`~identification.discovery.end_cap_data.TrajectorySettings.fit_windows`;
+training split (:attr:`~identification.trajectory.end_cap_data.TrajectorySettings.fit_windows`;
 :func:`fit_many`): selection needs only a few windows, but the parameters written
 out, the test errors and the next iteration's starting point come from this larger
 fit. Without a params file the declared model starts from the regression on smoothed
@@ -32,7 +32,15 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
-from identification.discovery.end_cap_data import (
+from identification.trajectory.airborne import (
+    airborne_stretches,
+    cap_radii,
+    contact_gate,
+    has_airborne_stretch,
+    past_touchdown,
+)
+from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     TrajFit,
@@ -45,15 +53,7 @@ from identification.discovery.end_cap_data import (
     held_drag_axis,
     hold_declared,
 )
-from identification.discovery.floor_fits import FloorFit, fit_declared_on_floor
-from identification.discovery.library import contact_gate
-from identification.trajectory.airborne import (
-    airborne_stretches,
-    cap_radii,
-    has_airborne_stretch,
-    past_touchdown,
-)
-from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.floor_fits import FloorFit, fit_declared_on_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import find_touchdowns, search_contact
@@ -86,7 +86,7 @@ def fit_declared(
     Where end caps reach a floor, the "many windows" are every airborne stretch of the
     training split, each whole (:func:`~identification.trajectory.airborne.airborne_stretches`);
     where there is none, ground contact is fitted with the declared model from the start
-    (:func:`~identification.discovery.floor_fits.fit_declared_on_floor`).
+    (:func:`~identification.trajectory.floor_fits.fit_declared_on_floor`).
 
     ``effects`` are fitted with it (a hypothesis that changes the declared springs, such
     as slack cables) and ``values`` replace the stage-1 regression (natural units, as

@@ -26,10 +26,10 @@ import torch
 from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.defaults import FINAL_FLOOR_WINDOWS, FINAL_ITERATIONS, FLOOR_WINDOWS
-from identification.discovery.library import FittedModel, contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
-from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii
+from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii, contact_gate
 from identification.trajectory.effect_coords import CONTACT_FREE
+from identification.trajectory.fitted_model import FittedModel
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.window_errors import better_states
@@ -81,9 +81,9 @@ class TrajectorySettings:
             or below ``floor_windows``).
         floor_window: steps per window of the fits on the floor (0: ``fit_window`` or
             ``window``, at most :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S`;
-            :func:`~identification.discovery.floor_fits.floor_steps`).
+            :func:`~identification.trajectory.floor_fits.floor_steps`).
         final_floor_window: steps per window of that refit (0: as the floor windows,
-            :func:`~identification.discovery.floor_fits.floor_steps`).
+            :func:`~identification.trajectory.floor_fits.floor_steps`).
         final_iter: most Levenberg-Marquardt iterations of the final refit (default
             :data:`FINAL_ITERATIONS`).
         physics_dt: the longest physics step [s]; the engine substeps between samples
@@ -227,7 +227,7 @@ class EndCapData:
         #: every fit also fits the windows' rolls (set once an accepted effect sees them)
         self.roll = False
         #: no airborne stretch: ground contact is in the model from the start
-        #: (:mod:`identification.discovery.floor_fits`)
+        #: (:mod:`identification.trajectory.floor_fits`)
         self.on_floor = False
         #: where a floor fit starts the contact (a params file's), None: the default
         self.contact_start: GroundContact | None = None

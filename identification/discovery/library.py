@@ -4,7 +4,7 @@
 linear effects and slack cables inside the regression
 (:class:`~identification.linear.extended.ExtendedIdentifier`), then ground contact (not
 linear in its parameters) through the engine on short trajectory windows
-(:func:`~identification.trajectory.effect_fit.fit_effect_params`) with the regression's
+(:func:`~identification.trajectory.windowed_problem.fit`, its dense method) with the regression's
 parameters held. :func:`propose` lists the candidates of the effect library
 (:data:`LIBRARY`, the registry :data:`tensegrity_env.effects.EFFECTS`) with the physical
 gates their classes declare; :func:`slack_probe` names slack cables from the
@@ -23,10 +23,12 @@ from scipy.optimize import minimize_scalar
 from identification.data.dataset import Dataset, Split
 from identification.linear.extended import ExtendedIdentifier, acting_split
 from identification.trajectory.airborne import contact_gate
-from identification.trajectory.effect_fit import fit_effect_params, sample_windows
 from identification.trajectory.fitted_model import FittedModel
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
+from identification.trajectory.windows import sample_windows
 from tensegrity_env.effects import EFFECTS, ControlLag, SlackSprings
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
+from tensegrity_env.engine import Engine
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -118,22 +120,20 @@ def _fit_through_engine(
     # the commands that act: a window starts with the control lag's state carried
     # from the trajectory's start, not at rest
     split = acting_split(effects, dataset.split("train"), dataset.dt)
-    fit = None
+    history: list[float] = []
     form = effects[i].fit_form
+    engine = Engine(dataset.topology, dataset.dt)
     for length, count in settings.contact_windows:
         windows = sample_windows(split, length, count, seed=settings.seed + length)
         for names in form.stages or (form.free,):
-            fit = fit_effect_params(
-                dataset.topology, dataset.dt, params, effects, [(i, k) for k in names], windows,
-                max_iter=settings.contact_iterations,
-            )  # fmt: skip
-            effects = fit.effects
-    assert fit is not None
-    contact = effects[i]
-    contact.uncertainty = {
-        n.split(".", 1)[1]: float(s) for n, s in zip(fit.names, fit.stderr, strict=True)
-    }
-    rms = float(np.sqrt(fit.history[-1]))
+            problem = WindowedProblem.effects_only(engine, params, effects,
+                                                   [(i, k) for k in names], windows)  # fmt: skip
+            done = fit(problem, FitOptions.dense(max_iter=settings.contact_iterations))
+            effects, history = problem.effects_at(done), done.history
+            # the standard errors of this stage's parameters alone
+            effects[i].uncertainty = {k: effects[i].uncertainty[k] for k in names}
+    assert history
+    rms = float(np.sqrt(history[-1]))
     return (
         effects,
         f"fitted through the engine on {count} windows of {length} steps (RMS {rms:.2e} m)",

@@ -29,7 +29,6 @@ from identification.trajectory.end_cap_data import (
     TrajFit,
     airborne_keep,
     contact_searched,
-    held,
 )
 from identification.trajectory.end_cap_fits import fit_declared, fit_with
 from identification.trajectory.floor_fits import leaning_rows
@@ -106,7 +105,7 @@ def switched_cables(
                if i not in known and loss[i] >= CABLE_LOSS and z[i] >= FURTHER_SIGNIFICANCE]  # fmt: skip
     if not offered:
         return []
-    vec = held(current.vec, current.theta)
+    vec = current.vec.held_at(current.theta)
     others = [e for e in current.effects if e.name != SlackSprings.name]
 
     def sse(cables: set[int]) -> float:

@@ -49,7 +49,6 @@ from identification.trajectory.end_cap_data import (
     declared_start,
     fit_trajectory,
     has_contact,
-    held,
     held_drag_axis,
     hold_declared,
 )
@@ -163,7 +162,7 @@ def fit_many(
     accepted, every later fit and score fits the rolls (``data.roll``).
     """
     engine = vec.engine(data.engine, theta.detach())
-    fixed = held(vec, theta)
+    fixed = vec.held_at(theta)
     many = data.windows["fit"] if windows is None else windows
     states = fit_states(engine, fixed, many, s.state_iter, spin=data.spin, roll=data.roll)
     many = states.windows
@@ -178,7 +177,7 @@ def fit_many(
         # the rolls only matter once the effect is near its size: fitted from there
         t0 = time.perf_counter()
         engine = vec.engine(data.engine, fit.theta.detach())
-        states = fit_states(engine, held(vec, fit.theta), fit.windows, s.state_iter, spin=True,
+        states = fit_states(engine, vec.held_at(fit.theta), fit.windows, s.state_iter, spin=True,
                             roll=True)  # fmt: skip
         fit = fit_trajectory(data, vec, states.windows, fit.theta, iters, roll=True)
         data.log(f"    rolls fitted too: end-cap RMS {fit.rms * 1e3:.3f} mm "
@@ -223,7 +222,7 @@ def fit_with(
             theta = vec.theta0()
         n_free = vec.n_free
         for n in [g for g in GROW if g < windows.steps] + [windows.steps]:
-            fixed = held(vec, theta)
+            fixed = vec.held_at(theta)
             part = fit_states(vec.engine(data.engine, theta), fixed, prefix(windows, n),
                               iters).windows  # fmt: skip
             if n < windows.steps and searched is None:
@@ -283,7 +282,7 @@ def through_touchdowns(data: EndCapData, vec: ParamVector, iters: int) -> ParamV
     t0 = time.perf_counter()
     theta = vec.theta0()
     windows = past_touchdown(data.stretches, data.train.nodes, PAST_TOUCHDOWN)
-    states = fit_states(vec.engine(data.engine, theta), held(vec, theta), windows, iters)
+    states = fit_states(vec.engine(data.engine, theta), vec.held_at(theta), windows, iters)
     fit = fit_trajectory(data, vec, states.windows, theta, iters)
     data.log(f"    declared model refitted {PAST_TOUCHDOWN} steps past the touchdowns (contact "
              f"held): end-cap RMS {fit.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
@@ -306,7 +305,7 @@ def touchdown_contact(
     effects = vec.coords.effects_at(theta[vec.n_free :].detach())
     others, contact = effects[:-1], effects[-1]
     assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
-    fixed = held(vec, theta)
+    fixed = vec.held_at(theta)
     engine = data.engine.with_effects(others)
     radius = cap_radii(data.topology)
     grid = {k: getattr(data.smooth["train"], k) for k in STATE_KEYS}

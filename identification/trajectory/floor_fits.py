@@ -42,7 +42,6 @@ from identification.trajectory.floor_fit import (
     bounded,
     fit_on_floor,
     floor_contact,
-    held_states,
     rods_leaning,
     rods_off_floor,
     states_at,
@@ -113,7 +112,7 @@ def state_fits(
     the first length whose median is within :data:`STUCK_WINDOW` times the ``noise``
     [m] scaled by :func:`state_fit_ratio` (the last tried is then the one chosen)."""
     tried: list[tuple[float, int, float]] = []
-    engine, held = vec.engine(data.engine, theta), held_states(vec, theta)
+    engine, held = vec.engine(data.engine, theta), vec.held_at(theta)
     for n in lengths:
         w = data.cut("train", n, count, 3, lift_off=count // 2)
         fit = states_at(data.engine, vec, theta, w, STATE_ITERS)

@@ -30,7 +30,6 @@ from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     fit_trajectory,
-    held,
 )
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.param_vector import ParamVector
@@ -61,7 +60,7 @@ def screened_field(effect: str, tmp_path: Path) -> tuple[np.ndarray, float, floa
     data.lift_off_selection()
     contact = GroundContact(topo, **true_contact(data_files))
     vec = with_floor(ParamVector.at(topo, truth.params), [], contact, None)
-    states = fit_states(data.engine.with_effects([contact]), held(vec, vec.theta0()),
+    states = fit_states(data.engine.with_effects([contact]), vec.held_at(vec.theta0()),
                         data.windows["train"], 10, spin=True).windows  # fmt: skip
 
     def screened(effects: list) -> ParamVector:

@@ -99,7 +99,6 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
 
     passed: list = []
     fitted = SimpleNamespace(theta="theta", origin=None)
-    monkeypatch.setattr(end_cap_fits, "held", lambda vec, theta: SimpleNamespace(theta0=lambda: 0))
     monkeypatch.setattr(end_cap_fits, "fit_states",
                         lambda *a, **k: SimpleNamespace(windows="states fitted"))  # fmt: skip
     monkeypatch.setattr(end_cap_fits, "windows_within",
@@ -109,7 +108,8 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
                         lambda data, vec, w, theta, iters, progress=None: passed.append(w) or fitted)  # fmt: skip
     monkeypatch.setattr(end_cap_fits, "sees_roll", lambda engine: False)
     data = SimpleNamespace(engine=None, spin=True, roll=False, log=lambda line: None)
-    vec = SimpleNamespace(engine=lambda engine, theta: "engine")
+    vec = SimpleNamespace(engine=lambda engine, theta: "engine",
+                          held_at=lambda theta: SimpleNamespace(theta0=lambda: 0))
     theta = SimpleNamespace(detach=lambda: theta)
     s = TrajectorySettings()
     end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows", within=1.5e-3)

@@ -21,7 +21,6 @@ from identification.trajectory.floor_fit import (
     fit_on_floor,
     floor_contact,
     floor_height,
-    held_states,
     reseeded,
     rods_leaning,
     rods_off_floor,
@@ -318,18 +317,18 @@ def test_a_prefix_state_that_flies_off_over_the_window_is_not_kept(
 
     ds, seeds, vec = _on_the_floor(1, 300, 60)
     theta, engine = vec.theta0(), Engine(ds.topology, ds.dt)
-    real = window_states.fit_windows
+    real = window_states.fit
 
-    def flying_prefixes(engine_, vec_, windows, *args, **kwargs):
-        fit = real(engine_, vec_, windows, *args, **kwargs)
-        if windows.steps < seeds.steps:  # a prefix: its state blows up further on
+    def flying_prefixes(problem, options):
+        fit = real(problem, options)
+        if problem.windows.steps < seeds.steps:  # a prefix: its state blows up further on
             st = fit.windows.state
             nan = torch.full_like(st.v, float("nan"))
             fit = replace(fit, windows=replace(fit.windows, state=State(st.p, nan, st.q, st.omega)))
         return fit
 
-    monkeypatch.setattr(window_states, "fit_windows", flying_prefixes)
-    fitted = window_states.fit_states(vec.engine(engine, theta), held_states(vec, theta), seeds, 2)
+    monkeypatch.setattr(window_states, "fit", flying_prefixes)
+    fitted = window_states.fit_states(vec.engine(engine, theta), vec.held_at(theta), seeds, 2)
     after = window_errors(engine, vec, fitted.windows, theta)
     assert torch.isfinite(after).all()
     assert (after < 1e-12).all()  # clean data from the true states: they stay exact

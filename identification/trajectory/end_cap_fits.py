@@ -2,6 +2,19 @@
 candidate effects, the refit of an accepted one on many windows, and what the scorer
 keeps of each candidate (:class:`EndCapFits`).
 
+Each is a :class:`~identification.trajectory.windowed_problem.WindowedProblem` solved
+by :func:`~identification.trajectory.windowed_problem.fit` with the loop's options
+(:func:`~identification.trajectory.end_cap_data.end_cap_options`, through
+:func:`~identification.trajectory.end_cap_data.fit_trajectory`); the named uses:
+
+* the declared model's fit: :func:`fit_declared` (on the floor
+  :func:`~identification.trajectory.floor_fits.fit_declared_on_floor`, contact with it);
+* a candidate's screen: :func:`screen_with` (the declared parameters and the contact
+  held, the candidate's coordinates and the states fitted);
+* the joint fit with contact: :func:`fit_with` (contact searched on the touchdowns
+  first where it is new);
+* the refit on many windows, and the final refit on more of them: :func:`fit_many`.
+
 The declared model and every accepted one are fitted on **many** windows of the
 training split (:attr:`~identification.trajectory.end_cap_data.TrajectorySettings.fit_windows`;
 :func:`fit_many`): selection needs only a few windows, but the parameters written

@@ -52,7 +52,7 @@ sys.path.insert(0, str(ROOT))
 from identification.data.dataset import Dataset, read_dataset  # noqa: E402
 from identification.data.end_caps import measured_rod_states  # noqa: E402
 from identification.data.sample_grid import on_nominal_grid  # noqa: E402
-from identification.trajectory.effect_fit import rollout_caps  # noqa: E402
+from identification.trajectory.windows import rollout_caps  # noqa: E402
 from tensegrity_env.engine import State  # noqa: E402
 from tensegrity_env.io_utils import atomic_write_text  # noqa: E402
 from tensegrity_env.model import Model  # noqa: E402

@@ -30,8 +30,7 @@ from measured_plant import Cell, true_model, write_cell
 
 from identification.data.dataset import read_dataset
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.library import contact_gate
-from identification.trajectory.airborne import airborne_samples
+from identification.trajectory.airborne import airborne_samples, contact_gate
 from identification.trajectory.floor_fit import rods_leaning, rods_off_floor
 from identification.trajectory.slack_regression import (
     CABLE_LOSS,

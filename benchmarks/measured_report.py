@@ -24,7 +24,7 @@ from measured_plant import PLANT_VERSION, CellData, drop_states, simulate
 from identification.commands.diagnose import WINDOW_S, WINDOWS
 from identification.commands.durations import seconds
 from identification.data.dataset import read_dataset
-from identification.discovery.end_cap_data import FINAL_FLOOR_WINDOWS, FLOOR_WINDOWS
+from identification.trajectory.end_cap_data import FINAL_FLOOR_WINDOWS, FLOOR_WINDOWS
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import effects_from_document
 from tensegrity_env.engine.state import State

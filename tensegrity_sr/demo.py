@@ -170,9 +170,9 @@ def step_diagnose(demo: Demo) -> None:
 
 def step_touchdowns(demo: Demo) -> None:
     banner("The same floor through 1 mm motion-capture noise, from the data alone")
-    from identification.discovery.end_cap_data import TrajectorySettings
-    from identification.discovery.end_cap_fits import fit_declared_model
     from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
+    from identification.trajectory.end_cap_data import TrajectorySettings
+    from identification.trajectory.end_cap_fits import fit_declared_model
     from identification.trajectory.touchdown import contact_from_dataset
     from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 

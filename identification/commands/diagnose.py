@@ -38,9 +38,9 @@ from tensegrity_env.io_utils import (
 
 if TYPE_CHECKING:  # the commands import torch, MuJoCo and SciPy when they run, not for --help
     from identification.data.dataset import Dataset
-    from identification.discovery.end_cap_data import TrajectorySettings
     from identification.discovery.multi_step import MultiStepScorer
     from identification.discovery.one_step import OneStepScorer
+    from identification.trajectory.end_cap_data import TrajectorySettings
 
 #: default window lengths of the trajectory method [s]: selection (``--window``) and the
 #: accepted models' fits (``--fit-window``). A fitted initial state absorbs the linear part
@@ -248,7 +248,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
 
 def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
     """The windows the trajectory fits use on ``dataset``, as they will be cut (one line)."""
-    from identification.discovery.floor_fits import floor_steps, on_floor
+    from identification.trajectory.floor_fits import floor_steps, on_floor
     dt = dataset.dt
     if on_floor(dataset):
         floor = floor_steps(dt, s)
@@ -264,9 +264,9 @@ def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
 
 def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepScorer:
     """Windowed trajectory fits on end caps, from ``--params``' declared model if given."""
-    from identification.discovery.end_cap_data import TrajectorySettings
     from identification.discovery.multi_step import MultiStepScorer
     from identification.linear.anchors import parse_anchor
+    from identification.trajectory.end_cap_data import TrajectorySettings
 
     anchors = dict(parse_anchor(a) for a in args.anchor)
     start, contact = None, None

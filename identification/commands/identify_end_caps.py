@@ -10,9 +10,9 @@ the result is checked against the noise level of the data and against the physic
 domain (:meth:`tensegrity_env.params.Params.validate`) before anything is printed as
 identified or written.
 
-End caps that reach a floor (:func:`~identification.discovery.library.contact_gate`)
+End caps that reach a floor (:func:`~identification.trajectory.airborne.contact_gate`)
 are fitted with ground contact in the model (the floor fit,
-:func:`~identification.discovery.floor_fits.identify_on_floor`), whether or not the data
+:func:`~identification.trajectory.floor_fits.identify_on_floor`), whether or not the data
 also hold airborne stretches: the declared model alone, fitted through the impacts,
 can diverge.
 """
@@ -30,16 +30,16 @@ from identification.commands.declared import declared_start, no_other_effects
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.data.end_caps import check_caps_seen
-from identification.discovery.end_cap_data import TrajectorySettings
-from identification.discovery.floor_fits import (
+from identification.linear.regression import ParameterRow
+from identification.report.tables import group_errors, parameter_table, relative_errors
+from identification.trajectory.airborne import contact_gate
+from identification.trajectory.end_cap_data import TrajectorySettings
+from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
+from identification.trajectory.floor_fits import (
     FloorIdentification,
     floor_steps,
     identify_on_floor,
 )
-from identification.discovery.library import contact_gate
-from identification.linear.regression import ParameterRow
-from identification.report.tables import group_errors, parameter_table, relative_errors
-from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
 from identification.trajectory.stage_check import check_stage, noise_level

@@ -7,13 +7,14 @@ or :class:`MultiStepScorer` (multi-step prediction of measured end caps); one ju
 report writer (:func:`write_report`, :func:`write_params`).
 """
 
-from identification.discovery.end_cap_data import TrajectorySettings
-from identification.discovery.library import LIBRARY, FitSettings, FittedModel
+from identification.discovery.library import LIBRARY, FitSettings
 from identification.discovery.loop import DiscoveryResult, EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import write_params, write_report
 from identification.discovery.scorer import LoopScorer, Scorer
+from identification.trajectory.end_cap_data import TrajectorySettings
+from identification.trajectory.fitted_model import FittedModel
 
 __all__ = [
     "LIBRARY",

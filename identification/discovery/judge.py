@@ -31,8 +31,8 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from identification.discovery.library import FittedModel
 from identification.discovery.negligible import NEGLIGIBLE
+from identification.trajectory.fitted_model import FittedModel
 
 #: a candidate must lower the training BIC by this much ...
 MIN_BIC_DROP = 10.0

@@ -4,7 +4,7 @@
 linear effects and slack cables inside the regression
 (:class:`~identification.linear.extended.ExtendedIdentifier`), then ground contact (not
 linear in its parameters) through the engine on short trajectory windows
-(:func:`~identification.trajectory.effect_fit.fit_effect_params`) with the regression's
+(:func:`~identification.trajectory.windowed_problem.fit`, its dense method) with the regression's
 parameters held. :func:`propose` lists the candidates of the effect library
 (:data:`LIBRARY`, the registry :data:`tensegrity_env.effects.EFFECTS`) with the physical
 gates their classes declare; :func:`slack_probe` names slack cables from the
@@ -22,9 +22,13 @@ from scipy.optimize import minimize_scalar
 
 from identification.data.dataset import Dataset, Split
 from identification.linear.extended import ExtendedIdentifier, acting_split
-from identification.trajectory.effect_fit import fit_effect_params, sample_windows
+from identification.trajectory.airborne import contact_gate
+from identification.trajectory.fitted_model import FittedModel
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
+from identification.trajectory.windows import sample_windows
 from tensegrity_env.effects import EFFECTS, ControlLag, SlackSprings
 from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
+from tensegrity_env.engine import Engine
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
 from tensegrity_env.topology import Topology
@@ -33,9 +37,6 @@ from tensegrity_env.topology import Topology
 SLACK_LOSS = 0.5
 #: ... by at least this many standard errors
 SLACK_SIGNIFICANCE = 5.0
-#: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
-#: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
-FLOOR_DEPTH = 0.3
 #: control lag time constants tried first [s]
 LAG_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1)
 #: the lag search ends when log τ is known to this (a relative tolerance on τ)
@@ -62,37 +63,6 @@ class FitSettings:
     contact_windows: tuple[tuple[int, int], ...] = ((1, 2000),)
     contact_iterations: int = 20
     seed: int = 0
-
-
-@dataclass(frozen=True)
-class FittedModel:
-    """A model fitted by the residual loop, with the bookkeeping of the fit.
-
-    Attributes:
-        model: topology, declared parameters, effects (identified values and
-            uncertainty) and time step.
-        n_params: number of fitted parameters (for the information criterion).
-        notes: remarks from the fit (effect name -> text).
-        uncertainty: standard errors of the fitted declared parameters by name (e.g.
-            ``stiffness[s0]``), in their units; empty where the fit states none.
-    """
-
-    model: Model
-    n_params: int
-    notes: dict[str, str] = field(default_factory=dict)
-    uncertainty: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def params(self) -> Params:
-        return self.model.params
-
-    @property
-    def effects(self) -> list[PhysicalEffect]:
-        return list(self.model.effects)
-
-    @property
-    def names(self) -> list[str]:
-        return self.model.effect_names
 
 
 def _through_engine(e: PhysicalEffect) -> bool:
@@ -150,22 +120,20 @@ def _fit_through_engine(
     # the commands that act: a window starts with the control lag's state carried
     # from the trajectory's start, not at rest
     split = acting_split(effects, dataset.split("train"), dataset.dt)
-    fit = None
+    history: list[float] = []
     form = effects[i].fit_form
+    engine = Engine(dataset.topology, dataset.dt)
     for length, count in settings.contact_windows:
         windows = sample_windows(split, length, count, seed=settings.seed + length)
         for names in form.stages or (form.free,):
-            fit = fit_effect_params(
-                dataset.topology, dataset.dt, params, effects, [(i, k) for k in names], windows,
-                max_iter=settings.contact_iterations,
-            )  # fmt: skip
-            effects = fit.effects
-    assert fit is not None
-    contact = effects[i]
-    contact.uncertainty = {
-        n.split(".", 1)[1]: float(s) for n, s in zip(fit.names, fit.stderr, strict=True)
-    }
-    rms = float(np.sqrt(fit.history[-1]))
+            problem = WindowedProblem.effects_only(engine, params, effects,
+                                                   [(i, k) for k in names], windows)  # fmt: skip
+            done = fit(problem, FitOptions.dense(max_iter=settings.contact_iterations))
+            effects, history = problem.effects_at(done), done.history
+            # the standard errors of this stage's parameters alone
+            effects[i].uncertainty = {k: effects[i].uncertainty[k] for k in names}
+    assert history
+    rms = float(np.sqrt(history[-1]))
     return (
         effects,
         f"fitted through the engine on {count} windows of {length} steps (RMS {rms:.2e} m)",
@@ -258,26 +226,6 @@ def floor_proposal(name: str, split: Split, topology: Topology) -> Proposal:
 def contact_proposal(split: Split, topology: Topology) -> Proposal:
     """Ground contact where end caps reach the floor and the floor stops them."""
     return floor_proposal("ground_contact", split, topology)
-
-
-def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
-    """Whether end caps reach the floor and the floor stops them, and why (one line).
-
-    Over the seen end-cap samples only: a gap (NaN) is neither low nor deep."""
-    radius = np.array([r.radius for r in topology.rods]).repeat(2)
-    height = split.nodes[..., 2] - radius
-    seen = height[np.isfinite(height)]
-    if seen.size == 0:
-        return False, "no end cap is seen"
-    low, deepest = float((seen <= 0).mean()), float(seen.min())
-    if low > 0 and deepest > -FLOOR_DEPTH:
-        return True, (
-            f"{low:.1%} of end-cap samples at or below z - r = 0; "
-            f"none deeper than {-deepest * 1e3:.1f} mm"
-        )
-    if low == 0:
-        return False, "no end cap reaches the floor"
-    return False, f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them"
 
 
 def slack_probe(

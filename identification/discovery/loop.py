@@ -49,12 +49,13 @@ from identification.discovery.judge import (
     runner_up,
     unphysical,
 )
-from identification.discovery.library import FittedModel, Proposal
+from identification.discovery.library import Proposal
 from identification.discovery.negligible import force_ratio, group_power
 from identification.discovery.residual_network import ResidualFit
 from identification.discovery.scorer import CandidateSkipped, LoopScorer, Residual
 from identification.discovery.side_by_side import fit_side_by_side, fitted
 from identification.linear.regression import NotFittedError
+from identification.trajectory.fitted_model import FittedModel
 from tensegrity_env.engine import State
 
 

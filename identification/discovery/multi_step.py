@@ -3,7 +3,7 @@
 With noisy end caps (motion capture, ~1 mm), accelerations from differences are
 useless and smoothing biases the regression (more than the effects looked for), so
 models are compared by **multi-step prediction of the measured end caps**
-(:mod:`identification.discovery.end_cap_data`, :mod:`identification.discovery.end_cap_fits`):
+(:mod:`identification.trajectory.end_cap_data`, :mod:`identification.trajectory.end_cap_fits`):
 
 1. every candidate is fitted **jointly** (declared parameters, the candidate's and the
    current effects' parameters, each window's initial state) on windows of the
@@ -47,30 +47,13 @@ from typing import Any, cast
 import numpy as np
 
 from identification.data.dataset import Dataset
-from identification.discovery.end_cap_data import (
-    EndCapData,
-    TrajectorySettings,
-    TrajFit,
-    fit_trajectory,
-    fixed_engine,
-    heldout,
-    predicted_caps,
-)
-from identification.discovery.end_cap_fits import (
-    EndCapFits,
-    fit_declared,
-    fit_many,
-    fit_with,
-    screen_with,
-)
 from identification.discovery.end_cap_residuals import (
     plot_window_residuals,
     summarize_window_residuals,
     window_residuals,
 )
-from identification.discovery.floor_fits import FloorFit, floor_fit
 from identification.discovery.judge import MIN_BIC_DROP, MULTI_STEP, Candidate
-from identification.discovery.library import Proposal, contact_gate, propose
+from identification.discovery.library import Proposal, propose
 from identification.discovery.negligible import NEGLIGIBLE
 from identification.discovery.refits import final_refit, floor_refit
 from identification.discovery.residual_network import ResidualFit
@@ -79,6 +62,24 @@ from identification.discovery.scorer import CandidateSkipped, LoopScorer, Residu
 from identification.discovery.slack_hypothesis import fit_slack, slack_hypothesis
 from identification.linear.extended import evaluate_model
 from identification.report.tables import error_text
+from identification.trajectory.airborne import contact_gate
+from identification.trajectory.end_cap_data import (
+    EndCapData,
+    TrajectorySettings,
+    TrajFit,
+    fit_trajectory,
+    fixed_engine,
+    heldout,
+    predicted_caps,
+)
+from identification.trajectory.end_cap_fits import (
+    EndCapFits,
+    fit_declared,
+    fit_many,
+    fit_with,
+    screen_with,
+)
+from identification.trajectory.floor_fits import FloorFit, floor_fit
 from identification.trajectory.forked import side_by_side
 from identification.trajectory.open_loop_check import open_loop_check, worse_prediction
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
@@ -113,7 +114,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         clean: the same trajectories without noise, with rod states (planted data),
             for the test errors against the truth; never used for fitting or selection.
         contact: where a floor fit starts the ground contact (a params file's; None:
-            the default start, see :mod:`identification.discovery.floor_fits`).
+            the default start, see :mod:`identification.trajectory.floor_fits`).
         jobs: fits run at once, each in a worker process (the two floor refits of an
             accepted candidate; :mod:`~identification.discovery.side_by_side`).
         effects: what the declared model holds beyond linear springs and a floor (a
@@ -334,7 +335,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         self, current: Candidate[EndCapFits], proposal: Proposal, drop: Sequence[str] = ()
     ) -> Candidate[EndCapFits]:
         """The floor fit done afresh with the current model's effects and the proposed one
-        (:func:`~identification.discovery.floor_fits.floor_fit`: the regression, a contact
+        (:func:`~identification.trajectory.floor_fits.floor_fit`: the regression, a contact
         search, the valley search), then fitted on the training windows selection
         compares on, from the current model's window states; ``drop`` as in
         :meth:`fit_candidate`.

@@ -19,7 +19,7 @@ from typing import Any
 
 import torch
 
-from identification.discovery.library import FittedModel
+from identification.trajectory.fitted_model import FittedModel
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import PHYSICS_DT, Engine, State
 from tensegrity_env.params import Params

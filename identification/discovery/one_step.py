@@ -36,7 +36,6 @@ from identification.data.dataset import Dataset
 from identification.discovery.judge import MIN_BIC_DROP, ONE_STEP, ROUND_OFF, Candidate, finite
 from identification.discovery.library import (
     FitSettings,
-    FittedModel,
     Proposal,
     fit_model,
     fit_proposal,
@@ -55,6 +54,7 @@ from identification.discovery.scorer import LoopScorer, Residual
 from identification.linear.extended import acting_split, evaluate_model
 from identification.linear.features import cable_commands_at, drawn_transitions, transitions_of
 from identification.report.tables import error_text
+from identification.trajectory.fitted_model import FittedModel
 from identification.trajectory.windows import STATE_KEYS
 from tensegrity_env.effects import ImplicitLinearDrag, LinearDrag, ResidualNetwork, SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect

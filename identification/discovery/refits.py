@@ -15,17 +15,17 @@ from typing import Any, Protocol
 import numpy as np
 
 from identification.data.dataset import Dataset
-from identification.discovery.end_cap_data import (
+from identification.discovery.judge import Candidate, unphysical
+from identification.trajectory.airborne import contact_gate
+from identification.trajectory.end_cap_data import (
     STUCK_WINDOW,
     EndCapData,
     TrajectorySettings,
     TrajFit,
     fit_trajectory,
 )
-from identification.discovery.end_cap_fits import EndCapFits, fit_many
-from identification.discovery.floor_fits import FloorFit, adopt_floor_fit, floor_fit, floor_steps
-from identification.discovery.judge import Candidate, unphysical
-from identification.discovery.library import contact_gate
+from identification.trajectory.end_cap_fits import EndCapFits, fit_many
+from identification.trajectory.floor_fits import FloorFit, adopt_floor_fit, floor_fit, floor_steps
 from identification.trajectory.forked import side_by_side
 from identification.trajectory.stage_check import fit_diverged
 from identification.trajectory.windows import Windows
@@ -69,7 +69,7 @@ def floor_refit(
     One starts from the candidate as screened (the declared parameters and the
     contact at the current model's fit). The other is the floor fit of the declared
     model done afresh with the candidate's effects in it, from the same start as the
-    first one (:func:`~identification.discovery.floor_fits.floor_fit`:
+    first one (:func:`~identification.trajectory.floor_fits.floor_fit`:
     the regression, a contact search, the valley search). Where the current model's
     contact has taken up what the candidate explains (a dissipation it lacked, on an
     overdamped floor), the first stays there, with the candidate's force far below

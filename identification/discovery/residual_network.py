@@ -44,7 +44,7 @@ from typing import Any
 import torch
 
 from identification.data.dataset import Dataset
-from identification.discovery.library import FitSettings, FittedModel
+from identification.discovery.library import FitSettings
 from identification.linear.extended import ExtendedIdentifier, acting_split, evaluate_model
 from identification.linear.features import (
     cable_commands_at,
@@ -52,6 +52,7 @@ from identification.linear.features import (
     transition_features,
     transitions_of,
 )
+from identification.trajectory.fitted_model import FittedModel
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.effects.residual_network import ResidualMLP, ResidualNetwork, rod_features
 from tensegrity_env.engine import Engine

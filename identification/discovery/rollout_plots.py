@@ -13,14 +13,14 @@ from pathlib import Path
 import torch
 
 from identification.data.dataset import Dataset
-from identification.discovery.end_cap_data import (
+from identification.linear.extended import acting_split
+from identification.report.plots import plot_end_cap_rollouts
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajFit,
     predicted_caps,
 )
-from identification.discovery.library import FittedModel
-from identification.linear.extended import acting_split
-from identification.report.plots import plot_end_cap_rollouts
+from identification.trajectory.fitted_model import FittedModel
 from identification.trajectory.windows import STATE_KEYS, Windows, end_caps
 from tensegrity_env.engine import Engine, State
 
@@ -65,7 +65,7 @@ def end_cap_rollout_plot(
 ) -> Path:
     """The first test window against ``before`` and ``after``, each rolled out from the
     initial state it fits to the window (``fitted``: the test windows with the states
-    each fits, as :func:`~identification.discovery.end_cap_data.heldout` returns them)."""
+    each fits, as :func:`~identification.trajectory.end_cap_data.heldout` returns them)."""
     windows = data.windows["test"]
     models = {}
     for label, fit, states in zip(LABELS, (before, after), fitted, strict=True):

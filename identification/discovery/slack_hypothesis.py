@@ -21,18 +21,17 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from identification.discovery.end_cap_data import (
+from identification.discovery.judge import MIN_CHI2_GAIN
+from identification.discovery.library import Proposal
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     TrajFit,
     airborne_keep,
     contact_searched,
-    held,
 )
-from identification.discovery.end_cap_fits import fit_declared, fit_with
-from identification.discovery.floor_fits import leaning_rows
-from identification.discovery.judge import MIN_CHI2_GAIN
-from identification.discovery.library import Proposal
+from identification.trajectory.end_cap_fits import fit_declared, fit_with
+from identification.trajectory.floor_fits import leaning_rows
 from identification.trajectory.slack_regression import (
     CABLE_LOSS,
     CABLE_SIGNIFICANCE,
@@ -50,7 +49,7 @@ def slack_hypothesis(data: EndCapData, current: TrajFit, anchors: dict[str, floa
     The candidate holds every cable of ``current``, old and new (its effect None when
     no new one shows), and starts from the regression's parameter values. On the floor
     the regression uses the rods away from it and the moments of those leaning on it
-    about their contact points (:func:`~identification.discovery.floor_fits.leaning_rows`),
+    about their contact points (:func:`~identification.trajectory.floor_fits.leaning_rows`),
     else the airborne samples.
     """
     old = [e for e in current.effects if e.name == SlackSprings.name]
@@ -106,7 +105,7 @@ def switched_cables(
                if i not in known and loss[i] >= CABLE_LOSS and z[i] >= FURTHER_SIGNIFICANCE]  # fmt: skip
     if not offered:
         return []
-    vec = held(current.vec, current.theta)
+    vec = current.vec.held_at(current.theta)
     others = [e for e in current.effects if e.name != SlackSprings.name]
 
     def sse(cables: set[int]) -> float:

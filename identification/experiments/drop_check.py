@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from identification.simulation.generate import GenerateSpec, InitialConditions, generate_dataset
-from identification.trajectory.effect_fit import rollout_caps
+from identification.trajectory.windows import rollout_caps
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.io_utils import InputError

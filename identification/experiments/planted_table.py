@@ -31,7 +31,6 @@ import numpy as np
 import torch
 
 from identification.discovery.choose import choose_scorer, uses_trajectories
-from identification.discovery.end_cap_data import FIT_WINDOW, TrajectorySettings
 from identification.discovery.library import FitSettings
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
@@ -39,6 +38,7 @@ from identification.discovery.one_step import OneStepScorer
 from identification.discovery.report import fmt_err, ratio, write_params
 from identification.experiments.drop_check import drop_check
 from identification.simulation.planted import PLANTS, PlantSpec, planted_dataset
+from identification.trajectory.end_cap_data import FIT_WINDOW, TrajectorySettings
 from tensegrity_env.io_utils import atomic_write_text
 
 

@@ -15,7 +15,7 @@ with the model's effects folded into the same design matrix:
   (:meth:`~tensegrity_env.effects.base.PhysicalEffect.clearance`: ground contact) is
   not linear in its parameters: rods the gate says it touches are left out of the
   regression, and its parameters are fitted through the engine
-  (:mod:`identification.trajectory.effect_fit`);
+  (:mod:`identification.trajectory.windowed_problem`);
 * ``compression_columns`` adds, per spring, ``ΔK_s (l - l0) [l < l0]``: a linear
   probe for springs that lose stiffness when compressed (cables go slack).
 

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 from scipy.ndimage import minimum_filter1d
 
+from identification.data.dataset import Split
 from identification.trajectory.windows import STATE_KEYS, Windows
 from tensegrity_env.engine import State
 from tensegrity_env.topology import Topology
@@ -20,11 +21,34 @@ from tensegrity_env.topology import Topology
 AIRBORNE = 0.005
 #: shortest airborne stretch used as a window [steps]
 MIN_STRETCH = 50
+#: a floor stops end caps: data whose caps sink deeper than this has none [m] (MuJoCo's
+#: soft floor lets a collapsing icosahedron sink ~0.1 m; a free fall goes metres)
+FLOOR_DEPTH = 0.3
 
 
 def cap_radii(topology: Topology) -> np.ndarray:
     """Contact radius of every end cap as the robot file gives it, (2R,) [m]."""
     return topology.cap_radii.reshape(-1)
+
+
+def contact_gate(split: Split, topology: Topology) -> tuple[bool, str]:
+    """Whether end caps reach the floor and the floor stops them, and why (one line).
+
+    Over the seen end-cap samples only: a gap (NaN) is neither low nor deep."""
+    radius = np.array([r.radius for r in topology.rods]).repeat(2)
+    height = split.nodes[..., 2] - radius
+    seen = height[np.isfinite(height)]
+    if seen.size == 0:
+        return False, "no end cap is seen"
+    low, deepest = float((seen <= 0).mean()), float(seen.min())
+    if low > 0 and deepest > -FLOOR_DEPTH:
+        return True, (
+            f"{low:.1%} of end-cap samples at or below z - r = 0; "
+            f"none deeper than {-deepest * 1e3:.1f} mm"
+        )
+    if low == 0:
+        return False, "no end cap reaches the floor"
+    return False, f"end caps sink {-deepest:.2f} m below z = 0: no floor stops them"
 
 
 def lowest_seen(gap: np.ndarray) -> np.ndarray:

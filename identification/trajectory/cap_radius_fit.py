@@ -40,7 +40,7 @@ from scipy.optimize import least_squares
 
 from identification.data.dataset import Dataset
 from identification.data.end_caps import measured_rod_states
-from identification.trajectory.effect_fit import rollout_caps
+from identification.trajectory.windows import rollout_caps
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import Engine, State

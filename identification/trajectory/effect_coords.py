@@ -12,7 +12,7 @@ as each effect's class declares (its ``fit_form``,
   :meth:`EffectCoords.bounds`), less the entry its ``roll_entry`` declares unseen;
 * an effect fitted through the engine (ground contact) contributes its declared
   ``free`` parameters in the unconstrained coordinates of
-  :func:`~identification.trajectory.effect_fit.to_free` (log, logit);
+  :func:`to_free` (log, logit);
 * index-only effects (slack cables) contribute nothing.
 """
 
@@ -24,9 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from identification.trajectory.effect_fit import from_free, to_free
 from tensegrity_env.effects import GroundContact
-from tensegrity_env.effects.base import LinearEffect, PhysicalEffect
+from tensegrity_env.effects.base import LinearEffect, ParamSpec, PhysicalEffect
 
 DTYPE = torch.float64
 #: where a contact fit starts (the contact's declared start)
@@ -35,6 +34,24 @@ CONTACT_START: dict[str, float] = dict(GroundContact.fit_form.start or {})
 CONTACT_FREE: tuple[str, ...] = GroundContact.fit_form.free
 #: unconstrained contact coordinates stay within this of their start (log/logit units)
 CONTACT_BOX = 5.0
+
+
+def to_free(spec: ParamSpec, value: float) -> float:
+    """A parameter value in the unconstrained coordinates of the fit (log, logit or as is)."""
+    if spec.unit_interval:
+        return float(np.log(value / (1.0 - value)))
+    if spec.positive:
+        return float(np.log(max(value, 1e-12)))
+    return float(value)
+
+
+def from_free(spec: ParamSpec, x: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`to_free`."""
+    if spec.unit_interval:
+        return torch.sigmoid(x)
+    if spec.positive:
+        return torch.exp(x)
+    return x
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ through the engine, on short windows that touch the floor:
    jumps.
 
 Where some windows start in the air (a throw or drop before it lands), half the floor
-windows are drawn from those (:meth:`~identification.discovery.end_cap_data.EndCapData.cut`,
+windows are drawn from those (:meth:`~identification.trajectory.end_cap_data.EndCapData.cut`,
 ``lift_off``): in that flight nothing but the declared model, gravity and a drag acts,
 so they pin the masses and a drag that the contact would otherwise take up.
 
@@ -84,9 +84,14 @@ import torch
 from scipy.ndimage import minimum_filter1d
 from scipy.optimize import minimize
 
+from identification.trajectory import windowed_problem
 from identification.trajectory.airborne import AIRBORNE, cap_radii, lowest_seen
-from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, EffectCoords
-from identification.trajectory.effect_fit import to_free
+from identification.trajectory.effect_coords import (
+    CONTACT_FREE,
+    CONTACT_START,
+    EffectCoords,
+    to_free,
+)
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
@@ -94,11 +99,11 @@ from identification.trajectory.window_errors import better_states, windows_withi
 from identification.trajectory.window_states import fit_states, forward_seeds
 from identification.trajectory.windowed_fit import (
     WindowFit,
-    fit_windows,
     group_size,
     state_response,
     trial_sse,
 )
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem
 from identification.trajectory.windows import Windows, local_basis, perturb
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
@@ -215,7 +220,7 @@ def contact_box(
     fit's contact; without limits, a joint fit of a few short windows trades the
     contact against the new effect until the floor is nearly gone (a stiffness near
     zero, the floor centimetres up). Within them, a step that would leave
-    the range is cut at its edge (:func:`~identification.trajectory.windowed_fit.fit_windows`).
+    the range is cut at its edge (:func:`~identification.trajectory.windowed_problem.fit`).
     ``floor``: where the end caps are seen touching the floor [m] (:func:`floor_height`):
     the height stays within :data:`FLOOR_SEARCH_RANGE` of it too, however many fits
     follow each other (each range is around the last fit's values).
@@ -252,12 +257,6 @@ def contact_height(vec: ParamVector, theta: torch.Tensor) -> float:
     assert vec.coords is not None
     contact = vec.coords.effects_at(theta[vec.n_free :].detach())[-1]
     return float(contact.values["height"].reshape(-1)[0])
-
-
-def held_states(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
-    """``vec`` at ``theta``, nothing free, no coordinates (for state-only fits)."""
-    return replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
-                   coords=None)  # fmt: skip
 
 
 def search_floor_contact(
@@ -433,8 +432,8 @@ def fit_on_floor(
                 windows = without_stuck(engine, vec, theta, windows, stuck, log, near=True)
         hold = held_groups(vec, FIRST_ROUND_HELD) if k == 0 else None
         with iteration_bar(f"floor round {k + 1}: joint fit", iters) as tick:
-            fit = fit_windows(engine, vec, windows, theta, iters, tol=0.1, spin=True,
-                              line_search=True, progress=tick, hold=hold, log=log)  # fmt: skip
+            fit = windowed_problem.fit(WindowedProblem(engine, vec, windows, theta, hold),
+                                       floor_options(iters, tick, log))
         theta, windows = fit.theta, fit.windows
         log(f"    floor round {k + 1}: joint fit {np.sqrt(fit.history[-1]) * 1e3:.3f} mm "
             f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
@@ -442,6 +441,17 @@ def fit_on_floor(
             break
     assert fit is not None
     return fit
+
+
+def floor_options(
+    iters: int, progress: Callable[[float], None] | None = None,
+    log: Callable[[str], None] = lambda s: None,
+) -> FitOptions:  # fmt: skip
+    """How the floor fit's joint fits are solved: ``iters`` iterations to a Newton
+    decrement of 0.1, each rod's axial spin in the window states (friction turns the
+    rods about their axes), and the line search (impacts make the error jump)."""
+    return FitOptions(max_iter=iters, tol=0.1, spin=True, line_search=True, progress=progress,
+                      log=log)  # fmt: skip
 
 
 def without_stuck(
@@ -464,7 +474,7 @@ def without_stuck(
 
 def held_groups(vec: ParamVector, groups: Sequence[str]) -> torch.Tensor:
     """Which entries of the fitted vector (n_free + n_effect,) bool are the free
-    log-parameters of ``groups`` (:func:`~identification.trajectory.windowed_fit.fit_windows`'
+    log-parameters of ``groups`` (:class:`~identification.trajectory.windowed_problem.WindowedProblem`'s
     ``hold``; as 0/1, :func:`scale_directions`' rows)."""
     full = torch.zeros(len(vec.free), dtype=torch.bool)
     for group in groups:
@@ -481,7 +491,7 @@ def states_at(
     (:func:`~identification.trajectory.window_states.forward_seeds`). Through impacts
     each stops in another basin in some windows, not the same ones from the two seeds
     (the measurement is in docs/decisions.md)."""
-    eng, held = vec.engine(engine, theta), held_states(vec, theta)
+    eng, held = vec.engine(engine, theta), vec.held_at(theta)
     a = fit_states(eng, held, windows, iters, spin=True)
     b = fit_states(eng, held, forward_seeds(windows, vec.axes, engine.dt), iters, spin=True)
     picked, _, best = better_states(eng, held, torch.zeros(0, dtype=theta.dtype), b.windows,
@@ -508,7 +518,7 @@ def reseeded(
     then stops above the error the true model's states reach. Afresh means from ``seeds``
     (the states from smoothing) on growing prefixes at the current model; the windows are
     independent given the model, so each keeps the better of its two states. ``seeds``
-    may hold windows a joint fit left out (:func:`fit_windows`); those stay out.
+    may hold windows a joint fit left out (:func:`~identification.trajectory.windowed_problem.fit`); those stay out.
     """
     at = {(int(t), int(s)): i for i, (t, s) in enumerate(zip(seeds.traj, seeds.start, strict=True))}
     seeds = seeds.take(np.array([at[int(t), int(s)] for t, s in  # a fit may leave some out

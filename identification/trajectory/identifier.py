@@ -10,7 +10,7 @@ so identification runs in two stages:
    rod states and their rates follow from the rod geometry, and the paper's linear
    equations of motion (:func:`identification.linear.design.rod_blocks`) are solved exactly.
    Fast, but biased by the noise left after smoothing and by the smoothing itself.
-2. **Multi-step trajectory fit** (:func:`fit_windows`): the trajectories are cut into
+2. **Multi-step trajectory fit** (:func:`~identification.trajectory.windowed_problem.fit`): the trajectories are cut into
    windows; each window's initial rod state and the physical parameters (log K, c,
    l0, M, I_perp, h; anchors fixed) are free, the differentiable engine rolls every
    window out (batched, float64) and Levenberg-Marquardt minimises the mean squared
@@ -73,7 +73,7 @@ from identification.trajectory.param_vector import (
     gain_sign,
     params_values,
 )
-from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import STATE_KEYS, cut_windows, fill_grid, window_schedule
 from tensegrity_env.engine import PHYSICS_DT, Engine, substeps_for
 from tensegrity_env.io_utils import InputError
@@ -84,7 +84,7 @@ from tensegrity_env.topology import Topology
 class TrajectoryIdentifier:
     """Identification from (noisy) end caps: smoothing + regression, then trajectory fits.
 
-    Stage 2 runs :func:`fit_windows` on windows growing from ``first_window`` to
+    Stage 2 runs :func:`~identification.trajectory.windowed_problem.fit` on windows growing from ``first_window`` to
     ``window`` steps (:func:`window_schedule`); each stage starts from the previous
     stage's parameters and, for its windows' initial states, from the previous
     stage's fitted trajectories. Short windows forgive a rough start; long windows
@@ -103,7 +103,7 @@ class TrajectoryIdentifier:
         max_windows: at most this many (random) windows in the first stage; None: all.
         gravity: known gravitational acceleration, (3,) [m/s^2].
         tol: the final windows' stages stop when the full Gauss-Newton step would lower
-            the chi-square by less than this (earlier stages: 1); see :func:`fit_windows`.
+            the chi-square by less than this (earlier stages: 1); see :func:`~identification.trajectory.windowed_problem.fit`.
         exact_gradient: use the reverse-mode gradient (see :func:`linearize`).
         threads: torch intra-op threads during ``fit`` (restored after); the tensors are
             small, so extra threads mostly add overhead (and stall on a busy machine).
@@ -217,25 +217,24 @@ class TrajectoryIdentifier:
             n_spin = windows.size * topo.n_rods if spin else 0
             gate = n_spin + 3 * np.sqrt(2 * n_spin) if spin else None  # chi2(n_spin) + 3 sd
             tol = self.tol if k >= len(schedule) - 1 else 1.0
-            fit = fit_windows(
-                engine, vec, windows, theta, self.max_iter, tol, tick, self.exact_gradient,
-                spin=spin, gate=gate,
-            )  # fmt: skip
-            if spin and gate is not None and fit.score < gate:  # spins invisible: keep 0
+            options = FitOptions(max_iter=self.max_iter, tol=tol, progress=tick,
+                                 exact_gradient=self.exact_gradient, spin=spin, gate=gate)  # fmt: skip
+            done = fit(WindowedProblem(engine, vec, windows, theta), options)
+            if spin and gate is not None and done.score < gate:  # spins invisible: keep 0
                 self.stages_.append(
                     {"window": windows.steps, "windows": windows.size, "spin": True,
                      "iterations": 0,
-                     "skipped": f"score test: chi2 gain {fit.score:.1f} < {gate:.1f} "
+                     "skipped": f"score test: chi2 gain {done.score:.1f} < {gate:.1f} "
                      f"for {n_spin} axial spins, which stay 0"}
                 )  # fmt: skip
                 break
             self.spin_fitted_ = spin
-            final, theta = fit, fit.theta
-            fill_grid(engine, vec.params(vec.full(theta)), fit.windows, grid)
-            self.history_ += fit.history if k == 0 else fit.history[1:]
+            final, theta = done, done.theta
+            fill_grid(engine, vec.params(vec.full(theta)), done.windows, grid)
+            self.history_ += done.history if k == 0 else done.history[1:]
             self.stages_.append(
                 {"window": windows.steps, "windows": windows.size, "spin": spin,
-                 "iterations": len(fit.history) - 1, "rms": float(np.sqrt(fit.history[-1]))}
+                 "iterations": len(done.history) - 1, "rms": float(np.sqrt(done.history[-1]))}
             )  # fmt: skip
         bar.total = bar.n
         bar.close()

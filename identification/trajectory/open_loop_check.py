@@ -31,7 +31,7 @@ import torch
 
 from identification.data.dataset import Dataset
 from identification.data.end_caps import measured_rod_states
-from identification.trajectory.effect_fit import rollout_caps
+from identification.trajectory.windows import rollout_caps
 from tensegrity_env.engine import State
 from tensegrity_env.io_utils import StageError
 from tensegrity_env.model import Model

@@ -8,7 +8,7 @@ seen by end caps is :class:`identification.data.end_caps.RodAxes`, the anchors' 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -103,6 +103,13 @@ class ParamVector:
         (:meth:`~identification.trajectory.effect_coords.EffectCoords.mass_scaled`)."""
         tail = torch.zeros(0, dtype=torch.bool) if self.coords is None else self.coords.mass_scaled()
         return torch.cat([torch.zeros(self.n_free, dtype=torch.bool), tail])
+
+    def held_at(self, theta: torch.Tensor) -> ParamVector:
+        """This vector at ``theta`` (n_free + n_effect,) with nothing free and no effect
+        coordinates: the model held there (a fit of the windows' states alone, with the
+        effects at ``theta`` in the engine: :meth:`engine`)."""
+        return replace(self, start=self.full(theta.detach()), free=torch.zeros_like(self.free),
+                       coords=None)  # fmt: skip
 
     def split(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``theta`` (..., n_free + n_effect) -> log-parameters and effect coordinates."""

@@ -14,7 +14,7 @@ from identification.trajectory.forked import in_worker
 
 @contextmanager
 def iteration_bar(desc: str, iterations: int) -> Iterator[Callable[[float], None]]:
-    """A ``progress`` callback for :func:`~identification.trajectory.windowed_fit.fit_windows`:
+    """A ``progress`` callback for :func:`~identification.trajectory.windowed_problem.fit`:
     one tick per iteration (at most ``iterations``), the end-cap RMS [mm] beside it.
 
     The bar shows on a terminal only (tqdm's default), is cleared when the fit ends (its

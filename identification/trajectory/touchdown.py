@@ -41,8 +41,7 @@ from scipy.optimize import minimize
 from identification.data.dataset import Dataset
 from identification.data.end_caps import odd_window, smooth_rod_states
 from identification.trajectory.airborne import cap_radii, lowest_seen
-from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START
-from identification.trajectory.effect_fit import from_free, to_free
+from identification.trajectory.effect_coords import CONTACT_FREE, CONTACT_START, from_free, to_free
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windows import STATE_KEYS, cut_windows, end_caps

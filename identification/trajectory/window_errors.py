@@ -4,7 +4,7 @@ window keeps (:func:`better_states`), which windows' error jumped at a short ste
 (:func:`jumped_windows`).
 
 The windows are :mod:`identification.trajectory.windows`; the fit that calls these is
-:func:`identification.trajectory.windowed_fit.fit_windows`.
+:func:`identification.trajectory.windowed_problem.fit`.
 """
 
 from __future__ import annotations

@@ -30,7 +30,8 @@ import torch
 from identification.data.end_caps import RodAxes
 from identification.trajectory.param_vector import DTYPE, ParamVector
 from identification.trajectory.window_errors import better_states
-from identification.trajectory.windowed_fit import WindowFit, fit_windows
+from identification.trajectory.windowed_fit import WindowFit
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import Windows, end_caps
 from tensegrity_env.engine import Engine, State
 from tensegrity_env.rotations import quat_mul, quat_to_matrix, shortest_arc
@@ -76,14 +77,14 @@ def fit_states(
     seed = windows
     stages = [g for g in GROW if grow and g < windows.steps]
     for n in stages:
-        w = fit_windows(engine, vec, prefix(windows, n), empty, iters, tol=0.01,
-                        spin=spin and n >= 25 and not roll, roll=False)  # fmt: skip
+        w = fit(WindowedProblem(engine, vec, prefix(windows, n), empty),
+                FitOptions.states(iters, spin=spin and n >= 25 and not roll))
         windows = replace(windows, state=w.windows.state)
     if stages:  # a state fitted on a prefix can fly off over the rest of the window
         windows = better_states(engine, vec, empty, seed, windows)[0]
     if roll:
         windows = search_rolls(engine, vec, windows, spin)
-    return fit_windows(engine, vec, windows, empty, iters, tol=0.01, spin=spin, roll=roll)
+    return fit(WindowedProblem(engine, vec, windows, empty), FitOptions.states(iters, spin, roll))
 
 
 #: samples at each window's start the forward seed (:func:`forward_seeds`) fits a

@@ -1,15 +1,17 @@
-"""Windowed trajectory fits through the engine: the windows' initial states and the
-parameters fitted by Levenberg-Marquardt with a Schur complement (bundle-adjustment
-structure) and forward-difference Jacobians.
+"""The normal equations of the windowed trajectory fit: forward-difference Jacobians
+through the engine of the windows' initial states and the parameters, the damped
+Schur-complement step (bundle-adjustment structure) inside the parameters' box, and
+the standard errors.
 
-The windows themselves are :mod:`identification.trajectory.windows`; the method and its
-cost are described in :mod:`identification.trajectory.identifier`.
+The problem and its Levenberg-Marquardt loop are
+:mod:`identification.trajectory.windowed_problem`; the windows themselves are
+:mod:`identification.trajectory.windows`; the method and its cost are described in
+:mod:`identification.trajectory.identifier`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -18,11 +20,10 @@ import torch
 from identification.linear.solve import Equilibrated
 from identification.trajectory.forked import side_by_side, window_groups, window_jobs
 from identification.trajectory.param_vector import DTYPE, ParamVector
-from identification.trajectory.window_errors import jumped_windows, window_sses
+from identification.trajectory.window_errors import window_sses
 from identification.trajectory.windows import (
     Windows,
     end_caps,
-    local_basis,
     perturb,
     window_residual,
 )
@@ -285,17 +286,21 @@ def bounded_step(
 
 @dataclass(frozen=True)
 class WindowFit:
-    """Result of :func:`fit_windows`.
+    """Result of :func:`~identification.trajectory.windowed_problem.fit`.
 
     Attributes:
-        theta: fitted free log-parameters, (n_free,).
-        windows: the windows with fitted initial states.
+        theta: fitted coordinates: free log-parameters and effect coordinates,
+            (n_free + n_effect,).
+        windows: the windows with fitted initial states (as given where they are held;
+            without any the fit left out).
         history: mean squared end-cap error [m^2] at the start and after each iteration.
         stderr: standard error of each free log-parameter (= relative standard error of
-            the parameter), (n_free,): the larger of the Gauss-Newton ``σ̂² S⁻¹`` and the
-            window-clustered sandwich (:func:`window_stderr`); inf where the data cannot
-            see the parameter.
-        score: the chi-square decrease the first Gauss-Newton step promised.
+            the parameter; an effect coordinate's in its own unit), (n_free + n_effect,):
+            the larger of the Gauss-Newton ``σ̂² S⁻¹`` and the window-clustered sandwich
+            (:func:`window_stderr`; the dense method: Gauss-Newton's); inf where the data
+            cannot see the coordinate.
+        score: the chi-square decrease the first Gauss-Newton step promised (NaN: the
+            dense method).
         converged: the stopping rule was met (not just ``max_iter``).
         normal: the Gauss-Newton normal equations at ``theta`` and the fitted states.
     """
@@ -307,129 +312,6 @@ class WindowFit:
     score: float
     converged: bool
     normal: NormalEquations | None = None
-
-
-def fit_windows(
-    engine: Engine,
-    vec: ParamVector,
-    windows: Windows,
-    theta: torch.Tensor,
-    max_iter: int = 20,
-    tol: float = 0.1,
-    progress: Callable[[float], None] | None = None,
-    exact_gradient: bool = False,
-    spin: bool = True,
-    gate: float | None = None,
-    roll: bool = False,
-    line_search: bool = False,
-    hold: torch.Tensor | None = None,
-    log: Callable[[str], None] = lambda s: None,
-) -> WindowFit:
-    """Stage 2: Levenberg-Marquardt on window initial states and free log-parameters.
-
-    Minimises the mean squared end-cap position error of all windows rolled out by
-    ``engine`` (Nielsen's damping update, faster when the model is good). Stops when
-    the full Gauss-Newton step would lower the chi-square ``sse / σ̂²`` by less than
-    ``tol`` (the Newton decrement: 0.1 leaves every parameter well within a fraction
-    of its standard error), when the RMS error reaches round-off (clean data), or
-    after ``max_iter`` iterations (one Jacobian each). With ``gate``, nothing is done
-    when the first step promises less than ``gate`` (a score test: the new unknowns
-    cannot be told from noise). ``progress`` is called with the mean squared error
-    after each iteration; ``exact_gradient``: see :func:`linearize`; ``spin`` and
-    ``roll``: see :func:`local_basis`. ``line_search``: a rejected step is tried at
-    :data:`LINE_FRACTIONS` of its length, the shortest error kept if lower, before
-    more damping (where the error jumps, as on the floor where impacts cross physics
-    steps, the damped steps turn towards the jumps while the Gauss-Newton direction
-    still descends). With ``line_search``, a rejected step too short to matter
-    (:data:`SHORT_STEP`) that still raised some windows' error by a jump
-    (:func:`jumped_windows`) leaves those windows out and the fit goes on without them
-    (up to :data:`MAX_JUMPED` of the windows; each such drop is ``log``-ged): an impact
-    sitting on the edge of a physics step makes a window's error discontinuous at the
-    current point, and every step then fails on it. ``hold`` (n_free + n_effect,) bool:
-    coordinates held at their values in ``theta`` (the others and the states fitted).
-    """
-    basis = local_basis(vec.axes, spin, roll)
-    chunk = group_size(basis, theta, windows.size)
-    lo, hi = vec.bounds()
-    hard = vec.hard_bounds()
-    theta = theta.clamp(lo, hi)  # a start outside the physical domain (a screen's drag < 0)
-    ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
-    dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
-    history = [ne.sse / ne.m]
-    exact = (1e-12 * max(1.0, float(windows.obs.abs().max()))) ** 2  # round-off [m^2]
-    _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)
-    score = newton / max(ne.sse / dof, 1e-300)
-    done = bool(score < tol or history[-1] < exact or (gate is not None and score < gate))
-    lam, nu, converged = 1e-7, 2.0, done
-
-    def tried(
-        d_z: torch.Tensor | None, d_theta: torch.Tensor | None
-    ) -> tuple[Windows, np.ndarray, float]:
-        """The windows moved by ``d_z``, each one's error at ``theta + d_theta`` (B,) and
-        their sum [m^2]."""
-        if d_z is None or d_theta is None:
-            return windows, np.full(windows.size, np.inf), float("inf")
-        trial = replace(
-            windows, state=perturb(windows.state, torch.einsum("bl,lrj->brj", d_z, basis))
-        )
-        return trial, *trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
-
-    now = None  # the current windows' errors (B,) [m^2], once a jump check wants them
-    jumps_left = int(MAX_JUMPED * windows.size)
-    for _ in range(max_iter if not done else 0):
-        while True:
-            try:
-                d_z, d_theta, pred, _ = bounded_step(ne, lam, theta, lo, hi, hard, hold)
-                if not (bool(torch.isfinite(d_theta).all()) and bool(torch.isfinite(d_z).all())):
-                    raise FloatingPointError("non-finite step")
-            except (torch.linalg.LinAlgError, FloatingPointError):
-                d_z, d_theta, pred = None, None, 0.0  # a singular system: more damping
-            trial, per_window, sse = tried(d_z, d_theta)
-            rho = (ne.sse - sse) / pred if pred > 0 and np.isfinite(sse) else -1.0
-            if rho > 0:
-                lam *= 0.1 if rho > 0.9 else max(1 / 3, 1 - (2 * rho - 1) ** 3)
-                nu = 2.0
-                break
-            noise_var = ne.sse / dof
-            if line_search and jumps_left and d_z is not None and pred < SHORT_STEP * noise_var:
-                if now is None:
-                    now = trial_sse(engine, vec, windows, basis, theta, chunk)[0]
-                jumped = jumped_windows(now, per_window, noise_var)
-                if 0 < jumped.sum() <= jumps_left:
-                    jumps_left -= int(jumped.sum())
-                    windows = windows.take(np.flatnonzero(~jumped))
-                    log(f"    {int(jumped.sum())} windows left out of the fit: their error "
-                        f"jumps at a step too short to matter (an impact on the edge of a "
-                        f"physics step; {windows.size} left)")  # fmt: skip
-                    ne = linearize(engine, vec, windows, basis, theta, chunk,
-                                   exact_gradient=exact_gradient)  # fmt: skip
-                    dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
-                    lam, nu, now = 1e-7, 2.0, None
-                    continue
-            if line_search and d_z is not None and d_theta is not None:
-                shorter = [(t, *tried(t * d_z, t * d_theta)) for t in LINE_FRACTIONS]
-                t, trial, _, sse = min(shorter, key=lambda x: x[3])
-                if sse < ne.sse:
-                    d_theta = t * d_theta
-                    break
-            lam, nu = lam * nu, nu * 2
-            if lam > 1e10:
-                break
-        if lam > 1e10:
-            converged = True  # no step lowers the error any more
-            break
-        assert d_theta is not None  # a step was taken: the loop above left with one
-        windows, theta, now = trial, theta + d_theta, None
-        ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
-        _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)
-        history.append(ne.sse / ne.m)
-        if progress is not None:
-            progress(history[-1])
-        if newton < tol * ne.sse / dof or history[-1] < exact:
-            converged = True
-            break
-    stderr = window_stderr(ne, S, ne.sse / dof)
-    return WindowFit(theta, windows, history, stderr, score, converged, ne)
 
 
 def trial_sse(
@@ -465,15 +347,6 @@ def state_response(ne: NormalEquations, direction: torch.Tensor) -> torch.Tensor
     rhs = torch.einsum("blg,g->bl", ne.H_lg, direction.to(DTYPE)).unsqueeze(-1)
     return -torch.linalg.solve(A_ll, rhs).squeeze(-1)
 
-
-#: fractions of a rejected step tried along its direction (``line_search``)
-LINE_FRACTIONS = (0.5, 0.3, 0.1, 0.03)
-#: with ``line_search``, a rejected step that promised less than this many units of
-#: chi-square is too short to raise any window's error by itself (a window whose error
-#: rose by :data:`~identification.trajectory.window_errors.JUMP` has a discontinuity)
-SHORT_STEP = 10.0
-#: at most this fraction of the windows is left out so (:func:`fit_windows`)
-MAX_JUMPED = 0.1
 
 #: eigenvalues of the equilibrated ``S`` below this fraction of its largest are
 #: directions the data does not see: a parameter with a share in them has an infinite

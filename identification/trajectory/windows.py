@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from identification.data.dataset import Split
 from identification.data.end_caps import RodAxes
 from identification.trajectory.param_vector import DTYPE, ParamVector
 from tensegrity_env.engine import Engine, State
@@ -285,3 +286,49 @@ def window_schedule(first: int, last: int, factor: float = 4.0) -> list[int]:
         return [last]
     n = int(np.ceil(np.log(last / first) / np.log(factor) - 1e-9))
     return [round(first * (last / first) ** (k / n)) for k in range(n + 1)]
+
+
+def sample_windows(split: Split, length: int, count: int, seed: int = 0) -> Windows:
+    """``count`` random windows of ``length`` steps (fewer if the split is short), drawn
+    with replacement, their initial states the split's rod states (measured or derived)."""
+    if not split.has_states:
+        raise ValueError("windows need rod states (derive them from the end caps first)")
+    N, T = split.n_trajectories, split.n_transitions
+    length = min(length, T)
+    rng = np.random.default_rng(seed)
+    traj = rng.integers(0, N, count)
+    start = rng.integers(0, T - length + 1, count)
+    t = start[:, None] + np.arange(length + 1)
+
+    def pick(arr: np.ndarray) -> torch.Tensor:
+        return torch.as_tensor(arr[traj, start], dtype=DTYPE)
+
+    init = State(*(pick(getattr(split, k)) for k in STATE_KEYS))
+    caps = torch.as_tensor(split.nodes[traj[:, None], t], dtype=DTYPE)
+    control = torch.as_tensor(split.control[traj[:, None], t[:, :-1]], dtype=DTYPE)
+    cables = None
+    if split.cable_control is not None:
+        cables = torch.as_tensor(split.cable_control[traj[:, None], t[:, :-1]], dtype=DTYPE)
+    return Windows(caps, control, init, traj, start, cables=cables)
+
+
+def rollout_caps(
+    engine: Engine,
+    params: Params,
+    init: State,
+    control: torch.Tensor,
+    cables: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """End caps (W, L+1, 2R, 3) [m] of the engine rolled out from ``init`` under
+    ``control`` (W, L, R, 3) and cable commands ``cables`` (W, L, C) if any."""
+    R = init.p.shape[1]
+    state, caps = init, []
+    ends = engine.end_offsets
+    for t in range(control.shape[1] + 1):
+        if t:
+            state = engine.step(
+                state, params, control[:, t - 1], None if cables is None else cables[:, t - 1]
+            )
+        rot_arms = torch.einsum("wrij,rkj->wrki", quat_to_matrix(state.q), ends)
+        caps.append((state.p.unsqueeze(2) + rot_arms).reshape(-1, 2 * R, 3))
+    return torch.stack(caps, dim=1)

@@ -29,7 +29,7 @@ The law's parameters are shared by every end cap; the contact radius is each cap
 (a real robot's caps differ in size, and its markers sit on their surfaces).
 :data:`MUJOCO_DEFAULT` are MuJoCo's
 defaults (``solref = 0.02 1``, ``solimp = 0.9 0.95 0.001 0.5 2``, friction 1);
-``identification.trajectory.effect_fit`` fits them to measured trajectories.
+``identification.trajectory.windowed_problem`` fits them to measured trajectories.
 
 ``a0`` is MuJoCo's ``J qacc`` without contact: with a rod's body frame off its centre
 of mass (``Rod.frame_origin``), it includes the centripetal acceleration

@@ -10,8 +10,6 @@ import pytest
 import torch
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.end_cap_data import EndCapData, TrajectorySettings
-from identification.discovery.end_cap_fits import fit_declared
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.simulation.planted import PlantSpec
 from identification.trajectory.airborne import (
@@ -20,6 +18,8 @@ from identification.trajectory.airborne import (
     cap_radii,
     past_touchdown,
 )
+from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings
+from identification.trajectory.end_cap_fits import fit_declared
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_errors import window_sse
 from identification.trajectory.windows import STATE_KEYS, local_basis

@@ -21,7 +21,7 @@ import torch
 
 from identification.trajectory.floor_fit import FLOOR_FREE, contact_box, with_floor
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact
@@ -48,12 +48,12 @@ def test_contact_stays_within_its_range_of_the_start() -> None:
     held = replace(held, free=torch.zeros_like(held.free))
     vec = with_floor(held, [], start, None, box)
     engine = Engine(topo, 1 / 120, substeps=substeps_for(1 / 120))
-    fit = fit_windows(engine, vec, windows, vec.theta0(), 4, spin=True, line_search=True)
+    done = fit(WindowedProblem(engine, vec, windows), FitOptions(max_iter=4, line_search=True))
     lo, hi = (np.array([box[k][i] for k in FLOOR_FREE]) for i in (0, 1))
-    x = fit.theta[vec.n_free :].numpy()
+    x = done.theta[vec.n_free :].numpy()
     assert np.all(x >= lo - 1e-12) and np.all(x <= hi + 1e-12), (x, lo, hi)
     stiffness = float(np.exp(x[FLOOR_FREE.index("stiffness")]))
     assert stiffness > k_true / 10  # it moved towards the truth ...
     edge = float(np.exp(hi[FLOOR_FREE.index("stiffness")]))
     assert stiffness <= edge * (1 + 1e-9) < k_true  # ... not past the range
-    assert fit.history[-1] < fit.history[0], fit.history
+    assert done.history[-1] < done.history[0], done.history

@@ -21,7 +21,7 @@ import torch
 from identification.trajectory.floor_fit import SCALED, search_scale, with_floor
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.window_errors import window_sse
-from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import STATE_KEYS, cut_windows, local_basis
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact
@@ -63,7 +63,7 @@ def test_scale_search_walks_the_valley_back_to_the_true_scale(scaled_start):
     engine, vec, windows, truth = scaled_start
     theta = vec.theta0()
     assert min(_errors(vec, theta, truth).values()) > 0.07  # 8 % low (rod0's mass held)
-    start = fit_windows(engine, vec, windows, theta, 0, spin=True)  # normal equations only
+    start = fit(WindowedProblem(engine, vec, windows, theta), FitOptions(max_iter=0))  # normal equations only
     found, moved = search_scale(engine, vec, start)
     errors = _errors(vec, found, truth)
     assert max(errors.values()) < 0.03, errors
@@ -77,7 +77,7 @@ def test_joint_fit_with_line_search_leaves_the_low_start(scaled_start):
     """Levenberg-Marquardt with the line search along rejected Gauss-Newton steps (as the
     floor fit runs it) takes the declared model from 8 % low back within 3 %."""
     engine, vec, windows, truth = scaled_start
-    fit = fit_windows(engine, vec, windows, vec.theta0(), 5, spin=True, line_search=True)
-    errors = _errors(vec, fit.theta, truth)
+    done = fit(WindowedProblem(engine, vec, windows), FitOptions(max_iter=5, line_search=True))
+    errors = _errors(vec, done.theta, truth)
     assert max(errors.values()) < 0.03, errors
-    assert fit.history[-1] < 0.1 * fit.history[0], fit.history  # clean data: the error falls
+    assert done.history[-1] < 0.1 * done.history[0], done.history  # clean data: the error falls

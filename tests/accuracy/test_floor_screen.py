@@ -24,14 +24,13 @@ import pytest
 import torch
 
 from identification.data.dataset import read_dataset, read_ground_truth
-from identification.discovery.end_cap_data import (
+from identification.discovery.judge import MIN_BIC_DROP
+from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     fit_trajectory,
-    held,
 )
-from identification.discovery.judge import MIN_BIC_DROP
-from identification.trajectory.effect_coords import EffectCoords
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_states import fit_states
@@ -61,7 +60,7 @@ def screened_field(effect: str, tmp_path: Path) -> tuple[np.ndarray, float, floa
     data.lift_off_selection()
     contact = GroundContact(topo, **true_contact(data_files))
     vec = with_floor(ParamVector.at(topo, truth.params), [], contact, None)
-    states = fit_states(data.engine.with_effects([contact]), held(vec, vec.theta0()),
+    states = fit_states(data.engine.with_effects([contact]), vec.held_at(vec.theta0()),
                         data.windows["train"], 10, spin=True).windows  # fmt: skip
 
     def screened(effects: list) -> ParamVector:

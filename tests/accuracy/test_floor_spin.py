@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import torch
 
-from identification.trajectory.floor_fit import held_states, with_floor
+from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_errors import window_sse
 from identification.trajectory.window_states import fit_states
@@ -53,7 +53,7 @@ def rolling():
     vec = with_floor(ParamVector.at(topo, truth.params), [], contact, None)
     theta = vec.theta0()
     engine = Engine(topo, 1 / 120, substeps=substeps_for(1 / 120))
-    return vec.engine(engine, theta), held_states(vec, theta), windows
+    return vec.engine(engine, theta), vec.held_at(theta), windows
 
 
 def _rms(engine, vec, windows) -> float:

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from identification.data.end_caps import RodAxes
-from identification.discovery.end_cap_data import EndCapData, TrajectorySettings, TrajFit, heldout
 from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings, TrajFit, heldout
 from identification.trajectory.param_vector import ParamVector
 from tensegrity_env.engine import State
 from tensegrity_env.rotations import quat_mul

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import torch
 
-from identification.discovery.end_cap_data import EndCapData, TrajectorySettings, fit_trajectory
 from identification.discovery.library import Proposal
 from identification.discovery.slack_hypothesis import fit_slack, switched_cables
 from identification.simulation.planted import PlantSpec, planted_dataset
 from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings, fit_trajectory
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.slack_regression import SlackRegression
 from tensegrity_env.effects import SlackSprings

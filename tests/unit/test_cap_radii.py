@@ -19,7 +19,7 @@ from test_mjcf_lab import mj_rod_state
 
 from identification.data.end_caps import measured_rod_states
 from identification.trajectory.cap_radius_fit import fit_cap_radii
-from identification.trajectory.effect_fit import rollout_caps
+from identification.trajectory.windows import rollout_caps
 from tensegrity_env.assemblies import icosahedron, node_positions
 from tensegrity_env.effects.ground_contact import GroundContact
 from tensegrity_env.engine import Engine, State

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.judge import MULTI_STEP, ONE_STEP, Candidate
 from identification.discovery.loop import EffectDiscovery, Iteration
 from identification.discovery.multi_step import MultiStepScorer
+from identification.trajectory.end_cap_data import TrajectorySettings
 
 
 def _pass(chosen_gain: float, others: dict[str, float]) -> Iteration:

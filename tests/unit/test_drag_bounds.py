@@ -9,7 +9,8 @@ import torch
 
 from identification.trajectory.effect_coords import EffectCoords
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import NormalEquations, bounded_step, fit_windows
+from identification.trajectory.windowed_fit import NormalEquations, bounded_step
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import Windows, end_caps
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import ForceField, LinearDrag, QuadraticDrag
@@ -110,8 +111,8 @@ def test_the_fit_keeps_a_drag_at_zero_where_the_data_asks_for_a_negative_one() -
     coords = EffectCoords.of([LinearDrag(a.topology)], axial=2)
     vec = replace(ParamVector.at(a.topology, a.params), coords=coords)
     win = Windows(obs=obs, control=None, state=truth, traj=np.arange(4), start=np.zeros(4, int))
-    fit = fit_windows(engine, vec, win, vec.theta0(), max_iter=15)
-    (drag,) = vec.effects(fit.theta)
+    done = fit(WindowedProblem(engine, vec, win), FitOptions(max_iter=15))
+    (drag,) = vec.effects(done.theta)
     b = drag.values["translational"].numpy()
     assert b[2] == 0.0  # held on the bound, not negative
     assert (drag.values["rotational"].numpy() >= 0).all()

@@ -11,7 +11,8 @@ import torch
 from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
 from identification.linear.features import transitions_of
 from identification.simulation.planted import PlantSpec, planted_dataset
-from identification.trajectory.effect_fit import fit_effect_params, sample_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
+from identification.trajectory.windows import sample_windows
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import (
     EFFECTS,
@@ -294,9 +295,10 @@ def test_identified_contact_free_fall_and_bounce_within_2cm():
                           impedance=0.9)  # fmt: skip
     free = [(0, k) for k in ("stiffness", "damping", "friction", "impedance")]
     windows = sample_windows(train.dataset.split("train"), 1, 600, seed=0)
-    fit = fit_effect_params(train.dataset.topology, train.dataset.dt, train.ground_truth.params,
-                            [start], free, windows, max_iter=20)  # fmt: skip
-    contact = fit.effects[0]
+    engine = Engine(train.dataset.topology, train.dataset.dt)
+    problem = WindowedProblem.effects_only(engine, train.ground_truth.params, [start], free,
+                                           windows)  # fmt: skip
+    contact = problem.effects_at(fit(problem, FitOptions.dense(max_iter=20)))[0]
     assert abs(float(contact.values["friction"]) - 1.0) < 1e-3
     drop = drop_check(train.ground_truth.params, [contact], n=3, seed=21)
     assert drop.lowest < 0.0  # it did reach the floor and bounce
@@ -315,10 +317,16 @@ def test_effect_coordinate_the_data_does_not_see_has_an_infinite_standard_error(
     lag = ControlLag(topo, time_constant=0.02)
     free = [(0, k) for k in ("stiffness", "damping", "friction", "impedance")]
     windows = sample_windows(train.dataset.split("train"), 1, 600, seed=0)
-    fit = fit_effect_params(topo, train.dataset.dt, train.ground_truth.params, [start, lag],
-                            [*free, (1, "time_constant")], windows, max_iter=20)  # fmt: skip
-    assert fit.names[-1] == "control_lag.time_constant"
-    assert abs(fit.values[2] - 1.0) < 1e-3
-    assert np.all(np.isfinite(fit.stderr[:4])) and np.all(fit.stderr[:4] > 0)
-    assert fit.stderr[2] < 1e-2
-    assert fit.stderr[4] == np.inf and fit.values[4] == pytest.approx(0.02)
+    problem = WindowedProblem.effects_only(Engine(topo, train.dataset.dt),
+                                           train.ground_truth.params, [start, lag],
+                                           [*free, (1, "time_constant")], windows)  # fmt: skip
+    assert problem.vec.coords is not None
+    assert problem.vec.coords.names()[-1] == "control_lag.time_constant"
+    contact, fitted_lag = problem.effects_at(fit(problem, FitOptions.dense(max_iter=20)))
+    keys = [k for _, k in free]
+    se = np.array([contact.uncertainty[k] for k in keys])
+    assert abs(float(contact.values["friction"]) - 1.0) < 1e-3
+    assert np.all(np.isfinite(se)) and np.all(se > 0)
+    assert contact.uncertainty["friction"] < 1e-2
+    assert fitted_lag.uncertainty["time_constant"] == np.inf
+    assert float(fitted_lag.values["time_constant"]) == pytest.approx(0.02)

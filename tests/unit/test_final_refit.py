@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from identification.discovery import multi_step, refits
-from identification.discovery.end_cap_data import TrajectorySettings
-from identification.discovery.end_cap_fits import EndCapFits
 from identification.discovery.judge import Candidate
 from identification.discovery.library import Proposal
 from identification.discovery.multi_step import MultiStepScorer
+from identification.trajectory.end_cap_data import TrajectorySettings
+from identification.trajectory.end_cap_fits import EndCapFits
 from tensegrity_env.effects import GroundContact
 
 
@@ -95,11 +95,10 @@ def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
 def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch) -> None:
     """``fit_many(within=...)`` fits the states, then hands the joint fit only the windows
     ``windows_within`` kept; without ``within`` every window."""
-    from identification.discovery import end_cap_fits
+    from identification.trajectory import end_cap_fits
 
     passed: list = []
     fitted = SimpleNamespace(theta="theta", origin=None)
-    monkeypatch.setattr(end_cap_fits, "held", lambda vec, theta: SimpleNamespace(theta0=lambda: 0))
     monkeypatch.setattr(end_cap_fits, "fit_states",
                         lambda *a, **k: SimpleNamespace(windows="states fitted"))  # fmt: skip
     monkeypatch.setattr(end_cap_fits, "windows_within",
@@ -109,7 +108,8 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
                         lambda data, vec, w, theta, iters, progress=None: passed.append(w) or fitted)  # fmt: skip
     monkeypatch.setattr(end_cap_fits, "sees_roll", lambda engine: False)
     data = SimpleNamespace(engine=None, spin=True, roll=False, log=lambda line: None)
-    vec = SimpleNamespace(engine=lambda engine, theta: "engine")
+    vec = SimpleNamespace(engine=lambda engine, theta: "engine",
+                          held_at=lambda theta: SimpleNamespace(theta0=lambda: 0))
     theta = SimpleNamespace(detach=lambda: theta)
     s = TrajectorySettings()
     end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows", within=1.5e-3)

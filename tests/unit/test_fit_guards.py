@@ -10,7 +10,7 @@ import torch
 
 from identification.trajectory import windowed_fit
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import Windows, end_caps
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.engine import Engine, State, substeps_for
@@ -43,6 +43,11 @@ def _windows(n: int = 1, noise: float = 0.0) -> tuple[Engine, ParamVector, Windo
     return engine, vec, win, vec.theta0()
 
 
+def _fit(engine: Engine, vec: ParamVector, win: Windows, theta: torch.Tensor, **options):
+    """The windowed fit of the stiffnesses and states, 10 iterations at most."""
+    return fit(WindowedProblem(engine, vec, win, theta), FitOptions(max_iter=10, **options))
+
+
 def test_a_trial_step_the_engine_cannot_take_is_a_rejected_step(monkeypatch) -> None:
     engine, vec, win, theta = _windows()
     real = windowed_fit.window_sses
@@ -55,7 +60,7 @@ def test_a_trial_step_the_engine_cannot_take_is_a_rejected_step(monkeypatch) -> 
         return real(*args, **kwargs)
 
     monkeypatch.setattr(windowed_fit, "window_sses", flaky)
-    fit = fit_windows(engine, vec, win, theta, max_iter=10)
+    fit = _fit(engine, vec, win, theta)
     assert calls["n"] > 2
     assert np.isfinite(fit.history).all()
     assert fit.history[-1] < 1e-4 * fit.history[0]  # the fit still heads to the truth
@@ -69,7 +74,7 @@ def test_a_window_whose_error_jumps_at_every_step_is_left_out_and_the_fit_goes_o
     # leave their start: an impact on the edge of a physics step, as on the floor
     engine, vec, win, theta = _windows(n=12, noise=1e-3)
     others = win.take(np.flatnonzero(win.traj != 3))
-    without = fit_windows(engine, vec, others, theta, max_iter=10, line_search=True)
+    without = _fit(engine, vec, others, theta, line_search=True)
     real = windowed_fit.window_sses
     start = theta.clone()
 
@@ -80,10 +85,10 @@ def test_a_window_whose_error_jumps_at_every_step_is_left_out_and_the_fit_goes_o
         return each, float(each.sum())
 
     monkeypatch.setattr(windowed_fit, "window_sses", jumpy)
-    stuck = fit_windows(engine, vec, win, theta, max_iter=10)  # no line search: no way out
+    stuck = _fit(engine, vec, win, theta)  # no line search: no way out
     assert torch.equal(stuck.theta, theta)
     lines: list[str] = []
-    fit = fit_windows(engine, vec, win, theta, max_iter=10, line_search=True, log=lines.append)
+    fit = _fit(engine, vec, win, theta, line_search=True, log=lines.append)
     assert fit.windows.size == 11 and 3 not in fit.windows.traj
     assert len(lines) == 1 and "1 windows left out" in lines[0]
     # from there it is the fit without that window: stiffnesses 30 % off at the start

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from identification.discovery import multi_step
-from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.multi_step import MultiStepScorer
+from identification.trajectory.end_cap_data import TrajectorySettings
 
 
 class Fit:

@@ -12,16 +12,15 @@ import pytest
 import torch
 
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
-from identification.discovery.end_cap_data import held_drag_axis
 from identification.linear.smoothed import smoothed_regression
 from identification.simulation.generate import GenerateSpec, generate_dataset
 from identification.trajectory.effect_coords import CONTACT_START, EffectCoords
+from identification.trajectory.end_cap_data import held_drag_axis
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     fit_on_floor,
     floor_contact,
     floor_height,
-    held_states,
     reseeded,
     rods_leaning,
     rods_off_floor,
@@ -273,8 +272,8 @@ def test_floor_windows_take_the_flight_before_touchdown_first() -> None:
     """Half the floor windows start in the air where some do: a drop's flight before it lands
     pins drag and masses apart from the contact."""
     from identification.data.dataset import Dataset
-    from identification.discovery.end_cap_data import EndCapData, TrajectorySettings
     from identification.trajectory.airborne import AIRBORNE, cap_radii
+    from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings
 
     flight, _ = generate_dataset(GenerateSpec(n_train=2, n_val=1, n_test=1, steps=300, seed=3))
     train = flight.split("train")
@@ -318,18 +317,18 @@ def test_a_prefix_state_that_flies_off_over_the_window_is_not_kept(
 
     ds, seeds, vec = _on_the_floor(1, 300, 60)
     theta, engine = vec.theta0(), Engine(ds.topology, ds.dt)
-    real = window_states.fit_windows
+    real = window_states.fit
 
-    def flying_prefixes(engine_, vec_, windows, *args, **kwargs):
-        fit = real(engine_, vec_, windows, *args, **kwargs)
-        if windows.steps < seeds.steps:  # a prefix: its state blows up further on
+    def flying_prefixes(problem, options):
+        fit = real(problem, options)
+        if problem.windows.steps < seeds.steps:  # a prefix: its state blows up further on
             st = fit.windows.state
             nan = torch.full_like(st.v, float("nan"))
             fit = replace(fit, windows=replace(fit.windows, state=State(st.p, nan, st.q, st.omega)))
         return fit
 
-    monkeypatch.setattr(window_states, "fit_windows", flying_prefixes)
-    fitted = window_states.fit_states(vec.engine(engine, theta), held_states(vec, theta), seeds, 2)
+    monkeypatch.setattr(window_states, "fit", flying_prefixes)
+    fitted = window_states.fit_states(vec.engine(engine, theta), vec.held_at(theta), seeds, 2)
     after = window_errors(engine, vec, fitted.windows, theta)
     assert torch.isfinite(after).all()
     assert (after < 1e-12).all()  # clean data from the true states: they stay exact

@@ -1,4 +1,4 @@
-"""The floor fit's windows chosen on the data (identification.discovery.floor_fits):
+"""The floor fit's windows chosen on the data (identification.trajectory.floor_fits):
 the state fit's expected residual, the halvings, and longer windows once the model fits."""
 
 from __future__ import annotations
@@ -15,13 +15,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from measured_plant import clean_rolling
 
 from identification.data.end_caps import dataset_from_end_caps
-from identification.discovery.end_cap_data import (
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     declared_start,
     held_drag_axis,
 )
-from identification.discovery.floor_fits import (
+from identification.trajectory.floor_fit import floor_contact, with_floor
+from identification.trajectory.floor_fits import (
     MIN_FLOOR_STEPS,
     ROD_STATE,
     floor_rows,
@@ -31,7 +32,6 @@ from identification.discovery.floor_fits import (
     state_fits,
     within,
 )
-from identification.trajectory.floor_fit import floor_contact, with_floor
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.mjcf import from_mjcf

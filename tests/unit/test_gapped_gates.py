@@ -12,13 +12,17 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset, Split
-from identification.discovery.end_cap_data import seen_gaps
 from identification.discovery.end_cap_residuals import summarize_window_residuals, window_residuals
-from identification.discovery.library import contact_gate
 from identification.linear.extended import evaluate_model
 from identification.linear.features import defined_transitions, drawn_transitions
 from identification.simulation.generate import GenerateSpec, generate_dataset
-from identification.trajectory.airborne import airborne_mask, has_airborne_stretch, lowest_seen
+from identification.trajectory.airborne import (
+    airborne_mask,
+    contact_gate,
+    has_airborne_stretch,
+    lowest_seen,
+)
+from identification.trajectory.end_cap_data import seen_gaps
 from identification.trajectory.floor_fit import floor_height
 from identification.trajectory.windows import cut_windows
 from tensegrity_env.assemblies import icosahedron

@@ -115,7 +115,7 @@ def test_contact_is_scored_against_the_plants_mujoco_contact(tmp_path):
 def test_floor_cells_show_their_floor_fit_windows(tmp_path):
     from measured_report import OLD_FLOOR_WINDOWS, floor_windows, floor_windows_text
 
-    from identification.discovery.end_cap_data import FINAL_FLOOR_WINDOWS, FLOOR_WINDOWS
+    from identification.trajectory.end_cap_data import FINAL_FLOOR_WINDOWS, FLOOR_WINDOWS
 
     assert floor_windows("", "") == {"identify": FLOOR_WINDOWS, "diagnose": FLOOR_WINDOWS,
                                      "diagnose_final": FINAL_FLOOR_WINDOWS}  # fmt: skip

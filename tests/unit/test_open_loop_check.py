@@ -86,8 +86,8 @@ def test_identify_writes_nothing_for_a_fit_that_diverges_open_loop(
 def _result(models):
     """A DiscoveryResult whose final model is ``models[0]``, the others earlier (newest first)."""
     from identification.discovery.judge import Candidate, Criteria
-    from identification.discovery.library import FittedModel
     from identification.discovery.loop import DiscoveryResult
+    from identification.trajectory.fitted_model import FittedModel
 
     fitted = [FittedModel(m, 0) for m in models]
     cands = [Candidate("nothing", None, f) for f in fitted[1:]]

@@ -14,7 +14,7 @@ from identification.simulation.generate import GenerateSpec, generate_dataset
 from identification.trajectory import forked, progress
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
-from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import STATE_KEYS, cut_windows
 from tensegrity_env.engine import Engine
 
@@ -56,12 +56,13 @@ def test_a_fit_ticks_once_per_iteration_with_its_own_error(bars: list[Recorder])
     vec = replace(vec, free=torch.ones_like(vec.free))  # every parameter fitted
     seen: list[float] = []
     with iteration_bar("joint fit", 4) as tick:
-        fit = fit_windows(Engine(topo, ds.dt), vec, windows, vec.theta0() + 0.02, 4,
-                          tol=0.0, progress=lambda mse: (seen.append(mse), tick(mse)))  # fmt: skip
+        options = FitOptions(max_iter=4, tol=0.0,
+                             progress=lambda mse: (seen.append(mse), tick(mse)))  # fmt: skip
+        done = fit(WindowedProblem(Engine(topo, ds.dt), vec, windows, vec.theta0() + 0.02), options)
     bar = bars[0]
-    assert len(fit.history) > 1 and bar.n == len(fit.history) - 1 <= 4
-    assert seen == fit.history[1:]
-    assert bar.postfix[-1] == f"end-cap RMS {np.sqrt(fit.history[-1]) * 1e3:.3f} mm"
+    assert len(done.history) > 1 and bar.n == len(done.history) - 1 <= 4
+    assert seen == done.history[1:]
+    assert bar.postfix[-1] == f"end-cap RMS {np.sqrt(done.history[-1]) * 1e3:.3f} mm"
     assert bar.closed and bar.kwargs["total"] == 4 and bar.kwargs["disable"] is None
 
 

@@ -8,13 +8,13 @@ from functools import partial
 import numpy as np
 import pytest
 
-from identification.discovery.end_cap_data import TrajectorySettings
 from identification.discovery.library import Proposal
 from identification.discovery.loop import EffectDiscovery
 from identification.discovery.multi_step import MultiStepScorer
 from identification.discovery.scorer import CandidateSkipped
 from identification.discovery.side_by_side import fit_side_by_side
 from identification.simulation.planted import PlantSpec, planted_dataset
+from identification.trajectory.end_cap_data import TrajectorySettings
 from identification.trajectory.forked import side_by_side
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import CubicStiffness, ForceField, LinearDrag

@@ -2,8 +2,21 @@
 candidate effects, the refit of an accepted one on many windows, and what the scorer
 keeps of each candidate (:class:`EndCapFits`).
 
+Each is a :class:`~identification.trajectory.windowed_problem.WindowedProblem` solved
+by :func:`~identification.trajectory.windowed_problem.fit` with the loop's options
+(:func:`~identification.trajectory.end_cap_data.end_cap_options`, through
+:func:`~identification.trajectory.end_cap_data.fit_trajectory`); the named uses:
+
+* the declared model's fit: :func:`fit_declared` (on the floor
+  :func:`~identification.trajectory.floor_fits.fit_declared_on_floor`, contact with it);
+* a candidate's screen: :func:`screen_with` (the declared parameters and the contact
+  held, the candidate's coordinates and the states fitted);
+* the joint fit with contact: :func:`fit_with` (contact searched on the touchdowns
+  first where it is new);
+* the refit on many windows, and the final refit on more of them: :func:`fit_many`.
+
 The declared model and every accepted one are fitted on **many** windows of the
-training split (:attr:`~identification.discovery.end_cap_data.TrajectorySettings.fit_windows`;
+training split (:attr:`~identification.trajectory.end_cap_data.TrajectorySettings.fit_windows`;
 :func:`fit_many`): selection needs only a few windows, but the parameters written
 out, the test errors and the next iteration's starting point come from this larger
 fit. Without a params file the declared model starts from the regression on smoothed
@@ -32,7 +45,15 @@ import numpy as np
 import torch
 
 from identification.data.dataset import Dataset
-from identification.discovery.end_cap_data import (
+from identification.trajectory.airborne import (
+    airborne_stretches,
+    cap_radii,
+    contact_gate,
+    has_airborne_stretch,
+    past_touchdown,
+)
+from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     TrajFit,
@@ -41,19 +62,10 @@ from identification.discovery.end_cap_data import (
     declared_start,
     fit_trajectory,
     has_contact,
-    held,
     held_drag_axis,
     hold_declared,
 )
-from identification.discovery.floor_fits import FloorFit, fit_declared_on_floor
-from identification.discovery.library import contact_gate
-from identification.trajectory.airborne import (
-    airborne_stretches,
-    cap_radii,
-    has_airborne_stretch,
-    past_touchdown,
-)
-from identification.trajectory.effect_coords import EffectCoords
+from identification.trajectory.floor_fits import FloorFit, fit_declared_on_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import find_touchdowns, search_contact
@@ -86,7 +98,7 @@ def fit_declared(
     Where end caps reach a floor, the "many windows" are every airborne stretch of the
     training split, each whole (:func:`~identification.trajectory.airborne.airborne_stretches`);
     where there is none, ground contact is fitted with the declared model from the start
-    (:func:`~identification.discovery.floor_fits.fit_declared_on_floor`).
+    (:func:`~identification.trajectory.floor_fits.fit_declared_on_floor`).
 
     ``effects`` are fitted with it (a hypothesis that changes the declared springs, such
     as slack cables) and ``values`` replace the stage-1 regression (natural units, as
@@ -163,7 +175,7 @@ def fit_many(
     accepted, every later fit and score fits the rolls (``data.roll``).
     """
     engine = vec.engine(data.engine, theta.detach())
-    fixed = held(vec, theta)
+    fixed = vec.held_at(theta)
     many = data.windows["fit"] if windows is None else windows
     states = fit_states(engine, fixed, many, s.state_iter, spin=data.spin, roll=data.roll)
     many = states.windows
@@ -178,7 +190,7 @@ def fit_many(
         # the rolls only matter once the effect is near its size: fitted from there
         t0 = time.perf_counter()
         engine = vec.engine(data.engine, fit.theta.detach())
-        states = fit_states(engine, held(vec, fit.theta), fit.windows, s.state_iter, spin=True,
+        states = fit_states(engine, vec.held_at(fit.theta), fit.windows, s.state_iter, spin=True,
                             roll=True)  # fmt: skip
         fit = fit_trajectory(data, vec, states.windows, fit.theta, iters, roll=True)
         data.log(f"    rolls fitted too: end-cap RMS {fit.rms * 1e3:.3f} mm "
@@ -223,7 +235,7 @@ def fit_with(
             theta = vec.theta0()
         n_free = vec.n_free
         for n in [g for g in GROW if g < windows.steps] + [windows.steps]:
-            fixed = held(vec, theta)
+            fixed = vec.held_at(theta)
             part = fit_states(vec.engine(data.engine, theta), fixed, prefix(windows, n),
                               iters).windows  # fmt: skip
             if n < windows.steps and searched is None:
@@ -283,7 +295,7 @@ def through_touchdowns(data: EndCapData, vec: ParamVector, iters: int) -> ParamV
     t0 = time.perf_counter()
     theta = vec.theta0()
     windows = past_touchdown(data.stretches, data.train.nodes, PAST_TOUCHDOWN)
-    states = fit_states(vec.engine(data.engine, theta), held(vec, theta), windows, iters)
+    states = fit_states(vec.engine(data.engine, theta), vec.held_at(theta), windows, iters)
     fit = fit_trajectory(data, vec, states.windows, theta, iters)
     data.log(f"    declared model refitted {PAST_TOUCHDOWN} steps past the touchdowns (contact "
              f"held): end-cap RMS {fit.rms * 1e3:.3f} mm ({time.perf_counter() - t0:.0f} s)")  # fmt: skip
@@ -306,7 +318,7 @@ def touchdown_contact(
     effects = vec.coords.effects_at(theta[vec.n_free :].detach())
     others, contact = effects[:-1], effects[-1]
     assert isinstance(contact, GroundContact)  # narrowing: fits append the floor contact last
-    fixed = held(vec, theta)
+    fixed = vec.held_at(theta)
     engine = data.engine.with_effects(others)
     radius = cap_radii(data.topology)
     grid = {k: getattr(data.smooth["train"], k) for k in STATE_KEYS}

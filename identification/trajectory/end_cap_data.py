@@ -26,15 +26,15 @@ import torch
 from identification.data.dataset import Dataset, Split
 from identification.data.end_caps import RodAxes, odd_window, smooth_rod_states
 from identification.defaults import FINAL_FLOOR_WINDOWS, FINAL_ITERATIONS, FLOOR_WINDOWS
-from identification.discovery.library import FittedModel, contact_gate
 from identification.linear.smoothed import parse_anchors, smoothed_regression
-from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii
+from identification.trajectory.airborne import AIRBORNE, airborne_samples, cap_radii, contact_gate
 from identification.trajectory.effect_coords import CONTACT_FREE
+from identification.trajectory.fitted_model import FittedModel
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.window_errors import better_states
 from identification.trajectory.window_states import fit_states
-from identification.trajectory.windowed_fit import fit_windows
+from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
 from identification.trajectory.windows import STATE_KEYS, Windows, cut_windows, end_caps
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
@@ -81,9 +81,9 @@ class TrajectorySettings:
             or below ``floor_windows``).
         floor_window: steps per window of the fits on the floor (0: ``fit_window`` or
             ``window``, at most :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S`;
-            :func:`~identification.discovery.floor_fits.floor_steps`).
+            :func:`~identification.trajectory.floor_fits.floor_steps`).
         final_floor_window: steps per window of that refit (0: as the floor windows,
-            :func:`~identification.discovery.floor_fits.floor_steps`).
+            :func:`~identification.trajectory.floor_fits.floor_steps`).
         final_iter: most Levenberg-Marquardt iterations of the final refit (default
             :data:`FINAL_ITERATIONS`).
         physics_dt: the longest physics step [s]; the engine substeps between samples
@@ -227,7 +227,7 @@ class EndCapData:
         #: every fit also fits the windows' rolls (set once an accepted effect sees them)
         self.roll = False
         #: no airborne stretch: ground contact is in the model from the start
-        #: (:mod:`identification.discovery.floor_fits`)
+        #: (:mod:`identification.trajectory.floor_fits`)
         self.on_floor = False
         #: where a floor fit starts the contact (a params file's), None: the default
         self.contact_start: GroundContact | None = None
@@ -334,16 +334,10 @@ def held_drag_axis(data: EndCapData) -> int | None:
     return None if data.on_floor else common_axis(data.axes)
 
 
-def held(vec: ParamVector, theta: torch.Tensor) -> ParamVector:
-    """``vec`` at ``theta`` with nothing free and no effect coordinates (states-only fits)."""
-    return replace(vec, start=vec.full(theta.detach()), free=torch.zeros_like(vec.free),
-                   coords=None)  # fmt: skip
-
-
 @torch.no_grad()
 def fixed_engine(data: EndCapData, fit: TrajFit) -> tuple[Engine, ParamVector]:
     """The engine with ``fit``'s effects and a vector with nothing free (its params)."""
-    return data.engine.with_effects(fit.effects), held(fit.vec, fit.theta)
+    return data.engine.with_effects(fit.effects), fit.vec.held_at(fit.theta)
 
 
 def fit_trajectory(
@@ -351,23 +345,33 @@ def fit_trajectory(
     roll: bool | None = None, progress: Callable[[float], None] | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
-    (None: ``data.roll``); ``progress``: see ``fit_windows``. The BIC counts the rolls.
+    (None: ``data.roll``); ``progress``: see :class:`FitOptions`. The BIC counts the rolls.
     On the floor the states include each rod's axial spin
     (:mod:`identification.trajectory.floor_fit`), and a rejected step is tried shorter
-    before more damping (``fit_windows``' line search): the error jumps where an impact
+    before more damping (:func:`~identification.trajectory.windowed_problem.fit`'s line search): the error jumps where an impact
     crosses a physics step, and the damped steps turn towards the jumps, so that without
     the line search a force field's screen on the floor stays near zero.
     """
     roll = data.roll if roll is None else roll
-    fit = fit_windows(data.engine, vec, windows, theta, iters, tol=0.1,
-                      spin=data.on_floor or roll, roll=roll,
-                      line_search=data.on_floor, progress=progress, log=data.log)  # fmt: skip
-    m = fit.windows.residuals
+    done = fit(WindowedProblem(data.engine, vec, windows, theta),
+               end_cap_options(data, iters, roll, progress))
+    m = done.windows.residuals
     # state unknowns, not common: the rolls and (in flight) the spins that turn them
-    rolls = fit.windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
-    return TrajFit(vec, fit.theta, fit.windows, fit.history[-1] * m, m, fit.stderr,
-                   extra_k=extra_k(data, vec) + rolls, converged=fit.converged,
-                   iterations=len(fit.history) - 1)  # fmt: skip
+    rolls = done.windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
+    return TrajFit(vec, done.theta, done.windows, done.history[-1] * m, m, done.stderr,
+                   extra_k=extra_k(data, vec) + rolls, converged=done.converged,
+                   iterations=len(done.history) - 1)  # fmt: skip
+
+
+def end_cap_options(
+    data: EndCapData, iters: int, roll: bool, progress: Callable[[float], None] | None = None
+) -> FitOptions:
+    """How every joint fit of the loop's models on end-cap windows is solved: ``iters``
+    iterations to a Newton decrement of 0.1; each rod's axial spin in the window states
+    on the floor and with ``roll`` (each rod's roll too); the line search on the floor
+    (see :func:`fit_trajectory`)."""
+    return FitOptions(max_iter=iters, tol=0.1, spin=data.on_floor or roll, roll=roll,
+                      line_search=data.on_floor, progress=progress, log=data.log)  # fmt: skip
 
 
 def extra_k(data: EndCapData, vec: ParamVector) -> int:

@@ -6,7 +6,7 @@ enough to fit the declared model apart from contact
 model holds ground contact from the start and fits it jointly with the declared
 parameters (:mod:`identification.trajectory.floor_fit`). Candidate effects are
 screened with the declared parameters and the contact held at this fit's values
-(:func:`~identification.discovery.end_cap_fits.screen_with`); an accepted one is
+(:func:`~identification.trajectory.end_cap_fits.screen_with`); an accepted one is
 refitted jointly with them, the contact's parameters
 (:data:`~identification.trajectory.floor_fit.FLOOR_FREE`) free within
 :func:`~identification.trajectory.floor_fit.contact_box` of the floor fit's values.
@@ -24,7 +24,10 @@ import torch
 
 from identification.data.dataset import Dataset
 from identification.defaults import FLOOR_WINDOW_S
-from identification.discovery.end_cap_data import (
+from identification.linear.smoothed import parse_anchors
+from identification.trajectory.airborne import contact_gate, has_airborne_stretch
+from identification.trajectory.cap_radius_fit import fit_cap_radii, resting_pieces
+from identification.trajectory.end_cap_data import (
     STUCK_WINDOW,
     EndCapData,
     TrajectorySettings,
@@ -33,17 +36,12 @@ from identification.discovery.end_cap_data import (
     fit_trajectory,
     held_drag_axis,
 )
-from identification.discovery.library import contact_gate
-from identification.linear.smoothed import parse_anchors
-from identification.trajectory.airborne import has_airborne_stretch
-from identification.trajectory.cap_radius_fit import fit_cap_radii, resting_pieces
 from identification.trajectory.floor_fit import (
     FLOOR_FREE,
     STATE_ITERS,
     bounded,
     fit_on_floor,
     floor_contact,
-    held_states,
     rods_leaning,
     rods_off_floor,
     states_at,
@@ -114,7 +112,7 @@ def state_fits(
     the first length whose median is within :data:`STUCK_WINDOW` times the ``noise``
     [m] scaled by :func:`state_fit_ratio` (the last tried is then the one chosen)."""
     tried: list[tuple[float, int, float]] = []
-    engine, held = vec.engine(data.engine, theta), held_states(vec, theta)
+    engine, held = vec.engine(data.engine, theta), vec.held_at(theta)
     for n in lengths:
         w = data.cut("train", n, count, 3, lift_off=count // 2)
         fit = states_at(data.engine, vec, theta, w, STATE_ITERS)
@@ -161,7 +159,7 @@ def windows_from_data(
     smoothing closer to it (the measurement is in docs/decisions.md). So: windows
     of ``steps``, halved (down to :data:`MIN_FLOOR_STEPS` samples) while the median
     window's states, fitted at the start model, stay above
-    :data:`~identification.discovery.end_cap_data.STUCK_WINDOW` times
+    :data:`~identification.trajectory.end_cap_data.STUCK_WINDOW` times
     the ``noise`` [m] (:func:`within`); none within it: the lowest median against its
     length's :func:`state_fit_ratio`. The count grows as the windows shrink
     (:func:`window_count`). At a start model far from the plant, long windows miss
@@ -322,7 +320,7 @@ def fit_declared_on_floor(
 
     Returns the fit on the many windows of the training split and the fit on the
     training windows selection compares on (as
-    :func:`~identification.discovery.end_cap_fits.fit_declared`; without ``selection``
+    :func:`~identification.trajectory.end_cap_fits.fit_declared`; without ``selection``
     the second is the first, not refitted).
     """
     t0 = time.perf_counter()

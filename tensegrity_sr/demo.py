@@ -171,8 +171,8 @@ def step_diagnose(demo: Demo) -> None:
 def step_touchdowns(demo: Demo) -> None:
     banner("The same floor through 1 mm motion-capture noise, from the data alone")
     from identification.experiments.drop_check import DROP_TOLERANCE, drop_check
-    from identification.trajectory.end_cap_data import TrajectorySettings
-    from identification.trajectory.end_cap_fits import fit_declared_model
+    from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings
+    from identification.trajectory.presets import fit_declared
     from identification.trajectory.touchdown import contact_from_dataset
     from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 
@@ -186,7 +186,7 @@ def step_touchdowns(demo: Demo) -> None:
     # then the contact from the touchdowns
     t0 = time.perf_counter()
     settings = TrajectorySettings(anchors={"mass[rod0]": float(truth.params.mass[0])}, seed=5)
-    declared = fit_declared_model(dataset, settings).params
+    declared = fit_declared(EndCapData(dataset, settings), settings)[0].params
     lines = [f"declared model from the airborne stretches ({time.perf_counter() - t0:.0f} s), "
              "median error against MuJoCo:"]  # fmt: skip
     for k in ("mass", "stiffness", "damping", "rest_length"):

@@ -248,7 +248,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
 
 def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
     """The windows the trajectory fits use on ``dataset``, as they will be cut (one line)."""
-    from identification.trajectory.floor_fits import floor_steps, on_floor
+    from identification.trajectory.floor_declared import floor_steps, on_floor
     dt = dataset.dt
     if on_floor(dataset):
         floor = floor_steps(dt, s)

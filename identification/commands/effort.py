@@ -6,7 +6,7 @@ own); ``quick`` halves every count and ``thorough`` doubles it. A fit's cost gro
 proportion to its windows and iterations, and the spread of the weakest parameters
 (spring damping first) shrinks as the inverse square root of the windows. The window
 lengths are not part of it: they come from the data (the sample rate; on the floor, how
-far the windows' states can be fitted, :func:`~identification.trajectory.floor_fits.windows_from_data`),
+far the windows' states can be fitted, :func:`~identification.trajectory.floor_declared.windows_from_data`),
 and ``--window`` sets them by hand.
 
 The old per-knob options (``--windows``, ``--fit-windows``, ``--floor-windows``,

@@ -12,7 +12,7 @@ identified or written.
 
 End caps that reach a floor (:func:`~identification.trajectory.airborne.contact_gate`)
 are fitted with ground contact in the model (the floor fit,
-:func:`~identification.trajectory.floor_fits.identify_on_floor`), whether or not the data
+:func:`~identification.trajectory.floor_declared.identify_on_floor`), whether or not the data
 also hold airborne stretches: the declared model alone, fitted through the impacts,
 can diverge.
 """
@@ -34,12 +34,12 @@ from identification.linear.regression import ParameterRow
 from identification.report.tables import group_errors, parameter_table, relative_errors
 from identification.trajectory.airborne import contact_gate
 from identification.trajectory.end_cap_data import TrajectorySettings
-from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
-from identification.trajectory.floor_fits import (
+from identification.trajectory.floor_declared import (
     FloorIdentification,
     floor_steps,
     identify_on_floor,
 )
+from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
 from identification.trajectory.stage_check import check_stage, noise_level

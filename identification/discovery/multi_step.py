@@ -3,7 +3,7 @@
 With noisy end caps (motion capture, ~1 mm), accelerations from differences are
 useless and smoothing biases the regression (more than the effects looked for), so
 models are compared by **multi-step prediction of the measured end caps**
-(:mod:`identification.trajectory.end_cap_data`, :mod:`identification.trajectory.end_cap_fits`):
+(:mod:`identification.trajectory.end_cap_data`, :mod:`identification.trajectory.presets`):
 
 1. every candidate is fitted **jointly** (declared parameters, the candidate's and the
    current effects' parameters, each window's initial state) on windows of the
@@ -47,6 +47,7 @@ from typing import Any, cast
 import numpy as np
 
 from identification.data.dataset import Dataset
+from identification.discovery.candidate_fits import EndCapFits
 from identification.discovery.end_cap_residuals import (
     plot_window_residuals,
     summarize_window_residuals,
@@ -72,16 +73,10 @@ from identification.trajectory.end_cap_data import (
     heldout,
     predicted_caps,
 )
-from identification.trajectory.end_cap_fits import (
-    EndCapFits,
-    fit_declared,
-    fit_many,
-    fit_with,
-    screen_with,
-)
-from identification.trajectory.floor_fits import FloorFit, floor_fit
+from identification.trajectory.floor_declared import FloorFit, floor_fit
 from identification.trajectory.forked import side_by_side
 from identification.trajectory.open_loop_check import open_loop_check, worse_prediction
+from identification.trajectory.presets import fit_declared, fit_joint, refit_many, screen_candidate
 from identification.trajectory.stage_check import check_stage, fit_diverged, noise_level
 from identification.trajectory.window_states import fit_states
 from identification.trajectory.windows import STATE_KEYS, Windows, sees_roll
@@ -114,7 +109,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         clean: the same trajectories without noise, with rod states (planted data),
             for the test errors against the truth; never used for fitting or selection.
         contact: where a floor fit starts the ground contact (a params file's; None:
-            the default start, see :mod:`identification.trajectory.floor_fits`).
+            the default start, see :mod:`identification.trajectory.floor_declared`).
         jobs: fits run at once, each in a worker process (the two floor refits of an
             accepted candidate; :mod:`~identification.discovery.side_by_side`).
         effects: what the declared model holds beyond linear springs and a floor (a
@@ -176,12 +171,12 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
 
     def with_reference(self, fits: EndCapFits) -> EndCapFits:
         """``fits`` of the current model with its reference: the model refitted as every
-        candidate will be (:func:`fit_with`, from ``fits.fit``'s origin and windows, the
+        candidate will be (:func:`fit_joint`, from ``fits.fit``'s origin and windows, the
         candidates' iterations), so a candidate's gain and BIC drop measure its effect,
         not the iterations it had on top of the current fit: without it, the current
         model refitted with nothing added gains in held-out chi-square and BIC, and a
         candidate with coefficients near zero passes. On the floor the reference is
-        screened as the candidates are (:func:`screen_with`: the contact held, the
+        screened as the candidates are (:func:`screen_candidate`: the contact held, the
         linear effects' coordinates and the states fitted): against the current model as
         fitted, every screened candidate gains on floor data with nothing planted. Not on
         floor data without a touchdown (its candidates are fitted with the contact, see
@@ -189,11 +184,11 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         """
         now = fits.fit
         if self.data.on_floor:
-            return replace(fits, reference=screen_with(self.data, now, now.effects,
+            return replace(fits, reference=screen_candidate(self.data, now, now.effects,
                                                        self.settings.candidate_iter))  # fmt: skip
         if contact_gate(self.data.train, self.data.topology)[0]:
             return fits
-        return replace(fits, reference=fit_with(self.data, now, now.effects,
+        return replace(fits, reference=fit_joint(self.data, now, now.effects,
                                                 self.settings.candidate_iter))  # fmt: skip
 
     def score(
@@ -278,9 +273,9 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
             fit = fit_slack(self.data, s, now, proposal, keep)
         elif self.data.on_floor:
             held = [e for e in now.effects if e.name not in drop]
-            fit = screen_with(self.data, now, [*held, proposal.effect], s.candidate_iter)
+            fit = screen_candidate(self.data, now, [*held, proposal.effect], s.candidate_iter)
         else:
-            fit = fit_with(self.data, now, [*keep, proposal.effect], s.candidate_iter)
+            fit = fit_joint(self.data, now, [*keep, proposal.effect], s.candidate_iter)
         return self.score_candidate(proposal.name, fit, current)
 
     def score_candidate(
@@ -335,7 +330,7 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         self, current: Candidate[EndCapFits], proposal: Proposal, drop: Sequence[str] = ()
     ) -> Candidate[EndCapFits]:
         """The floor fit done afresh with the current model's effects and the proposed one
-        (:func:`~identification.trajectory.floor_fits.floor_fit`: the regression, a contact
+        (:func:`~identification.trajectory.floor_declared.floor_fit`: the regression, a contact
         search, the valley search), then fitted on the training windows selection
         compares on, from the current model's window states; ``drop`` as in
         :meth:`fit_candidate`.
@@ -406,13 +401,13 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         self._before_accept = (dict(data.windows), data.contact_box, data.roll)
         if data.on_floor:
             t1 = time.perf_counter()
-            final = self.floor_refit(now, chosen.fit.floor)
+            final = floor_refit(self, now, chosen.fit.floor)
             sse, m, windows = heldout(data, final, "train", s.state_iter, now.windows, True)
             fit = replace(final, windows=windows, sse=sse, m=m)
         else:
-            fit = fit_with(data, now, now.effects, s.base_iter)  # converge
+            fit = fit_joint(data, now, now.effects, s.base_iter)  # converge
             t1 = time.perf_counter()
-            final = fit_many(data, fit.vec, fit.theta, s, s.base_iter)
+            final = refit_many(data, fit.vec, fit.theta, s, s.base_iter)
         self.log(f"  refitted on {final.windows.size} training windows: end-cap RMS "
                  f"{final.rms * 1e3:.3f} mm ({time.perf_counter() - t1:.0f} s)")  # fmt: skip
         check_stage(f"the final fit with {chosen.name}", final.rms, self.noise,
@@ -471,10 +466,6 @@ class MultiStepScorer(LoopScorer[EndCapFits]):
         windows, self.data.contact_box, self.data.roll = self._before_accept
         self.data.windows.clear()
         self.data.windows.update(windows)
-
-    def floor_refit(self, screened: TrajFit, afresh: FloorFit | None = None) -> TrajFit:
-        """:func:`~identification.discovery.refits.floor_refit` of this scorer's fits."""
-        return floor_refit(self, screened, afresh)
 
     def sample_states(self) -> State | None:
         """Every :data:`SAMPLE_STRIDE`-th smoothed training state (defined ones only)."""

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from identification.data.dataset import Dataset
+from identification.discovery.candidate_fits import EndCapFits
 from identification.discovery.judge import Candidate, unphysical
 from identification.trajectory.airborne import contact_gate
 from identification.trajectory.end_cap_data import (
@@ -24,9 +25,14 @@ from identification.trajectory.end_cap_data import (
     TrajFit,
     fit_trajectory,
 )
-from identification.trajectory.end_cap_fits import EndCapFits, fit_many
-from identification.trajectory.floor_fits import FloorFit, adopt_floor_fit, floor_fit, floor_steps
+from identification.trajectory.floor_declared import (
+    FloorFit,
+    adopt_floor_fit,
+    floor_fit,
+    floor_steps,
+)
 from identification.trajectory.forked import side_by_side
+from identification.trajectory.presets import refit_many
 from identification.trajectory.stage_check import fit_diverged
 from identification.trajectory.windows import Windows
 from tensegrity_env.effects import GroundContact
@@ -44,6 +50,7 @@ class MultiStepScorer(Protocol):
     jobs: int
     noise: float
     log: Callable[[str], None]
+
 
 #: a final refit whose fitted coordinates (log-parameters, effect coordinates) all moved
 #: less than this is reported as having stayed at the last fit: on the floor its
@@ -69,7 +76,7 @@ def floor_refit(
     One starts from the candidate as screened (the declared parameters and the
     contact at the current model's fit). The other is the floor fit of the declared
     model done afresh with the candidate's effects in it, from the same start as the
-    first one (:func:`~identification.trajectory.floor_fits.floor_fit`:
+    first one (:func:`~identification.trajectory.floor_declared.floor_fit`:
     the regression, a contact search, the valley search). Where the current model's
     contact has taken up what the candidate explains (a dissipation it lacked, on an
     overdamped floor), the first stays there, with the candidate's force far below
@@ -80,7 +87,7 @@ def floor_refit(
     data, s = scorer.data, scorer.settings
     effects = [e for e in screened.effects if not e.constraint]
     tasks: list[Callable[[], Any]] = [
-        lambda: fit_many(data, screened.vec, screened.theta, s, s.base_iter)
+        lambda: refit_many(data, screened.vec, screened.theta, s, s.base_iter)
     ]
     if afresh is None:  # (a candidate fitted jointly comes with it)
         tasks.append(lambda: floor_fit(data, s, scorer.start, effects, contact=scorer.contact))
@@ -93,6 +100,7 @@ def floor_refit(
         adopt_floor_fit(data, FloorFit(fit))
         return fit
     return fitted_on(scorer, near)
+
 
 def fitted_on(scorer: MultiStepScorer, fit: TrajFit) -> TrajFit:
     """``fit`` fitted on (joint fits of :attr:`~TrajectorySettings.base_iter`
@@ -146,18 +154,19 @@ def final_refit(scorer: MultiStepScorer, current: Candidate[EndCapFits]) -> Cand
     steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
     return refit(scorer, current, data.cut("train", steps, sys.maxsize, 4))
 
+
 def refit(
     scorer: MultiStepScorer, current: Candidate[EndCapFits], windows: Windows,
     within: float | None = None,
 ) -> Candidate[EndCapFits]:  # fmt: skip
     """``current`` refitted on the training ``windows`` (those whose states fit to
-    ``within`` [m] end-cap RMS, if given: :func:`fit_many`), kept unless it diverges,
+    ``within`` [m] end-cap RMS, if given: :func:`refit_many`), kept unless it diverges,
     leaves the physical domain or loses a direction the last fit saw (a standard
     error that was finite turns infinite: its curvature matrix is singular there)."""
     t0 = time.perf_counter()
     last = current.fit.final
     s = scorer.settings
-    final = fit_many(scorer.data, last.vec, last.theta, s, s.final_iter, windows=windows,
+    final = refit_many(scorer.data, last.vec, last.theta, s, s.final_iter, windows=windows,
                      within=within, bar="final refit")  # fmt: skip
     ds = scorer.dataset
     model = final.fitted_model(ds.topology, ds.dt)

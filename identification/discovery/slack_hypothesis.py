@@ -30,8 +30,8 @@ from identification.trajectory.end_cap_data import (
     airborne_keep,
     contact_searched,
 )
-from identification.trajectory.end_cap_fits import fit_declared, fit_with
-from identification.trajectory.floor_fits import leaning_rows
+from identification.trajectory.floor_declared import leaning_rows
+from identification.trajectory.presets import fit_declared, fit_joint
 from identification.trajectory.slack_regression import (
     CABLE_LOSS,
     CABLE_SIGNIFICANCE,
@@ -49,7 +49,7 @@ def slack_hypothesis(data: EndCapData, current: TrajFit, anchors: dict[str, floa
     The candidate holds every cable of ``current``, old and new (its effect None when
     no new one shows), and starts from the regression's parameter values. On the floor
     the regression uses the rods away from it and the moments of those leaning on it
-    about their contact points (:func:`~identification.trajectory.floor_fits.leaning_rows`),
+    about their contact points (:func:`~identification.trajectory.floor_declared.leaning_rows`),
     else the airborne samples.
     """
     old = [e for e in current.effects if e.name == SlackSprings.name]
@@ -151,7 +151,7 @@ def fit_slack(
     # (kept beside it, the push of a cable in both would be removed twice: a pull)
     effects = [*(e for e in keep if e.name != proposal.name), proposal.effect]
     if contact_searched(current.vec):
-        return fit_with(data, current, effects, s.candidate_iter)
+        return fit_joint(data, current, effects, s.candidate_iter)
     many, fit = fit_declared(data, s, effects=effects, values=proposal.start)
     data.log(f"    {proposal.name}: fitted from the segmented regression, end-cap RMS "
              f"{many.rms * 1e3:.3f} mm on {many.windows.size} windows")  # fmt: skip

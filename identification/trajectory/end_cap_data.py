@@ -81,9 +81,9 @@ class TrajectorySettings:
             or below ``floor_windows``).
         floor_window: steps per window of the fits on the floor (0: ``fit_window`` or
             ``window``, at most :data:`~identification.trajectory.floor_fit.FLOOR_WINDOW_S`;
-            :func:`~identification.trajectory.floor_fits.floor_steps`).
+            :func:`~identification.trajectory.floor_declared.floor_steps`).
         final_floor_window: steps per window of that refit (0: as the floor windows,
-            :func:`~identification.trajectory.floor_fits.floor_steps`).
+            :func:`~identification.trajectory.floor_declared.floor_steps`).
         final_iter: most Levenberg-Marquardt iterations of the final refit (default
             :data:`FINAL_ITERATIONS`).
         physics_dt: the longest physics step [s]; the engine substeps between samples
@@ -227,7 +227,7 @@ class EndCapData:
         #: every fit also fits the windows' rolls (set once an accepted effect sees them)
         self.roll = False
         #: no airborne stretch: ground contact is in the model from the start
-        #: (:mod:`identification.trajectory.floor_fits`)
+        #: (:mod:`identification.trajectory.floor_declared`)
         self.on_floor = False
         #: where a floor fit starts the contact (a params file's), None: the default
         self.contact_start: GroundContact | None = None

@@ -18,8 +18,8 @@ either fitted with the parameters (the default) or held at the data's
 
 The named uses of the first (the declared model's fit, a candidate's screen, the joint
 fit with contact, the final refit) are built in
-:mod:`identification.trajectory.end_cap_fits` and
-:mod:`identification.trajectory.floor_fits`.
+:mod:`identification.trajectory.presets` and
+:mod:`identification.trajectory.floor_declared`.
 """
 
 from __future__ import annotations

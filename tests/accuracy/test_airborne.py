@@ -19,8 +19,8 @@ from identification.trajectory.airborne import (
     past_touchdown,
 )
 from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings
-from identification.trajectory.end_cap_fits import fit_declared
 from identification.trajectory.param_vector import ParamVector
+from identification.trajectory.presets import fit_declared
 from identification.trajectory.window_errors import window_sse
 from identification.trajectory.windows import STATE_KEYS, local_basis
 from tensegrity_env.effects import GroundContact

@@ -19,7 +19,7 @@ from identification.discovery.multi_step import MultiStepScorer
 from identification.simulation.planted import PlantSpec, planted_dataset
 from identification.trajectory.effect_coords import CONTACT_START, EffectCoords
 from identification.trajectory.end_cap_data import EndCapData, TrajectorySettings
-from identification.trajectory.end_cap_fits import fit_declared
+from identification.trajectory.presets import fit_declared
 from identification.trajectory.windowed_fit import linearize
 from identification.trajectory.windows import local_basis
 from tensegrity_env import assemblies

@@ -1,5 +1,5 @@
 """The declared model and ground contact from a robot that never leaves the floor
-(identification.trajectory.floor_fit, identification.trajectory.floor_fits).
+(identification.trajectory.floor_fit, identification.trajectory.floor_declared).
 
 The icosahedron of ``benchmarks/measured_plant.py`` tumbling and rolling on a floor
 (MuJoCo's default soft contact, friction 1), 120 Hz end caps with 1 mm noise; no
@@ -17,7 +17,7 @@ import pytest
 from identification.data.dataset import read_dataset, read_ground_truth
 from identification.trajectory.airborne import has_airborne_stretch
 from identification.trajectory.end_cap_data import TrajectorySettings
-from identification.trajectory.floor_fits import identify_on_floor, on_floor
+from identification.trajectory.floor_declared import identify_on_floor, on_floor
 from tensegrity_env.effects.ground_contact import MUJOCO_DEFAULT
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))

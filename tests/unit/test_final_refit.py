@@ -9,11 +9,11 @@ import pytest
 import torch
 
 from identification.discovery import multi_step, refits
+from identification.discovery.candidate_fits import EndCapFits
 from identification.discovery.judge import Candidate
 from identification.discovery.library import Proposal
 from identification.discovery.multi_step import MultiStepScorer
 from identification.trajectory.end_cap_data import TrajectorySettings
-from identification.trajectory.end_cap_fits import EndCapFits
 from tensegrity_env.effects import GroundContact
 
 
@@ -31,7 +31,7 @@ def _scorer(
         fitted_model=lambda topology, dt: "refitted model",
         theta=torch.tensor([0.5, -0.2 + step, 1.0], dtype=torch.float64),
     )  # fmt: skip
-    monkeypatch.setattr(refits, "fit_many", lambda *a, **k: refitted)
+    monkeypatch.setattr(refits, "refit_many", lambda *a, **k: refitted)
     monkeypatch.setattr(refits, "unphysical", lambda model: "")
     scorer = MultiStepScorer(TrajectorySettings())
     scorer.data, scorer.noise, scorer.log = None, 1.0e-3, lines.append
@@ -93,27 +93,27 @@ def test_on_the_floor_the_final_refit_takes_more_floor_windows_than_selection(
 
 
 def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch) -> None:
-    """``fit_many(within=...)`` fits the states, then hands the joint fit only the windows
+    """``refit_many(within=...)`` fits the states, then hands the joint fit only the windows
     ``windows_within`` kept; without ``within`` every window."""
-    from identification.trajectory import end_cap_fits
+    from identification.trajectory import presets
 
     passed: list = []
     fitted = SimpleNamespace(theta="theta", origin=None)
-    monkeypatch.setattr(end_cap_fits, "fit_states",
+    monkeypatch.setattr(presets, "fit_states",
                         lambda *a, **k: SimpleNamespace(windows="states fitted"))  # fmt: skip
-    monkeypatch.setattr(end_cap_fits, "windows_within",
+    monkeypatch.setattr(presets, "windows_within",
                         lambda eng, vec, w, theta, rms: (SimpleNamespace(size=20, of=(w, rms)),
                                                          np.ones(24)))  # fmt: skip
-    monkeypatch.setattr(end_cap_fits, "fit_trajectory",
+    monkeypatch.setattr(presets, "fit_trajectory",
                         lambda data, vec, w, theta, iters, progress=None: passed.append(w) or fitted)  # fmt: skip
-    monkeypatch.setattr(end_cap_fits, "sees_roll", lambda engine: False)
+    monkeypatch.setattr(presets, "sees_roll", lambda engine: False)
     data = SimpleNamespace(engine=None, spin=True, roll=False, log=lambda line: None)
     vec = SimpleNamespace(engine=lambda engine, theta: "engine",
                           held_at=lambda theta: SimpleNamespace(theta0=lambda: 0))
     theta = SimpleNamespace(detach=lambda: theta)
     s = TrajectorySettings()
-    end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows", within=1.5e-3)
-    end_cap_fits.fit_many(data, vec, theta, s, 20, windows="windows")
+    presets.refit_many(data, vec, theta, s, 20, windows="windows", within=1.5e-3)
+    presets.refit_many(data, vec, theta, s, 20, windows="windows")
     assert passed[0].of == ("states fitted", 1.5e-3) and passed[1] == "states fitted"
 
 

@@ -39,7 +39,7 @@ def _begin(jobs: int, monkeypatch: pytest.MonkeyPatch) -> tuple[MultiStepScorer,
     monkeypatch.setattr(multi_step, "noise_level", lambda nodes, rods=False: 1.0e-3)
     monkeypatch.setattr(multi_step, "fit_declared", lambda data, s, start, effects=(): (final, base))
     monkeypatch.setattr(multi_step, "heldout", _heldout)
-    monkeypatch.setattr(multi_step, "screen_with",
+    monkeypatch.setattr(multi_step, "screen_candidate",
                         lambda data, now, effects, iters: Fit(f"reference of {now.name}", 1.05e-3))  # fmt: skip
     dataset = SimpleNamespace(split=lambda name: SimpleNamespace(nodes=np.zeros((1, 2, 12, 3))),
                               topology=None, dt=1 / 120)  # fmt: skip

@@ -1,4 +1,4 @@
-"""The floor fit's windows chosen on the data (identification.trajectory.floor_fits):
+"""The floor fit's windows chosen on the data (identification.trajectory.floor_declared):
 the state fit's expected residual, the halvings, and longer windows once the model fits."""
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ from identification.trajectory.end_cap_data import (
     declared_start,
     held_drag_axis,
 )
-from identification.trajectory.floor_fit import floor_contact, with_floor
-from identification.trajectory.floor_fits import (
+from identification.trajectory.floor_declared import (
     MIN_FLOOR_STEPS,
     ROD_STATE,
     floor_rows,
@@ -32,6 +31,7 @@ from identification.trajectory.floor_fits import (
     state_fits,
     within,
 )
+from identification.trajectory.floor_fit import floor_contact, with_floor
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.mjcf import from_mjcf

@@ -15,7 +15,7 @@ from plant_family import draw, family_initial_states, simulate_family, truth_of
 
 from identification.commands.diagnose import multi_step_scorer
 from identification.data.end_caps import dataset_from_end_caps
-from identification.trajectory.floor_fits import floor_steps, on_floor
+from identification.trajectory.floor_declared import floor_steps, on_floor
 from identification.trajectory.identifier import TrajectoryIdentifier
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_sr.cli import build_parser

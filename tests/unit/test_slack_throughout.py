@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from identification.commands.identify_end_caps import keep_declared, never_taut
-from identification.trajectory.floor_fits import FloorIdentification
+from identification.trajectory.floor_declared import FloorIdentification
 from tensegrity_env.ntrt import EXAMPLE_PRISM, from_ntrt
 
 

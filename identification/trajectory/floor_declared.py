@@ -6,7 +6,7 @@ enough to fit the declared model apart from contact
 model holds ground contact from the start and fits it jointly with the declared
 parameters (:mod:`identification.trajectory.floor_fit`). Candidate effects are
 screened with the declared parameters and the contact held at this fit's values
-(:func:`~identification.trajectory.end_cap_fits.screen_with`); an accepted one is
+(:func:`~identification.trajectory.presets.screen_candidate`); an accepted one is
 refitted jointly with them, the contact's parameters
 (:data:`~identification.trajectory.floor_fit.FLOOR_FREE`) free within
 :func:`~identification.trajectory.floor_fit.contact_box` of the floor fit's values.
@@ -320,7 +320,7 @@ def fit_declared_on_floor(
 
     Returns the fit on the many windows of the training split and the fit on the
     training windows selection compares on (as
-    :func:`~identification.trajectory.end_cap_fits.fit_declared`; without ``selection``
+    :func:`~identification.trajectory.presets.fit_declared`; without ``selection``
     the second is the first, not refitted).
     """
     t0 = time.perf_counter()

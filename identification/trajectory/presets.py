@@ -1,23 +1,28 @@
-"""Fits of the multi-step scorer on end-cap windows: the declared model, a model with
-candidate effects, the refit of an accepted one on many windows, and what the scorer
-keeps of each candidate (:class:`EndCapFits`).
+"""The named fits of the multi-step scorer on end-cap windows: every fit of a model the
+loop compares, accepts or writes out is one of these four presets.
 
 Each is a :class:`~identification.trajectory.windowed_problem.WindowedProblem` solved
 by :func:`~identification.trajectory.windowed_problem.fit` with the loop's options
 (:func:`~identification.trajectory.end_cap_data.end_cap_options`, through
-:func:`~identification.trajectory.end_cap_data.fit_trajectory`); the named uses:
+:func:`~identification.trajectory.end_cap_data.fit_trajectory`):
 
-* the declared model's fit: :func:`fit_declared` (on the floor
-  :func:`~identification.trajectory.floor_fits.fit_declared_on_floor`, contact with it);
-* a candidate's screen: :func:`screen_with` (the declared parameters and the contact
-  held, the candidate's coordinates and the states fitted);
-* the joint fit with contact: :func:`fit_with` (contact searched on the touchdowns
-  first where it is new);
-* the refit on many windows, and the final refit on more of them: :func:`fit_many`.
+* **declared fit**: :func:`fit_declared`, the declared model on the many windows and on
+  the training windows selection compares on (on data that never leaves the floor,
+  with ground contact from the start:
+  :func:`~identification.trajectory.floor_declared.fit_declared_on_floor`);
+* **screen a candidate**: :func:`screen_candidate`, the candidate's coordinates and the
+  windows' states fitted, the declared parameters and the contact held;
+* **joint with contact**: :func:`fit_joint`, the candidate fitted jointly with the
+  declared model (contact searched on the touchdowns first where it is new);
+* **refit on many windows** (an accepted model, and the final refit on more of them):
+  :func:`refit_many`.
+
+What the scorer keeps of each candidate is
+:class:`~identification.discovery.candidate_fits.EndCapFits`.
 
 The declared model and every accepted one are fitted on **many** windows of the
 training split (:attr:`~identification.trajectory.end_cap_data.TrajectorySettings.fit_windows`;
-:func:`fit_many`): selection needs only a few windows, but the parameters written
+:func:`refit_many`): selection needs only a few windows, but the parameters written
 out, the test errors and the next iteration's starting point come from this larger
 fit. Without a params file the declared model starts from the regression on smoothed
 end caps; its fit on the many windows brings it near the optimum before anything is
@@ -39,12 +44,11 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 import torch
 
-from identification.data.dataset import Dataset
 from identification.trajectory.airborne import (
     airborne_stretches,
     cap_radii,
@@ -65,7 +69,7 @@ from identification.trajectory.end_cap_data import (
     held_drag_axis,
     hold_declared,
 )
-from identification.trajectory.floor_fits import FloorFit, fit_declared_on_floor
+from identification.trajectory.floor_declared import fit_declared_on_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import find_touchdowns, search_contact
@@ -91,14 +95,14 @@ def fit_declared(
     """The declared model: its fit on the many windows, and on the training windows.
 
     Every parameter but the anchors is fitted, first on the many windows
-    (:func:`fit_many`) from ``start`` (a params file) if given, else from the
+    (:func:`refit_many`) from ``start`` (a params file) if given, else from the
     regression on Savitzky-Golay smoothed end caps (far off on fast data: the many
     windows bring it near the optimum), then on the few training windows that
     selection compares candidates on (from there, so both fits share the origin).
     Where end caps reach a floor, the "many windows" are every airborne stretch of the
     training split, each whole (:func:`~identification.trajectory.airborne.airborne_stretches`);
     where there is none, ground contact is fitted with the declared model from the start
-    (:func:`~identification.trajectory.floor_fits.fit_declared_on_floor`).
+    (:func:`~identification.trajectory.floor_declared.fit_declared_on_floor`).
 
     ``effects`` are fitted with it (a hypothesis that changes the declared springs, such
     as slack cables) and ``values`` replace the stage-1 regression (natural units, as
@@ -136,7 +140,7 @@ def fit_declared(
             stretches = airborne_stretches(data.train.nodes, data.train.control, grid,
                                            data.topology)  # fmt: skip
             many_windows = short if stretches is None else stretches
-    many = fit_many(data, vec, theta, s, iters=2 * s.base_iter, windows=many_windows)
+    many = refit_many(data, vec, theta, s, iters=2 * s.base_iter, windows=many_windows)
     fit = fit_trajectory(data, vec, data.windows["train"], many.theta, s.base_iter)
     fit.origin = many.theta
     if airborne and many.windows.valid is not None:
@@ -144,17 +148,7 @@ def fit_declared(
     return many, fit
 
 
-def fit_declared_model(dataset: Dataset, settings: TrajectorySettings) -> TrajFit:
-    """The declared model alone, fitted on a dataset's end caps (the loop's first stage).
-
-    On data with a floor: from the airborne samples and stretches only (see
-    :func:`fit_declared`), so it can be handed to
-    :func:`identification.trajectory.touchdown.contact_from_dataset` without a calibration.
-    """
-    return fit_declared(EndCapData(dataset, settings), settings)[0]
-
-
-def fit_many(
+def refit_many(
     data: EndCapData, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
     windows: Windows | None = None, within: float | None = None, bar: str | None = None,
 ) -> TrajFit:  # fmt: skip
@@ -199,7 +193,7 @@ def fit_many(
     return fit
 
 
-def fit_with(
+def fit_joint(
     data: EndCapData, current: TrajFit, effects: Sequence[PhysicalEffect], iters: int
 ) -> TrajFit:
     """Refit jointly with ``effects`` (contact last), from the current model's origin.
@@ -248,7 +242,7 @@ def fit_with(
     return fit
 
 
-def screen_with(
+def screen_candidate(
     data: EndCapData, current: TrajFit, effects: Sequence[PhysicalEffect], iters: int
 ) -> TrajFit:
     """A candidate screened on the floor: ``effects`` fitted with the declared parameters
@@ -333,36 +327,3 @@ def touchdown_contact(
              f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     data.contact_free = ()
     return found.contact
-
-
-@dataclass
-class EndCapFits:
-    """What the multi-step scorer fitted for one candidate.
-
-    Attributes:
-        fit: the fit on the training windows that selection compares on.
-        final: the fit on the many windows (the model reported and tested); ``fit``
-            for a candidate not accepted.
-        val_sse, val_m: held-out (validation) sum of squared end-cap errors [m^2] and
-            number of residuals, only the windows' states fitted.
-        val_windows: those windows, states fitted.
-    """
-
-    fit: TrajFit
-    final: TrajFit
-    val_sse: float = float("nan")
-    val_m: int = 0
-    val_windows: Windows | None = None
-    #: the current model refitted as every candidate is (from ``fit``'s origin and
-    #: windows, with the candidates' iterations): what its held-out error and BIC are
-    #: measured on (None: ``fit``)
-    reference: TrajFit | None = None
-    #: on the floor, the floor fit done afresh with the candidate's effects that ``fit``
-    #: started from (a candidate fitted jointly, see ``MultiStepScorer.second_look``;
-    #: None: screened with the rest held)
-    floor: FloorFit | None = None
-
-    @property
-    def scored(self) -> TrajFit:
-        """The fit the held-out error and the BIC are measured on."""
-        return self.fit if self.reference is None else self.reference

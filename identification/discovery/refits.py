@@ -160,7 +160,8 @@ def refit(
     within: float | None = None,
 ) -> Candidate[EndCapFits]:  # fmt: skip
     """``current`` refitted on the training ``windows`` (those whose states fit to
-    ``within`` [m] end-cap RMS, if given: :func:`refit_many`), kept unless it diverges,
+    ``within`` [m] end-cap RMS, if given:
+    :func:`~identification.trajectory.presets.refit_many`), kept unless it diverges,
     leaves the physical domain or loses a direction the last fit saw (a standard
     error that was finite turns infinite: its curvature matrix is singular there)."""
     t0 = time.perf_counter()

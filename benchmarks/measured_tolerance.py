@@ -70,7 +70,8 @@ def tolerance_reference(data: CellData, n_models: int = N_MODELS) -> dict[str, A
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(n_models):
             params, factors = within_targets(data.truth.params, rng)
-            values = {k: float(v) for k, v in nominal.values.items()}
+            # the contact's scalar values; the per-cap radii stay the robot file's
+            values = {k: float(v) for k, v in nominal.values.items() if v.numel() == 1}
             for k, f in factors.items():
                 values[k] *= f
             path = Path(tmp) / f"model{i}.json"

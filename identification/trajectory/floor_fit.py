@@ -91,7 +91,7 @@ from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
 from identification.trajectory.window_errors import better_states, windows_within
-from identification.trajectory.window_states import fit_states, forward_seeds
+from identification.trajectory.window_states import fit_states, forward_seeds, search_spins
 from identification.trajectory.windowed_fit import (
     WindowFit,
     fit_windows,
@@ -473,12 +473,15 @@ def states_at(
     """The windows' initial states (axial spins too) fitted on growing prefixes with the
     model held at ``theta``, from two seeds, each window keeping the better: its own
     state (smoothing) and one from its first samples alone
-    (:func:`~identification.trajectory.window_states.forward_seeds`). Through impacts
-    each stops in another basin in some windows, not the same ones from the two seeds
-    (the measurement is in docs/decisions.md)."""
+    (:func:`~identification.trajectory.window_states.forward_seeds`), each rod's axial
+    spin in both first searched (:func:`~identification.trajectory.window_states.search_spins`:
+    a rod rolling on its end caps spins fast about its axis, which end caps do not
+    show). Through impacts each stops in another basin in some windows, not the same
+    ones from the two seeds (the measurement is in docs/decisions.md)."""
     eng, held = vec.engine(engine, theta), held_states(vec, theta)
-    a = fit_states(eng, held, windows, iters, spin=True)
-    b = fit_states(eng, held, forward_seeds(windows, vec.axes, engine.dt), iters, spin=True)
+    a = fit_states(eng, held, search_spins(eng, held, windows), iters, spin=True)
+    b = fit_states(eng, held, search_spins(eng, held, forward_seeds(windows, vec.axes, engine.dt)),
+                   iters, spin=True)  # fmt: skip
     picked, _, best = better_states(eng, held, torch.zeros(0, dtype=theta.dtype), b.windows,
                                     a.windows)  # fmt: skip
     mse = float(best.sum()) / max(picked.residuals, 1)

@@ -1,6 +1,6 @@
 """The floor fit's window states at the true model of a drawn plant: fitted from the
 true states, and from the fit's seeds (smoothing, the window's first samples) with and
-without each rod's axial spin searched first
+without the third, smoothing with each rod's axial spin searched
 (:func:`~identification.trajectory.window_states.search_spins`).
 
 Writes the plant's data (``benchmarks/plant_family.py``, the family benchmark's share)
@@ -78,7 +78,8 @@ def main() -> int:
           f"noise {noise * 1e3:.3g} mm; end-cap RMS / noise")  # fmt: skip
     print(f"  true states: {ratio(true):.3f}")
     searched = floor_fit.search_spins
-    for name, search in (("spins searched", searched), ("no spin search", lambda e, v, w: w)):
+    for name, search in (("with the spin-searched seed", searched),
+                         ("without it", lambda e, v, w: w)):
         floor_fit.search_spins = search
         t0 = time.perf_counter()
         fit = floor_fit.states_at(data.engine, vec, theta, win, STATE_ITERS)

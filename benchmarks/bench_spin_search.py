@@ -37,8 +37,10 @@ from identification.discovery.end_cap_data import (
 from identification.discovery.floor_fits import floor_rows
 from identification.trajectory import floor_fit
 from identification.trajectory.floor_fit import STATE_ITERS, floor_contact, held_states, with_floor
+from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_errors import window_errors
-from tensegrity_env.engine import State
+from identification.trajectory.windows import Windows
+from tensegrity_env.engine import Engine, State
 
 
 def main() -> int:
@@ -70,7 +72,7 @@ def main() -> int:
     engine, held = vec.engine(data.engine, theta), held_states(vec, theta)
     n = win.window_residuals()
 
-    def ratio(w: object) -> float:
+    def ratio(w: Windows) -> float:
         sse = window_errors(engine, held, w, torch.zeros(0, dtype=torch.float64)).numpy()
         return float(np.sqrt(sse.sum() / n.sum()) / noise)
 
@@ -78,8 +80,11 @@ def main() -> int:
           f"noise {noise * 1e3:.3g} mm; end-cap RMS / noise")  # fmt: skip
     print(f"  true states: {ratio(true):.3f}")
     searched = floor_fit.search_spins
-    for name, search in (("with the spin-searched seed", searched),
-                         ("without it", lambda e, v, w: w)):
+
+    def unsearched(engine: Engine, vec: ParamVector, windows: Windows, steps: int = 0) -> Windows:
+        return windows
+
+    for name, search in (("with the spin-searched seed", searched), ("without it", unsearched)):
         floor_fit.search_spins = search
         t0 = time.perf_counter()
         fit = floor_fit.states_at(data.engine, vec, theta, win, STATE_ITERS)

@@ -96,7 +96,7 @@ from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.progress import iteration_bar
 from identification.trajectory.touchdown import TOUCH, Touchdowns, search_contact
 from identification.trajectory.window_errors import better_states, windows_within
-from identification.trajectory.window_states import fit_states, forward_seeds
+from identification.trajectory.window_states import fit_states, forward_seeds, search_spins
 from identification.trajectory.windowed_fit import (
     WindowFit,
     group_size,
@@ -486,16 +486,21 @@ def states_at(
     engine: Engine, vec: ParamVector, theta: torch.Tensor, windows: Windows, iters: int
 ) -> WindowFit:
     """The windows' initial states (axial spins too) fitted on growing prefixes with the
-    model held at ``theta``, from two seeds, each window keeping the better: its own
+    model held at ``theta``, from three seeds, each window keeping the best: its own
     state (smoothing) and one from its first samples alone
-    (:func:`~identification.trajectory.window_states.forward_seeds`). Through impacts
-    each stops in another basin in some windows, not the same ones from the two seeds
-    (the measurement is in docs/decisions.md)."""
+    (:func:`~identification.trajectory.window_states.forward_seeds`), and a third:
+    smoothing with each rod's axial spin searched
+    (:func:`~identification.trajectory.window_states.search_spins`: a rod rolling on its
+    end caps spins fast about its axis, which end caps do not show). Through impacts
+    each stops in another basin in some windows, not the same ones from each seed (the
+    measurements are in docs/decisions.md)."""
     eng, held = vec.engine(engine, theta), vec.held_at(theta)
+    empty = torch.zeros(0, dtype=theta.dtype)
     a = fit_states(eng, held, windows, iters, spin=True)
     b = fit_states(eng, held, forward_seeds(windows, vec.axes, engine.dt), iters, spin=True)
-    picked, _, best = better_states(eng, held, torch.zeros(0, dtype=theta.dtype), b.windows,
-                                    a.windows)  # fmt: skip
+    c = fit_states(eng, held, search_spins(eng, held, windows), iters, spin=True)
+    picked, _, best = better_states(eng, held, empty, b.windows, a.windows)
+    picked, _, best = better_states(eng, held, empty, c.windows, picked)
     mse = float(best.sum()) / max(picked.residuals, 1)
     return replace(a, windows=picked, history=[*a.history, mse])
 

@@ -28,14 +28,14 @@ from plant_family import draw, write_family_cell
 
 from identification.commands.declared import declared_start as file_start
 from identification.data.dataset import read_dataset
-from identification.discovery.end_cap_data import (
+from identification.trajectory import floor_fit
+from identification.trajectory.end_cap_data import (
     EndCapData,
     TrajectorySettings,
     declared_start,
     held_drag_axis,
 )
-from identification.discovery.floor_fits import floor_rows
-from identification.trajectory import floor_fit
+from identification.trajectory.floor_declared import floor_rows
 from identification.trajectory.floor_fit import STATE_ITERS, floor_contact, with_floor
 from identification.trajectory.param_vector import ParamVector
 from identification.trajectory.window_errors import window_errors

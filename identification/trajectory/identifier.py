@@ -280,7 +280,7 @@ class TrajectoryIdentifier:
             free.append(~fixed)
         return ParamVector(
             topology=topo,
-            axes=axes,
+            rod_axes=axes,
             start=torch.as_tensor(np.log(np.concatenate(values)), dtype=DTYPE),
             free=torch.as_tensor(np.concatenate(free)),
             gravity=torch.tensor(self.gravity, dtype=DTYPE),

@@ -45,7 +45,7 @@ class ParamVector:
     """
 
     topology: Topology
-    axes: RodAxes
+    rod_axes: RodAxes | None
     start: torch.Tensor
     free: torch.Tensor
     gravity: torch.Tensor
@@ -71,6 +71,21 @@ class ParamVector:
         free = torch.zeros(len(start), dtype=torch.bool)
         return cls(topology, axes, start, free, torch.as_tensor(params.gravity, dtype=DTYPE),
                    cable_sign=sign, axial=axial_per_mass(values, axes))  # fmt: skip
+
+    @classmethod
+    def coordinates_only(cls, topology: Topology, params: Params) -> ParamVector:
+        """No log-parameters and no end-cap axes: a vector for fits of effect coordinates
+        alone, the declared ``params`` held as given by the problem (rods whose end caps
+        lie off their principal axes are fine here: nothing is read from end caps)."""
+        return cls(topology, None, torch.zeros(0, dtype=DTYPE), torch.zeros(0, dtype=torch.bool),
+                   torch.as_tensor(params.gravity, dtype=DTYPE))  # fmt: skip
+
+    @property
+    def axes(self) -> RodAxes:
+        """Each rod's end-cap axis (:class:`~identification.data.end_caps.RodAxes`)."""
+        if self.rod_axes is None:
+            raise ValueError("a vector of effect coordinates alone has no end-cap axes")
+        return self.rod_axes
 
     @property
     def n_effect(self) -> int:

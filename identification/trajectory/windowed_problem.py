@@ -125,7 +125,7 @@ class WindowedProblem:
         if order != sorted(order):
             raise ValueError("free parameters must be listed in the order of their effects")
         slots = tuple(tuple(k for i, k in free if i == j) for j in range(len(effects)))
-        vec = replace(ParamVector.at(engine.topology, params),
+        vec = replace(ParamVector.coordinates_only(engine.topology, params),
                       coords=EffectCoords(tuple(effects), slots))  # fmt: skip
         return cls(engine, vec, windows, states_held=True, params=params)
 

@@ -42,7 +42,7 @@ from identification.trajectory.floor_declared import (
 from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
-from identification.trajectory.stage_check import check_stage, noise_level
+from identification.trajectory.stage_check import check_determined, check_stage, noise_level
 from tensegrity_env.effects import SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import substeps_for
@@ -54,6 +54,10 @@ from tensegrity_env.topology import Topology
 #: what to try when the fitted model leaves the data open-loop
 OPEN_LOOP_ADVICE = ("shorter windows (--window), a smaller --physics-dt, a fit on the free stretches "
                     "only (import-mocap --segments), or 'diagnose'")  # fmt: skip
+
+#: what to try when the fit leaves a parameter undetermined by the data
+UNDETERMINED_ADVICE = ("a start near the robot (--params with its MJCF or a params file), "
+                       "--effort thorough, or longer trajectories that move every rod")  # fmt: skip
 
 UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
          "rest_length": "m", "control_gain": "1", "cable_gain": "N/unit"}  # fmt: skip
@@ -233,11 +237,12 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     except InputError as e:
         raise StageError("the trajectory fit", f"{e} (not written)",
                          "an --anchor on the parameter, or longer trajectories") from None  # fmt: skip
+    rows = parameter_rows(est, anchors)
+    check_determined("the trajectory fit", rows, UNDETERMINED_ADVICE)
     check = open_loop_check(Model(dataset.topology, est.params_, tuple(effects), dt=dt), dataset,
                             noise, args.physics_dt)  # fmt: skip
     check_open_loop("the trajectory fit", check, OPEN_LOOP_ADVICE)
     ratios = est.mode_ == "ratios"
-    rows = parameter_rows(est, anchors)
     truth = read_ground_truth(args.dataset)
     truth_params = truth.params if truth is not None else None
     print(f"\nIdentified from the end caps of '{args.split}' in {fit_time:.1f} s: end-cap RMS "

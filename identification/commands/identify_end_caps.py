@@ -42,7 +42,13 @@ from identification.trajectory.floor_declared import (
 from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
-from identification.trajectory.stage_check import check_determined, check_stage, noise_level
+from identification.trajectory.stage_check import (
+    POORLY_DETERMINED,
+    check_determined,
+    check_stage,
+    noise_level,
+    undetermined,
+)
 from tensegrity_env.effects import SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import substeps_for
@@ -280,6 +286,12 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     if check is not None:
         print(check.line())
         extra["provenance"]["open_loop_check"] = check.as_dict()
+    poor = undetermined(rows, POORLY_DETERMINED)
+    if poor:
+        print(f"warning: {len(poor)} parameters poorly determined by the data (standard error "
+              f"{POORLY_DETERMINED:g} times the value or more), the worst {poor[0][0]} at "
+              f"{poor[0][1]:.3g} times: read their values with care")  # fmt: skip
+        extra["provenance"]["poorly_determined"] = dict(poor)
     physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
     if effects:
         print("\n" + "\n".join(e.describe() for e in effects))

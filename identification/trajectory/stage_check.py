@@ -12,7 +12,9 @@ springs driven to almost nothing, the rods move independently and the masses oth
 than the anchored one no longer enter the dynamics (ground contact is per kilogram), so
 they drift by any factor at the same end-cap RMS. Its standard errors say so:
 :func:`check_determined` fails a stage in which an identified mass, inertia, stiffness
-or rest length has a standard error of :data:`UNDETERMINED` times its value or more.
+or rest length has a standard error of :data:`UNDETERMINED` times its value or more;
+one from :data:`POORLY_DETERMINED` times up is written with a warning
+(:func:`undetermined` with that limit).
 """
 
 from __future__ import annotations
@@ -94,16 +96,19 @@ def check_stage(stage: str, rms: float, noise: float, advice: str) -> None:
 #: not determined by the data (zero and twice the value fit alike); good family fits stay
 #: below 0.1, the wrong ones written at the noise reach 1e2-1e4 (docs/decisions.md)
 UNDETERMINED = 1.0
+#: ... and one whose standard error reaches this multiple is written with a warning (good
+#: family fits stay below 0.11; wrong ones at the noise reach 0.3-0.7, docs/decisions.md)
+POORLY_DETERMINED = 0.25
 #: the groups :func:`check_determined` reads: the ones a written model is trusted for
 #: (a spring's damping is excluded: a small damping is legitimately barely seen)
 DETERMINED_GROUPS = ("mass", "inertia", "stiffness", "rest_length")
 
 
-def undetermined(rows: list[ParameterRow]) -> list[tuple[str, float]]:
+def undetermined(rows: list[ParameterRow], limit: float = UNDETERMINED) -> list[tuple[str, float]]:
     """The identified (or ratio) rows of :data:`DETERMINED_GROUPS` whose standard error
-    is :data:`UNDETERMINED` times their value or more (or not finite where the value is
-    not), as ``(name, stderr / |value|)``, the largest ratio first. Anchored, frozen and
-    not-identifiable rows and rows without a standard error are not judged."""
+    is ``limit`` times their value or more (infinite: a direction the data does not see),
+    as ``(name, stderr / |value|)``, the largest ratio first. Anchored, frozen and
+    not-identifiable rows and rows without a standard error (NaN) are not judged."""
     out = []
     for r in rows:
         if r.status not in ("identified", "ratio") or r.group not in DETERMINED_GROUPS:
@@ -111,7 +116,7 @@ def undetermined(rows: list[ParameterRow]) -> list[tuple[str, float]]:
         if math.isnan(r.stderr):
             continue
         ratio = abs(r.stderr) / abs(r.value) if r.value != 0 else math.inf
-        if not ratio < UNDETERMINED:
+        if not ratio < limit:
             out.append((r.name, ratio))
     return sorted(out, key=lambda x: -x[1])
 

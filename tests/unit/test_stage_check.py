@@ -74,3 +74,15 @@ def test_well_determined_and_anchored_parameters_pass() -> None:
     check_determined("the trajectory fit", rows, "")
     # a value fitted to zero with a finite error is not determined either
     assert undetermined([_row("stiffness[spring1]", "stiffness", 0.0, 1.0)])
+
+
+def test_a_poorly_determined_parameter_is_found_at_the_warning_limit() -> None:
+    from identification.trajectory.stage_check import POORLY_DETERMINED, undetermined
+
+    rows = [
+        _row("mass[rod1]", "mass", 2.0, 1.4),
+        _row("stiffness[spring0]", "stiffness", 100.0, 3.0),
+    ]
+    assert undetermined(rows) == []  # written ...
+    assert undetermined(rows, POORLY_DETERMINED) == [("mass[rod1]", 0.7)]  # ... with a warning
+    assert undetermined([_row("mass[rod1]", "mass", 2.0, float("inf"))])  # unseen: refused

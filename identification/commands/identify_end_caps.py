@@ -42,7 +42,13 @@ from identification.trajectory.floor_declared import (
 from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
-from identification.trajectory.stage_check import check_stage, noise_level
+from identification.trajectory.stage_check import (
+    POORLY_DETERMINED,
+    check_determined,
+    check_stage,
+    noise_level,
+    undetermined,
+)
 from tensegrity_env.effects import SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import substeps_for
@@ -54,6 +60,10 @@ from tensegrity_env.topology import Topology
 #: what to try when the fitted model leaves the data open-loop
 OPEN_LOOP_ADVICE = ("shorter windows (--window), a smaller --physics-dt, a fit on the free stretches "
                     "only (import-mocap --segments), or 'diagnose'")  # fmt: skip
+
+#: what to try when the fit leaves a parameter undetermined by the data
+UNDETERMINED_ADVICE = ("a start near the robot (--params with its MJCF or a params file), "
+                       "--effort thorough, or longer trajectories that move every rod")  # fmt: skip
 
 UNITS = {"mass": "kg", "inertia": "kg*m^2", "stiffness": "N/m", "damping": "N*s/m",
          "rest_length": "m", "control_gain": "1", "cable_gain": "N/unit"}  # fmt: skip
@@ -233,11 +243,12 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     except InputError as e:
         raise StageError("the trajectory fit", f"{e} (not written)",
                          "an --anchor on the parameter, or longer trajectories") from None  # fmt: skip
+    rows = parameter_rows(est, anchors)
+    check_determined("the trajectory fit", rows, UNDETERMINED_ADVICE)
     check = open_loop_check(Model(dataset.topology, est.params_, tuple(effects), dt=dt), dataset,
                             noise, args.physics_dt)  # fmt: skip
     check_open_loop("the trajectory fit", check, OPEN_LOOP_ADVICE)
     ratios = est.mode_ == "ratios"
-    rows = parameter_rows(est, anchors)
     truth = read_ground_truth(args.dataset)
     truth_params = truth.params if truth is not None else None
     print(f"\nIdentified from the end caps of '{args.split}' in {fit_time:.1f} s: end-cap RMS "
@@ -275,6 +286,12 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     if check is not None:
         print(check.line())
         extra["provenance"]["open_loop_check"] = check.as_dict()
+    poor = undetermined(rows, POORLY_DETERMINED)
+    if poor:
+        print(f"warning: {len(poor)} parameters poorly determined by the data (standard error "
+              f"{POORLY_DETERMINED:g} times the value or more), the worst {poor[0][0]} at "
+              f"{poor[0][1]:.3g} times: read their values with care")  # fmt: skip
+        extra["provenance"]["poorly_determined"] = dict(poor)
     physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
     if effects:
         print("\n" + "\n".join(e.describe() for e in effects))

@@ -6,6 +6,15 @@ measurement noise, estimated from the end caps themselves (:func:`noise_level`, 
 the spread of each rigid rod's measured length where the caps come in rod pairs): a
 stage whose end-cap RMS is not finite or exceeds :data:`DIVERGED` noise levels (and
 :data:`DIVERGED_M`) has failed, and says so in one line (:class:`StageError`).
+
+A fit can also reach the noise with parameters the data does not determine: with the
+springs driven to almost nothing, the rods move independently and the masses other
+than the anchored one no longer enter the dynamics (ground contact is per kilogram), so
+they drift by any factor at the same end-cap RMS. Its standard errors say so:
+:func:`check_determined` fails a stage in which an identified mass, inertia, stiffness
+or rest length has a standard error of :data:`UNDETERMINED` times its value or more;
+one from :data:`POORLY_DETERMINED` times up is written with a warning
+(:func:`undetermined` with that limit).
 """
 
 from __future__ import annotations
@@ -15,6 +24,7 @@ import math
 import numpy as np
 
 from identification.data.quality import MAD_TO_STD, third_difference_noise
+from identification.linear.regression import ParameterRow
 from tensegrity_env.io_utils import StageError
 
 #: a fit whose end-cap RMS exceeds this many noise levels has diverged ...
@@ -80,3 +90,44 @@ def check_stage(stage: str, rms: float, noise: float, advice: str) -> None:
             f"(limit {diverged_limit(noise) * 1e3:.3g} mm): the model diverged"
         )
         raise StageError(stage, cause, advice)
+
+
+#: an identified parameter whose standard error reaches this multiple of its value is
+#: not determined by the data (zero and twice the value fit alike); good family fits stay
+#: below 0.1, the wrong ones written at the noise reach 1e2-1e4 (docs/decisions.md)
+UNDETERMINED = 1.0
+#: ... and one whose standard error reaches this multiple is written with a warning (good
+#: family fits stay below 0.11; wrong ones at the noise reach 0.3-0.7, docs/decisions.md)
+POORLY_DETERMINED = 0.25
+#: the groups :func:`check_determined` reads: the ones a written model is trusted for
+#: (a spring's damping is excluded: a small damping is legitimately barely seen)
+DETERMINED_GROUPS = ("mass", "inertia", "stiffness", "rest_length")
+
+
+def undetermined(rows: list[ParameterRow], limit: float = UNDETERMINED) -> list[tuple[str, float]]:
+    """The identified (or ratio) rows of :data:`DETERMINED_GROUPS` whose standard error
+    is ``limit`` times their value or more (infinite: a direction the data does not see),
+    as ``(name, stderr / |value|)``, the largest ratio first. Anchored, frozen and
+    not-identifiable rows and rows without a standard error (NaN) are not judged."""
+    out = []
+    for r in rows:
+        if r.status not in ("identified", "ratio") or r.group not in DETERMINED_GROUPS:
+            continue
+        if math.isnan(r.stderr):
+            continue
+        ratio = abs(r.stderr) / abs(r.value) if r.value != 0 else math.inf
+        if not ratio < limit:
+            out.append((r.name, ratio))
+    return sorted(out, key=lambda x: -x[1])
+
+
+def check_determined(stage: str, rows: list[ParameterRow], advice: str) -> None:
+    """Raise :class:`StageError` naming ``stage`` and the worst parameter when any row of
+    ``rows`` is :func:`undetermined` by the data: a model that fits the end caps with such
+    values is not written."""
+    bad = undetermined(rows)
+    if bad:
+        name, ratio = bad[0]
+        more = f" (and {len(bad) - 1} more parameters)" if len(bad) > 1 else ""
+        raise StageError(stage, f"{name} has a standard error {ratio:.3g} times its value"
+                         f"{more}: the data does not determine it (not written)", advice)  # fmt: skip

@@ -32,3 +32,57 @@ def test_a_diverged_stage_fails_in_one_line_naming_the_stage() -> None:
     assert msg.startswith("the declared model's fit failed: ") and "\n" not in msg
     assert msg.endswith("try shorter windows")
     check_stage("x", 2e-3, 1e-3, "y")  # plausible: no error
+
+
+def _row(name: str, group: str, value: float, stderr: float, status: str = "identified"):
+    from identification.linear.regression import ParameterRow
+
+    return ParameterRow(name, group, 0, value, stderr, "1", status)
+
+
+def test_a_parameter_the_data_does_not_determine_fails_the_stage_naming_it() -> None:
+    from identification.trajectory.stage_check import check_determined, undetermined
+
+    # the masses of rods decoupled by springs fitted to almost nothing: any value fits
+    rows = [
+        _row("mass[rod0]", "mass", 2.4, float("nan"), "anchored"),
+        _row("mass[rod1]", "mass", 218.7, 3.5e4),
+        _row("mass[rod2]", "mass", 0.39, 0.71),
+        _row("stiffness[spring3]", "stiffness", 0.04, 22.3),
+        _row("damping[spring3]", "damping", 0.02, 19.5),  # damping is not judged
+    ]
+    assert [n for n, _ in undetermined(rows)] == ["stiffness[spring3]", "mass[rod1]", "mass[rod2]"]
+    with pytest.raises(StageError) as e:
+        check_determined("the trajectory fit", rows, "a start near the robot")
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("the trajectory fit failed: stiffness[spring3]")
+    assert "2 more parameters" in msg and "not written" in msg
+
+
+def test_well_determined_and_anchored_parameters_pass() -> None:
+    from identification.trajectory.stage_check import check_determined, undetermined
+
+    rows = [
+        _row("mass[rod0]", "mass", 2.4, float("nan"), "anchored"),
+        _row("mass[rod1]", "mass", 2.5, 0.04),
+        _row("stiffness[spring0]", "stiffness", 2000.0, 31.0),
+        _row("damping[spring0]", "damping", 0.5, 2.0),  # barely seen damping: not judged
+        _row("inertia[rod1,y]", "inertia", 1e-3, float("nan"), "not identifiable"),
+        _row("mass[rod2]", "mass", 2.5, 0.3, "ratio"),
+    ]
+    assert undetermined(rows) == []
+    check_determined("the trajectory fit", rows, "")
+    # a value fitted to zero with a finite error is not determined either
+    assert undetermined([_row("stiffness[spring1]", "stiffness", 0.0, 1.0)])
+
+
+def test_a_poorly_determined_parameter_is_found_at_the_warning_limit() -> None:
+    from identification.trajectory.stage_check import POORLY_DETERMINED, undetermined
+
+    rows = [
+        _row("mass[rod1]", "mass", 2.0, 1.4),
+        _row("stiffness[spring0]", "stiffness", 100.0, 3.0),
+    ]
+    assert undetermined(rows) == []  # written ...
+    assert undetermined(rows, POORLY_DETERMINED) == [("mass[rod1]", 0.7)]  # ... with a warning
+    assert undetermined([_row("mass[rod1]", "mass", 2.0, float("inf"))])  # unseen: refused

@@ -102,6 +102,10 @@ POORLY_DETERMINED = 0.25
 #: the groups :func:`check_determined` reads: the ones a written model is trusted for
 #: (a spring's damping is excluded: a small damping is legitimately barely seen)
 DETERMINED_GROUPS = ("mass", "inertia", "stiffness", "rest_length")
+#: a model is refused only where the data leaves a mass or an inertia undetermined (its
+#: dynamics are then arbitrary); a spring a take barely stretches is written with the
+#: warning (a real jump take leaves a few stiffnesses at 3-9 times their error)
+REFUSING_GROUPS = ("mass", "inertia")
 
 
 def undetermined(rows: list[ParameterRow], limit: float = UNDETERMINED) -> list[tuple[str, float]]:
@@ -122,11 +126,12 @@ def undetermined(rows: list[ParameterRow], limit: float = UNDETERMINED) -> list[
 
 
 def check_determined(stage: str, rows: list[ParameterRow], advice: str) -> None:
-    """Raise :class:`StageError` naming ``stage`` and the worst parameter when any row of
-    ``rows`` is :func:`undetermined` by the data: a model that fits the end caps with such
-    values is not written."""
+    """Raise :class:`StageError` naming ``stage`` and the worst parameter when a mass or
+    an inertia row of ``rows`` (:data:`REFUSING_GROUPS`) is :func:`undetermined` by the
+    data: a model that fits the end caps with such values is not written. Undetermined
+    stiffnesses and rest lengths alone are left to the warning (:data:`POORLY_DETERMINED`)."""
     bad = undetermined(rows)
-    if bad:
+    if any(r.group in REFUSING_GROUPS for r in rows if r.name in dict(bad)):
         name, ratio = bad[0]
         more = f" (and {len(bad) - 1} more parameters)" if len(bad) > 1 else ""
         raise StageError(stage, f"{name} has a standard error {ratio:.3g} times its value"

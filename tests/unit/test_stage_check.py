@@ -59,6 +59,21 @@ def test_a_parameter_the_data_does_not_determine_fails_the_stage_naming_it() -> 
     assert "2 more parameters" in msg and "not written" in msg
 
 
+def test_a_spring_the_take_barely_stretches_alone_is_written() -> None:
+    from identification.trajectory.stage_check import (
+        POORLY_DETERMINED,
+        check_determined,
+        undetermined,
+    )
+
+    rows = [
+        _row("mass[rod1]", "mass", 0.12, 0.002),
+        _row("stiffness[spring23]", "stiffness", 400.0, 3600.0),  # 9 x its value
+    ]
+    check_determined("the trajectory fit", rows, "")  # masses determined: written ...
+    assert undetermined(rows, POORLY_DETERMINED) == [("stiffness[spring23]", 9.0)]  # ... warned
+
+
 def test_well_determined_and_anchored_parameters_pass() -> None:
     from identification.trajectory.stage_check import check_determined, undetermined
 

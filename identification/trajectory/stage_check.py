@@ -102,10 +102,10 @@ POORLY_DETERMINED = 0.25
 #: the groups :func:`check_determined` reads: the ones a written model is trusted for
 #: (a spring's damping is excluded: a small damping is legitimately barely seen)
 DETERMINED_GROUPS = ("mass", "inertia", "stiffness", "rest_length")
-#: a model is refused only where the data leaves a mass or an inertia undetermined (its
-#: dynamics are then arbitrary); a spring a take barely stretches is written with the
-#: warning (a real jump take leaves a few stiffnesses at 3-9 times their error)
-REFUSING_GROUPS = ("mass", "inertia")
+#: a model is refused only where the data leaves a mass undetermined (the model's scale
+#: is then arbitrary); inertias and springs a take barely excites get the warning (a real
+#: jump take leaves two inertias and nine stiffnesses at 1.1-9 times their error)
+REFUSING_GROUPS = ("mass",)
 
 
 def undetermined(rows: list[ParameterRow], limit: float = UNDETERMINED) -> list[tuple[str, float]]:
@@ -126,9 +126,9 @@ def undetermined(rows: list[ParameterRow], limit: float = UNDETERMINED) -> list[
 
 
 def check_determined(stage: str, rows: list[ParameterRow], advice: str) -> None:
-    """Raise :class:`StageError` naming ``stage`` and the worst parameter when a mass or
-    an inertia row of ``rows`` (:data:`REFUSING_GROUPS`) is :func:`undetermined` by the
-    data: a model that fits the end caps with such values is not written. Undetermined
+    """Raise :class:`StageError` naming ``stage`` and the worst parameter when a mass row
+    of ``rows`` (:data:`REFUSING_GROUPS`) is :func:`undetermined` by the data: a model
+    that fits the end caps with such values is not written. Undetermined inertias,
     stiffnesses and rest lengths alone are left to the warning (:data:`POORLY_DETERMINED`)."""
     bad = undetermined(rows)
     if any(r.group in REFUSING_GROUPS for r in rows if r.name in dict(bad)):

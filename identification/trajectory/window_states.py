@@ -22,6 +22,7 @@ well above the noise.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -186,8 +187,23 @@ def search_rolls(engine: Engine, vec: ParamVector, windows: Windows, spin: bool)
     """
     spins = SPIN_GRID if spin else (0.0,)
     grid = torch.tensor([(a, s) for a in ROLL_GRID for s in spins], dtype=DTYPE)
-    G, B = len(grid), windows.size
+    B = windows.size
     eng = vec.engine(engine, torch.zeros(0, dtype=DTYPE))
+    state = best_per_rod(eng, vec, windows, len(grid), lambda many, r, axis: turned(
+        many, r, axis, grid[:, 0].repeat_interleave(B), grid[:, 1].repeat_interleave(B)))
+    return replace(windows, state=state)
+
+
+def best_per_rod(
+    eng: Engine, vec: ParamVector, windows: Windows, G: int,
+    turn: Callable[[State, int, int], State],
+) -> State:  # fmt: skip
+    """Rod by rod, the others held: ``turn(many, r, axis)`` gives G candidate states of
+    rod ``r`` (about its end-cap ``axis``) for every window of ``windows`` (G * B
+    states, candidate-major), each rolled out over the windows with ``eng`` at ``vec``'s
+    start; each window keeps its candidate with the smallest sum of squared (weighted)
+    end-cap errors. Returns the windows' states so chosen, (B,)."""
+    B = windows.size
     params = vec.params(vec.start)
     obs = windows.obs.repeat(G, 1, 1, 1)
     ctrl = None if windows.control is None else windows.control.repeat(G, 1, 1, 1)
@@ -197,17 +213,15 @@ def search_rolls(engine: Engine, vec: ParamVector, windows: Windows, spin: bool)
     state = windows.state
     for r, axis in enumerate(vec.axes.axis):
         many = State(*(x.repeat(G, *([1] * (x.dim() - 1))) for x in state.tensors()))
-        many = turned(many, r, int(axis), grid[:, 0].repeat_interleave(B),
-                      grid[:, 1].repeat_interleave(B))  # fmt: skip
+        many = turn(many, r, int(axis))
         out = eng.rollout(many, params, windows.steps, ctrl, cables)
         err = end_caps(eng, out.p, out.q) - obs
         if weights is not None:
             err = err * weights
         sse = torch.nan_to_num(err.pow(2).sum(dim=(1, 2, 3)), nan=np.inf).reshape(G, B)
-        best = sse.argmin(0)  # (B,)
-        pick = best * B + torch.arange(B)
+        pick = sse.argmin(0) * B + torch.arange(B)
         state = State(*(x[pick] for x in many.tensors()))
-    return replace(windows, state=state)
+    return state
 
 
 def rolling_spins(engine: Engine, state: State, radius: np.ndarray) -> torch.Tensor:
@@ -241,24 +255,8 @@ def search_spins(
     full, windows = windows, prefix(windows, min(steps, windows.steps))
     G, B = len(frac), windows.size
     eng = vec.engine(engine, torch.zeros(0, dtype=DTYPE))
-    params = vec.params(vec.start)
-    obs = windows.obs.repeat(G, 1, 1, 1)
-    ctrl = None if windows.control is None else windows.control.repeat(G, 1, 1, 1)
-    cables = None if windows.cables is None else windows.cables.repeat(G, 1, 1)
-    w = windows.weights()
-    weights = None if w is None else w.repeat(G, 1, 1, 1)
-    state = windows.state
-    scale = rolling_spins(eng, state, vec.axes.radius)  # (B, R)
+    scale = rolling_spins(eng, windows.state, vec.axes.radius)  # (B, R)
     zero = torch.zeros(G * B, dtype=DTYPE)
-    for r, axis in enumerate(vec.axes.axis):
-        many = State(*(x.repeat(G, *([1] * (x.dim() - 1))) for x in state.tensors()))
-        spin = torch.nan_to_num(frac.repeat_interleave(B) * scale[:, r].repeat(G))
-        many = turned(many, r, int(axis), zero, spin)
-        out = eng.rollout(many, params, windows.steps, ctrl, cables)
-        err = end_caps(eng, out.p, out.q) - obs
-        if weights is not None:
-            err = err * weights
-        sse = torch.nan_to_num(err.pow(2).sum(dim=(1, 2, 3)), nan=np.inf).reshape(G, B)
-        pick = sse.argmin(0) * B + torch.arange(B)
-        state = State(*(x[pick] for x in many.tensors()))
+    state = best_per_rod(eng, vec, windows, G, lambda many, r, axis: turned(
+        many, r, axis, zero, torch.nan_to_num(frac.repeat_interleave(B) * scale[:, r].repeat(G))))
     return replace(full, state=state)

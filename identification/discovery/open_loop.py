@@ -74,8 +74,8 @@ def keep_not_diverged(
             continue
         check = open_loop_check(cand.model.model, dataset, float(noise), physics_dt)
         if check is not None and not check.diverged:
-            which = "the declared model's fit" if k == len(result.earlier) - 1 else (
-                f"the model with {', '.join(cand.model.names) or 'no effects'}")  # fmt: skip
+            last = k == len(result.earlier) - 1
+            which = "the declared model's fit" if last else _label(cand.model.names)
             note = (f"The final model ({', '.join(result.model.names) or 'no effects'}) diverges "
                     f"open-loop ({final.line()}): written instead is the last model that does "
                     f"not, {which}: {check.line()}.")  # fmt: skip

@@ -159,7 +159,11 @@ def run(args: argparse.Namespace) -> int:
     from identification.data.sample_grid import on_nominal_grid
     from identification.discovery.choose import choose_scorer, uses_trajectories
     from identification.discovery.loop import EffectDiscovery
-    from identification.discovery.open_loop import keep_not_diverged, keep_predicting
+    from identification.discovery.open_loop import (
+        check_against_start,
+        keep_not_diverged,
+        keep_predicting,
+    )
     from identification.discovery.report import fmt_unit, ratio, write_params, write_report
     from identification.trajectory.floor_evidence import floor_evidence
 
@@ -200,6 +204,10 @@ def run(args: argparse.Namespace) -> int:
             result = keep_not_diverged(result, scorer, dataset, args.physics_dt)
             # nor one that predicts held-out motion worse than a model before it
             result = keep_predicting(result, scorer, dataset, args.physics_dt)
+            # nor one that predicts it worse at every horizon than the model it started from
+            if args.params is not None:
+                check_against_start(result, scorer, dataset, args.physics_dt,
+                                    declared_model(args.params, dataset, args.dataset))  # fmt: skip
         # nothing outside the physical domain is written (one line naming the field)
         result.model.model.params.validate(dataset.topology, "diagnose's model")
         truth = read_ground_truth(args.dataset)

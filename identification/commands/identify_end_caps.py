@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from identification.commands.declared import declared_start, no_other_effects
+from identification.commands.declared import declared_model, declared_start, no_other_effects
 from identification.commands.durations import describe, samples_of
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.data.end_caps import check_caps_seen
@@ -41,7 +41,11 @@ from identification.trajectory.floor_declared import (
 )
 from identification.trajectory.floor_evidence import FloorEvidence, contact_evidence
 from identification.trajectory.identifier import TrajectoryIdentifier
-from identification.trajectory.open_loop_check import check_open_loop, open_loop_check
+from identification.trajectory.open_loop_check import (
+    check_not_worse_than_start,
+    check_open_loop,
+    open_loop_check,
+)
 from identification.trajectory.stage_check import (
     POORLY_DETERMINED,
     check_determined,
@@ -248,6 +252,10 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     check = open_loop_check(Model(dataset.topology, est.params_, tuple(effects), dt=dt), dataset,
                             noise, args.physics_dt)  # fmt: skip
     check_open_loop("the trajectory fit", check, OPEN_LOOP_ADVICE)
+    if args.params is not None:
+        check_not_worse_than_start("the trajectory fit", Model(dataset.topology, est.params_,
+                                   tuple(effects), dt=dt), declared_model(args.params, dataset,
+                                   args.dataset), dataset, noise, args.physics_dt)  # fmt: skip
     ratios = est.mode_ == "ratios"
     truth = read_ground_truth(args.dataset)
     truth_params = truth.params if truth is not None else None

@@ -31,12 +31,14 @@ from identification.discovery.scorer import LoopScorer
 from identification.trajectory.open_loop_check import (
     HORIZONS_S,
     OpenLoopCheck,
+    check_not_worse_than_start,
     check_open_loop,
     open_loop_check,
     worse_prediction,
 )
 from identification.trajectory.stage_check import noise_level
 from tensegrity_env.io_utils import InputError
+from tensegrity_env.model import Model
 
 ADVICE = ("a fit on the free stretches only (import-mocap --segments), shorter windows "
           "(--window), or a smaller --physics-dt")  # fmt: skip
@@ -172,3 +174,20 @@ def keep_predicting(
     prefix = f"{result.open_loop} " if result.open_loop else ""
     return replace(result, model=cand.model, final_test=scorer.test_errors(cand), residual_network=None,
                    open_loop=prefix + note)  # fmt: skip
+
+
+def check_against_start(
+    result: DiscoveryResult,
+    scorer: LoopScorer[Any],
+    dataset: Dataset,
+    physics_dt: float | None,
+    start: Model,
+) -> None:
+    """Raise :class:`~tensegrity_env.io_utils.StageError` where the model to be written
+    predicts the validation split open-loop worse than the ``start`` model the user gave
+    at every horizon (:func:`~identification.trajectory.open_loop_check.check_not_worse_than_start`);
+    on recorded rod states nothing is checked (as :func:`keep_predicting`)."""
+    if any(dataset.split(s).has_states for s in dataset.splits):
+        return
+    check_not_worse_than_start("diagnose", result.model.model, start, dataset,
+                               _noise(scorer, dataset), physics_dt)  # fmt: skip

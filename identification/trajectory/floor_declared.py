@@ -51,6 +51,7 @@ from identification.trajectory.identifier import TrajectoryIdentifier
 from identification.trajectory.param_vector import ParamVector, params_values
 from identification.trajectory.stage_check import noise_level
 from identification.trajectory.window_errors import windows_within
+from identification.trajectory.windowed_fit import WindowFit
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.params import Params
@@ -149,9 +150,9 @@ def describe(tried: Sequence[tuple[float, int, float]], noise: float) -> str:
 
 def windows_from_data(
     data: EndCapData, vec: ParamVector, steps: int, count: int, noise: float
-) -> tuple[int, int, str]:
-    """Steps and count of the floor fit's first windows, chosen on the data, and a line
-    saying why.
+) -> tuple[list[tuple[int, int]], str]:
+    """Steps and count of the floor fit's first windows, chosen on the data: one choice,
+    or several to fit and compare (:func:`first_floor_fit`), and a line saying why.
 
     A window's initial state is fitted through every contact in it, and how far a
     state fit reaches depends on the motion: the faster a structure tumbles against
@@ -160,21 +161,59 @@ def windows_from_data(
     of ``steps``, halved (down to :data:`MIN_FLOOR_STEPS` samples) while the median
     window's states, fitted at the start model, stay above
     :data:`~identification.trajectory.end_cap_data.STUCK_WINDOW` times
-    the ``noise`` [m] (:func:`within`); none within it: the lowest median against its
-    length's :func:`state_fit_ratio`. The count grows as the windows shrink
-    (:func:`window_count`). At a start model far from the plant, long windows miss
-    for the model's error rather than the state's basin: :func:`floor_fit` goes on
-    to longer windows from its fit (:func:`longer_windows`).
+    the ``noise`` [m] (:func:`within`): the first length within it is the one choice.
+    Where none is, the start model's own error is what the windows show (a far-off
+    start, or a model that cannot reach the noise, as on a real robot) and the medians
+    cannot tell a stuck state from that error: every length whose median, against its
+    :func:`state_fit_ratio`, is within ``STUCK_WINDOW`` times the lowest is a choice.
+    The count grows as the windows shrink (:func:`window_count`). At a start model far
+    from the plant, long windows miss for the model's error rather than the state's
+    basin: :func:`floor_fit` goes on to longer windows from its fit
+    (:func:`longer_windows`).
     """
     tried = state_fits(data, vec, vec.theta0(), halvings(steps), count, noise)
-    best = (
-        tried[-1]
-        if within(tried[-1], noise)
-        else min(tried, key=lambda t: t[0] / state_fit_ratio(t[1]))
-    )
     why = f"median state fit at the start model: {describe(tried, noise)}"
-    share = best[2] if within(best, noise) else 1.0
-    return best[1], window_count(count, steps, best[1], share), why
+    if within(tried[-1], noise):
+        best = tried[-1]
+        return [(best[1], window_count(count, steps, best[1], best[2]))], why
+    scaled = [t[0] / state_fit_ratio(t[1]) for t in tried]
+    near = [t for t, e in zip(tried, scaled, strict=True) if e <= STUCK_WINDOW * min(scaled)]
+    return [(t[1], window_count(count, steps, t[1])) for t in near], why
+
+
+def first_floor_fit(
+    data: EndCapData,
+    vec: ParamVector,
+    choices: Sequence[tuple[int, int]],
+    longest: int,
+    count: int,
+    noise: float,
+    iters: int,
+) -> tuple[WindowFit, int]:
+    """The floor fit's first fit (:func:`~identification.trajectory.floor_fit.fit_on_floor`
+    of ``iters`` iterations from the start) on each of ``choices`` (steps, count), and
+    the steps of the one kept: the only one, else the one whose model fits the states
+    of ``count`` training windows of ``longest`` steps best (median end-cap RMS [m],
+    :func:`state_fits`; each choice's own windows' error cannot be compared across
+    lengths). Longer windows hold more of the motion between contacts, so the model
+    that carries the states furthest is the one that explains the motion, not the
+    one that fits short pieces of it.
+    """
+    fits: list[tuple[float, WindowFit, int]] = []
+    for steps, n in choices:
+        windows = data.cut("train", steps, n, 3, lift_off=n // 2)
+        w = fit_on_floor(data.engine, vec, windows, vec.theta0(), iters, log=data.log,
+                         stuck=STUCK_WINDOW * noise)  # fmt: skip
+        if len(choices) == 1:
+            return w, steps
+        judged = state_fits(data, bounded(vec, w.theta), w.theta, [longest], count, noise)[0][0]
+        data.log(f"    first fit on {n} windows of {steps} steps: median state fit on windows of "
+                 f"{longest} steps {judged * 1e3:.3g} mm")  # fmt: skip
+        fits.append((judged, w, steps))
+    judged, w, steps = min(fits, key=lambda f: f[0])
+    data.log(f"    kept the fit on windows of {steps} steps (median {judged * 1e3:.3g} mm on "
+             f"{longest} steps)")  # fmt: skip
+    return w, steps
 
 
 def longer_windows(
@@ -251,15 +290,15 @@ def floor_fit(
     longest, count0 = floor_steps(data.dt, s), s.floor_windows
     steps, count = longest, count0
     noise = noise_level(data.train.nodes, rods=True)
+    choices = [(steps, count)]
     if s.floor_window <= 0:  # not set: from the data
-        steps, count, why = windows_from_data(data, vec, longest, count0, noise)
-        data.log(f"    floor windows from the data: {count} of {steps} steps; {why}")
+        choices, why = windows_from_data(data, vec, longest, count0, noise)
+        said = " or ".join(f"{n} of {m} steps" for m, n in choices)
+        data.log(f"    floor windows from the data: {said}; {why}")
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
-             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); {count} "
-             f"windows of {steps} steps")  # fmt: skip
-    many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
-    w = fit_on_floor(data.engine, vec, many_windows, vec.theta0(), s.base_iter, log=data.log,
-                     stuck=STUCK_WINDOW * noise)  # fmt: skip
+             f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); "
+             + " or ".join(f"{n} windows of {m} steps" for m, n in choices))  # fmt: skip
+    w, steps = first_floor_fit(data, vec, choices, longest, count0, noise, s.base_iter)
     while s.floor_window <= 0 and steps < longest:  # on to longer windows from the fit
         longer = longer_windows(data, vec, w.theta, longest, steps, count0, noise)
         if longer is None:

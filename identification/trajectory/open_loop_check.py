@@ -52,6 +52,9 @@ LEAST_STEPS = 2
 #: the horizons [s] at which held-out prediction is compared between models (the ones
 #: ``benchmarks/bench_real.py`` reports)
 HORIZONS_S = (0.1, 0.25, 0.5, 1.0)
+#: what to try when a fit predicts worse than the model it started from
+WORSE_THAN_START_ADVICE = ("a fit on the free stretches only (import-mocap --segments), "
+                           "--effort thorough, or the start model as it is")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -265,3 +268,34 @@ def check_open_loop(stage: str, check: OpenLoopCheck | None, advice: str) -> Non
         raise StageError(
             stage, f"the model diverges open-loop ({check.line()}); nothing written", advice
         )
+
+
+def check_not_worse_than_start(
+    stage: str,
+    model: Model,
+    start: Model | None,
+    dataset: Dataset,
+    noise: float,
+    physics_dt: float | None,
+) -> OpenLoopCheck | None:
+    """Raise :class:`StageError` naming ``stage`` where ``model`` predicts the validation
+    split (the held-out splits where there is none) open-loop from measured states worse than the ``start`` model (the one the
+    user gave, e.g. a robot's nominal model) at every horizon of :data:`HORIZONS_S` by
+    more than the ``noise`` level [m] (:func:`worse_prediction`): such a fit has learnt
+    nothing the start did not know better, and writing it would pass a worse model off
+    as an identified one. Worse at some horizons only is a trade a fit may make, and is
+    written. Returns the start's check (None where there is no start or nothing could be
+    rolled out)."""
+    if start is None:
+        return None
+    splits = ("val",) if "val" in dataset.splits else None  # the test split stays unseen
+    new = open_loop_check(model, dataset, noise, physics_dt, splits)
+    old = open_loop_check(start, dataset, noise, physics_dt, splits)
+    if new is None or old is None:
+        return old
+    a, b = new.at(), old.at()
+    pairs = [(x, y) for x, y in zip(a, b, strict=True) if x is not None and y is not None]
+    if pairs and all(not x <= y + noise for x, y in pairs):
+        raise StageError(stage, f"the fitted model predicts worse than the start model at every "
+                         f"horizon ({worse_prediction(new, old)}); not written", WORSE_THAN_START_ADVICE)  # fmt: skip
+    return old

@@ -91,3 +91,29 @@ def test_longer_windows_are_taken_where_their_states_fit_at_the_model(rolling) -
     assert tried[-1][1] == steps and within(tried[-1], 1e-3)
     assert not any(within(t, 1e-3) for t in tried[:-1])  # the longest within is taken
     assert longer_windows(data, vec, vec.theta0(), 30, steps, 8, 1e-3) is None
+
+
+def test_near_medians_far_from_the_noise_are_each_a_choice(monkeypatch) -> None:
+    """Where no window length's state fit reaches the noise, the start model's own error
+    is what the medians show: every length within STUCK_WINDOW of the lowest (against its
+    state_fit_ratio) is fitted and compared; one that reaches the noise is the one choice."""
+    from identification.trajectory import floor_declared
+
+    def fake(medians_mm):
+        def fits(data, vec, theta, lengths, count, noise):
+            return [(m * 1e-3, n, 1.0) for m, n in zip(medians_mm, lengths, strict=True)]
+
+        return fits
+
+    vec = type("V", (), {"theta0": lambda self: None})()
+    # a real take's medians (mm) at 30, 15, 8 and 4 steps, 0.1 mm noise: all near
+    monkeypatch.setattr(floor_declared, "state_fits", fake([9.26, 8.13, 7.42, 6.3]))
+    choices, why = floor_declared.windows_from_data(None, vec, 30, 8, 1e-4)
+    assert [m for m, _ in choices] == [30, 15, 8, 4] and "6.3 mm" in why
+    assert [n for _, n in choices] == [8, 16, 30, 32]  # about the samples of 8 x 30 each
+    # a tumbling take's: the short windows far better, the only choice
+    monkeypatch.setattr(floor_declared, "state_fits", fake([36.3, 30.5, 30.1, 15.9]))
+    assert [m for m, _ in floor_declared.windows_from_data(None, vec, 30, 8, 1.4e-3)[0]] == [4]
+    # the longest within the noise: the one choice, the search stops there
+    monkeypatch.setattr(floor_declared, "state_fits", lambda *a: [(3e-3, 30, 1.0), (0.9e-3, 15, 0.75)])
+    assert floor_declared.windows_from_data(None, vec, 30, 8, 1e-3)[0] == [(15, 21)]  # 8 x 2 / 0.75

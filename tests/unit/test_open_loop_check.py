@@ -267,3 +267,36 @@ def test_a_model_outside_the_physical_domain_is_never_kept(models) -> None:
     bad = Model(ds.topology, replace(p, stiffness=p.stiffness * BLOW_UP), dt=ds.dt)
     out = keep_not_diverged(_result([bad, unphysical, good]), Scorer(), ds, 1e-3)
     assert out.model.model is good
+
+
+def test_a_fit_that_predicts_worse_than_its_start_at_every_horizon_is_not_written(cell) -> None:
+    """The true model against a start model with springs at a third of the truth: the
+    truth passes against it; that start, as a fit against the truth, is refused naming
+    the horizons; a model that is worse only at some horizons is not judged here."""
+    from identification.data.dataset import read_dataset
+    from identification.trajectory.open_loop_check import (
+        HORIZONS_S,
+        check_not_worse_than_start,
+        open_loop_check,
+    )
+    from tensegrity_env.io_utils import StageError
+    from tensegrity_env.model import Model
+
+    ds = read_dataset(cell.measured)
+    p = cell.truth.params
+    truth = Model(ds.topology, p, dt=ds.dt)
+    soft = Model(ds.topology, replace(p, stiffness=p.stiffness / 3), dt=ds.dt)
+    start_check = check_not_worse_than_start("fit", truth, soft, ds, 1e-4, 1e-3)
+    assert start_check is not None and start_check.splits == ("val",)  # the test split unseen
+    with pytest.raises(StageError) as e:
+        check_not_worse_than_start("fit", soft, truth, ds, 1e-4, 1e-3)
+    assert "predicts worse than the start model at every horizon" in str(e.value)
+    reached = [h for h, x in zip(HORIZONS_S, open_loop_check(truth, ds, 1e-4, 1e-3, ("val",)).at(),
+                                  strict=True) if x is not None]  # fmt: skip
+    assert len(reached) >= 3 and all(f"at {h:g} s" in str(e.value) or f", {h:g} s" in str(e.value)
+                                     for h in reached)  # fmt: skip
+    assert check_not_worse_than_start("fit", soft, None, ds, 1e-4, 1e-3) is None
+    # the soft model's errors as the truth's: within the noise of each other, so not worse
+    same = open_loop_check(soft, ds, 1e-4, 1e-3, ("val",))
+    assert same is not None and all(x is None or x > 1e-3 for x in same.at())
+    assert check_not_worse_than_start("fit", soft, soft, ds, 1e-4, 1e-3) is not None

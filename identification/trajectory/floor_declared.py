@@ -73,6 +73,9 @@ def floor_steps(dt: float, s: TrajectorySettings) -> int:
 MIN_FLOOR_STEPS = 4
 #: and their count raised to keep the samples fitted, by at most this factor
 MAX_WINDOW_GAIN = 4
+#: the random stream of the training windows that judge the first fits where the data has
+#: no validation split (the fits' own windows are stream 3)
+JUDGE_STREAM = 4
 #: a rod's unknowns in a window's state fit: position, orientation and their rates
 ROD_STATE = 12
 
@@ -105,8 +108,11 @@ def state_fits(
     lengths: Sequence[int],
     count: int,
     noise: float,
+    split: str = "train",
+    stream: int = 3,
 ) -> list[tuple[float, int, float]]:
-    """The median state fit [m] of ``count`` training windows of each of ``lengths``
+    """The median state fit [m] of ``count`` windows of split ``split`` (random
+    ``stream``: 3 draws the floor fit's own training windows) of each of ``lengths``
     steps (longest first) with the model held at ``theta``, the length, and the share
     of the windows whose state fit is within :data:`STUCK_WINDOW` times the ``noise``
     (the others' states are stuck: the floor fit leaves them out); it stops at
@@ -115,7 +121,7 @@ def state_fits(
     tried: list[tuple[float, int, float]] = []
     engine, held = vec.engine(data.engine, theta), vec.held_at(theta)
     for n in lengths:
-        w = data.cut("train", n, count, 3, lift_off=count // 2)
+        w = data.cut(split, n, count, stream, lift_off=count // 2)
         fit = states_at(data.engine, vec, theta, w, STATE_ITERS)
         err = windows_within(engine, held, fit.windows, torch.zeros(0, dtype=torch.float64),
                              np.inf)[1]  # fmt: skip
@@ -165,7 +171,8 @@ def windows_from_data(
     Where none is, the start model's own error is what the windows show (a far-off
     start, or a model that cannot reach the noise, as on a real robot) and the medians
     cannot tell a stuck state from that error: every length whose median, against its
-    :func:`state_fit_ratio`, is within ``STUCK_WINDOW`` times the lowest is a choice.
+    :func:`state_fit_ratio`, is within ``STUCK_WINDOW`` times the lowest is a choice
+    (the lowest first).
     The count grows as the windows shrink (:func:`window_count`). At a start model far
     from the plant, long windows miss for the model's error rather than the state's
     basin: :func:`floor_fit` goes on to longer windows from its fit
@@ -177,7 +184,8 @@ def windows_from_data(
         best = tried[-1]
         return [(best[1], window_count(count, steps, best[1], best[2]))], why
     scaled = [t[0] / state_fit_ratio(t[1]) for t in tried]
-    near = [t for t, e in zip(tried, scaled, strict=True) if e <= STUCK_WINDOW * min(scaled)]
+    order = np.argsort(scaled, kind="stable")  # the lowest first: kept on a tie
+    near = [tried[i] for i in order if scaled[i] <= STUCK_WINDOW * min(scaled)]
     return [(t[1], window_count(count, steps, t[1])) for t in near], why
 
 
@@ -193,12 +201,15 @@ def first_floor_fit(
     """The floor fit's first fit (:func:`~identification.trajectory.floor_fit.fit_on_floor`
     of ``iters`` iterations from the start) on each of ``choices`` (steps, count), and
     the steps of the one kept: the only one, else the one whose model fits the states
-    of ``count`` training windows of ``longest`` steps best (median end-cap RMS [m],
-    :func:`state_fits`; each choice's own windows' error cannot be compared across
-    lengths). Longer windows hold more of the motion between contacts, so the model
-    that carries the states furthest is the one that explains the motion, not the
-    one that fits short pieces of it.
+    of ``count`` windows of ``longest`` steps best (median end-cap RMS [m],
+    :func:`state_fits`) on the validation split, which no choice was fitted on (on
+    training windows the fits did not use where there is none; each choice's own
+    windows' error cannot be compared across lengths, and the longest choice's would be
+    judged on its own windows). Longer windows hold more of the motion between
+    contacts, so the model that carries the states furthest is the one that explains
+    the motion, not the one that fits short pieces of it.
     """
+    split, stream = ("val", 3) if "val" in data.dataset.splits else ("train", JUDGE_STREAM)
     fits: list[tuple[float, WindowFit, int]] = []
     for steps, n in choices:
         windows = data.cut("train", steps, n, 3, lift_off=n // 2)
@@ -206,13 +217,14 @@ def first_floor_fit(
                          stuck=STUCK_WINDOW * noise)  # fmt: skip
         if len(choices) == 1:
             return w, steps
-        judged = state_fits(data, bounded(vec, w.theta), w.theta, [longest], count, noise)[0][0]
-        data.log(f"    first fit on {n} windows of {steps} steps: median state fit on windows of "
-                 f"{longest} steps {judged * 1e3:.3g} mm")  # fmt: skip
-        fits.append((judged, w, steps))
+        judged = state_fits(data, bounded(vec, w.theta), w.theta, [longest], count, noise, split,
+                            stream)[0][0]  # fmt: skip
+        data.log(f"    first fit on {n} windows of {steps} steps: median state fit on {split} "
+                 f"windows of {longest} steps {judged * 1e3:.3g} mm")  # fmt: skip
+        fits.append((judged if np.isfinite(judged) else np.inf, w, steps))
     judged, w, steps = min(fits, key=lambda f: f[0])
     data.log(f"    kept the fit on windows of {steps} steps (median {judged * 1e3:.3g} mm on "
-             f"{longest} steps)")  # fmt: skip
+             f"{split} windows of {longest} steps)")  # fmt: skip
     return w, steps
 
 

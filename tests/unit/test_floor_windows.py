@@ -109,8 +109,8 @@ def test_near_medians_far_from_the_noise_are_each_a_choice(monkeypatch) -> None:
     # a real take's medians (mm) at 30, 15, 8 and 4 steps, 0.1 mm noise: all near
     monkeypatch.setattr(floor_declared, "state_fits", fake([9.26, 8.13, 7.42, 6.3]))
     choices, why = floor_declared.windows_from_data(None, vec, 30, 8, 1e-4)
-    assert [m for m, _ in choices] == [30, 15, 8, 4] and "6.3 mm" in why
-    assert [n for _, n in choices] == [8, 16, 30, 32]  # about the samples of 8 x 30 each
+    assert [m for m, _ in choices] == [4, 8, 15, 30] and "6.3 mm" in why  # the lowest first
+    assert [n for _, n in choices] == [32, 30, 16, 8]  # about the samples of 8 x 30 each
     # a tumbling take's: the short windows far better, the only choice
     monkeypatch.setattr(floor_declared, "state_fits", fake([36.3, 30.5, 30.1, 15.9]))
     assert [m for m, _ in floor_declared.windows_from_data(None, vec, 30, 8, 1.4e-3)[0]] == [4]

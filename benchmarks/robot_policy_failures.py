@@ -19,6 +19,10 @@ policy's own env arguments (its run record: model, task options), and prints
 
     python benchmarks/robot_policy_failures.py policies/pretrained/ppo_TensegritySR-v0.zip
     python benchmarks/robot_policy_failures.py runs/policies_robot/runs/s0/model.zip --episodes 100
+
+``--tipped-starts P`` starts a share P of the episodes resting on another face (the env's
+training option ``tipped_starts``; 0 by default: the task's own starts, as evaluation
+uses): how well the policy goes on from a tipped state.
 """
 
 from __future__ import annotations
@@ -86,8 +90,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=100, help="seeded episodes (default 100)")
     p.add_argument("--seed", type=int, default=1000, help="first episode seed (default 1000)")
     p.add_argument("--bands", type=int, default=4, help="goal-distance bands (default 4)")
+    p.add_argument("--tipped-starts", type=float, default=0.0,
+                   help="share of episodes starting on another face (default 0)")  # fmt: skip
     args = p.parse_args(argv)
+    if not 0.0 <= args.tipped_starts <= 1.0:
+        p.error(f"--tipped-starts {args.tipped_starts}: a share in [0, 1]")
     kwargs = env_kwargs_of(read_record(args.policy))
+    if args.tipped_starts > 0:
+        kwargs["tipped_starts"] = args.tipped_starts
     env = gym.make("TensegritySR-v0", **kwargs)
     policy = load_policy(args.policy)
     rows = np.array([episode(env, policy, args.seed + k) for k in range(args.episodes)],

@@ -11,6 +11,13 @@ in ``OUT``: weights, optimizer, normalization statistics (and SAC's replay buffe
 are restored and the timestep counter goes on from where it stopped, in the same
 TensorBoard run. The environments' and sampler's random streams are not restored,
 so a resumed run is a valid continuation, not a bitwise replay of an uninterrupted one.
+
+``train(..., init="model.zip")`` fine-tunes: a new run that starts from a trained
+policy's weights, optimizer and normalization statistics (and curriculum level), on
+environment arguments that may differ from the ones it was trained with (e.g.
+``tipped_starts``); the budget and timestep counter start from 0, the sampler is seeded
+with ``seed``, and the record keeps the policy it started from (``init``,
+``init_timesteps``).
 """
 
 from __future__ import annotations
@@ -243,6 +250,7 @@ def train(
     command: str | None = None,
     callbacks: Sequence[BaseCallback] = (),
     env_kwargs: dict[str, Any] | None = None,
+    init: str | Path | None = None,
 ) -> TrainResult:
     """Train ``algo`` on ``env_id`` into the run folder ``out``.
 
@@ -268,6 +276,8 @@ def train(
         env_kwargs: the environment's own arguments (``TensegritySR-v0``: ``model``,
             ``robot``, ``task``, task options), over the hyperparameters' ``env_kwargs``;
             recorded with the run, so evaluation builds the same env.
+        init: a trained policy (model zip) to fine-tune from (see the module
+            docstring); a run in ``out`` with a checkpoint resumes that instead.
     """
     if algo not in ALGOS:
         raise InputError(f"unknown algorithm {algo!r} (choose from {', '.join(ALGOS)})")
@@ -302,6 +312,17 @@ def train(
         goal_frame = bool(prev.get("goal_frame", hp.goal_frame))
         caps = goal_frame_caps(venv) if goal_frame else None
         model, vecnorm = resume_model(ckpt, algo, venv, tb_dir, verbose, goal_frame, caps)
+    elif init is not None:
+        init = Path(init)
+        start = read_record(init)
+        if start.get("algo", algo) != algo or start.get("env_id", env_id) != env_id:
+            raise InputError(f"{init}: was trained with {start.get('algo')} on "
+                             f"{start.get('env_id')}, not {algo} on {env_id}")  # fmt: skip
+        goal_frame = bool(start.get("goal_frame", hp.goal_frame))
+        caps = goal_frame_caps(venv) if goal_frame else None
+        model, vecnorm = resume_model(init, algo, venv, tb_dir, verbose, goal_frame, caps)
+        model.num_timesteps = 0  # a new run: its budget counts from here
+        model.set_random_seed(seed)
     else:
         goal_frame = hp.goal_frame
         caps = goal_frame_caps(venv) if goal_frame else None
@@ -327,13 +348,17 @@ def train(
         "physics_threads": threads,
         "command": command if command is not None else " ".join(sys.argv),
     }
+    if init is not None:
+        first = read_record(Path(init))
+        record.update(init=str(init), init_timesteps=int(first.get("timesteps", 0)))
     clock = Clock(before["wall_s"], before["cpu_s"])
     steps: list[BaseCallback] = [
         Checkpoint(out / "checkpoints", max(1, checkpoint_every), record, clock),
         *callbacks,
     ]
     if hp.curriculum is not None:  # near goals first (policies/curriculum.py)
-        level = int(read_record(ckpt).get("curriculum_level", 0)) if ckpt is not None else 0
+        source = ckpt if ckpt is not None else (Path(init) if init is not None else None)
+        level = int(read_record(source).get("curriculum_level", 0)) if source is not None else 0
         task = task_goal_distance(venv)
         # before learn()'s first reset, so that the first episodes draw this level's goals
         venv.env_method("set_goal_distance", *hp.curriculum.distance(level, task), indices=[0])

@@ -34,11 +34,15 @@ TARGET_ENV = "IcosahedronMJ-v0"
 TWINS = {"IcosahedronSR-v0": "IcosahedronMJ-v0", "TensegritySR-v0": "TensegrityMJ-v0"}
 #: arguments of an identified env that its twin does not take
 SOURCE_ONLY = ("model",)
+#: env arguments that shape training only: evaluation keeps the task's own starts
+TRAINING_ONLY = ("tipped_starts",)
 
 
 def env_kwargs_of(record: dict[str, Any]) -> dict[str, Any]:
-    """The environment arguments a policy was trained with (its run record's), or {}."""
-    return dict(record.get("env_kwargs") or {})
+    """The environment arguments a policy is evaluated with: those it was trained with
+    (its run record's) but the training-only ones (:data:`TRAINING_ONLY`), or {}."""
+    kw = record.get("env_kwargs") or {}
+    return {k: v for k, v in kw.items() if k not in TRAINING_ONLY}
 
 
 def twin_kwargs(kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -248,5 +252,5 @@ def train_reference(
         resume=latest_checkpoint(out) is not None,
         threads=threads,
         command=command,
-        env_kwargs=twin_kwargs(env_kwargs_of(record)),
+        env_kwargs=twin_kwargs(dict(record.get("env_kwargs") or {})),  # training's own
     )

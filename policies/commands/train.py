@@ -56,6 +56,9 @@ def register(sub: Any) -> None:
                    help="checkpoint period in env steps (default %(default)s)")  # fmt: skip
     p.add_argument("--resume", action="store_true",
                    help="continue the newest checkpoint in the run folder")  # fmt: skip
+    p.add_argument("--init", type=Path, default=None,
+                   help="fine-tune a trained policy (model.zip): start from its weights and "
+                        "statistics, the budget counted from 0, env arguments as given")  # fmt: skip
     p.add_argument("--threads", type=int, default=1,
                    help="physics threads of the batched env, 0 for every core (default 1)")  # fmt: skip
     p.add_argument("--torch-threads", type=int, default=1,
@@ -85,6 +88,11 @@ def env_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.init is not None:
+        if args.seeds is not None:
+            raise InputError("--init fine-tunes one policy: give --seed, not --seeds")
+        if not args.init.is_file():
+            raise InputError(f"--init {args.init}: no such file")
     if args.seeds is not None:
         return run_seeds(args)
     if args.workers != 1:
@@ -117,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         verbose=args.verbose,
         command=shlex.join(["tensegrity-sr", *sys.argv[1:]]),
         env_kwargs=env_kwargs(args),
+        init=args.init,
     )
     print(
         f"trained {result.timesteps:,} env steps in {result.wall_s:.0f} s: {result.model_path} "

@@ -19,8 +19,9 @@ Modules: :mod:`.task` (reset, actions, observation, reward: shared),
 :mod:`.sb3`, :mod:`.physics` (steppers; the C kernel in :mod:`tensegrity_env.native`),
 :mod:`.rendering` (MuJoCo renderer, videos), :mod:`.twin` (the ground truth);
 for any robot: :mod:`.robot_task` (sensors, goal and shape tasks),
-:mod:`.robot_physics` (its model and twin), :mod:`.robot_rollout` (its twins through
-``mujoco.rollout``), :mod:`.robot_env`, :mod:`.robot_vector`.
+:mod:`.robot_physics` (its model and twin), :mod:`.robot_faces` (the other faces it
+rests on: tipped starts), :mod:`.robot_rollout` (its twins through ``mujoco.rollout``),
+:mod:`.robot_env`, :mod:`.robot_vector`.
 """
 
 from tensegrity_env.envs.mj_env import IcosahedronMJEnv

@@ -16,6 +16,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tensegrity_env.envs.base import SceneEnv
+from tensegrity_env.envs.robot_faces import check_share, start_pose
 from tensegrity_env.envs.robot_physics import MJRobotSimulator, SRRobotSimulator
 from tensegrity_env.envs.robot_task import GoalTask, ShapeTask, make_robot_task
 from tensegrity_env.envs.task import REWARD_TERMS, check_action
@@ -43,6 +44,8 @@ class RobotSimulator(Protocol):
 
     def rest_pose(self) -> np.ndarray: ...
 
+    def tipped_poses(self) -> np.ndarray: ...
+
     def render_assembly(self) -> MjcfAssembly: ...
 
 
@@ -52,6 +55,8 @@ class RobotEnv(SceneEnv):
     Args:
         sim: the physics. task: ``"goal"`` or ``"shape"``.
         render_mode: ``"rgb_array"``, ``"human"`` or None. width, height: image size [px].
+        tipped_starts: share of episodes starting on another face
+            (:func:`~tensegrity_env.envs.robot_faces.start_pose`; 0: none).
         **options: the task's options (:func:`~tensegrity_env.envs.robot_task.make_robot_task`).
     """
 
@@ -62,9 +67,13 @@ class RobotEnv(SceneEnv):
         render_mode: str | None = None,
         width: int = 640,
         height: int = 480,
+        tipped_starts: float = 0.0,
         **options: Any,
     ) -> None:
         self.sim = sim
+        self.tipped_starts = check_share(tipped_starts)
+        # the other faces' resting poses, settled once (only where episodes start on them)
+        self.tipped = sim.tipped_poses() if self.tipped_starts > 0 else None
         self.task: GoalTask | ShapeTask = make_robot_task(task, sim.topology, sim.control_dt,
                                                           options)  # fmt: skip
         self.rest = sim.rest_pose()
@@ -92,7 +101,8 @@ class RobotEnv(SceneEnv):
         [m, m/s] and ``"target"`` (the goal (2,) [m], or the target lengths (W,) [m])."""
         super().reset(seed=seed)
         self.sim.set_state(self.rest)
-        x, target = self.task.sample_reset(self.np_random, self.rest, self.sim.get_winch())
+        pose = start_pose(self.np_random, self.tipped_starts, self.rest, self.tipped)
+        x, target = self.task.sample_reset(self.np_random, pose, self.sim.get_winch())
         options = options or {}
         R, size = self.sim.topology.n_rods, self.task.target_size()
         if "state" in options:
@@ -214,7 +224,11 @@ class TensegritySREnv(RobotEnv):
     **Reset**: the model's resting pose, settled once from the file's pose with the
     winches at rest, turned by a random yaw and perturbed; winches at their declared
     rest lengths. ``reset(options={"state": x, "winch": w, "target": g})`` sets them
-    explicitly (e.g. to start the twin in the same state).
+    explicitly (e.g. to start the twin in the same state). ``tipped_starts=p`` (a
+    training option; default 0): a share ``p`` of the episodes start instead resting on
+    one of the robot's other faces, drawn uniformly (each settled once by this env's
+    own physics: :mod:`~tensegrity_env.envs.robot_faces`), turned, perturbed and given
+    a goal around it in the same way; with 0 the resets are the task's own, bit for bit.
 
     **Bad input**: ``step`` before ``reset`` raises ``gymnasium.error.ResetNeeded``; an
     action of another shape or with NaN/infinite entries raises ``ValueError`` before
@@ -227,6 +241,7 @@ class TensegritySREnv(RobotEnv):
         task: ``"goal"`` or ``"shape"``.
         frame_skip: physics steps per action.
         render_mode, width, height: as ``IcosahedronSR-v0``.
+        tipped_starts: share of episodes starting on another face (see Reset; 0-1).
         **options: task options: goal: ``goal_distance``, ``goal_radius``,
             ``progress_weight``, ``control_weight``, ``goal_bonus``,
             ``reset_noise_scale``; shape: ``shape_range``, ``shape_tolerance``,
@@ -260,7 +275,8 @@ class TensegrityMJEnv(RobotEnv):
 
     Args:
         robot: the robot's MJCF (None: the shipped lab 3-bar).
-        task, frame_skip, render_mode, width, height, **options: as ``TensegritySR-v0``.
+        task, frame_skip, render_mode, width, height, **options: as ``TensegritySR-v0``
+            (``tipped_starts`` too: its other faces settled in MuJoCo).
     """
 
     #: what videos call this env

@@ -22,6 +22,7 @@ frame) and winch states (W, 2) (rest length [m], winding speed [m/s]) and advanc
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from tensegrity_env.engine.winch import initial_winch_state
 from tensegrity_env.envs.base import settle
 from tensegrity_env.envs.mj_env import MJPhysics, pack_mj
 from tensegrity_env.envs.physics import Backend, NativeStepper, make_stepper
+from tensegrity_env.envs.robot_faces import tipped_poses
 from tensegrity_env.envs.sr_env import ASSETS
 from tensegrity_env.io_utils import InputError
 from tensegrity_env.mjcf import MjcfAssembly, from_mjcf
@@ -151,6 +153,12 @@ class SRRobotSimulator:
         m, r = self.model_path.resolve(), self.robot_path.resolve()
         return _sr_rest(str(m), m.stat().st_mtime, str(r), r.stat().st_mtime).copy()
 
+    def tipped_poses(self) -> np.ndarray:
+        """The model resting on each of its other faces, (F, R, 13)
+        (:func:`~tensegrity_env.envs.robot_faces.tipped_poses`; cached per file pair)."""
+        m, r = self.model_path.resolve(), self.robot_path.resolve()
+        return _sr_tipped(str(m), m.stat().st_mtime, str(r), r.stat().st_mtime).copy()
+
     def render_assembly(self) -> MjcfAssembly:
         return self.asm
 
@@ -160,16 +168,35 @@ def _sr_rest(model: str, model_mtime: float, robot: str, robot_mtime: float) -> 
     """Settled with the winches at rest and no command: no cable winds, so the model is
     the same without its winch state, and the native kernel steps it where it builds."""
     sim = SRRobotSimulator(model, robot)
-    x = initial_pose(sim.asm)[None].copy()
+    result = _sr_settler(sim)(initial_pose(sim.asm))
+    if not np.all(np.isfinite(result)):
+        raise RuntimeError(f"{model}: the model diverged while settling on the floor")
+    return result
+
+
+def _sr_settler(sim: SRRobotSimulator) -> Callable[[np.ndarray], np.ndarray]:
+    """A pose (R, 13) after :data:`ROBOT_SETTLE_SECONDS` on ``sim``'s model with the
+    winches at rest and no command (one C-kernel copy where it builds)."""
     stepper = make_stepper(sim.topology, sim.params, sim.effects, sim.dt, sim.frame_skip,
                            threads=1)  # fmt: skip
     zero = np.zeros((1, sim.topology.n_rods, 3))
-    for _ in range(max(1, round(ROBOT_SETTLE_SECONDS / sim.control_dt))):
-        stepper(x, zero)
-    if not np.all(np.isfinite(x)):
-        raise RuntimeError(f"{model}: the model diverged while settling on the floor")
-    result: np.ndarray = x[0]
-    return result
+    n = max(1, round(ROBOT_SETTLE_SECONDS / sim.control_dt))
+
+    def run(x0: np.ndarray) -> np.ndarray:
+        x = x0[None].copy()
+        for _ in range(n):
+            stepper(x, zero)
+        result: np.ndarray = x[0]
+        return result
+
+    return run
+
+
+@lru_cache(maxsize=8)
+def _sr_tipped(model: str, model_mtime: float, robot: str, robot_mtime: float) -> np.ndarray:
+    sim = SRRobotSimulator(model, robot)
+    rest = _sr_rest(model, model_mtime, robot, robot_mtime)
+    return tipped_poses(sim.topology, rest, _sr_settler(sim))
 
 
 class MJRobotSimulator(MJPhysics):
@@ -204,11 +231,26 @@ class MJRobotSimulator(MJPhysics):
         p = self.xml_path.resolve()
         return _mj_rest(str(p), p.stat().st_mtime, self.frame_skip).copy()
 
+    def tipped_poses(self) -> np.ndarray:
+        """The twin resting on each of its other faces, settled in MuJoCo, (F, R, 13)
+        (:func:`~tensegrity_env.envs.robot_faces.tipped_poses`; cached per file)."""
+        p = self.xml_path.resolve()
+        return _mj_tipped(str(p), p.stat().st_mtime, self.frame_skip).copy()
+
 
 @lru_cache(maxsize=8)
 def _mj_rest(xml_path: str, mtime: float, frame_skip: int) -> np.ndarray:
     sim = MJRobotSimulator(xml_path, frame_skip)
     return settle(sim, initial_pose(sim.asm), ROBOT_SETTLE_SECONDS, np.zeros(sim.command_shape))
+
+
+@lru_cache(maxsize=8)
+def _mj_tipped(xml_path: str, mtime: float, frame_skip: int) -> np.ndarray:
+    sim = MJRobotSimulator(xml_path, frame_skip)
+    zero = np.zeros(sim.command_shape)
+    rest = _mj_rest(xml_path, mtime, frame_skip)
+    return tipped_poses(sim.topology, rest,
+                        lambda x0: settle(sim, x0, ROBOT_SETTLE_SECONDS, zero))  # fmt: skip
 
 
 class MJRobotBatch:
@@ -242,3 +284,6 @@ class MJRobotBatch:
 
     def rest_pose(self) -> np.ndarray:
         return self.sims[0].rest_pose()
+
+    def tipped_poses(self) -> np.ndarray:
+        return self.sims[0].tipped_poses()

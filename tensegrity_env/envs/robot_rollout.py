@@ -136,5 +136,8 @@ class MJRobotRollout:
     def rest_pose(self) -> np.ndarray:
         return self.base.rest_pose()
 
+    def tipped_poses(self) -> np.ndarray:
+        return self.base.tipped_poses()
+
     def close(self) -> None:
         self._pool.close()

@@ -33,6 +33,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from tensegrity_env.envs.robot_env import ROBOT_REWARD_TERMS
+from tensegrity_env.envs.robot_faces import check_share, start_pose
 from tensegrity_env.envs.robot_physics import MJRobotBatch, SRRobotSimulator
 from tensegrity_env.envs.robot_rollout import MJRobotRollout
 from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
@@ -55,11 +56,15 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     def _setup(
         self, num_envs: int, task: str, max_episode_steps: int | None, options: dict[str, Any]
     ) -> None:
-        self.task = make_robot_task(task, self.sim.topology, self.sim.control_dt, options)
+        opts = dict(options)
+        self.tipped_starts = check_share(opts.pop("tipped_starts", 0.0))
+        self.task = make_robot_task(task, self.sim.topology, self.sim.control_dt, opts)
         self.num_envs, self.max_episode_steps = int(num_envs), max_episode_steps
         self.render_mode = None
         self.metadata = {**self.metadata, "render_fps": round(1.0 / self.sim.control_dt)}
         self.rest = self.sim.rest_pose()
+        # the other faces' resting poses, settled once (only where episodes start on them)
+        self.tipped = self.sim.tipped_poses() if self.tipped_starts > 0 else None
         W = self.sim.command_shape[0]
         self.single_action_space: spaces.Box = spaces.Box(-1.0, 1.0, (W,), np.float32)
         n_obs = self.task.observation_size()
@@ -135,9 +140,9 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     def _reset_envs(self, idx: np.ndarray) -> np.ndarray:
         """Reset the envs ``idx`` (seeded draws); their observations (len(idx), n_obs)."""
         for i in idx:
-            x, self.targets[i] = self.task.sample_reset(
-                self._rngs[i], self.rest, self.sim.rest_winch
-            )
+            rng = self._rngs[i]
+            pose = start_pose(rng, self.tipped_starts, self.rest, self.tipped)
+            x, self.targets[i] = self.task.sample_reset(rng, pose, self.sim.rest_winch)
             self.sim.set_state(x, None, int(i))
         self._elapsed[idx] = 0
         obs, self._error[idx], self._centre[idx] = self.task.sense(

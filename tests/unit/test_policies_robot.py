@@ -13,7 +13,7 @@ from policies.artifacts import load_policy
 from policies.evaluate import episode_starts, evaluate
 from policies.goal_frame import to_goal_frame
 from policies.results import main as results
-from policies.transfer import transfer, twin_kwargs
+from policies.transfer import env_kwargs_of, transfer, twin_kwargs
 from tensegrity_sr.cli import main as cli
 
 #: the shipped lab 3-bar: 3 rods (6 end caps), 9 cables, 6 winches
@@ -70,6 +70,32 @@ def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
                 "--no-tensorboard", "-o", str(tmp / "runs")])  # fmt: skip
     assert code == 0
     return tmp
+
+
+def test_fine_tuning_starts_from_a_policy_on_other_env_arguments(
+    tiny_run: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    start = tiny_run / "runs" / "s0" / "model.zip"
+    doc = yaml.safe_load((tiny_run / "ppo.yml").read_text())
+    doc["TensegritySR-v0"]["env_kwargs"]["tipped_starts"] = 0.5
+    hp = tiny_run / "tipped.yml"
+    hp.write_text(yaml.safe_dump(doc))
+    args = ["train", "ppo", "--env", "TensegritySR-v0", "--task", "goal", "--timesteps", "32",
+            "--n-envs", "2", "--hyperparams", str(hp), "--no-tensorboard"]  # fmt: skip
+    assert cli([*args, "--init", str(start), "-o", str(tiny_run / "tuned")]) == 0
+    first, tuned = load_policy(start), load_policy(tiny_run / "tuned")
+    rec = tuned.record
+    assert rec["init"] == str(start) and rec["init_timesteps"] == first.record["timesteps"]
+    assert rec["timesteps"] == 32  # its own budget, counted from 0
+    assert rec["env_kwargs"]["tipped_starts"] == 0.5
+    # evaluation keeps the task's own starts
+    assert "tipped_starts" not in env_kwargs_of(rec) and env_kwargs_of(rec)["task"] == "goal"
+    # the statistics carried on from the policy's (a fresh run would count 32 steps)
+    assert first.vecnorm is not None and tuned.vecnorm is not None
+    assert tuned.vecnorm.obs_rms.count >= first.vecnorm.obs_rms.count + 32
+    # bad input: one line, exit status 2
+    assert cli([*args, "--init", str(tiny_run / "none.zip"), "-o", str(tiny_run / "x")]) == 2
+    assert "--init" in capsys.readouterr().err
 
 
 def test_generic_env_training_transfers_end_to_end(tiny_run: Path) -> None:

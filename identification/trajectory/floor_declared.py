@@ -197,9 +197,11 @@ def first_floor_fit(
     count: int,
     noise: float,
     iters: int,
+    stuck_at_start: bool = True,
 ) -> tuple[WindowFit, int]:
     """The floor fit's first fit (:func:`~identification.trajectory.floor_fit.fit_on_floor`
-    of ``iters`` iterations from the start) on each of ``choices`` (steps, count), and
+    of ``iters`` iterations from the start, ``stuck_at_start`` as there) on each of
+    ``choices`` (steps, count), and
     the steps of the one kept: the only one, else the one whose model fits the states
     of ``count`` windows of ``longest`` steps best (median end-cap RMS [m],
     :func:`state_fits`) on the validation split, which no choice was fitted on (on
@@ -214,7 +216,7 @@ def first_floor_fit(
     for steps, n in choices:
         windows = data.cut("train", steps, n, 3, lift_off=n // 2)
         w = fit_on_floor(data.engine, vec, windows, vec.theta0(), iters, log=data.log,
-                         stuck=STUCK_WINDOW * noise)  # fmt: skip
+                         stuck=STUCK_WINDOW * noise, stuck_at_start=stuck_at_start)  # fmt: skip
         if len(choices) == 1:
             return w, steps
         judged = state_fits(data, bounded(vec, w.theta), w.theta, [longest], count, noise, split,
@@ -310,7 +312,10 @@ def floor_fit(
     data.log(f"    on the floor: ground contact in the model from the start (floor height "
              f"{float(begin.values['height']) * 1e3:.1f} mm from the end caps); "
              + " or ".join(f"{n} windows of {m} steps" for m, n in choices))  # fmt: skip
-    w, steps = first_floor_fit(data, vec, choices, longest, count0, noise, s.base_iter)
+    # the regression's misfit on a window is its own error, not a stuck state
+    from_regression = start is None and values is None
+    w, steps = first_floor_fit(data, vec, choices, longest, count0, noise, s.base_iter,
+                               stuck_at_start=not from_regression)  # fmt: skip
     while s.floor_window <= 0 and steps < longest:  # on to longer windows from the fit
         longer = longer_windows(data, vec, w.theta, longest, steps, count0, noise)
         if longer is None:

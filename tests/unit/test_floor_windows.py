@@ -117,3 +117,26 @@ def test_near_medians_far_from_the_noise_are_each_a_choice(monkeypatch) -> None:
     # the longest within the noise: the one choice, the search stops there
     monkeypatch.setattr(floor_declared, "state_fits", lambda *a: [(3e-3, 30, 1.0), (0.9e-3, 15, 0.75)])
     assert floor_declared.windows_from_data(None, vec, 30, 8, 1e-3)[0] == [(15, 21)]  # 8 x 2 / 0.75
+
+
+@pytest.mark.parametrize("at_start", [True, False])
+def test_stuck_windows_are_left_out_at_the_start_only_from_a_given_model(rolling, monkeypatch,
+                                                                        at_start) -> None:  # fmt: skip
+    """At a start model from a file the windows its states cannot reach are stuck and left
+    out before the first fit; at the regression (``stuck_at_start=False``) their misfit is
+    the model's own error, and every window goes into the first fit."""
+    from identification.trajectory import floor_fit as ff
+
+    data, vec, _ = rolling
+    calls: list[int] = []
+
+    def spy(engine, vec, theta, windows, stuck, log=lambda s: None, near=False):
+        calls.append(windows.size)
+        return windows.take(np.arange(windows.size - 1))  # one left out: its fit sees fewer
+
+    monkeypatch.setattr(ff, "without_stuck", spy)
+    windows = data.cut("train", MIN_FLOOR_STEPS, 4, 3)
+    fit = ff.fit_on_floor(data.engine, vec, windows, vec.theta0(), 1, rounds=1, max_rounds=1,
+                          stuck=1.5e-3, stuck_at_start=at_start)  # fmt: skip
+    assert len(calls) == (1 if at_start else 0)
+    assert fit.windows.size == windows.size - (1 if at_start else 0)

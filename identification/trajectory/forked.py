@@ -35,11 +35,11 @@ _in_worker = False
 #: workers for the window groups of one fit (:func:`window_workers`)
 _window_jobs = 1
 #: window groups of less work than this [assembly-samples: windows x rolled-out copies x
-#: samples per window] run in the calling process: forking two workers from ``diagnose``
-#: costs about as much CPU as 1,000 of them, so a trial point's errors (one copy per
-#: window) never pay for it and a linearization's (one copy per coordinate) does
-#: (``bench_window_groups.py --trial``; docs/decisions.md)
-MIN_FORKED_WORK = 20_000
+#: samples per window] run in the calling process: forking two workers costs as much CPU
+#: as about 21,000 assembly-samples of a linearization, six times a trial point's errors
+#: on the final floor refit's windows; from here the fork adds less than a tenth
+#: (``bench_window_groups.py``; docs/decisions.md)
+MIN_FORKED_WORK = 100_000
 
 
 def usable_cores() -> int:

@@ -109,7 +109,7 @@ def test_groups_of_little_work_run_in_this_process() -> None:
         assert forked.window_jobs(forked.MIN_FORKED_WORK) == 2
         assert forked.window_jobs(forked.MIN_FORKED_WORK - 1) == 1
         assert forked.window_jobs(38 * 30) == 1  # 38 windows of 30 samples, rolled out once
-        assert forked.window_jobs(38 * 157 * 4) == 2  # their linearization on 4 samples
+        assert forked.window_jobs(38 * 157 * 30) == 2  # their linearization
 
 
 def test_a_trial_point_s_errors_fork_no_worker(monkeypatch: pytest.MonkeyPatch) -> None:

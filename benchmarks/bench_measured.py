@@ -7,7 +7,8 @@ runs ``tensegrity-sr identify`` and ``tensegrity-sr diagnose`` on it through the
 command line, and records:
 
 * whether each command succeeded, crashed (a traceback) or stopped with a message
-  (its last line), its exit code and wall time;
+  (its last line), its exit code, wall time and CPU time (user + system, its worker
+  processes included: unlike the wall time, it does not grow with other jobs' load);
 * the effects ``diagnose`` named against the planted ones;
 * relative parameter errors against the truth (masses, inertias, stiffness, damping,
   rest lengths) of both params files, and any unphysical value written;
@@ -40,6 +41,7 @@ import argparse
 import itertools
 import json
 import os
+import resource
 import shlex
 import subprocess
 import sys
@@ -75,9 +77,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str, Any]:
-    """Run ``tensegrity-sr ARGS`` in ``folder``; returns status, exit code, wall time, last line."""
+    """Run ``tensegrity-sr ARGS`` in ``folder``; returns status, exit code, wall time and
+    CPU time [s], last line."""
     cmd = [sys.executable, "-m", "tensegrity_sr.cli", *args]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    c0 = children_cpu()
     t0 = time.perf_counter()
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env,
@@ -88,6 +92,7 @@ def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str
         return {"status": "timeout", "code": None, "seconds": timeout,
                 "message": f"no result within {timeout:g} s", "command": shlex.join(args)}  # fmt: skip
     wall = time.perf_counter() - t0
+    cpu = children_cpu() - c0
     (folder / log).write_text(f"$ {shlex.join(cmd)}\n{p.stdout}\n--- stderr ---\n{p.stderr}")
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     if "Traceback (most recent call last)" in p.stderr:
@@ -98,7 +103,13 @@ def run_cli(args: list[str], folder: Path, log: str, timeout: float) -> dict[str
         status = "ok"
     message = lines[-1] if (lines and status != "ok") else ""
     return {"status": status, "code": p.returncode, "seconds": round(wall, 2),
-            "message": message, "command": shlex.join(args)}  # fmt: skip
+            "cpu_seconds": round(cpu, 2), "message": message, "command": shlex.join(args)}  # fmt: skip
+
+
+def children_cpu() -> float:
+    """User + system CPU seconds of this process's finished children (and theirs) [s]."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
 
 
 def run_cell(

@@ -425,7 +425,8 @@ def _pct(rec: dict[str, Any], group: str) -> str:
 
 def _status(run: dict[str, Any]) -> str:
     if run["status"] == "ok":
-        return f"ok {run['seconds']:.0f} s"
+        cpu = run.get("cpu_seconds")  # (recorded from a later version of the script on)
+        return f"ok {run['seconds']:.0f} s" + ("" if cpu is None else f" ({cpu:.0f} s CPU)")
     msg = run["message"].replace("|", "/")[:90]
     return f"{run['status']}: {msg}"
 
@@ -514,6 +515,9 @@ def write_markdown(results: dict[str, Any], path: Path) -> Path:
         "Errors: max |relative error| per group [%]; rollout: end-cap RMS error [mm] over the",
         "first second of the clean test trajectories from their true initial states, mean over",
         "that second, of the declared model (`identify`, before) and the diagnosed one (after).",
+        "`identify`, `diagnose`: how each command ended and its wall time, with its CPU time",
+        "(user + system, worker processes included; recorded for cells run since it was",
+        "added) in brackets: the wall time depends on the machine's load, the CPU time little.",
         "",
         "    OMP_NUM_THREADS=1 nice -n 10 python benchmarks/bench_measured.py",
         "",

@@ -56,6 +56,10 @@ class MultiStepScorer(Protocol):
 #: less than this is reported as having stayed at the last fit: on the floor its
 #: Levenberg-Marquardt steps can all be rejected where impacts make the error jump
 STILL = 1e-6
+#: the final refit stops once three iterations together lower the chi-square by less than
+#: this: on the floor benchmark's 94 windows every coordinate was then within 1e-4 of its
+#: standard error of where 60 iterations end (docs/decisions.md)
+FINAL_STALL = 1.0
 #: longest window of the final refit [s] (whole trajectories up to this long)
 FINAL_WINDOW_S = 1.0
 #: on the floor, an accepted model's joint refit that stopped at its iteration count
@@ -138,7 +142,9 @@ def final_refit(scorer: MultiStepScorer, current: Candidate[EndCapFits]) -> Cand
     :attr:`~TrajectorySettings.final_floor_windows` floor windows (selection used
     :attr:`~TrajectorySettings.floor_windows`), less those whose states stay above
     :data:`STUCK_WINDOW` times the noise level at the selected model; on drops the
-    fits stay on the airborne stretches and touchdowns. A refit that diverges, leaves
+    fits stay on the airborne stretches and touchdowns. It stops at
+    :attr:`~TrajectorySettings.final_iter` iterations, or earlier once the error stops
+    falling (:data:`FINAL_STALL`). A refit that diverges, leaves
     the physical domain or loses a standard error is not used.
     """
     data, s = scorer.data, scorer.settings
@@ -168,7 +174,7 @@ def refit(
     last = current.fit.final
     s = scorer.settings
     final = refit_many(scorer.data, last.vec, last.theta, s, s.final_iter, windows=windows,
-                     within=within, bar="final refit")  # fmt: skip
+                     within=within, bar="final refit", stall=FINAL_STALL)  # fmt: skip
     ds = scorer.dataset
     model = final.fitted_model(ds.topology, ds.dt)
     why = "diverged" if fit_diverged(final.rms, scorer.noise) else unphysical(model)

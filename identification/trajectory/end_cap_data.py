@@ -343,9 +343,11 @@ def fixed_engine(data: EndCapData, fit: TrajFit) -> tuple[Engine, ParamVector]:
 def fit_trajectory(
     data: EndCapData, vec: ParamVector, windows: Windows, theta: torch.Tensor, iters: int,
     roll: bool | None = None, progress: Callable[[float], None] | None = None,
+    stall: float | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` and the windows' states fitted; ``roll``: each rod's roll in them too
-    (None: ``data.roll``); ``progress``: see :class:`FitOptions`. The BIC counts the rolls.
+    (None: ``data.roll``); ``progress``, ``stall``: see :class:`FitOptions`. The BIC
+    counts the rolls.
     On the floor the states include each rod's axial spin
     (:mod:`identification.trajectory.floor_fit`), and a rejected step is tried shorter
     before more damping (:func:`~identification.trajectory.windowed_problem.fit`'s line search): the error jumps where an impact
@@ -354,7 +356,7 @@ def fit_trajectory(
     """
     roll = data.roll if roll is None else roll
     done = fit(WindowedProblem(data.engine, vec, windows, theta),
-               end_cap_options(data, iters, roll, progress))
+               end_cap_options(data, iters, roll, progress, stall))
     m = done.windows.residuals
     # state unknowns, not common: the rolls and (in flight) the spins that turn them
     rolls = done.windows.size * data.topology.n_rods * (1 + (not data.on_floor)) if roll else 0
@@ -364,14 +366,16 @@ def fit_trajectory(
 
 
 def end_cap_options(
-    data: EndCapData, iters: int, roll: bool, progress: Callable[[float], None] | None = None
-) -> FitOptions:
+    data: EndCapData, iters: int, roll: bool, progress: Callable[[float], None] | None = None,
+    stall: float | None = None,
+) -> FitOptions:  # fmt: skip
     """How every joint fit of the loop's models on end-cap windows is solved: ``iters``
-    iterations to a Newton decrement of 0.1; each rod's axial spin in the window states
-    on the floor and with ``roll`` (each rod's roll too); the line search on the floor
-    (see :func:`fit_trajectory`)."""
+    iterations to a Newton decrement of 0.1 (or, with ``stall``, until the error stops
+    falling); each rod's axial spin in the window states on the floor and with ``roll``
+    (each rod's roll too); the line search on the floor (see :func:`fit_trajectory`)."""
     return FitOptions(max_iter=iters, tol=0.1, spin=data.on_floor or roll, roll=roll,
-                      line_search=data.on_floor, progress=progress, log=data.log)  # fmt: skip
+                      line_search=data.on_floor, stall=stall, progress=progress,
+                      log=data.log)  # fmt: skip
 
 
 def extra_k(data: EndCapData, vec: ParamVector) -> int:

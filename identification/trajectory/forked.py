@@ -9,7 +9,9 @@ taken by its siblings. Where forking is unavailable (not Linux or macOS), or a w
 dies (out of memory), the tasks run one after the other in the calling process.
 
 How many workers the window groups of one fit get is set for a block of work with
-:func:`window_workers` (the CLI's ``--jobs``); the groups themselves depend only on the
+:func:`window_workers` (the CLI's ``--jobs``), and only groups of at least
+:data:`MIN_FORKED_WORK` go to workers (a fork costs CPU time; a trial point's errors
+are far cheaper than a fork); the groups themselves depend only on the
 fit's sizes (:func:`~identification.trajectory.windowed_fit.group_size`,
 :func:`window_groups`), so a fit's arithmetic, and its result, is the same whatever the
 number of workers.
@@ -32,6 +34,12 @@ _tasks: Sequence[Callable[[], Any]] | None = None
 _in_worker = False
 #: workers for the window groups of one fit (:func:`window_workers`)
 _window_jobs = 1
+#: window groups of less work than this [assembly-samples: windows x rolled-out copies x
+#: samples per window] run in the calling process: forking two workers costs as much CPU
+#: as about 21,000 assembly-samples of a linearization, six times a trial point's errors
+#: on the final floor refit's windows; from here the fork adds less than a tenth
+#: (``bench_window_groups.py``; docs/decisions.md)
+MIN_FORKED_WORK = 100_000
 
 
 def usable_cores() -> int:
@@ -82,9 +90,13 @@ def window_workers(jobs: int) -> Iterator[None]:
         _window_jobs = before
 
 
-def window_jobs() -> int:
-    """Workers the window groups of a fit may use here (1 inside a worker)."""
-    return 1 if _in_worker else _window_jobs
+def window_jobs(work: int | None = None) -> int:
+    """Workers the window groups of a fit may use here: 1 inside a worker, and 1 where
+    each group's ``work`` [assembly-samples: windows x rolled-out copies x samples] is
+    below :data:`MIN_FORKED_WORK` (None: large)."""
+    if _in_worker or (work is not None and work < MIN_FORKED_WORK):
+        return 1
+    return _window_jobs
 
 
 def in_worker() -> bool:

@@ -151,6 +151,7 @@ def fit_declared(
 def refit_many(
     data: EndCapData, vec: ParamVector, theta: torch.Tensor, s: TrajectorySettings, iters: int,
     windows: Windows | None = None, within: float | None = None, bar: str | None = None,
+    stall: float | None = None,
 ) -> TrajFit:  # fmt: skip
     """``vec`` refitted jointly on the many windows of the training split, from ``theta``.
 
@@ -159,7 +160,9 @@ def refit_many(
     starts in the right basin. ``within`` [m]: the windows whose states stay above this
     end-cap RMS are left out
     (:func:`~identification.trajectory.window_errors.windows_within`). ``bar``: the
-    description of a progress bar over the joint fit's iterations. With an effect
+    description of a progress bar over the joint fit's iterations. ``stall``: the joint
+    fit also stops once the error stops falling
+    (:class:`~identification.trajectory.windowed_problem.FitOptions`). With an effect
     that depends on the rods' roll about their axes (``sees_roll``: quadratic drag),
     each window's rolls are fitted too, in a second pass from the fit without them: from
     a drag still far below its value a joint fit of rolls and parameters stops in
@@ -179,14 +182,14 @@ def refit_many(
                  f"mm at the model (median {np.median(err) * 1e3:.3f}, worst "
                  f"{err.max() * 1e3:.3f} mm)")  # fmt: skip
     with iteration_bar(bar, iters) if bar else nullcontext() as tick:
-        fit = fit_trajectory(data, vec, many, theta, iters, progress=tick)
+        fit = fit_trajectory(data, vec, many, theta, iters, progress=tick, stall=stall)
     if sees_roll(engine) and not data.roll:
         # the rolls only matter once the effect is near its size: fitted from there
         t0 = time.perf_counter()
         engine = vec.engine(data.engine, fit.theta.detach())
         states = fit_states(engine, vec.held_at(fit.theta), fit.windows, s.state_iter, spin=True,
                             roll=True)  # fmt: skip
-        fit = fit_trajectory(data, vec, states.windows, fit.theta, iters, roll=True)
+        fit = fit_trajectory(data, vec, states.windows, fit.theta, iters, roll=True, stall=stall)
         data.log(f"    rolls fitted too: end-cap RMS {fit.rms * 1e3:.3f} mm "
                  f"({time.perf_counter() - t0:.0f} s)")  # fmt: skip
     fit.origin = fit.theta

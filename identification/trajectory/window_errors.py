@@ -42,9 +42,10 @@ def window_sses(
 ) -> tuple[np.ndarray, float]:  # fmt: skip
     """Each window's sum of squared end-cap errors (B,) [m^2] and their sum [m^2] (summed
     group by group), in the groups of :func:`linearize`."""
-    tasks = [partial(group_sse, engine, vec, win.take(g), basis, theta)
-             for g in window_groups(win.size, chunk)]  # fmt: skip
-    parts = side_by_side(tasks, window_jobs())
+    groups = window_groups(win.size, chunk)
+    tasks = [partial(group_sse, engine, vec, win.take(g), basis, theta) for g in groups]
+    most = max(g.stop - g.start for g in groups)
+    parts = side_by_side(tasks, window_jobs(most * win.steps))  # one rollout per window
     return np.concatenate([each for each, _ in parts]), float(sum(total for _, total in parts))
 
 

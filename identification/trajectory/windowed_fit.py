@@ -74,8 +74,10 @@ def linearize(
     groups = [win.take(g) for g in window_groups(win.size, chunk)]
     tasks = [partial(group_equations, engine, vec, part, basis, theta, step, exact_gradient)
              for part in groups]  # fmt: skip
+    # each window rolled out once and once per perturbed coordinate
+    work = max(g.size for g in groups) * (basis.shape[0] + n_g + 1) * win.steps
     for part, (ll, lg, gg, gl, gb, gt, part_sse) in zip(
-        groups, side_by_side(tasks, window_jobs()), strict=True
+        groups, side_by_side(tasks, window_jobs(work)), strict=True
     ):
         H_ll.append(ll)
         H_lg.append(lg)

@@ -156,6 +156,10 @@ class FitOptions:
         line_search: a rejected step is tried shorter before more damping, and windows
             whose error jumps are left out (see :func:`fit`).
         gate: with it, nothing is done when the first step promises less chi-square.
+        stall: with it (schur), the fit also stops once its last :data:`STALL_ITERS`
+            iterations together lowered the chi-square by less than this (the error
+            has stopped falling while the Newton decrement stays large: through
+            impacts, the Gauss-Newton model promises decreases no step can reach).
         exact_gradient: ``Jᵀr`` by reverse mode through the engine
             (:func:`~identification.trajectory.windowed_fit.linearize`).
         fd_step: forward-difference step of the dense Jacobian (free coordinates).
@@ -170,6 +174,7 @@ class FitOptions:
     roll: bool = False
     line_search: bool = False
     gate: float | None = None
+    stall: float | None = None
     exact_gradient: bool = False
     fd_step: float = 1e-4
     progress: Callable[[float], None] | None = None
@@ -194,7 +199,8 @@ def fit(problem: WindowedProblem, options: FitOptions = FitOptions()) -> WindowF
     by the engine (Nielsen's damping update, faster when the model is good). Stops
     when the full Gauss-Newton step would lower the chi-square ``sse / σ̂²`` by less
     than ``tol`` (the Newton decrement), when the RMS error reaches round-off (clean
-    data), or after ``max_iter`` iterations. With ``gate``, nothing is done when the
+    data), with ``stall`` when the last :data:`STALL_ITERS` iterations together lowered
+    the chi-square by less than ``stall``, or after ``max_iter`` iterations. With ``gate``, nothing is done when the
     first step promises less than ``gate`` (a score test: the new unknowns cannot be
     told from noise). ``line_search``: a rejected step is tried at
     :data:`LINE_FRACTIONS` of its length, the shortest error kept if lower, before
@@ -251,6 +257,7 @@ def schur_fit(problem: WindowedProblem, options: FitOptions) -> WindowFit:
         return trial, *trial_sse(engine, vec, trial, basis, theta + d_theta, chunk)
 
     now = None  # the current windows' errors (B,) [m^2], once a jump check wants them
+    gains: list[float] = []  # each iteration's chi-square decrease (``stall``)
     jumps_left = int(MAX_JUMPED * windows.size)
     for _ in range(options.max_iter if not done else 0):
         while True:
@@ -280,7 +287,7 @@ def schur_fit(problem: WindowedProblem, options: FitOptions) -> WindowFit:
                     ne = linearize(engine, vec, windows, basis, theta, chunk,
                                    exact_gradient=exact_gradient)  # fmt: skip
                     dof = max(ne.m - len(theta) - windows.size * basis.shape[0], 1)
-                    lam, nu, now = 1e-7, 2.0, None
+                    lam, nu, now, gains = 1e-7, 2.0, None, []
                     continue
             if line_search and d_z is not None and d_theta is not None:
                 shorter = [(t, *tried(t * d_z, t * d_theta)) for t in LINE_FRACTIONS]
@@ -295,17 +302,29 @@ def schur_fit(problem: WindowedProblem, options: FitOptions) -> WindowFit:
             converged = True  # no step lowers the error any more
             break
         assert d_theta is not None  # a step was taken: the loop above left with one
-        windows, theta, now = trial, theta + d_theta, None
+        windows, theta, now, before = trial, theta + d_theta, None, ne.sse
         ne = linearize(engine, vec, windows, basis, theta, chunk, exact_gradient=exact_gradient)
         _, _, newton, S = bounded_step(ne, 0.0, theta, lo, hi, hard, hold)
         history.append(ne.sse / ne.m)
         if options.progress is not None:
             options.progress(history[-1])
-        if newton < tol * ne.sse / dof or history[-1] < exact:
+        gains.append((before - ne.sse) / max(ne.sse / dof, 1e-300))
+        if newton < tol * ne.sse / dof or history[-1] < exact or stalled(gains, options.stall):
             converged = True
             break
     stderr = window_stderr(ne, S, ne.sse / dof)
     return WindowFit(theta, windows, history, stderr, score, converged, ne)
+
+
+#: ``stall``: the iterations whose chi-square decreases are summed (:func:`stalled`)
+STALL_ITERS = 3
+
+
+def stalled(gains: Sequence[float], stall: float | None) -> bool:
+    """Whether the last :data:`STALL_ITERS` of ``gains`` (each iteration's chi-square
+    decrease, oldest first) sum to less than ``stall`` (never with ``stall`` None or
+    fewer iterations)."""
+    return stall is not None and len(gains) >= STALL_ITERS and sum(gains[-STALL_ITERS:]) < stall
 
 
 #: fractions of a rejected step tried along its direction (``line_search``)

@@ -59,6 +59,19 @@ def test_a_refit_that_loses_a_standard_error_is_not_used(stderr, kept, monkeypat
     assert ("1 standard errors the last fit pinned are infinite" in lines[-1]) is not kept
 
 
+def test_the_final_refit_stops_once_its_error_stops_falling(monkeypatch) -> None:
+    """The final refit asks its joint fit to stop on :data:`refits.FINAL_STALL` (the rule
+    itself: ``test_windowed_problem.py``)."""
+    asked: list[dict] = []
+    lines: list[str] = []
+    scorer, current = _scorer(np.array([0.01, 0.02, np.inf]), monkeypatch, lines)
+    done = refits.refit_many.__call__  # the stand-in _scorer put there
+    monkeypatch.setattr(refits, "refit_many", lambda *a, **k: asked.append(k) or done())
+    refits.refit(scorer, current, SimpleNamespace(steps=30))
+    assert asked[0]["stall"] == refits.FINAL_STALL == 1.0
+    assert asked[0]["bar"] == "final refit"
+
+
 @pytest.mark.parametrize(("step", "stayed"), [(0.1, False), (1e-12, True)])
 def test_a_refit_whose_parameters_did_not_move_says_so(step, stayed, monkeypatch) -> None:
     lines: list[str] = []
@@ -105,7 +118,8 @@ def test_the_joint_refit_gets_only_the_windows_within_the_given_rms(monkeypatch)
                         lambda eng, vec, w, theta, rms: (SimpleNamespace(size=20, of=(w, rms)),
                                                          np.ones(24)))  # fmt: skip
     monkeypatch.setattr(presets, "fit_trajectory",
-                        lambda data, vec, w, theta, iters, progress=None: passed.append(w) or fitted)  # fmt: skip
+                        lambda data, vec, w, theta, iters, progress=None, stall=None:
+                        passed.append(w) or fitted)  # fmt: skip
     monkeypatch.setattr(presets, "sees_roll", lambda engine: False)
     data = SimpleNamespace(engine=None, spin=True, roll=False, log=lambda line: None)
     vec = SimpleNamespace(engine=lambda engine, theta: "engine",

@@ -152,3 +152,18 @@ def test_coverage_is_split_by_whether_the_fitted_model_holds_the_plant():
             in lines)  # fmt: skip
     assert "| flight | `diagnose` | the effects named right | 2 | 100.0 % |" in lines
     assert not any("an effect missed" in ln for ln in lines)
+
+
+def test_a_run_s_cpu_time_is_shown_beside_its_wall_time_where_recorded(tmp_path):
+    recorded = _record("none", "")
+    recorded["diagnose"] = {**recorded["diagnose"], "seconds": 387.4, "cpu_seconds": 153.3}
+    text = write_markdown({"cells": {"a": recorded}}, tmp_path / "m.md").read_text()
+    row = next(ln for ln in text.splitlines() if ln.startswith("| flight | none"))
+    assert "| ok 1 s | ok 387 s (153 s CPU) |" in row  # identify: recorded before, no CPU
+
+
+def test_run_cli_records_the_command_s_cpu_time(tmp_path):
+    import bench_measured
+
+    run = bench_measured.run_cli(["--help"], tmp_path, "help.log", timeout=120)
+    assert run["status"] == "ok" and 0 < run["cpu_seconds"] < 120

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from identification.simulation.generate import GenerateSpec, generate_dataset
-from identification.trajectory import forked
+from identification.trajectory import forked, window_errors
 from identification.trajectory.floor_fit import with_floor
 from identification.trajectory.forked import side_by_side, window_groups, window_workers
 from identification.trajectory.param_vector import ParamVector
@@ -65,7 +65,10 @@ def _floor_fit_parts():
     return Engine(topo, ds.dt), vec, windows, local_basis(vec.axes, True)
 
 
-def test_window_groups_in_workers_give_the_serial_normal_equations_exactly() -> None:
+def test_window_groups_in_workers_give_the_serial_normal_equations_exactly(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(forked, "MIN_FORKED_WORK", 0)  # these small groups go to workers too
     engine, vec, windows, basis = _floor_fit_parts()
     theta = vec.theta0() * 1.01  # away from the truth: a real residual and gradient
     chunk = 2  # 5 windows: groups of 2, 2 and 1
@@ -96,3 +99,29 @@ def test_a_worker_runs_its_own_tasks_itself() -> None:
     with window_workers(3):
         assert forked.window_jobs() == 3
     assert forked.window_jobs() == 1
+
+
+def test_groups_of_little_work_run_in_this_process() -> None:
+    """A trial point's errors (one rollout per window) stay here; a linearization's groups
+    (one rollout per coordinate too) go to the workers."""
+    with window_workers(2):
+        assert forked.window_jobs() == 2
+        assert forked.window_jobs(forked.MIN_FORKED_WORK) == 2
+        assert forked.window_jobs(forked.MIN_FORKED_WORK - 1) == 1
+        assert forked.window_jobs(38 * 30) == 1  # 38 windows of 30 samples, rolled out once
+        assert forked.window_jobs(38 * 157 * 30) == 2  # their linearization
+
+
+def test_a_trial_point_s_errors_fork_no_worker(monkeypatch: pytest.MonkeyPatch) -> None:
+    engine, vec, windows, basis = _floor_fit_parts()
+    theta = vec.theta0() * 1.01
+    asked: list[int] = []
+
+    def recorded(tasks: list, jobs: int, log: object = print) -> list:  # side_by_side, recorded
+        asked.append(jobs)
+        return [task() for task in tasks]
+
+    monkeypatch.setattr(window_errors, "side_by_side", recorded)
+    with window_workers(2):
+        window_sse(engine, vec, windows, basis, theta, 2)
+    assert asked == [1]

@@ -10,7 +10,13 @@ import pytest
 import torch
 
 from identification.trajectory.param_vector import ParamVector
-from identification.trajectory.windowed_problem import FitOptions, WindowedProblem, fit
+from identification.trajectory.windowed_problem import (
+    STALL_ITERS,
+    FitOptions,
+    WindowedProblem,
+    fit,
+    stalled,
+)
 from identification.trajectory.windows import Windows, end_caps
 from tensegrity_env.assemblies import icosahedron
 from tensegrity_env.effects import ControlLag, GroundContact
@@ -79,3 +85,34 @@ def test_an_effects_only_problem_lists_its_coordinates_in_the_effects_order() ->
     with pytest.raises(ValueError, match="order of their effects"):
         WindowedProblem.effects_only(Engine(a.topology, DT), a.params, [contact, lag],
                                      [(1, "time_constant"), (0, "friction")], problem.windows)  # fmt: skip
+
+
+def test_stalled_sums_the_last_iterations_chi_square_decreases() -> None:
+    assert STALL_ITERS == 3
+    assert not stalled([0.1, 0.1, 0.1], None)  # no rule: never
+    assert not stalled([0.1, 0.1], 1.0)  # too few iterations to say
+    assert stalled([50.0, 0.5, 0.2, 0.2], 1.0)  # the last three: 0.9
+    assert not stalled([0.5, 0.2, 0.2, 50.0], 1.0)  # still falling
+    assert not stalled([0.4, 0.3, 0.3], 1.0)  # exactly 1: not below
+
+
+def _noisy_off_start() -> WindowedProblem:
+    """:func:`_problem` with 1 mm of noise on the end caps and the stiffnesses 5 % off."""
+    problem, _ = _problem()
+    noise = np.random.default_rng(4).normal(0.0, 1e-3, problem.windows.obs.shape)
+    windows = replace(problem.windows, obs=problem.windows.obs + torch.as_tensor(noise))
+    return replace(problem, windows=windows, theta=problem.start + 0.05)
+
+
+def test_a_stall_rule_stops_a_fit_whose_error_no_longer_falls_by_it() -> None:
+    """A rule no iteration can meet stops the fit after :data:`STALL_ITERS` iterations,
+    reported as converged; a rule of 0 (an accepted step always lowers the error) leaves
+    the fit as it is without one."""
+    problem = _noisy_off_start()
+    plain = fit(problem, FitOptions(max_iter=8))
+    assert len(plain.history) - 1 > STALL_ITERS  # the rule below has something to cut
+    cut = fit(problem, FitOptions(max_iter=8, stall=float("inf")))
+    assert len(cut.history) - 1 == STALL_ITERS and cut.converged
+    assert cut.history == plain.history[: STALL_ITERS + 1]  # the same iterations until then
+    never = fit(problem, FitOptions(max_iter=8, stall=0.0))
+    assert never.history == plain.history and torch.equal(never.theta, plain.theta)

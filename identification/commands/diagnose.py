@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,6 +42,8 @@ if TYPE_CHECKING:  # the commands import torch, MuJoCo and SciPy when they run, 
     from identification.discovery.multi_step import MultiStepScorer
     from identification.discovery.one_step import OneStepScorer
     from identification.trajectory.end_cap_data import TrajectorySettings
+    from identification.trajectory.fitted_model import FittedModel
+    from tensegrity_env.params import Params
 
 #: default window lengths of the trajectory method [s]: selection (``--window``) and the
 #: accepted models' fits (``--fit-window``). A fitted initial state absorbs the linear part
@@ -190,10 +193,13 @@ def run(args: argparse.Namespace) -> int:
     names = [n for n in args.candidates.split(",") if n] or None
     bad = [n for n in names or [] if n not in EFFECT_NAMES]
     if bad:
-        raise InputError(f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECT_NAMES)})")
+        raise InputError(
+            f"--candidates: unknown effect(s) {bad} (known: {', '.join(EFFECT_NAMES)})"
+        )
     dataset, scorer = choose_scorer(raw, args.method, lambda d: one_step_scorer(args, d),
                                     lambda d: multi_step_scorer(args, d), args.smoothing)  # fmt: skip
     t0 = time.perf_counter()
+    slack: list[str] = []
     # the report is assembled in a temporary folder, moved to --output only when complete
     with atomic_dir(args.output) as out:
         loop = EffectDiscovery(scorer, args.max_effects, names, plots=out, jobs=args.jobs)
@@ -206,18 +212,24 @@ def run(args: argparse.Namespace) -> int:
             result = keep_predicting(result, scorer, dataset, args.physics_dt)
             # nor one that predicts it worse at every horizon than the model it started from
             if args.params is not None:
-                check_against_start(result, scorer, dataset, args.physics_dt,
-                                    declared_model(args.params, dataset, args.dataset))  # fmt: skip
+                declared = declared_model(args.params, dataset, args.dataset)
+                check_against_start(result, scorer, dataset, args.physics_dt, declared)
+                slack = settle_slack_springs(result, declared.params, dataset)
         # nothing outside the physical domain is written (one line naming the field)
         result.model.model.params.validate(dataset.topology, "diagnose's model")
         truth = read_ground_truth(args.dataset)
         floors = [h for e in result.model.effects if (h := e.floor_height()) is not None]
         evidence = [floor_evidence(dataset.split("train").nodes, dataset.dt, dataset.topology,
                                    h) for h in floors]  # fmt: skip
+        sections = [e.markdown() for e in evidence]
+        if slack:
+            sections.append(slack_markdown(result.model))
         report = write_report(result, out, str(args.dataset),
-                              None if truth is None else truth.effects,
-                              [e.markdown() for e in evidence])  # fmt: skip
+                              None if truth is None else truth.effects, sections)  # fmt: skip
         extra: dict[str, Any] = {"dataset": str(args.dataset)}
+        if slack:
+            extra["slack_springs"] = {k: v for k, v in result.model.notes.items()
+                                      if k.split("[", 1)[0] in SPRING_GROUPS}  # fmt: skip
         if evidence:
             extra["floor_evidence"] = evidence[0].as_dict()
         if multi_step:
@@ -225,6 +237,9 @@ def run(args: argparse.Namespace) -> int:
         extra["seconds"] = time.perf_counter() - t0
         params = write_params(result, out / "params.json", extra)
     report, params = args.output / report.name, args.output / params.name
+    if slack:
+        print(f"tension-only springs slack throughout the training data: {', '.join(slack)} "
+              "(the report's notes say what is written for them)")  # fmt: skip
     print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
     for e in result.model.effects:
         print(f"  {e.describe()}")
@@ -236,6 +251,42 @@ def run(args: argparse.Namespace) -> int:
         print(f"unexplained: {result.unexplained}")
     print(f"wrote {report} and {params}")
     return 0
+
+
+#: the parameter groups of a spring
+SPRING_GROUPS = ("stiffness", "damping", "rest_length")
+
+
+def settle_slack_springs(result: Any, declared: Params, dataset: Dataset) -> list[str]:
+    """``result``'s model (a :class:`~identification.discovery.loop.DiscoveryResult`) with
+    its tension-only springs that are slack throughout the training split settled
+    (:func:`~identification.trajectory.slack_in_data.settle_slack`): their notes join the
+    model's, their standard errors are dropped. Returns the springs' names."""
+    from identification.trajectory.slack_in_data import settle_slack
+
+    fitted = result.model
+    params, notes = settle_slack(fitted.params, declared, dataset.split("train").nodes,
+                                 dataset.topology, fitted.effects)  # fmt: skip
+    if not notes:
+        return []
+    result.model = replace(fitted, model=fitted.model.replace(params=params),
+                           notes={**fitted.notes, **notes},
+                           uncertainty={k: v for k, v in fitted.uncertainty.items()
+                                        if k not in notes})  # fmt: skip
+    return sorted({name.split("[", 1)[1][:-1] for name in notes})
+
+
+def slack_markdown(fitted: FittedModel) -> str:
+    """The report's section on the springs :func:`settle_slack_springs` settled."""
+    index = {s.name: i for i, s in enumerate(fitted.model.topology.springs)}
+    rows = []
+    for name, why in fitted.notes.items():
+        group, _, spring = name.partition("[")
+        if group in SPRING_GROUPS:
+            value = float(getattr(fitted.params, group)[index[spring[:-1]]])
+            rows.append(f"| {name} | {value:.6g} | {why} |")
+    return "\n".join(["### Tension-only springs slack throughout the data", "",
+                      "| parameter | written | why |", "|---|---|---|", *rows])  # fmt: skip
 
 
 def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer:
@@ -257,6 +308,7 @@ def one_step_scorer(args: argparse.Namespace, dataset: Dataset) -> OneStepScorer
 def window_header(dataset: Dataset, s: TrajectorySettings) -> str:
     """The windows the trajectory fits use on ``dataset``, as they will be cut (one line)."""
     from identification.trajectory.floor_declared import floor_steps, on_floor
+
     dt = dataset.dt
     if on_floor(dataset):
         floor = floor_steps(dt, s)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +45,7 @@ from identification.trajectory.open_loop_check import (
     check_open_loop,
     open_loop_check,
 )
+from identification.trajectory.slack_in_data import settle_slack
 from identification.trajectory.stage_check import (
     POORLY_DETERMINED,
     check_determined,
@@ -53,13 +53,11 @@ from identification.trajectory.stage_check import (
     noise_level,
     undetermined,
 )
-from tensegrity_env.effects import SlackSprings
 from tensegrity_env.effects.base import PhysicalEffect
 from tensegrity_env.engine import substeps_for
 from tensegrity_env.io_utils import InputError, StageError
 from tensegrity_env.model import Model
 from tensegrity_env.params import Params
-from tensegrity_env.topology import Topology
 
 #: what to try when the fitted model leaves the data open-loop
 OPEN_LOOP_ADVICE = ("shorter windows (--window), a smaller --physics-dt, a fit on the free stretches "
@@ -121,49 +119,19 @@ def parameter_rows(
     return rows
 
 
-def never_taut(
-    nodes: np.ndarray, topology: Topology, effects: list[PhysicalEffect], rest_length: np.ndarray
-) -> list[int]:
-    """The tension-only springs of ``effects`` (a declared model's ``slack_springs``)
-    between two end caps whose measured length in ``nodes`` (N, T, 2R, 3) [m] never
-    reaches ``rest_length`` (S,) [m]: slack throughout, they pull on nothing, so the data
-    holds nothing of their stiffness, damping or rest length."""
-    # narrowing to the class: only tension-only springs can be slack throughout
-    slack = [
-        int(s) for e in effects if isinstance(e, SlackSprings) for s in e.values["springs"].tolist()
-    ]
-    caps = 2 * topology.n_rods
-    out = []
-    for s in slack:
-        a, b = topology.spring_nodes[s]
-        if max(a, b) >= caps:
-            continue
-        length = np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
-        length = length[np.isfinite(length)]
-        if length.size and length.max() < rest_length[s]:
-            out.append(s)
-    return out
-
-
 def keep_declared(
     est: TrajectoryIdentifier | FloorIdentification,
     start: Params,
-    springs: list[int],
-    topology: Topology,
-) -> None:
-    """``est`` with the declared stiffness, damping and rest length of ``springs`` (slack
-    throughout the data, :func:`never_taut`) in place of the values its fit drifted to,
-    and each noted as not identifiable."""
-    p = est.params_
-    values = {k: getattr(p, k).clone() for k in ("stiffness", "damping", "rest_length")}
-    for s in springs:
-        for k, v in values.items():
-            v[s] = getattr(start, k)[s]
-            est.notes_[f"{k}[{topology.springs[s].name}]"] = (
-                "a tension-only spring slack throughout the data (never as long as its rest "
-                "length): the declared value is kept"
-            )
-    est.params_ = replace(p, **values)
+    nodes: np.ndarray,
+    effects: list[PhysicalEffect],
+) -> list[str]:
+    """``est`` with its tension-only springs that are slack throughout ``nodes``
+    (N, T, 2R, 3) [m] settled (:func:`~identification.trajectory.slack_in_data.settle_slack`)
+    and each changed parameter noted as not identifiable; returns the springs' names."""
+    topo = est.topology_
+    est.params_, notes = settle_slack(est.params_, start, nodes, topo, effects)
+    est.notes_.update(notes)
+    return sorted({name.split("[", 1)[1][:-1] for name in notes})
 
 
 def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, float]) -> int:
@@ -233,12 +201,10 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
     if start is not None:
-        slack = never_taut(split.nodes, dataset.topology, others, start.rest_length.numpy())
+        slack = keep_declared(est, start, split.nodes, others)
         if slack:
-            keep_declared(est, start, slack, dataset.topology)
             print(f"{len(slack)} tension-only springs are slack throughout the data "
-                  f"({', '.join(dataset.topology.springs[s].name for s in slack)}): their declared "
-                  "values are kept")  # fmt: skip
+                  f"({', '.join(slack)}): the table's rows say what is written for them")  # fmt: skip
     check_stage("the trajectory fit", est.rms_, noise,
                 "shorter windows (--window), a smaller --physics-dt, or 'diagnose' if the data "
                 "holds an effect the declared model lacks (contact, drag)")  # fmt: skip

@@ -1,5 +1,7 @@
-"""A declared tension-only spring that is slack throughout the data keeps its declared
-values: the fit sees nothing of it."""
+"""A tension-only spring slack throughout the data: slack at the declared model, it keeps
+the declared values (the fit sees nothing of it); slack only at the fit (rest length
+run past every measured length), it is written at its longest measured length with the
+declared stiffness and damping."""
 
 from __future__ import annotations
 
@@ -9,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from identification.commands.identify_end_caps import keep_declared, never_taut
+from identification.commands.identify_end_caps import keep_declared
 from identification.trajectory.floor_declared import FloorIdentification
+from identification.trajectory.slack_in_data import never_taut, settle_slack
 from tensegrity_env.ntrt import EXAMPLE_PRISM, from_ntrt
 
 
@@ -35,11 +38,32 @@ def test_a_cable_never_as_long_as_its_rest_length_keeps_its_declared_values(tmp_
         declared, rest_length=torch.as_tensor(rest * 1e4), stiffness=declared.stiffness * 1e6
     )
     est = FloorIdentification(drifted, topo, {}, "absolute", {}, 0.0, True, [], effects[0])
-    keep_declared(est, declared, [3], topo)
-    assert float(est.params_.rest_length[3]) == float(declared.rest_length[3])
+    declared_rest = replace(declared, rest_length=torch.as_tensor(rest))
+    # every spring's fitted rest length is past its measured lengths: 3 was slack at the
+    # start, the others only at the fit
+    names = keep_declared(est, declared_rest, nodes, effects)
+    assert names == sorted(topo.springs[s].name for s in range(topo.n_springs))
+    assert float(est.params_.rest_length[3]) == rest[3]
     assert float(est.params_.stiffness[3]) == float(declared.stiffness[3])
-    assert float(est.params_.rest_length[2]) == rest[2] * 1e4  # the others as fitted
-    assert f"rest_length[{topo.springs[3].name}]" in est.notes_
+    longest = np.nanmax(np.linalg.norm(nodes[..., topo.spring_nodes[2, 0], :]
+                                       - nodes[..., topo.spring_nodes[2, 1], :], axis=-1))  # fmt: skip
+    assert float(est.params_.rest_length[2]) == longest  # a lower bound: slack throughout
+    assert float(est.params_.stiffness[2]) == float(declared.stiffness[2])
+    assert "declared value is kept" in est.notes_[f"rest_length[{topo.springs[3].name}]"]
+    assert "longest measured length" in est.notes_[f"rest_length[{topo.springs[2].name}]"]
+
+
+def test_a_cable_taut_at_the_fit_is_left_as_fitted(tmp_path: Path) -> None:
+    (tmp_path / "prism.yaml").write_text(EXAMPLE_PRISM)
+    robot = from_ntrt(tmp_path / "prism.yaml")
+    topo, declared = robot.topology, robot.params
+    nodes = robot.rest_caps[None, None] + np.random.default_rng(2).normal(0, 1e-4, (1, 30, 6, 3))
+    effects = robot.declared_effects(ground=False)
+    fitted = replace(declared, stiffness=declared.stiffness * 1.5, damping=declared.damping * 2)
+    params, notes = settle_slack(fitted, declared, nodes, topo, effects)
+    assert notes == {}  # the NTRT prism's cables are taut at its built pose
+    assert torch.equal(params.stiffness, fitted.stiffness)
+    assert torch.equal(params.damping, fitted.damping)
 
 
 def test_diagnose_fits_the_declared_model_with_its_tension_only_springs(

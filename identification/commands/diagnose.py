@@ -265,8 +265,9 @@ def settle_slack_springs(result: Any, declared: Params, dataset: Dataset) -> lis
     from identification.trajectory.slack_in_data import settle_slack
 
     fitted = result.model
+    recorded = [s.nodes for name, s in dataset.splits.items() if name != "train"]
     params, notes = settle_slack(fitted.params, declared, dataset.split("train").nodes,
-                                 dataset.topology, fitted.effects)  # fmt: skip
+                                 dataset.topology, fitted.effects, recorded)  # fmt: skip
     if not notes:
         return []
     result.model = replace(fitted, model=fitted.model.replace(params=params),

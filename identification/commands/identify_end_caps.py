@@ -124,12 +124,14 @@ def keep_declared(
     start: Params,
     nodes: np.ndarray,
     effects: list[PhysicalEffect],
+    recorded: list[np.ndarray] | None = None,
 ) -> list[str]:
     """``est`` with its tension-only springs that are slack throughout ``nodes``
-    (N, T, 2R, 3) [m] settled (:func:`~identification.trajectory.slack_in_data.settle_slack`)
+    (N, T, 2R, 3) [m], the fitted split (``recorded``: the other splits' end caps)
+    settled (:func:`~identification.trajectory.slack_in_data.settle_slack`)
     and each changed parameter noted as not identifiable; returns the springs' names."""
     topo = est.topology_
-    est.params_, notes = settle_slack(est.params_, start, nodes, topo, effects)
+    est.params_, notes = settle_slack(est.params_, start, nodes, topo, effects, recorded or [])
     est.notes_.update(notes)
     return sorted({name.split("[", 1)[1][:-1] for name in notes})
 
@@ -201,7 +203,8 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
         ).fit(dataset, args.split)  # fmt: skip
     fit_time = time.perf_counter() - t0
     if start is not None:
-        slack = keep_declared(est, start, split.nodes, others)
+        recorded = [s.nodes for name, s in dataset.splits.items() if name != args.split]
+        slack = keep_declared(est, start, split.nodes, others, recorded)
         if slack:
             print(f"{len(slack)} tension-only springs are slack throughout the data "
                   f"({', '.join(slack)}): the table's rows say what is written for them")  # fmt: skip

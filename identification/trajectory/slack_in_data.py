@@ -9,15 +9,17 @@ stiffness, damping or rest length. Two ways it happens:
 * slack at the fit: the fit lengthened the rest length past every measured length (to
   its bound, kilometres for a robot of decimetres) because the data is better explained
   without the spring. What the data supports is a lower bound: the rest length is
-  written as the spring's longest measured length, and its stiffness and damping keep
-  the declared values.
+  written as the spring's longest length anywhere in the recording (every split, so
+  that the written model stays slack wherever the fitted one was), and its stiffness
+  and damping keep the declared values.
 
-Either way the written model pulls on nothing where the fit's model pulled on nothing,
-and nothing unphysical is written.
+Either way the written model pulls on nothing on the recorded motion where the fit's
+model pulled on nothing, and nothing unphysical is written.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -33,19 +35,23 @@ SLACK_AT_START = ("a tension-only spring slack throughout the data (never as lon
                   "length): the declared value is kept")  # fmt: skip
 
 
-def longest_lengths(nodes: np.ndarray, topology: Topology, springs: list[int]) -> np.ndarray:
+def longest_lengths(
+    nodes: np.ndarray | Sequence[np.ndarray], topology: Topology, springs: list[int]
+) -> np.ndarray:
     """(len(springs),) [m]: each spring's longest measured length in ``nodes`` (N, T, 2R, 3)
-    [m], gaps ignored (NaN where a spring is never seen or does not join two end caps)."""
+    [m] or a sequence of such arrays, gaps ignored (NaN where a spring is never seen or
+    does not join two end caps)."""
     caps = 2 * topology.n_rods
     out = np.full(len(springs), np.nan)
     for i, s in enumerate(springs):
         a, b = topology.spring_nodes[s]
         if max(a, b) >= caps:
             continue
-        length = np.linalg.norm(nodes[..., a, :] - nodes[..., b, :], axis=-1)
-        length = length[np.isfinite(length)]
-        if length.size:
-            out[i] = length.max()
+        for part in [nodes] if isinstance(nodes, np.ndarray) else nodes:
+            length = np.linalg.norm(part[..., a, :] - part[..., b, :], axis=-1)
+            length = length[np.isfinite(length)]
+            if length.size:
+                out[i] = np.fmax(out[i], length.max())
     return out
 
 
@@ -70,14 +76,16 @@ def settle_slack(
     nodes: np.ndarray,
     topology: Topology,
     effects: list[PhysicalEffect],
+    recorded: Sequence[np.ndarray] = (),
 ) -> tuple[Params, dict[str, str]]:
     """``params`` (fitted) with the tension-only springs slack throughout ``nodes``
-    (N, T, 2R, 3) [m] settled, and a note per changed parameter name (e.g.
-    ``rest_length[cable1]``) saying why.
+    (N, T, 2R, 3) [m], the fitted data, settled, and a note per changed parameter name
+    (e.g. ``rest_length[cable1]``) saying why.
 
     Springs slack at ``declared``'s rest lengths keep all three declared values; springs
-    slack only at the fitted rest lengths get their longest measured length as rest
-    length (m) and the declared stiffness (N/m) and damping (N*s/m).
+    slack only at the fitted rest lengths get their longest length in ``nodes`` and
+    ``recorded`` (the recording's other splits, each (N, T, 2R, 3) [m]) as rest length
+    (m) and the declared stiffness (N/m) and damping (N*s/m).
     """
     values = {k: getattr(params, k).clone() for k in ("stiffness", "damping", "rest_length")}
     notes: dict[str, str] = {}
@@ -87,7 +95,7 @@ def settle_slack(
     for s in at_start + at_fit:
         for k, v in values.items():
             v[s] = getattr(declared, k)[s]
-    longest = longest_lengths(nodes, topology, at_fit)
+    longest = longest_lengths([nodes, *recorded], topology, at_fit)
     for s, m in zip(at_fit, longest, strict=True):
         values["rest_length"][s] = torch.as_tensor(m, dtype=values["rest_length"].dtype)
     for s in at_start:
@@ -98,7 +106,8 @@ def settle_slack(
         fitted = float(params.rest_length[s])
         notes[f"rest_length[{name}]"] = (
             f"a tension-only spring slack throughout the data at the fit (rest length fitted "
-            f"to {fitted:.4g} m, never reached): written as its longest measured length, "
+            f"to {fitted:.4g} m, never reached): written as its longest length in the "
+            f"recording, "
             f"{m:.4g} m, a lower bound")  # fmt: skip
         for k in ("stiffness", "damping"):
             notes[f"{k}[{name}]"] = ("a tension-only spring slack throughout the data at the "

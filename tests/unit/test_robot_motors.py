@@ -64,8 +64,9 @@ def test_a_held_target_drives_each_winch_there(env_id: str) -> None:
 def test_identified_env_and_twin_agree_with_targets() -> None:
     """The default model is the robot file's own parameters: the same motors and rods,
     so the same commands and states (to round-off) under the same random targets."""
-    sr, mj = gym.make("TensegritySR-v0", motor_targets=True), gym.make(
-        "TensegrityMJ-v0", motor_targets=True
+    sr, mj = (
+        gym.make("TensegritySR-v0", motor_targets=True),
+        gym.make("TensegrityMJ-v0", motor_targets=True),
     )
     sr.reset(seed=5)
     u = sr.unwrapped

@@ -17,6 +17,7 @@ from gymnasium import spaces
 
 from tensegrity_env.envs.base import SceneEnv
 from tensegrity_env.envs.robot_faces import check_share, start_pose
+from tensegrity_env.envs.robot_motors import MotorTargets, check_flag
 from tensegrity_env.envs.robot_physics import MJRobotSimulator, SRRobotSimulator
 from tensegrity_env.envs.robot_task import GoalTask, ShapeTask, make_robot_task
 from tensegrity_env.envs.task import REWARD_TERMS, check_action
@@ -33,6 +34,7 @@ class RobotSimulator(Protocol):
     topology: Topology
     control_dt: float
     command_shape: tuple[int]
+    asm: MjcfAssembly
 
     def set_state(self, x: np.ndarray, winch: np.ndarray | None = None) -> None: ...
 
@@ -57,6 +59,8 @@ class RobotEnv(SceneEnv):
         render_mode: ``"rgb_array"``, ``"human"`` or None. width, height: image size [px].
         tipped_starts: share of episodes starting on another face
             (:func:`~tensegrity_env.envs.robot_faces.start_pose`; 0: none).
+        motor_targets: actions are target rest lengths, turned into motor commands by
+            :class:`~tensegrity_env.envs.robot_motors.MotorTargets` (False: commands).
         **options: the task's options (:func:`~tensegrity_env.envs.robot_task.make_robot_task`).
     """
 
@@ -68,9 +72,13 @@ class RobotEnv(SceneEnv):
         width: int = 640,
         height: int = 480,
         tipped_starts: float = 0.0,
+        motor_targets: bool = False,
         **options: Any,
     ) -> None:
         self.sim = sim
+        # the robot's own motor controller where actions are targets (None: commands)
+        self.motors = (MotorTargets.of(sim.asm.params, sim.control_dt)
+                       if check_flag(motor_targets) else None)  # fmt: skip
         self.tipped_starts = check_share(tipped_starts)
         # the other faces' resting poses, settled once (only where episodes start on them)
         self.tipped = sim.tipped_poses() if self.tipped_starts > 0 else None
@@ -124,6 +132,8 @@ class RobotEnv(SceneEnv):
             raise gym.error.ResetNeeded("call reset() before step()")
         a = check_action(action, self.action_space.shape, "one command per motor")
         command = np.minimum(np.maximum(a, -1.0), 1.0)  # np.clip's values, in fewer calls
+        if self.motors is not None:  # a target: the speed command that goes there
+            command = self.motors.commands(command, self.winch[:, 0])
         self.sim.step(command)
         x = self.sim.get_state()
         if not np.isfinite(x).all():
@@ -192,7 +202,12 @@ class TensegritySREnv(RobotEnv):
 
     **Action space** ``Box(-1, 1, (W,), float32)``: the motor command of each winch, in
     the file's winch order: the cable's rest length changes at ``u * v_max`` [m/s]
-    (through the motor lag), within its range.
+    (through the motor lag), within its range. With ``motor_targets=True`` each action
+    is instead a target rest length within the winch's range (-1: ``l_min``, +1:
+    ``l_max``), and the env's motor controller sends the motor the speed command
+    ``u = clip((target - l0) / (v_max * dt), -1, 1)`` each control step ``dt``
+    (:mod:`~tensegrity_env.envs.robot_motors`; the robot file's declared ``v_max`` and
+    range, in both envs); rewards charge ``u``.
 
     **Observation space** ``Box(-inf, inf, (6R + 1 + S + W + k,), float32)``: what the
     robot's sensors and a camera give (never rod velocities or orientations):
@@ -242,6 +257,8 @@ class TensegritySREnv(RobotEnv):
         frame_skip: physics steps per action.
         render_mode, width, height: as ``IcosahedronSR-v0``.
         tipped_starts: share of episodes starting on another face (see Reset; 0-1).
+        motor_targets: actions are target rest lengths (see Action space; default
+            False: motor commands).
         **options: task options: goal: ``goal_distance``, ``goal_radius``,
             ``progress_weight``, ``control_weight``, ``goal_bonus``,
             ``reset_noise_scale``; shape: ``shape_range``, ``shape_tolerance``,

@@ -34,6 +34,7 @@ from gymnasium.vector.utils import batch_space
 
 from tensegrity_env.envs.robot_env import ROBOT_REWARD_TERMS
 from tensegrity_env.envs.robot_faces import check_share, start_pose
+from tensegrity_env.envs.robot_motors import MotorTargets, check_flag
 from tensegrity_env.envs.robot_physics import MJRobotBatch, SRRobotSimulator
 from tensegrity_env.envs.robot_rollout import MJRobotRollout
 from tensegrity_env.envs.robot_task import GoalTask, make_robot_task
@@ -58,6 +59,9 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
     ) -> None:
         opts = dict(options)
         self.tipped_starts = check_share(opts.pop("tipped_starts", 0.0))
+        # the robot's own motor controller where actions are targets (None: commands)
+        self.motors = (MotorTargets.of(self.sim.asm.params, self.sim.control_dt)
+                       if check_flag(opts.pop("motor_targets", False)) else None)  # fmt: skip
         self.task = make_robot_task(task, self.sim.topology, self.sim.control_dt, opts)
         self.num_envs, self.max_episode_steps = int(num_envs), max_episode_steps
         self.render_mode = None
@@ -98,6 +102,8 @@ class RobotVectorEnv(VectorEnv[np.ndarray, np.ndarray, np.ndarray]):
         a = check_action(actions, (self.num_envs, *self.single_action_space.shape),
                          "one command per motor")  # fmt: skip
         commands = np.clip(a, -1.0, 1.0)
+        if self.motors is not None:  # targets: the speed commands that go there
+            commands = self.motors.commands(commands, self.sim.winch[..., 0])
         self.sim.step_batch(commands)
         x = self.sim.x
         bad = ~np.isfinite(x).all(axis=(1, 2))

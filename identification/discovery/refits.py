@@ -30,6 +30,7 @@ from identification.trajectory.floor_declared import (
     adopt_floor_fit,
     floor_fit,
     floor_steps,
+    longer_windows,
 )
 from identification.trajectory.forked import side_by_side
 from identification.trajectory.presets import refit_many
@@ -152,13 +153,31 @@ def final_refit(scorer: MultiStepScorer, current: Candidate[EndCapFits]) -> Cand
         count = s.final_floor_windows
         if count <= s.floor_windows:
             return current
-        steps = s.final_floor_window or data.floor_steps or floor_steps(data.dt, s)
+        steps = s.final_floor_window or final_floor_steps(scorer, current)
         windows = data.cut("train", steps, count, 5, lift_off=count // 2)
         return refit(scorer, current, windows, within=STUCK_WINDOW * scorer.noise)
     if contact_gate(data.train, data.topology)[0]:
         return current
     steps = max(2, min(round(FINAL_WINDOW_S / data.dt), data.train.n_transitions))
     return refit(scorer, current, data.cut("train", steps, sys.maxsize, 4))
+
+
+def final_floor_steps(scorer: MultiStepScorer, current: Candidate[EndCapFits]) -> int:
+    """Steps of the final refit's floor windows: those the floor fit ended on, or longer
+    ones where the final model carries their states
+    (:func:`~identification.trajectory.floor_declared.longer_windows`): the model with
+    its effects often fits windows the declared model could not, and longer windows pin
+    the parameters better."""
+    data, s = scorer.data, scorer.settings
+    longest = floor_steps(data.dt, s)
+    now = data.floor_steps or longest
+    last = current.fit.final
+    longer = longer_windows(data, last.vec, last.theta, longest, now, s.floor_windows,
+                            scorer.noise)  # fmt: skip
+    if longer is None:
+        return now
+    scorer.log(f"    final refit windows from the model: {longer[0]} steps; {longer[2]}")
+    return longer[0]
 
 
 def refit(

@@ -73,6 +73,13 @@ def floor_steps(dt: float, s: TrajectorySettings) -> int:
 MIN_FLOOR_STEPS = 4
 #: and their count raised to keep the samples fitted, by at most this factor
 MAX_WINDOW_GAIN = 4
+#: the share of longer windows whose states must fit (not stuck) for the floor fit to
+#: go on to them: the fit leaves the stuck ones out, and half of them still carry it
+USABLE_SHARE = 0.5
+#: the share of the next longer windows whose states must fit for the floor fit to step
+#: up to them when no longer length reaches :data:`USABLE_SHARE` (a continuation: the fit
+#: there brings the model near enough for the next)
+NEXT_SHARE = 0.25
 #: the random stream of the training windows that judge the first fits where the data has
 #: no validation split (the fits' own windows are stream 3)
 JUDGE_STREAM = 4
@@ -149,7 +156,9 @@ def window_count(count: int, steps: int, n: int, share: float = 1.0) -> int:
 def describe(tried: Sequence[tuple[float, int, float]], noise: float) -> str:
     """The state fits tried, longest first, against the noise [m], and the share of
     windows within of the last."""
-    why = ", ".join(f"{m:d} steps {e * 1e3:.3g} mm" for e, m, _ in sorted(tried, key=lambda x: -x[1]))
+    why = ", ".join(
+        f"{m:d} steps {e * 1e3:.3g} mm" for e, m, _ in sorted(tried, key=lambda x: -x[1])
+    )
     share = f"; {100 * tried[-1][2]:.0f} % of the windows within {STUCK_WINDOW:g} of it"
     return f"{why} (noise {noise * 1e3:.3g} mm{share if within(tried[-1], noise) else ''})"
 
@@ -239,21 +248,31 @@ def longer_windows(
     count: int,
     noise: float,
 ) -> tuple[int, int, str] | None:
-    """Windows longer than ``now`` steps (of ``steps`` and its :func:`halvings`) whose
-    median state fit at the fitted model ``theta`` is :func:`within` the ``noise`` [m]:
-    their steps, count (:func:`window_count` of ``count`` of ``steps``) and a line saying
-    why; None where none is. Longer windows span more of the motion between contacts,
-    which pins the parameters' scale that a few samples cannot."""
+    """Windows longer than ``now`` steps (of ``steps`` and its :func:`halvings`) to fit
+    next at the fitted model ``theta``: the longest of which at least
+    :data:`USABLE_SHARE` have states that fit within :data:`STUCK_WINDOW` times the
+    ``noise`` [m] (the fit leaves the stuck ones out, so these windows carry it), else
+    the next length up if at least :data:`NEXT_SHARE` of its windows do (one fit there
+    carries the model far enough for the next); their steps, count (:func:`window_count`
+    of ``count`` of ``steps``) and a line saying why; None where neither is. Longer
+    windows span more of the motion between contacts, which pins the parameters'
+    scale that a few samples cannot."""
     lengths = [n for n in halvings(steps) if n > now]
     if not lengths:
         return None
     tried = state_fits(data, bounded(vec, theta), theta, lengths, count, noise)
     why = f"median state fit at the fitted model: {describe(tried, noise)}"
-    if not within(tried[-1], noise):
+    usable = [t for t in tried if t[2] >= USABLE_SHARE]
+    nearest = min(tried, key=lambda t: t[1])
+    if usable:
+        share, n = usable[0][2], usable[0][1]
+    elif nearest[1] == min(lengths) and nearest[2] >= NEXT_SHARE:
+        share, n = nearest[2], nearest[1]
+    else:
         data.log(f"    floor windows stay at {now} steps; {why}")
         return None
-    n = tried[-1][1]
-    return n, window_count(count, steps, n, tried[-1][2]), why
+    why += f"; {100 * share:.0f} % of the {n}-step windows within {STUCK_WINDOW:g} of it"
+    return n, window_count(count, steps, n, share), why
 
 
 @dataclass(frozen=True)
@@ -337,7 +356,9 @@ def floor_fit(
         if "cap_radius" in fitted.uncertainty:
             last.uncertainty["cap_radius"] = fitted.uncertainty["cap_radius"]
         vec = replace(vec, coords=replace(vec.coords, effects=(*vec.coords.effects[:-1], last)))
-        fit = TrajFit(vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged)
+        fit = TrajFit(
+            vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged
+        )
     fit.origin = fit.theta
     return FloorFit(fit)
 

@@ -115,8 +115,42 @@ def test_near_medians_far_from_the_noise_are_each_a_choice(monkeypatch) -> None:
     monkeypatch.setattr(floor_declared, "state_fits", fake([36.3, 30.5, 30.1, 15.9]))
     assert [m for m, _ in floor_declared.windows_from_data(None, vec, 30, 8, 1.4e-3)[0]] == [4]
     # the longest within the noise: the one choice, the search stops there
-    monkeypatch.setattr(floor_declared, "state_fits", lambda *a: [(3e-3, 30, 1.0), (0.9e-3, 15, 0.75)])
+    monkeypatch.setattr(
+        floor_declared, "state_fits", lambda *a: [(3e-3, 30, 1.0), (0.9e-3, 15, 0.75)]
+    )
     assert floor_declared.windows_from_data(None, vec, 30, 8, 1e-3)[0] == [(15, 21)]  # 8 x 2 / 0.75
+
+
+def test_the_fit_goes_on_to_longer_windows_that_half_its_windows_carry(monkeypatch) -> None:
+    """From the fitted model the floor fit goes on to the longest length of which half the
+    windows' states fit (the fit leaves the stuck ones out), else one length up where a
+    quarter do (a continuation), else it stays."""
+    from identification.trajectory import floor_declared
+
+    monkeypatch.setattr(floor_declared, "bounded", lambda vec, theta: vec)
+    log: list[str] = []
+    data = type("D", (), {"log": lambda self, line: log.append(line)})()
+
+    def shares(*tried):
+        monkeypatch.setattr(floor_declared, "state_fits", lambda *a: list(tried))
+
+    # 8 steps: median just above the limit scaled for the window, yet 62 % within it
+    shares((7.6e-3, 30, 0.0), (3.5e-3, 15, 0.1), (1.43e-3, 8, 0.62))
+    assert not within((1.43e-3, 8, 0.62), 0.986e-3)
+    assert floor_declared.longer_windows(data, None, None, 30, 4, 8, 0.986e-3)[:2] == (
+        8,
+        32,
+    )  # 4 x 8 at most
+    # the longest such length is taken
+    shares((7.6e-3, 30, 0.1), (1.3e-3, 15, 0.55), (1.1e-3, 8, 0.9))
+    assert floor_declared.longer_windows(data, None, None, 30, 4, 8, 1e-3)[0] == 15
+    # none carries half: one length up where a quarter of its windows fit
+    shares((7.6e-3, 30, 0.0), (3.5e-3, 15, 0.1), (2e-3, 8, 0.3))
+    assert floor_declared.longer_windows(data, None, None, 30, 4, 8, 1e-3)[0] == 8
+    # fewer: stay
+    shares((7.6e-3, 30, 0.0), (3.5e-3, 15, 0.1), (2e-3, 8, 0.2))
+    assert floor_declared.longer_windows(data, None, None, 30, 4, 8, 1e-3) is None
+    assert "stay at 4 steps" in log[-1]
 
 
 @pytest.mark.parametrize("at_start", [True, False])

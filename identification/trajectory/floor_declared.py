@@ -275,6 +275,19 @@ def longer_windows(
     return n, window_count(count, steps, n, share), why
 
 
+def rms_of(w: WindowFit) -> float:
+    """A window fit's end-cap RMS [m] at its last iteration."""
+    return float(np.sqrt(w.history[-1]))
+
+
+def kept_longer(shorter: WindowFit, longer: WindowFit, noise: float) -> bool:
+    """Whether the fit on longer windows replaces the one on shorter windows: unless it
+    ends above both the shorter fit's end-cap RMS and :data:`STUCK_WINDOW` times the
+    ``noise`` [m] (windows whose states it could not fit, which the stuck rule kept
+    because too few of them were within, pulled it off)."""
+    return rms_of(longer) <= max(rms_of(shorter), STUCK_WINDOW * noise)
+
+
 @dataclass(frozen=True)
 class FloorFit:
     """The declared model and ground contact fitted together on the floor windows of the
@@ -339,11 +352,18 @@ def floor_fit(
         longer = longer_windows(data, vec, w.theta, longest, steps, count0, noise)
         if longer is None:
             break
-        steps, count, why = longer
-        data.log(f"    floor windows from the fit: {count} of {steps} steps; {why}")
-        many_windows = data.cut("train", steps, count, 3, lift_off=count // 2)
-        w = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter, log=data.log,
-                         stuck=STUCK_WINDOW * noise)  # fmt: skip
+        n, count, why = longer
+        data.log(f"    floor windows from the fit: {count} of {n} steps; {why}")
+        many_windows = data.cut("train", n, count, 3, lift_off=count // 2)
+        longer_fit = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter,
+                                  log=data.log, stuck=STUCK_WINDOW * noise)  # fmt: skip
+        if not kept_longer(w, longer_fit, noise):
+            data.log(f"    floor windows stay at {steps} steps: the fit on {n}-step windows "
+                     f"ends at {rms_of(longer_fit) * 1e3:.3g} mm, above both "
+                     f"{rms_of(w) * 1e3:.3g} mm on {steps} steps and {STUCK_WINDOW:g} "
+                     "noise levels (stuck windows it kept)")  # fmt: skip
+            break
+        w, steps = longer_fit, n
     data.floor_steps = steps
     vec = bounded(vec, w.theta, float(begin.values["height"].reshape(-1)[0]))
     m = w.windows.residuals

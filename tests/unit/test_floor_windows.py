@@ -153,6 +153,20 @@ def test_the_fit_goes_on_to_longer_windows_that_half_its_windows_carry(monkeypat
     assert "stay at 4 steps" in log[-1]
 
 
+def test_a_longer_window_fit_pulled_off_by_stuck_windows_is_not_kept() -> None:
+    """A drawn plant's fit from the truth: 0.124 mm on 6-step windows (0.133 mm noise),
+    0.446 mm on 25-step windows half of which were stuck: the shorter fit stays; a longer
+    fit within 1.5 noise levels replaces it even where its RMS is higher."""
+    from identification.trajectory.floor_declared import kept_longer
+
+    def fit(rms_mm: float):  # only the last mean squared error matters here
+        return type("W", (), {"history": [(rms_mm * 1e-3) ** 2]})()
+
+    assert not kept_longer(fit(0.124), fit(0.446), 0.133e-3)
+    assert kept_longer(fit(0.124), fit(0.145), 0.133e-3)  # within 1.5 noise levels
+    assert kept_longer(fit(1.458), fit(1.715), 1.53e-3)  # a real-robot-like fit above the noise
+
+
 @pytest.mark.parametrize("at_start", [True, False])
 def test_stuck_windows_are_left_out_at_the_start_only_from_a_given_model(rolling, monkeypatch,
                                                                         at_start) -> None:  # fmt: skip

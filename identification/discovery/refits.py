@@ -171,6 +171,8 @@ def final_floor_steps(scorer: MultiStepScorer, current: Candidate[EndCapFits]) -
     data, s = scorer.data, scorer.settings
     longest = floor_steps(data.dt, s)
     now = data.floor_steps or longest
+    if now >= longest:
+        return now
     last = current.fit.final
     longer = longer_windows(data, last.vec, last.theta, longest, now, s.floor_windows,
                             scorer.noise)  # fmt: skip

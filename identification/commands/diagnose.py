@@ -169,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from identification.discovery.report import fmt_unit, ratio, write_params, write_report
     from identification.trajectory.floor_evidence import floor_evidence
+    from identification.trajectory.slack_in_data import spring_names
 
     check_output_dir(args.output, args.force, inputs=[args.dataset, args.params])
     apply_effort(args)
@@ -199,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     dataset, scorer = choose_scorer(raw, args.method, lambda d: one_step_scorer(args, d),
                                     lambda d: multi_step_scorer(args, d), args.smoothing)  # fmt: skip
     t0 = time.perf_counter()
-    slack: list[str] = []
+    slack: dict[str, str] = {}  # parameter -> why, for the springs slack throughout
     # the report is assembled in a temporary folder, moved to --output only when complete
     with atomic_dir(args.output) as out:
         loop = EffectDiscovery(scorer, args.max_effects, names, plots=out, jobs=args.jobs)
@@ -223,13 +224,12 @@ def run(args: argparse.Namespace) -> int:
                                    h) for h in floors]  # fmt: skip
         sections = [e.markdown() for e in evidence]
         if slack:
-            sections.append(slack_markdown(result.model))
+            sections.append(slack_markdown(result.model, slack))
         report = write_report(result, out, str(args.dataset),
                               None if truth is None else truth.effects, sections)  # fmt: skip
         extra: dict[str, Any] = {"dataset": str(args.dataset)}
         if slack:
-            extra["slack_springs"] = {k: v for k, v in result.model.notes.items()
-                                      if k.split("[", 1)[0] in SPRING_GROUPS}  # fmt: skip
+            extra["slack_springs"] = slack
         if evidence:
             extra["floor_evidence"] = evidence[0].as_dict()
         if multi_step:
@@ -238,7 +238,8 @@ def run(args: argparse.Namespace) -> int:
         params = write_params(result, out / "params.json", extra)
     report, params = args.output / report.name, args.output / params.name
     if slack:
-        print(f"tension-only springs slack throughout the training data: {', '.join(slack)} "
+        slack_names = ", ".join(spring_names(slack))
+        print(f"tension-only springs slack throughout the training data: {slack_names} "
               "(the report's notes say what is written for them)")  # fmt: skip
     print(f"\nadded: {', '.join(result.model.names) or 'nothing'}")
     for e in result.model.effects:
@@ -253,39 +254,33 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-#: the parameter groups of a spring
-SPRING_GROUPS = ("stiffness", "damping", "rest_length")
-
-
-def settle_slack_springs(result: Any, declared: Params, dataset: Dataset) -> list[str]:
+def settle_slack_springs(result: Any, declared: Params, dataset: Dataset) -> dict[str, str]:
     """``result``'s model (a :class:`~identification.discovery.loop.DiscoveryResult`) with
     its tension-only springs that are slack throughout the training split settled
-    (:func:`~identification.trajectory.slack_in_data.settle_slack`): their notes join the
-    model's, their standard errors are dropped. Returns the springs' names."""
+    (:func:`~identification.trajectory.slack_in_data.settle_slack`) and their standard
+    errors dropped; returns the notes (parameter name -> why)."""
     from identification.trajectory.slack_in_data import settle_slack
 
     fitted = result.model
     recorded = [s.nodes for name, s in dataset.splits.items() if name != "train"]
     params, notes = settle_slack(fitted.params, declared, dataset.split("train").nodes,
                                  dataset.topology, fitted.effects, recorded)  # fmt: skip
-    if not notes:
-        return []
-    result.model = replace(fitted, model=fitted.model.replace(params=params),
-                           notes={**fitted.notes, **notes},
-                           uncertainty={k: v for k, v in fitted.uncertainty.items()
-                                        if k not in notes})  # fmt: skip
-    return sorted({name.split("[", 1)[1][:-1] for name in notes})
+    if notes:
+        result.model = replace(fitted, model=fitted.model.replace(params=params),
+                               uncertainty={k: v for k, v in fitted.uncertainty.items()
+                                            if k not in notes})  # fmt: skip
+    return notes
 
 
-def slack_markdown(fitted: FittedModel) -> str:
-    """The report's section on the springs :func:`settle_slack_springs` settled."""
+def slack_markdown(fitted: FittedModel, notes: dict[str, str]) -> str:
+    """The report's section on the springs :func:`settle_slack_springs` settled
+    (``notes``: its notes), with the values written."""
     index = {s.name: i for i, s in enumerate(fitted.model.topology.springs)}
     rows = []
-    for name, why in fitted.notes.items():
+    for name, why in notes.items():
         group, _, spring = name.partition("[")
-        if group in SPRING_GROUPS:
-            value = float(getattr(fitted.params, group)[index[spring[:-1]]])
-            rows.append(f"| {name} | {value:.6g} | {why} |")
+        value = float(getattr(fitted.params, group)[index[spring[:-1]]])
+        rows.append(f"| {name} | {value:.6g} | {why} |")
     return "\n".join(["### Tension-only springs slack throughout the data", "",
                       "| parameter | written | why |", "|---|---|---|", *rows])  # fmt: skip
 

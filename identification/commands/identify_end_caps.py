@@ -45,7 +45,7 @@ from identification.trajectory.open_loop_check import (
     check_open_loop,
     open_loop_check,
 )
-from identification.trajectory.slack_in_data import settle_slack
+from identification.trajectory.slack_in_data import settle_slack, spring_names
 from identification.trajectory.stage_check import (
     POORLY_DETERMINED,
     check_determined,
@@ -133,7 +133,7 @@ def keep_declared(
     topo = est.topology_
     est.params_, notes = settle_slack(est.params_, start, nodes, topo, effects, recorded or [])
     est.notes_.update(notes)
-    return sorted({name.split("[", 1)[1][:-1] for name in notes})
+    return spring_names(notes)
 
 
 def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, float]) -> int:

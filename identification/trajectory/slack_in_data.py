@@ -113,3 +113,9 @@ def settle_slack(
             notes[f"{k}[{name}]"] = ("a tension-only spring slack throughout the data at the "
                                      "fit: the declared value is kept")  # fmt: skip
     return replace(params, **values), notes
+
+
+def spring_names(notes: dict[str, str]) -> list[str]:
+    """The springs named in :func:`settle_slack`'s notes (``rest_length[cable1]`` ->
+    ``cable1``), sorted."""
+    return sorted({name.partition("[")[2][:-1] for name in notes})

@@ -99,3 +99,44 @@ def test_diagnose_fits_the_declared_model_with_its_tension_only_springs(
     except RuntimeError:
         pass
     assert seen["effects"] == ["slack_springs"]
+
+
+def test_diagnose_writes_a_cable_slack_at_its_fit_at_its_longest_recorded_length(
+    tmp_path: Path,
+) -> None:
+    """``diagnose``'s final model: a cable whose fitted rest length runs past every
+    measured length is settled as ``identify`` settles it, its standard errors dropped,
+    and the report's section shows the values written."""
+    from types import SimpleNamespace
+
+    from identification.commands.diagnose import settle_slack_springs, slack_markdown
+    from identification.data.dataset import Dataset, Split
+    from identification.trajectory.fitted_model import FittedModel
+    from tensegrity_env.model import Model
+
+    (tmp_path / "prism.yaml").write_text(EXAMPLE_PRISM)
+    robot = from_ntrt(tmp_path / "prism.yaml")
+    topo, declared = robot.topology, robot.params
+    caps = robot.rest_caps[None, None] + np.random.default_rng(3).normal(0, 1e-4, (1, 40, 6, 3))
+    splits = {name: Split(nodes=caps * f, control=np.zeros((1, 39, 3, 3)))
+              for name, f in (("train", 1.0), ("val", 1.0), ("test", 1.02))}  # fmt: skip
+    data = Dataset(topo, 1 / 120, splits)
+    rest = declared.rest_length.clone()
+    rest[1] = 5866.0  # the fit ran this cable to its bound
+    fitted = replace(declared, rest_length=rest, stiffness=declared.stiffness * 1e4)
+    effects = tuple(robot.declared_effects(ground=False))
+    name = topo.springs[1].name
+    result = SimpleNamespace(model=FittedModel(
+        Model(topo, fitted, effects, dt=1 / 120), 0,
+        uncertainty={f"rest_length[{name}]": 38.7, f"rest_length[{topo.springs[0].name}]": 1e-3}))  # fmt: skip
+    notes = settle_slack_springs(result, declared, data)
+    p = result.model.params
+    longest = np.linalg.norm(splits["test"].nodes[..., topo.spring_nodes[1, 0], :]
+                             - splits["test"].nodes[..., topo.spring_nodes[1, 1], :], axis=-1).max()  # fmt: skip
+    assert float(p.rest_length[1]) == pytest.approx(longest, rel=1e-12)  # the test split's, longer
+    assert float(p.stiffness[1]) == float(declared.stiffness[1])
+    assert float(p.stiffness[0]) == float(fitted.stiffness[0])  # a taut cable as fitted
+    assert set(notes) == {f"{g}[{name}]" for g in ("stiffness", "damping", "rest_length")}
+    assert f"rest_length[{name}]" not in result.model.uncertainty
+    assert f"rest_length[{topo.springs[0].name}]" in result.model.uncertainty
+    assert f"| rest_length[{name}] | {longest:.6g} |" in slack_markdown(result.model, notes)

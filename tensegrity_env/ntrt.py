@@ -354,6 +354,7 @@ def from_ntrt(source: str | Path, length_unit: float = DECIMETRE) -> NtrtRobot:
             end_cap="capsule",
             attachments=tuple(tuple((frame.T @ (pos[n] - com)).tolist()) for n in others),
             cap_radius=cap_r if max(cap_r) > main[3] else None,  # type: ignore[arg-type]  # two radii
+            axial_gyration=float(inertia[int(np.argmax(np.abs(ends[1] - ends[0])))] / mass),
         ))  # fmt: skip
         masses.append(mass)
         inertias.append(inertia)

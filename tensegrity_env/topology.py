@@ -67,6 +67,9 @@ class Rod:
         cap_radius: each end cap's contact radius against a floor [m], (end 0, end 1),
             where the robot file gives the caps their own size (a sphere at each end);
             None: both are ``radius``.
+        axial_gyration: the rod's moment of inertia about its end-cap axis per unit
+            mass [m^2], as the robot file's mass distribution gives it (end caps cannot
+            show it: it is the value fits hold); None: a solid rod's ``radius^2 / 2``.
     """
 
     name: str
@@ -78,6 +81,7 @@ class Rod:
     end_cap: str = "capsule"
     attachments: tuple[Vec3, ...] = ()
     cap_radius: tuple[float, float] | None = None
+    axial_gyration: float | None = None
 
     def ends(self) -> np.ndarray:
         """End-cap offsets in the rod frame, shape (2, 3) [m]; default ±length/2 along z."""
@@ -144,6 +148,8 @@ class Topology:
                 len(rod.cap_radius) != 2 or not all(np.isfinite(c) and c >= 0 for c in rod.cap_radius)
             ):
                 raise TopologyError(f"rod '{rod.name}': cap_radius must be two radii >= 0, got {rod.cap_radius}")
+            if rod.axial_gyration is not None and not (np.isfinite(rod.axial_gyration) and rod.axial_gyration > 0):
+                raise TopologyError(f"rod '{rod.name}': axial_gyration must be > 0, got {rod.axial_gyration}")
             ends = rod.ends()
             if ends.shape != (2, 3) or not np.all(np.isfinite(ends)):
                 raise TopologyError(f"rod '{rod.name}': end_offsets must be two finite 3-vectors")
@@ -294,6 +300,14 @@ class Topology:
         return np.array([r.cap_radius or (r.radius, r.radius) for r in self.rods], dtype=float).reshape(-1, 2)
 
     @property
+    def axial_gyrations(self) -> np.ndarray:
+        """Each rod's axial moment of inertia per unit mass, (n_rods,) [m^2]
+        (:attr:`Rod.axial_gyration`, else a solid rod's ``radius^2 / 2`` with the radius
+        at least 1 mm)."""
+        return np.array([r.axial_gyration if r.axial_gyration is not None else max(r.radius, 1e-3) ** 2 / 2
+                         for r in self.rods], dtype=float)  # fmt: skip
+
+    @property
     def anchor_positions(self) -> np.ndarray:
         """World anchors, shape (n_anchors, 3) [m]."""
         return np.array(self.anchors, dtype=float).reshape(-1, 3)
@@ -359,6 +373,7 @@ class Topology:
                     "end_cap": r.end_cap,
                     "attachments": [list(a) for a in r.attachments],
                     **({} if r.cap_radius is None else {"cap_radius": list(r.cap_radius)}),
+                    **({} if r.axial_gyration is None else {"axial_gyration": r.axial_gyration}),
                 }
                 for r in self.rods
             ],
@@ -385,6 +400,7 @@ class Topology:
                     end_cap=str(r.get("end_cap", "capsule")),
                     attachments=tuple(tuple(map(float, a)) for a in r.get("attachments", [])),  # type: ignore[misc]  # as end_offsets
                     cap_radius=None if r.get("cap_radius") is None else tuple(map(float, r["cap_radius"])),  # type: ignore[arg-type]  # as end_offsets
+                    axial_gyration=None if r.get("axial_gyration") is None else float(r["axial_gyration"]),
                 )
                 for r in d["rods"]
             )

@@ -25,8 +25,9 @@ so identification runs in two stages:
 What end caps cannot show: a rod whose end caps lie on one of its principal axes
 can spin about that axis unseen. Its axial moment of inertia enters the motion only
 through the (unknown) axial angular momentum ``I_axial * omega_axial``, so it is not
-identifiable; simulation uses the solid-cylinder value ``M r^2 / 2`` of the fitted
-mass and the per-window axial spin absorbs the rest. :attr:`TrajectoryIdentifier.notes_`
+identifiable; simulation uses the fitted mass times the robot file's axial moment per
+unit mass (:attr:`tensegrity_env.topology.Rod.axial_gyration`; a solid rod's ``r^2 / 2``
+where the file has none) and the per-window axial spin absorbs the rest. :attr:`TrajectoryIdentifier.notes_`
 says so; the two perpendicular inertias are one parameter ``I_perp`` per rod. The
 axial spins themselves barely show (and make Gauss-Newton converge slowly), so they
 are freed only in a last stage, and only when a score test says the data can see
@@ -293,8 +294,9 @@ class TrajectoryIdentifier:
         notes = {
             f"inertia[{rod.name},{'xyz'[k]}]": (
                 "axial inertia: spin about the axis through both end caps is invisible in "
-                "end-cap data (value in params_ is the assumed solid cylinder M r^2/2, for "
-                "simulation only)"
+                "end-cap data (value in params_: the fitted mass times the robot file's axial "
+                + ("moment per unit mass" if rod.axial_gyration is not None else "solid-rod r^2/2")
+                + ", for simulation only)"
             )
             for rod, k in zip(topo.rods, axes.axis, strict=True)
         }

@@ -39,7 +39,7 @@ class ParamVector:
     ``I_perp`` on both perpendicular axes and ``M a`` on the axis, with ``axial`` the
     axial moment per unit mass ``a`` [m^2], (R,), held: the start model's where one is
     given (its axial spin, which friction drives on a floor, depends on it), else the
-    solid cylinder's ``r^2 / 2`` (None).
+    robot file's (None: :attr:`RodAxes.gyration`).
     A cable actuator's gain is ``cable_sign * exp(log |h_c|)`` (a tendon actuator's gain
     may be negative: its sign comes from the start and is held).
     """
@@ -174,8 +174,7 @@ class ParamVector:
         val = torch.exp(log_full)
         g = {k: val[..., self.offset(k) : self.offset(k) + n] for k, n in self.sizes.items()}
         axial = torch.as_tensor(np.eye(3)[self.axes.axis], dtype=DTYPE)  # (R, 3)
-        a = self.axial if self.axial is not None else torch.as_tensor(self.axes.radius**2 / 2,
-                                                                      dtype=DTYPE)  # fmt: skip
+        a = self.axial if self.axial is not None else torch.as_tensor(self.axes.gyration, dtype=DTYPE)
         inertia = (
             g["inertia_perp"].unsqueeze(-1) * (1 - axial) + (g["mass"] * a).unsqueeze(-1) * axial
         )
@@ -221,7 +220,7 @@ def params_values(params: Params, axes: RodAxes) -> dict[str, np.ndarray]:
 
 def axial_per_mass(values: dict[str, np.ndarray], axes: RodAxes) -> torch.Tensor | None:
     """``values``' axial moment per unit mass (R,) [m^2] where given and usable (finite,
-    > 0, every rod), else None (the vector assumes ``r^2 / 2``)."""
+    > 0, every rod), else None (the vector takes the robot file's)."""
     a = values.get("axial")
     if a is None or len(a) != len(axes.axis) or not bool(np.all(np.isfinite(a) & (a > 0))):
         return None

@@ -249,6 +249,7 @@ def from_mjcf(
                 f"{src}: rod '{mj_name(m, BODY, b)}': end caps of different shapes {sorted(shapes)}"
             )
         arm = to_inertial(i, m.site_pos[arm_sites[i]]) if i in arm_sites else (0.0, 0.0, 0.0)
+        along = int(np.argmax(np.abs(e1 - e0)))  # the principal axis the end caps lie on
         rods.append(
             Rod(
                 name=mj_name(m, BODY, b),
@@ -260,6 +261,8 @@ def from_mjcf(
                 end_cap="sphere" if shapes == {"sphere"} else "capsule",
                 attachments=tuple(to_inertial(i, m.site_pos[s]) for s in rod_points[i]),
                 cap_radius=(radii[0], radii[1]) if own else None,
+                axial_gyration=float(m.body_inertia[b][along] / m.body_mass[b])
+                if m.body_mass[b] > 0 and m.body_inertia[b][along] > 0 else None,
             )
         )
 

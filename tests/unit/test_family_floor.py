@@ -44,8 +44,9 @@ def plant():
 
 
 def test_the_start_models_axial_inertia_is_kept(plant) -> None:
-    """The fit's vector holds each rod's axial moment from the start model: friction
-    at an end cap spins a rod about its axis at a rate set by that moment."""
+    """The fit's vector holds each rod's axial moment from the start model, else the
+    robot file's: friction at an end cap spins a rod about its axis at a rate set by
+    that moment, which end caps cannot show."""
     d, truth, topo, clean = plant
     inertia = truth.params.numpy()["inertia"]
     axes = RodAxes.of(topo)
@@ -66,8 +67,13 @@ def test_the_start_models_axial_inertia_is_kept(plant) -> None:
     with torch.no_grad():
         roll = engine.rollout(state, vec.params(vec.start), clean.n_transitions)
     assert np.abs(roll.p.numpy() - clean.p).max() < 1e-9
-    # with a solid rod's axial moment it would not
-    solid = replace(vec, axial=None)
+    # without a start model the vector takes the robot file's axial moment per unit mass
+    mass = truth.params.numpy()["mass"]
+    np.testing.assert_allclose(axes.gyration * mass, axial, rtol=1e-9)
+    filed = replace(vec, axial=None)
+    np.testing.assert_allclose(filed.params(filed.start).numpy()["inertia"], inertia, rtol=1e-9)
+    # with a solid rod's axial moment it would not reproduce MuJoCo
+    solid = replace(vec, axial=torch.as_tensor(axes.radius**2 / 2))
     with torch.no_grad():
         other = engine.rollout(state, solid.params(solid.start), clean.n_transitions)
     assert np.abs(other.p.numpy() - clean.p).max() > 1e-4

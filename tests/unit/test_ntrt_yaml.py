@@ -100,6 +100,7 @@ def test_rods_cables_and_nominal_parameters_in_si(files: tuple[Path, Path]) -> N
     # a plain rod: a solid cylinder's principal inertia
     r, m, length = 0.1 * DM, rod_mass[1], lengths[1]
     np.testing.assert_allclose(p["inertia"][1], [m * r**2 / 2, *[m * (3 * r**2 + length**2) / 12] * 2], rtol=1e-9)
+    assert topo.rods[1].axial_gyration == pytest.approx(r**2 / 2, rel=1e-9)  # the moment fits hold
     # the extension (collinear, on bottom1's side) moves the centre of mass and adds inertia
     assert p["inertia"][0][1] > p["inertia"][1][1]
     # end caps are the heaviest rod's nodes, the extension tip is not one of them

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -116,3 +117,22 @@ def test_reads_an_mjcf_file_with_its_own_names_and_frames() -> None:
     nodes = node_positions(topo, state["p"], state["q"])
     np.testing.assert_allclose(_lengths(topo, nodes), d.ten_length, atol=1e-12)
     np.testing.assert_allclose(nodes[: 2 * topo.n_rods], d.site_xpos, atol=1e-12)
+
+
+def test_the_robot_files_axial_moment_per_unit_mass_is_read_and_kept() -> None:
+    """End caps cannot show a rod's moment about its own axis: the topology carries the
+    robot file's (MuJoCo's compiled inertia over the mass) through serialisation."""
+    a = icosahedron()
+    inertia, mass = a.params.numpy()["inertia"], a.params.numpy()["mass"]
+    heavy = inertia.copy()
+    heavy[:, 2] *= 20.0  # end-cap housings: an axial moment far above a solid rod's
+    xml = to_mjcf(a.topology, replace(a.params, inertia=torch.as_tensor(heavy)), SimOptions(),
+                  a.pose_p, a.pose_q)  # fmt: skip
+    topo = from_mjcf("<generated>", xml=xml).topology
+    along = np.argmax(np.abs(np.diff(topo.end_offsets, axis=1)[:, 0]), axis=1)
+    np.testing.assert_allclose(topo.axial_gyrations, heavy[np.arange(len(mass)), along] / mass, rtol=1e-9)
+    assert Topology.from_dict(topo.to_dict()).axial_gyrations.tolist() == topo.axial_gyrations.tolist()
+    # a rod file without one: a solid rod's r^2 / 2
+    np.testing.assert_allclose(a.topology.axial_gyrations, [max(r.radius, 1e-3) ** 2 / 2 for r in a.topology.rods])
+    with pytest.raises(TopologyError, match="axial_gyration must be > 0"):
+        Topology(rods=(Rod("r", 1.0, axial_gyration=0.0),), springs=())

@@ -43,8 +43,10 @@ from family_invariants import (
     MAX_SE_RMS,
     RMS_OVER_NOISE,
     STRUCTURE_TOL,
+    at_the_truth,
     contact_errors,
     largest_move,
+    relative_se,
     verdict,
     worst_errors,
 )
@@ -93,6 +95,7 @@ def identify(folder: Path, start: str, timeout: float) -> dict[str, Any]:
         record["rms_over_noise"] = record["end_cap_rms_m"] / noise
         record["worst"] = worst_errors(doc["params"], truth)
         record["moved"] = list(largest_move(doc, truth))
+        record["relative_se"] = relative_se(doc)
         record["contact"], record["contact_unseen"] = contact_errors(doc, gt.effects or [])
     return record
 
@@ -171,8 +174,12 @@ def summary_lines(records: list[dict[str, Any]]) -> list[str]:
             rs = [r for r in records if r["setting"] == setting and r["start"] == start]
             if rs:
                 met = sum(not r["verdict"] for r in rs)
-                lines.append(f"- {setting}, from the {start}: {met} of {len(rs)} plants meet "
-                             "the invariants")  # fmt: skip
+                line = f"- {setting}, from the {start}: {met} of {len(rs)} plants meet the invariants"
+                if start != "truth":
+                    near = sum(not at_the_truth(r) for r in rs)
+                    line += (f"; {near} of {len(rs)} end where the data puts the truth (the truth's "
+                             "own check: RMS / noise and the moves in standard errors)")  # fmt: skip
+                lines.append(line)
     return lines
 
 
@@ -216,7 +223,9 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "which grows like sqrt(2 ln N) with N honest ones, 2.9 for the 89 here);",
         "the group columns: the largest relative error (inertia: the perpendicular moments);",
         "contact: the floor contact's largest relative error (stiffness, damping,",
-        "friction; those the data cannot pin are left out). Invariants: from the truth,",
+        "friction; those the data cannot pin are left out); se K / c: the median relative",
+        "standard error the fit states for the stiffnesses and the spring damping (what the",
+        "data determines them to). Invariants: from the truth,",
         f"RMS / noise <= {RMS_OVER_NOISE:g} and the moves' RMS <= {MAX_SE_RMS:g} standard "
         "errors (the largest move is reported, not judged: \"none above 2\" fails most",
         "fits whose standard errors are honest);",
@@ -239,8 +248,8 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "",
         "| plant | start | reversed rods | L [m] | M [kg] | K [N/m] | prestress | status | "
         "RMS / noise | moved [se] | mass | inertia | stiffness | damping | rest length "
-        "| contact | seconds |",
-        "|" + "---|" * 17,
+        "| contact | se K / c | seconds |",
+        "|" + "---|" * 18,
     ]
     for r in records:
         w = r.get("worst", {})
@@ -251,11 +260,14 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
             moved = f"{r['moved'][2]:.2f} ({r['moved'][1]:.2f})"
         contact = f"{100 * max(r['contact'].values()):.2f} %" if r.get("contact") else "—"
         status = "met" if not r["verdict"] else "miss"
+        se = r.get("relative_se", {})
+        se_cell = (f"{100 * se['stiffness']:.1f} / {100 * se['damping']:.1f} %"
+                   if "stiffness" in se and "damping" in se else "—")  # fmt: skip
         lines.append(
             f"| {r['label']} | {r['start']} | {r['reversed_rods']} | {r['draw']['length']:.2f} "
             f"| {r['mass']:.3g} | {r['stiffness']:.3g} | {r['draw']['prestress']:.2f} "
             f"| {status} | {ratio} | {moved} | " + " | ".join(cells)
-            + f" | {contact} | {r['identify']['seconds']:.0f} |"
+            + f" | {contact} | {se_cell} | {r['identify']['seconds']:.0f} |"
         )
     misses = [r for r in records if r["verdict"]]
     if misses:

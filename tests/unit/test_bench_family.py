@@ -14,7 +14,14 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
 import bench_family
-from family_invariants import contact_errors, largest_move, verdict, worst_errors
+from family_invariants import (
+    at_the_truth,
+    contact_errors,
+    largest_move,
+    relative_se,
+    verdict,
+    worst_errors,
+)
 
 
 def _doc(mass: list[float], se: float, effects: list[dict[str, Any]] | None = None,
@@ -83,6 +90,18 @@ def test_the_verdict_names_the_stage_and_why() -> None:
     assert "contact damping 12 %" in verdict(_record("default", contact={"damping": 0.12}))
     failed = _record("default", identify={"status": "failed", "message": "diverged"})
     assert verdict(failed) == "identify (failed): diverged"
+
+
+def test_a_default_start_fit_is_also_judged_by_the_truths_own_check() -> None:
+    """Tolerances tighter than the data's standard errors fail any start: the default
+    start's fit is also judged as the truth's is, and the stated errors are reported."""
+    far = _record("default", worst={**dict.fromkeys(bench_family.GROUPS, 0.0), "damping": 0.4},
+                  moved=["damping[s]", 1.9, 1.1])  # fmt: skip
+    assert "damping 40 %" in verdict(far) and at_the_truth(far) == ""
+    assert "an RMS of 1.6 standard errors" in at_the_truth(_record("default", moved=["m", 3.0, 1.6]))
+    assert at_the_truth(_record("default", identify={"status": "failed"})) == "identify (failed)"
+    se = relative_se(_doc([1.0, 2.0], 0.1))
+    assert se == pytest.approx({"mass": 0.075, "stiffness": 0.01})  # medians of 0.1 and 0.05
 
 
 def test_a_plant_mujoco_cannot_run_is_a_record_naming_the_plant(monkeypatch) -> None:

@@ -19,21 +19,21 @@ for the ETH drop take and what they say):
   model's own pattern's, in newtons per newton of tension; and whether tensions >= 0,
   with the floor's reaction at the resting caps inside the friction cone, balance the
   rods under the model's masses, equal masses, or with the winch cables pulling.
-* **Contact.** The rest shape (``bench_real.rest_shape``) with the resting caps' radii
-  and the floor's friction changed, no refit.
+* **Contact and cables.** The rest shape (``bench_real.rest_shape``) with the resting
+  caps' radii or the floor's friction changed, or the motor-driven cables taut, no refit.
 * **How fast, and what the fit sees.** The rest shape's error over time from the
   measured resting state, and on the training split's resting windows the end-cap RMS
   from the measured state (velocities zero) against that from a fitted initial state,
   as the trajectory fit's windows have.
 * ``--refit``: rest lengths, stiffnesses, masses (the anchored rod's held) and the
-  resting caps' radii fitted to 1-s rollouts from the training split's resting states,
+  resting caps' radii (or those of ``--groups``) fitted to 1-s rollouts from the training split's resting states,
   with a prior of weight ``--prior`` (1 mm of end-cap error per 1 mm of rest length or
   radius, per 10 % of a stiffness or mass): how far each must move to hold the rest,
   and what that does to the rest shape, the held-out pieces and the training split's
   moving pieces (open-loop from measured states).
 
     python benchmarks/rest_diagnosis.py W/eth_T2_drop --robot robot.yaml \
-        [--raw recording.csv --up y] [--refit --prior 1]
+        [--raw recording.csv --up y] [--refit --prior 1 --groups rest_length,stiffness]
 """
 
 from __future__ import annotations
@@ -68,10 +68,15 @@ FEET_REACH = 0.03
 PYRAMID = 8
 #: the rest shape's error is read at these times [s] from the measured resting state
 DRIFT_TIMES = (1 / 120, 2 / 120, 4 / 120, 8 / 120, 0.25, 0.5, 2.0)
+#: how far [m] the motor-driven cables are made taut at the measured rest: a tenth of
+#: a millimetre to a millimetre is 5-50 N at the NTRT file's 50 kN/m
+TAUT = (1e-4, 1e-3)
 #: window lengths [samples] of the fitted-state check (the floor fit's are 4-30)
 WINDOW_SAMPLES = (4, 8, 30)
 #: the refit's rollouts from resting states [s], as long as the held-out check's
 REFIT_HORIZON = 1.0
+#: the parameter groups the refit may move
+REFIT_GROUPS = ("rest_length", "stiffness", "mass", "radius")
 
 
 def resting_groups(data: Dataset) -> list[tuple[str, np.ndarray]]:
@@ -119,15 +124,21 @@ def rod_lengths(groups: list[tuple[str, np.ndarray]], model: Model) -> list[str]
     return lines
 
 
-def raw_reconstructions(raw: Path, up: str, groups: list[tuple[str, np.ndarray]]) -> list[str]:
+def raw_reconstructions(
+    raw: Path, up: str, groups: list[tuple[str, np.ndarray]], floor: float
+) -> list[str]:
     """Markers of the capture file's resting stretches reconstructed at several still
     spots: each spot (a 3-mm cluster seen in 3 % of the frames or more), grouped where
-    spots lie within 15 mm of each other, with their share of the frames and height."""
+    spots lie within 15 mm of each other, with their share of the frames, their height
+    and how far each lies from the most seen one along and across the rod of the nearest
+    end cap (the stretch's median caps, ``floor`` [m] the import's height shift)."""
     from identification.data.mocap.formats import read_recording
 
     rec = read_recording(raw, up=up)
     lines = []
-    for label, _ in groups:
+    for label, caps in groups:
+        with np.errstate(all="ignore"):
+            med = np.nanmedian(caps, 0) + np.array([0.0, 0.0, floor])
         a, b = (float(x) for x in label.split()[1].split("-"))
         sel = (rec.time >= a) & (rec.time < b)
         pts = rec.points[sel].reshape(-1, 3)
@@ -149,9 +160,18 @@ def raw_reconstructions(raw: Path, up: str, groups: list[tuple[str, np.ndarray]]
             if len(near) > 1 and i not in used:
                 used.update(near)
                 gap = max(np.linalg.norm(sp[j] - sp[k]) for j in near for k in near)
+                top = max(near, key=lambda j: shares[keep[j]])
+                cap = int(np.nanargmin(np.linalg.norm(med - sp[top], axis=-1)))
+                axis = med[cap] - med[cap ^ 1]
+                axis /= np.linalg.norm(axis)
+                d = np.array([sp[j] - sp[top] for j in near if j != top])
+                along = np.abs(d @ axis)
+                across = np.linalg.norm(d - np.outer(d @ axis, axis), axis=-1)
                 lines.append(f"  {label}: one marker at {len(near)} spots up to {1e3 * gap:.1f} mm apart "
                              f"(shares {[round(float(shares[keep[j]]), 2) for j in near]}, heights "
-                             f"{[round(float(1e3 * sp[j, 2]), 1) for j in near]} mm in the file's frame)")  # fmt: skip
+                             f"{[round(float(1e3 * sp[j, 2]), 1) for j in near]} mm in the file's frame; "
+                             f"from the most seen one {np.round(1e3 * along, 1).tolist()} mm along the rod of "
+                             f"end cap {cap}, {np.round(1e3 * across, 1).tolist()} mm across it)")  # fmt: skip
         if not used:
             lines.append(f"  {label}: every marker at one spot")
     return lines
@@ -296,6 +316,27 @@ def contact_lines(model: Model, piece: np.ndarray, dt: float) -> list[str]:
     return out
 
 
+def cable_lines(model: Model, piece: np.ndarray, dt: float) -> list[str]:
+    """The rest shape with the motor-driven cables taut at the measured rest: each one's
+    rest length its length there less :data:`TAUT` (declared stiffness), no refit."""
+    cables = list(model.topology.cable_actuators)
+    if not cables:
+        return ["  no motor-driven cables"]
+    length, _ = tensions(model, on_rods(np.nanmedian(piece, 0), model))
+    out = []
+    for delta in TAUT:
+        l0 = model.params.rest_length.clone()
+        l0[cables] = torch.as_tensor(length[cables] - delta)
+        shape, why = br.rest_shape(
+            model.replace(params=model.params.replace(rest_length=l0)), piece, dt
+        )
+        out.append(
+            f"  cables taut by {1e3 * delta:g} mm: rest shape "
+            + (f"{1e3 * shape:.2f} mm" if shape is not None else str(why))
+        )
+    return out
+
+
 def window_lines(model: Model, data: Dataset) -> list[str]:
     """On the training split's resting pieces, windows of :data:`WINDOW_SAMPLES`
     starting every 0.5 s: end-cap RMS from the measured state (velocities zero) and from
@@ -342,9 +383,11 @@ def window_lines(model: Model, data: Dataset) -> list[str]:
     return out or ["  no resting window with every rod's state measured"]
 
 
-def rest_refit(model: Model, data: Dataset, prior: float) -> tuple[Model, list[str]]:
+def rest_refit(
+    model: Model, data: Dataset, prior: float, groups: tuple[str, ...] = REFIT_GROUPS
+) -> tuple[Model, list[str]]:
     """Rest lengths, stiffnesses, masses (the first rod's held: the anchor) and the
-    resting caps' radii fitted to :data:`REFIT_HORIZON` rollouts from the training
+    resting caps' radii (those of ``groups``) fitted to :data:`REFIT_HORIZON` rollouts from the training
     split's resting states (each rollout's caps against the measured ones, every 5th
     sample, the centroid's drift removed), with a prior of weight ``prior``: the fitted
     model and what moved."""
@@ -397,14 +440,23 @@ def rest_refit(model: Model, data: Dataset, prior: float) -> tuple[Model, list[s
         return np.r_[d, prior * np.sqrt(d.size / x.size) * 1e-3 * x / scale]
 
     x0 = np.zeros(scale.size)
-    fit = least_squares(residual, x0, diff_step=1e-3, method="trf", max_nfev=60)
+    sizes = {"rest_length": nS, "stiffness": nS, "mass": R - 1, "radius": len(feet)}
+    mask = np.concatenate([np.full(k, g in groups) for g, k in sizes.items()])
+
+    def selected(y: np.ndarray) -> np.ndarray:
+        x = x0.copy()
+        x[mask] = y
+        return residual(x)
+
+    fit = least_squares(selected, x0[mask], diff_step=1e-3, method="trf", max_nfev=60)
     n = fit.fun.size - x0.size
-    x = fit.x
+    x = x0.copy()
+    x[mask] = fit.x
     mass = np.exp(x[2 * nS : 2 * nS + R - 1])
     fitted = model_of(x)
     fitted_mass = fitted.params.mass.numpy()
     return fitted, [
-        f"  {init.p.shape[0]} rollouts of {REFIT_HORIZON:g} s, prior {prior:g}: end-cap RMS (drift removed) "
+        f"  {', '.join(groups)} fitted to {init.p.shape[0]} rollouts of {REFIT_HORIZON:g} s, prior {prior:g}: end-cap RMS (drift removed) "
         f"{1e3 * np.sqrt(np.mean(residual(x0)[:n] ** 2)):.2f} -> {1e3 * np.sqrt(np.mean(fit.fun[:n] ** 2)):.2f} mm",
         f"  rest lengths moved by up to {1e3 * np.abs(x[:nS]).max():.1f} mm; stiffness x "
         f"{np.exp(x[nS:2 * nS]).min():.2f}-{np.exp(x[nS:2 * nS]).max():.2f}; masses of rods 1.. x "
@@ -418,15 +470,17 @@ def model_lines(label: str, model: Model, data: Dataset, piece: np.ndarray) -> s
     shape, _ = br.rest_shape(model, piece, data.dt)
     held, _ = br.open_loop(model, br.held_out(data), data.dt, br.HORIZONS)
     moving = moving_pieces(data)
-    train, _ = (
-        br.open_loop(model, moving, data.dt, br.HORIZONS) if moving.size else ([None] * 4, None)
+    no_piece = ["no moving piece in the training split"] * len(br.HORIZONS)
+    train, why = (
+        br.open_loop(model, moving, data.dt, br.HORIZONS) if moving.size else ([None] * 4, no_piece)
     )
 
-    def cm(v: list[float | None]) -> str:
-        return ", ".join("-" if x is None else f"{1e2 * x:.2f}" for x in v)
+    def cm(v: list[float | None], why: list[str | None] | None = None) -> str:
+        return ", ".join(f"- ({why[i]})" if x is None and why else "-" if x is None else f"{1e2 * x:.2f}"
+                         for i, x in enumerate(v))  # fmt: skip
 
     return (f"  {label}: rest shape {'-' if shape is None else f'{1e3 * shape:.2f} mm'}; held-out end-cap RMS "
-            f"[cm] at {', '.join(f'{h:g}' for h in br.HORIZONS)} s: {cm(held)}; training split's moving pieces: {cm(train)}")  # fmt: skip
+            f"[cm] at {', '.join(f'{h:g}' for h in br.HORIZONS)} s: {cm(held)}; training split's moving pieces: {cm(train, why)}")  # fmt: skip
 
 
 def moving_pieces(data: Dataset) -> np.ndarray:
@@ -438,7 +492,7 @@ def moving_pieces(data: Dataset) -> np.ndarray:
 
 
 def diagnose_rest(
-    folder: Path, robot: Path, raw: Path | None, up: str, refit: bool, prior: float
+    folder: Path, robot: Path, raw: Path | None, up: str, refit: tuple[str, ...], prior: float
 ) -> None:
     """Print every section for the take in ``folder`` (module docstring)."""
     data, _ = on_nominal_grid(read_dataset(folder / "take.h5"))
@@ -449,7 +503,9 @@ def diagnose_rest(
     print("markers onto end caps:")
     print("\n".join(rod_lengths(groups, model)))
     if raw is not None:
-        print("\n".join(raw_reconstructions(raw, up, groups)))
+        floor = json.loads(data.attrs.get("placement", "{}"))
+        shift = next(iter(floor.values()), {}).get("floor_height_m", 0.0) if floor else 0.0
+        print("\n".join(raw_reconstructions(raw, up, groups, shift)))
     caps = on_rods(np.nanmedian(piece, 0), model)
     names = [s.name for s in model.topology.springs]
     for label, m in models.items():
@@ -468,11 +524,13 @@ def diagnose_rest(
               + ", ".join(f"{t_:.3f} s {1e3 * d:.2f}" for t_, d in zip(DRIFT_TIMES, drift(m, piece, data.dt), strict=True)))  # fmt: skip
     print("contact (identify's model, no refit):")
     print("\n".join(contact_lines(model, piece, data.dt)))
+    print("winch cables (identify's model, no refit):")
+    print("\n".join(cable_lines(model, piece, data.dt)))
     print("resting windows (identify's model):")
     print("\n".join(window_lines(model, data)))
     if refit:
         print("refit at rest:")
-        fitted, lines = rest_refit(model, data, prior)
+        fitted, lines = rest_refit(model, data, prior, refit)
         print("\n".join(lines))
         print(model_lines("before", model, data, piece))
         print(model_lines("after", fitted, data, piece))
@@ -493,13 +551,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--refit", action="store_true", help="fit the model to the training split's rests"
     )
+    ap.add_argument("--groups", default=",".join(REFIT_GROUPS),
+                    help=f"what the refit moves (comma-separated among {', '.join(REFIT_GROUPS)})")  # fmt: skip
     ap.add_argument("--prior", type=float, default=1.0, help="the refit prior's weight")
     args = ap.parse_args(argv)
     for path in (args.folder / "take.h5", args.robot, *([args.raw] if args.raw else [])):
         if not path.is_file():
             print(f"rest_diagnosis: {path}: no such file", file=sys.stderr)
             return 2
-    diagnose_rest(args.folder, args.robot, args.raw, args.up, args.refit, args.prior)
+    groups = tuple(g for g in args.groups.split(",") if g)
+    if not set(groups) <= set(REFIT_GROUPS) or not groups:
+        print(
+            f"rest_diagnosis: --groups {args.groups}: choose among {', '.join(REFIT_GROUPS)}",
+            file=sys.stderr,
+        )
+        return 2
+    diagnose_rest(
+        args.folder, args.robot, args.raw, args.up, groups if args.refit else (), args.prior
+    )
     return 0
 
 

@@ -58,6 +58,7 @@ from identification.trajectory import cap_radius_fit
 from identification.trajectory.windows import perturb, rollout_caps
 from tensegrity_env.effects import GroundContact
 from tensegrity_env.engine import Engine, State
+from tensegrity_env.io_utils import InputError
 from tensegrity_env.model import Model
 from tensegrity_env.rotations import np_quat_to_matrix
 
@@ -494,12 +495,19 @@ def moving_pieces(data: Dataset) -> np.ndarray:
 def diagnose_rest(
     folder: Path, robot: Path, raw: Path | None, up: str, refit: tuple[str, ...], prior: float
 ) -> None:
-    """Print every section for the take in ``folder`` (module docstring)."""
+    """Print every section for the take in ``folder`` (module docstring); raises
+    :class:`InputError` (one line) where the take has no resting stretch to look at."""
     data, _ = on_nominal_grid(read_dataset(folder / "take.h5"))
+    if "stretches" not in data.attrs or "pieces" not in data.attrs:
+        raise InputError(
+            f"{folder / 'take.h5'}: no stretches recorded (import it with import-mocap)"
+        )
     models = br.models(folder, robot, data.dt)
     model = models.get("identified", models["nominal"])
     piece = br.resting_piece(data)
     groups = resting_groups(data)
+    if piece is None or not groups:
+        raise InputError(f"{folder / 'take.h5'}: no piece lies in a resting stretch")
     print("markers onto end caps:")
     print("\n".join(rod_lengths(groups, model)))
     if raw is not None:
@@ -566,9 +574,13 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 2
-    diagnose_rest(
-        args.folder, args.robot, args.raw, args.up, groups if args.refit else (), args.prior
-    )
+    try:
+        diagnose_rest(
+            args.folder, args.robot, args.raw, args.up, groups if args.refit else (), args.prior
+        )
+    except InputError as e:
+        print(f"rest_diagnosis: {e}", file=sys.stderr)
+        return 2
     return 0
 
 

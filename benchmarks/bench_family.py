@@ -47,10 +47,13 @@ from family_invariants import (
     contact_errors,
     largest_move,
     relative_se,
+    silently_wrong,
     verdict,
+    warned,
     worst_errors,
 )
 from plant_family import Draw, draw, write_family_cell
+from stderr_survey import worst_ratio
 
 from identification.data.dataset import read_ground_truth
 from tensegrity_env.io_utils import atomic_write_text
@@ -96,6 +99,7 @@ def identify(folder: Path, start: str, timeout: float) -> dict[str, Any]:
         record["worst"] = worst_errors(doc["params"], truth)
         record["moved"] = list(largest_move(doc, truth))
         record["relative_se"] = relative_se(doc)
+        record["worst_se_ratio"] = worst_ratio(doc)[1]
         record["contact"], record["contact_unseen"] = contact_errors(doc, gt.effects or [])
     return record
 
@@ -179,6 +183,9 @@ def summary_lines(records: list[dict[str, Any]]) -> list[str]:
                     near = sum(not at_the_truth(r) for r in rs)
                     line += (f"; {near} of {len(rs)} end where the data puts the truth (the truth's "
                              "own check: RMS / noise and the moves in standard errors)")  # fmt: skip
+                    silent = sum(silently_wrong(r) for r in rs)
+                    line += (f"; {silent} written with masses, inertias or stiffnesses off by more "
+                             f"than {100 * STRUCTURE_TOL:g} % without identify's warning")  # fmt: skip
                 lines.append(line)
     return lines
 
@@ -225,7 +232,9 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "contact: the floor contact's largest relative error (stiffness, damping,",
         "friction; those the data cannot pin are left out); se K / c: the median relative",
         "standard error the fit states for the stiffnesses and the spring damping (what the",
-        "data determines them to). Invariants: from the truth,",
+        "data determines them to); status: met or miss, \"(warned)\" where `identify` writes",
+        "the fit with its warning that a mass, inertia, stiffness or rest length is poorly",
+        "determined. Invariants: from the truth,",
         f"RMS / noise <= {RMS_OVER_NOISE:g} and the moves' RMS <= {MAX_SE_RMS:g} standard "
         "errors (the largest move is reported, not judged: \"none above 2\" fails most",
         "fits whose standard errors are honest);",
@@ -259,7 +268,7 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         if len(r.get("moved", [])) > 2 and r["moved"][0]:
             moved = f"{r['moved'][2]:.2f} ({r['moved'][1]:.2f})"
         contact = f"{100 * max(r['contact'].values()):.2f} %" if r.get("contact") else "—"
-        status = "met" if not r["verdict"] else "miss"
+        status = ("met" if not r["verdict"] else "miss") + (" (warned)" if warned(r) else "")
         se = r.get("relative_se", {})
         se_cell = (f"{100 * se['stiffness']:.1f} / {100 * se['damping']:.1f} %"
                    if "stiffness" in se and "damping" in se else "—")  # fmt: skip

@@ -14,7 +14,8 @@
   standard errors are wider than these tolerances no start can meet them, so the fit is
   also judged as the truth's is (:func:`at_the_truth`): whether it ends where the data
   puts the truth, and the parameters' median relative standard error per group
-  (:func:`relative_se`) is reported beside it.
+  (:func:`relative_se`) is reported beside it. A fit written with its masses, inertias
+  or stiffnesses off must carry ``identify``'s warning (:func:`silently_wrong`).
 
 A miss is one line naming the stage (the plant, the command, or the invariant) and why.
 """
@@ -25,6 +26,8 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+
+from identification.trajectory.stage_check import POORLY_DETERMINED
 
 #: the fit from the truth may end at most this far above the noise (RMS / noise)
 RMS_OVER_NOISE = 1.2
@@ -129,6 +132,23 @@ def at_the_truth(record: Mapping[str, Any]) -> str:
         return (f"the parameters moved by an RMS of {rms:.3g} standard errors > {MAX_SE_RMS:g} "
                 f"(largest: {name}, {z:.3g})")  # fmt: skip
     return ""
+
+
+def warned(record: Mapping[str, Any]) -> bool:
+    """Whether ``identify`` writes the record's fit with its poorly-determined warning: a
+    mass, inertia, stiffness or rest length with a standard error of
+    :data:`~identification.trajectory.stage_check.POORLY_DETERMINED` times its value or
+    more (judged at the current limit from the record's ``worst_se_ratio``)."""
+    return record["identify"]["status"] == "ok" and record.get("worst_se_ratio", 0.0) >= POORLY_DETERMINED
+
+
+def silently_wrong(record: Mapping[str, Any]) -> bool:
+    """A fit written with a mass, inertia or stiffness off by more than
+    :data:`STRUCTURE_TOL` and without the warning (:func:`warned`), which judges those
+    groups (spring damping and contact it leaves alone: a weakly seen damping is legitimate)."""
+    worst = record.get("worst", {})
+    off = any(not worst.get(g, 0.0) <= STRUCTURE_TOL for g in ("mass", "inertia", "stiffness"))
+    return record["identify"]["status"] == "ok" and off and not warned(record)
 
 
 def contact_errors(

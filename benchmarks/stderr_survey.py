@@ -40,6 +40,13 @@ def rows_of(doc: dict) -> list[ParameterRow]:
     return rows
 
 
+def worst_ratio(doc: dict) -> tuple[str, float]:
+    """The identified parameter of :func:`rows_of` with the largest standard error over
+    its value, and that ratio (``("-", 0.0)`` where none states one)."""
+    ratios = [(r.name, abs(r.stderr) / abs(r.value)) for r in rows_of(doc) if r.value]
+    return max(ratios, key=lambda x: x[1], default=("-", 0.0))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("files", nargs="+", type=Path, help="params files written by identify")
@@ -50,8 +57,7 @@ def main() -> int:
         if "params" not in doc or "relative_error_vs_ground_truth" not in doc:
             continue
         rows = rows_of(doc)
-        ratios = [(r.name, abs(r.stderr) / abs(r.value)) for r in rows if r.value]
-        name, worst = max(ratios, key=lambda x: x[1], default=("-", 0.0))
+        name, worst = worst_ratio(doc)
         errs = [v for k, v in doc["relative_error_vs_ground_truth"].items()
                 if k.startswith(("mass", "inertia", "stiffness"))]  # fmt: skip
         prov = doc["provenance"]

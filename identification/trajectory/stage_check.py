@@ -96,9 +96,10 @@ def check_stage(stage: str, rms: float, noise: float, advice: str) -> None:
 #: not determined by the data (zero and twice the value fit alike); good family fits stay
 #: below 0.1, the wrong ones written at the noise reach 1e2-1e4 (docs/decisions.md)
 UNDETERMINED = 1.0
-#: ... and one whose standard error reaches this multiple is written with a warning (good
-#: family fits stay below 0.11; wrong ones at the noise reach 0.3-0.7, docs/decisions.md)
-POORLY_DETERMINED = 0.25
+#: ... and one whose standard error reaches this multiple is written with a warning (every
+#: drawn plant's fit off by more than 10 % reaches it, those within 3 % stay below 0.11,
+#: docs/decisions.md)
+POORLY_DETERMINED = 0.1
 #: the groups :func:`check_determined` reads: the ones a written model is trusted for
 #: (a spring's damping is excluded: a small damping is legitimately barely seen)
 DETERMINED_GROUPS = ("mass", "inertia", "stiffness", "rest_length")

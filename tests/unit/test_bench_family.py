@@ -19,7 +19,9 @@ from family_invariants import (
     contact_errors,
     largest_move,
     relative_se,
+    silently_wrong,
     verdict,
+    warned,
     worst_errors,
 )
 
@@ -102,6 +104,21 @@ def test_a_default_start_fit_is_also_judged_by_the_truths_own_check() -> None:
     assert at_the_truth(_record("default", identify={"status": "failed"})) == "identify (failed)"
     se = relative_se(_doc([1.0, 2.0], 0.1))
     assert se == pytest.approx({"mass": 0.075, "stiffness": 0.01})  # medians of 0.1 and 0.05
+
+
+def test_a_fit_written_off_its_invariants_must_carry_the_warning() -> None:
+    from identification.trajectory.stage_check import POORLY_DETERMINED
+
+    off = {**dict.fromkeys(bench_family.GROUPS, 0.0), "mass": 0.5}
+    quiet = _record("default", worst=off, worst_se_ratio=POORLY_DETERMINED / 2)
+    assert silently_wrong(quiet) and not warned(quiet)
+    loud = _record("default", worst=off, worst_se_ratio=POORLY_DETERMINED)
+    assert warned(loud) and not silently_wrong(loud)
+    assert not silently_wrong(_record("default", worst_se_ratio=0.0))  # met: nothing to warn of
+    damped = {**dict.fromkeys(bench_family.GROUPS, 0.0), "damping": 0.5}
+    assert not silently_wrong(_record("default", worst=damped))  # damping: not the warning's
+    refused = _record("default", identify={"status": "failed", "message": "x"})
+    assert not silently_wrong(refused) and not warned(refused)
 
 
 def test_a_plant_mujoco_cannot_run_is_a_record_naming_the_plant(monkeypatch) -> None:

@@ -65,16 +65,12 @@ class RodAxes:
         radius: each rod's radius [m], (R,), at least 1 mm: its end caps roll on it.
         sign: +1 where end cap 0 -> end cap 1 runs along the positive principal axis,
             -1 where along the negative one, (R,).
-        gyration: each rod's axial moment of inertia per unit mass [m^2], (R,): the
-            robot file's (:attr:`~tensegrity_env.topology.Topology.axial_gyrations`);
-            end caps cannot show it, so fits hold it.
     """
 
     axis: np.ndarray
     frac: np.ndarray
     radius: np.ndarray
     sign: np.ndarray
-    gyration: np.ndarray
 
     @property
     def direction(self) -> np.ndarray:
@@ -99,7 +95,7 @@ class RodAxes:
             frac.append(-e[0, k] / (e[1, k] - e[0, k]))
             sign.append(1.0 if e[1, k] > e[0, k] else -1.0)
         radius = np.array([max(rod.radius, 1e-3) for rod in topology.rods])
-        return cls(np.array(axis), np.array(frac), radius, np.array(sign), topology.axial_gyrations)
+        return cls(np.array(axis), np.array(frac), radius, np.array(sign))
 
 
 # ---------------------------------------------------------------------- end caps -> rod states

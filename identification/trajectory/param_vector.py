@@ -39,7 +39,7 @@ class ParamVector:
     ``I_perp`` on both perpendicular axes and ``M a`` on the axis, with ``axial`` the
     axial moment per unit mass ``a`` [m^2], (R,), held: the start model's where one is
     given (its axial spin, which friction drives on a floor, depends on it), else the
-    robot file's (None: :attr:`RodAxes.gyration`).
+    robot file's (None: :attr:`~tensegrity_env.topology.Topology.axial_gyrations`).
     A cable actuator's gain is ``cable_sign * exp(log |h_c|)`` (a tendon actuator's gain
     may be negative: its sign comes from the start and is held).
     """
@@ -174,7 +174,7 @@ class ParamVector:
         val = torch.exp(log_full)
         g = {k: val[..., self.offset(k) : self.offset(k) + n] for k, n in self.sizes.items()}
         axial = torch.as_tensor(np.eye(3)[self.axes.axis], dtype=DTYPE)  # (R, 3)
-        a = self.axial if self.axial is not None else torch.as_tensor(self.axes.gyration, dtype=DTYPE)
+        a = self.axial if self.axial is not None else torch.as_tensor(self.topology.axial_gyrations, dtype=DTYPE)
         inertia = (
             g["inertia_perp"].unsqueeze(-1) * (1 - axial) + (g["mass"] * a).unsqueeze(-1) * axial
         )

@@ -69,7 +69,7 @@ def test_the_start_models_axial_inertia_is_kept(plant) -> None:
     assert np.abs(roll.p.numpy() - clean.p).max() < 1e-9
     # without a start model the vector takes the robot file's axial moment per unit mass
     mass = truth.params.numpy()["mass"]
-    np.testing.assert_allclose(axes.gyration * mass, axial, rtol=1e-9)
+    np.testing.assert_allclose(topo.axial_gyrations * mass, axial, rtol=1e-9)
     filed = replace(vec, axial=None)
     np.testing.assert_allclose(filed.params(filed.start).numpy()["inertia"], inertia, rtol=1e-9)
     # with a solid rod's axial moment it would not reproduce MuJoCo

@@ -56,6 +56,7 @@ from plant_family import Draw, draw, write_family_cell
 from stderr_survey import worst_ratio
 
 from identification.data.dataset import read_ground_truth
+from identification.trajectory.floor_declared import STARTS_APART
 from tensegrity_env.io_utils import atomic_write_text
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -100,6 +101,8 @@ def identify(folder: Path, start: str, timeout: float) -> dict[str, Any]:
         record["moved"] = list(largest_move(doc, truth))
         record["relative_se"] = relative_se(doc)
         record["worst_se_ratio"] = worst_ratio(doc)[1]
+        if "two_starts" in doc["provenance"]:
+            record["two_starts"] = doc["provenance"]["two_starts"]
         record["contact"], record["contact_unseen"] = contact_errors(doc, gt.effects or [])
     return record
 
@@ -233,8 +236,10 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "friction; those the data cannot pin are left out); se K / c: the median relative",
         "standard error the fit states for the stiffnesses and the spring damping (what the",
         "data determines them to); status: met or miss, \"(warned)\" where `identify` writes",
-        "the fit with its warning that a mass, inertia, stiffness or rest length is poorly",
-        "determined. Invariants: from the truth,",
+        "the fit with a warning: a mass, inertia, stiffness or rest length poorly",
+        "determined, or the floor fit's two starts ending apart; starts: how far apart",
+        "(the largest relative difference of a mass, inertia or stiffness; warned above",
+        f"{100 * STARTS_APART:g} %; — where one start ran). Invariants: from the truth,",
         f"RMS / noise <= {RMS_OVER_NOISE:g} and the moves' RMS <= {MAX_SE_RMS:g} standard "
         "errors (the largest move is reported, not judged: \"none above 2\" fails most",
         "fits whose standard errors are honest);",
@@ -257,8 +262,8 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         "",
         "| plant | start | reversed rods | L [m] | M [kg] | K [N/m] | prestress | status | "
         "RMS / noise | moved [se] | mass | inertia | stiffness | damping | rest length "
-        "| contact | se K / c | seconds |",
-        "|" + "---|" * 18,
+        "| contact | se K / c | starts | seconds |",
+        "|" + "---|" * 19,
     ]
     for r in records:
         w = r.get("worst", {})
@@ -272,11 +277,13 @@ def write_markdown(records: list[dict[str, Any]], path: Path) -> None:
         se = r.get("relative_se", {})
         se_cell = (f"{100 * se['stiffness']:.1f} / {100 * se['damping']:.1f} %"
                    if "stiffness" in se and "damping" in se else "—")  # fmt: skip
+        two = r.get("two_starts", {})
+        starts = f"{100 * two['largest_difference']['relative']:.1f} %" if two.get("tried") else "—"
         lines.append(
             f"| {r['label']} | {r['start']} | {r['reversed_rods']} | {r['draw']['length']:.2f} "
             f"| {r['mass']:.3g} | {r['stiffness']:.3g} | {r['draw']['prestress']:.2f} "
             f"| {status} | {ratio} | {moved} | " + " | ".join(cells)
-            + f" | {contact} | {se_cell} | {r['identify']['seconds']:.0f} |"
+            + f" | {contact} | {se_cell} | {starts} | {r['identify']['seconds']:.0f} |"
         )
     misses = [r for r in records if r["verdict"]]
     if misses:

@@ -135,11 +135,14 @@ def at_the_truth(record: Mapping[str, Any]) -> str:
 
 
 def warned(record: Mapping[str, Any]) -> bool:
-    """Whether ``identify`` writes the record's fit with its poorly-determined warning: a
-    mass, inertia, stiffness or rest length with a standard error of
+    """Whether ``identify`` writes the record's fit with a warning: a mass, inertia,
+    stiffness or rest length with a standard error of
     :data:`~identification.trajectory.stage_check.POORLY_DETERMINED` times its value or
-    more (judged at the current limit from the record's ``worst_se_ratio``)."""
-    return record["identify"]["status"] == "ok" and record.get("worst_se_ratio", 0.0) >= POORLY_DETERMINED
+    more (judged at the current limit from the record's ``worst_se_ratio``), or the floor
+    fit's two starts ending apart (the record's ``two_starts``)."""
+    poor = record.get("worst_se_ratio", 0.0) >= POORLY_DETERMINED
+    apart = bool(record.get("two_starts", {}).get("apart", False))
+    return record["identify"]["status"] == "ok" and (poor or apart)
 
 
 def silently_wrong(record: Mapping[str, Any]) -> bool:

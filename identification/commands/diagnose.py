@@ -157,11 +157,13 @@ def run_plant(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     import torch
 
+    from identification.commands.two_starts import two_starts_report
     from identification.data.dataset import read_dataset, read_ground_truth
     from identification.data.end_caps import check_caps_seen
     from identification.data.sample_grid import on_nominal_grid
     from identification.discovery.choose import choose_scorer, uses_trajectories
     from identification.discovery.loop import EffectDiscovery
+    from identification.discovery.multi_step import MultiStepScorer
     from identification.discovery.open_loop import (
         check_against_start,
         keep_not_diverged,
@@ -234,6 +236,9 @@ def run(args: argparse.Namespace) -> int:
             extra["floor_evidence"] = evidence[0].as_dict()
         if multi_step:
             extra["method"] = "trajectory"
+            assert isinstance(scorer, MultiStepScorer)  # narrowing: multi_step says so
+            if scorer.data.on_floor and args.params is None:
+                extra["two_starts"] = two_starts_report(scorer.data.starts)
         extra["seconds"] = time.perf_counter() - t0
         params = write_params(result, out / "params.json", extra)
     report, params = args.output / report.name, args.output / params.name
@@ -356,7 +361,8 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   final_floor_windows=args.final_floor_windows,
                                   final_floor_window=final_floor_window,
                                   floor_window=floor_window, final_iter=args.final_iterations,
-                                  seed=args.seed, physics_dt=args.physics_dt)  # fmt: skip
+                                  seed=args.seed, physics_dt=args.physics_dt,
+                                  second_start=args.effort != "quick")  # fmt: skip
     print(window_header(dataset, settings))
     print(effort_line(args, ("windows", "fit_windows", "floor_windows", "final_floor_windows",
                              "final_iterations")))  # fmt: skip

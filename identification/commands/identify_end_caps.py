@@ -27,6 +27,7 @@ import numpy as np
 
 from identification.commands.declared import declared_model, declared_start, no_other_effects
 from identification.commands.durations import describe, samples_of
+from identification.commands.two_starts import two_starts_report
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.data.end_caps import check_caps_seen
 from identification.linear.regression import ParameterRow
@@ -161,6 +162,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     settings = TrajectorySettings(
         anchors=anchors, smoothing=args.smoothing, seed=args.seed, physics_dt=args.physics_dt,
         fit_window=samples_of(window, dt, 2), floor_windows=args.floor_windows,
+        second_start=args.effort != "quick",
     )  # fmt: skip
     if floor:
         how = (f"the declared model and ground contact fitted on {args.floor_windows} or more "
@@ -269,6 +271,8 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
               f"{POORLY_DETERMINED:g} times the value or more), the worst {poor[0][0]} at "
               f"{poor[0][1]:.3g} times: read their values with care")  # fmt: skip
         extra["provenance"]["poorly_determined"] = dict(poor)
+    if isinstance(est, FloorIdentification) and start is None:
+        extra["provenance"]["two_starts"] = two_starts_report(est.starts_)
     physics = dt / substeps_for(dt, args.physics_dt)  # the step the fit integrated at
     if effects:
         print("\n" + "\n".join(e.describe() for e in effects))

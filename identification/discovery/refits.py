@@ -95,7 +95,9 @@ def floor_refit(
         lambda: refit_many(data, screened.vec, screened.theta, s, s.base_iter)
     ]
     if afresh is None:  # (a candidate fitted jointly comes with it)
-        tasks.append(lambda: floor_fit(data, s, scorer.start, effects, contact=scorer.contact))
+        # one start: this fit afresh is itself the second start against the screened candidate
+        one = replace(s, second_start=False)
+        tasks.append(lambda: floor_fit(data, one, scorer.start, effects, contact=scorer.contact))
     near, *fresh = side_by_side(tasks, scorer.jobs, scorer.log)
     afresh = afresh or fresh[0]
     scorer.log(f"    floor refit from the screened candidate {near.rms * 1e3:.3f} mm, afresh "

@@ -89,6 +89,10 @@ class TrajectorySettings:
         physics_dt: the longest physics step [s]; the engine substeps between samples
             (:func:`tensegrity_env.engine.substeps_for`) and is compared with the data at
             the sample times.
+        second_start: a floor fit from the regression runs again from a spread of soft
+            contacts and the two are compared
+            (:class:`~identification.trajectory.floor_declared.StartCheck`); False halves
+            its cost and leaves a second minimum unseen.
     """
 
     anchors: dict[str, float] = field(default_factory=dict)
@@ -109,6 +113,7 @@ class TrajectorySettings:
     floor_window: int = 0
     final_iter: int = FINAL_ITERATIONS
     physics_dt: float = PHYSICS_DT
+    second_start: bool = True
 
 
 @dataclass
@@ -236,6 +241,9 @@ class EndCapData:
         self.contact_box: dict[str, tuple[float, float]] | None = None
         #: steps per window the floor fit chose (None: no floor fit yet)
         self.floor_steps: int | None = None
+        #: the last floor fit from the regression, its two starts compared
+        #: (:class:`~identification.trajectory.floor_declared.StartCheck`; None: none)
+        self.starts: Any = None
 
     @property
     def spin(self) -> bool:

@@ -207,36 +207,50 @@ def first_floor_fit(
     noise: float,
     iters: int,
     stuck_at_start: bool = True,
+    spread: bool = False,
 ) -> tuple[WindowFit, int]:
     """The floor fit's first fit (:func:`~identification.trajectory.floor_fit.fit_on_floor`
-    of ``iters`` iterations from the start, ``stuck_at_start`` as there) on each of
-    ``choices`` (steps, count), and
+    of ``iters`` iterations from the start, ``stuck_at_start`` and ``spread`` as there)
+    on each of ``choices`` (steps, count), and
     the steps of the one kept: the only one, else the one whose model fits the states
-    of ``count`` windows of ``longest`` steps best (median end-cap RMS [m],
-    :func:`state_fits`) on the validation split, which no choice was fitted on (on
+    of ``count`` windows of ``longest`` steps best (:func:`judged`) on the validation
+    split, which no choice was fitted on (on
     training windows the fits did not use where there is none; each choice's own
     windows' error cannot be compared across lengths, and the longest choice's would be
     judged on its own windows). Longer windows hold more of the motion between
     contacts, so the model that carries the states furthest is the one that explains
     the motion, not the one that fits short pieces of it.
     """
-    split, stream = ("val", 3) if "val" in data.dataset.splits else ("train", JUDGE_STREAM)
     fits: list[tuple[float, WindowFit, int]] = []
     for steps, n in choices:
         windows = data.cut("train", steps, n, 3, lift_off=n // 2)
         w = fit_on_floor(data.engine, vec, windows, vec.theta0(), iters, log=data.log,
-                         stuck=STUCK_WINDOW * noise, stuck_at_start=stuck_at_start)  # fmt: skip
+                         stuck=STUCK_WINDOW * noise, stuck_at_start=stuck_at_start,
+                         spread=spread)  # fmt: skip
         if len(choices) == 1:
             return w, steps
-        judged = state_fits(data, bounded(vec, w.theta), w.theta, [longest], count, noise, split,
-                            stream)[0][0]  # fmt: skip
-        data.log(f"    first fit on {n} windows of {steps} steps: median state fit on {split} "
-                 f"windows of {longest} steps {judged * 1e3:.3g} mm")  # fmt: skip
-        fits.append((judged if np.isfinite(judged) else np.inf, w, steps))
-    judged, w, steps = min(fits, key=lambda f: f[0])
-    data.log(f"    kept the fit on windows of {steps} steps (median {judged * 1e3:.3g} mm on "
-             f"{split} windows of {longest} steps)")  # fmt: skip
+        score, where = judged(data, vec, w.theta, longest, count, noise)
+        data.log(f"    first fit on {n} windows of {steps} steps: median state fit on "
+                 f"{where} {score * 1e3:.3g} mm")  # fmt: skip
+        fits.append((score, w, steps))
+    score, w, steps = min(fits, key=lambda f: f[0])
+    data.log(f"    kept the fit on windows of {steps} steps (median {score * 1e3:.3g} mm on "
+             f"{where})")  # fmt: skip
     return w, steps
+
+
+def judged(
+    data: EndCapData, vec: ParamVector, theta: torch.Tensor, longest: int, count: int,
+    noise: float,
+) -> tuple[float, str]:  # fmt: skip
+    """How well the floor model at ``theta`` carries the motion: the median state fit [m]
+    (:func:`state_fits`) of ``count`` windows of ``longest`` steps of the validation split
+    (training windows the fits do not use, where there is none; inf where it is not
+    finite), and those windows in words."""
+    split, stream = ("val", 3) if "val" in data.dataset.splits else ("train", JUDGE_STREAM)
+    score = state_fits(data, bounded(vec, theta), theta, [longest], count, noise, split,
+                       stream)[0][0]  # fmt: skip
+    return (score if np.isfinite(score) else np.inf), f"{split} windows of {longest} steps"
 
 
 def longer_windows(
@@ -288,12 +302,120 @@ def kept_longer(shorter: WindowFit, longer: WindowFit, noise: float) -> bool:
     return rms_of(longer) <= max(rms_of(shorter), STUCK_WINDOW * noise)
 
 
+def windowed_floor_fit(
+    data: EndCapData,
+    vec: ParamVector,
+    s: TrajectorySettings,
+    choices: Sequence[tuple[int, int]],
+    longest: int,
+    count: int,
+    noise: float,
+    stuck_at_start: bool = True,
+    spread: bool = False,
+) -> tuple[WindowFit, int]:
+    """The floor fit from ``vec``'s start: the first fit on each of ``choices``
+    (:func:`first_floor_fit`, ``stuck_at_start`` and ``spread`` as there), then on to
+    longer windows (up to ``longest`` steps; ``spread`` in their contact searches too)
+    from its fit while their states fit
+    (:func:`longer_windows`, :func:`kept_longer`; only where ``s.floor_window`` is not
+    set). Returns the last fit kept and its window steps."""
+    w, steps = first_floor_fit(data, vec, choices, longest, count, noise, s.base_iter,
+                               stuck_at_start, spread)  # fmt: skip
+    while s.floor_window <= 0 and steps < longest:  # on to longer windows from the fit
+        longer = longer_windows(data, vec, w.theta, longest, steps, count, noise)
+        if longer is None:
+            break
+        n, many, why = longer
+        data.log(f"    floor windows from the fit: {many} of {n} steps; {why}")
+        many_windows = data.cut("train", n, many, 3, lift_off=many // 2)
+        longer_fit = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter,
+                                  log=data.log, stuck=STUCK_WINDOW * noise,
+                                  spread=spread)  # fmt: skip
+        if not kept_longer(w, longer_fit, noise):
+            data.log(f"    floor windows stay at {steps} steps: the fit on {n}-step windows "
+                     f"ends at {rms_of(longer_fit) * 1e3:.3g} mm, above both "
+                     f"{rms_of(w) * 1e3:.3g} mm on {steps} steps and {STUCK_WINDOW:g} "
+                     "noise levels (stuck windows it kept)")  # fmt: skip
+            break
+        w, steps = longer_fit, n
+    return w, steps
+
+
+#: the largest relative difference of a mass, inertia or stiffness between the floor
+#: fit's two starts above which the model is written with a warning: the default start's
+#: tolerance on those groups (two fits further apart cannot both be within it)
+STARTS_APART = 0.03
+#: the groups the two starts are compared on: those the end caps pin
+COMPARED = ("mass", "inertia_perp", "stiffness")
+
+
+@dataclass(frozen=True)
+class StartCheck:
+    """The floor fit from its two starts, compared: the parameter of :data:`COMPARED`
+    whose values differ most (``name``, ``difference``: ``exp |log a - log b| - 1``),
+    each start's :func:`judged` score [m] (``judged``: first, second) and which start's
+    fit is kept (``kept``: 0 the regression's contact, 1 the spread of contacts; the
+    lower score, the first on a tie)."""
+
+    name: str
+    difference: float
+    judged: tuple[float, float]
+    kept: int
+    where: str
+
+    @property
+    def apart(self) -> bool:
+        """Whether the two starts end in models more than :data:`STARTS_APART` apart:
+        the data, or the fit, does not single out one model."""
+        return not self.difference <= STARTS_APART
+
+    def line(self) -> str:
+        """One line: how far apart the starts end and which is kept."""
+        a, b = (f"{x * 1e3:.3g} mm" for x in self.judged)
+        verdict = (f"more than {100 * STARTS_APART:g} % apart: two minima"
+                   if self.apart else f"within {100 * STARTS_APART:g} %")  # fmt: skip
+        return (f"floor fit's two starts: largest difference {self.name} "
+                f"{100 * self.difference:.3g} % ({verdict}); median state fit on {self.where} "
+                f"{a} and {b}, kept the {('first', 'second')[self.kept]}")  # fmt: skip
+
+    def as_dict(self) -> dict[str, Any]:
+        """The check as a params file's provenance holds it."""
+        return {"largest_difference": {"name": self.name, "relative": self.difference},
+                "judged_m": list(self.judged), "judged_on": self.where,
+                "kept": ("first", "second")[self.kept], "apart": self.apart,
+                "limit": STARTS_APART}  # fmt: skip
+
+
+def largest_difference(vec: ParamVector, a: torch.Tensor, b: torch.Tensor) -> tuple[str, float]:
+    """The entry of :data:`COMPARED` whose values at fitted vectors ``a`` and ``b`` differ
+    most, and by how much (``exp |log a - log b| - 1``)."""
+    gap = (vec.full(a.detach()) - vec.full(b.detach())).abs()
+    names = vec.names()
+    picked = [i for i, n in enumerate(names) if n.split("[")[0] in COMPARED]
+    i = max(picked, key=lambda j: float(gap[j]))
+    return names[i].replace("inertia_perp", "inertia"), float(torch.expm1(gap[i]))
+
+
+def compare_starts(
+    data: EndCapData, vec: ParamVector, thetas: Sequence[torch.Tensor], longest: int,
+    count: int, noise: float,
+) -> StartCheck:  # fmt: skip
+    """The floor fit's two fitted vectors ``thetas`` compared (:class:`StartCheck`): how
+    far apart, and each one's :func:`judged` score on the same windows."""
+    name, difference = largest_difference(vec, thetas[0], thetas[1])
+    scores = [judged(data, vec, t, longest, count, noise) for t in thetas]
+    kept = int(scores[1][0] < scores[0][0])
+    return StartCheck(name, difference, (scores[0][0], scores[1][0]), kept, scores[0][1])
+
+
 @dataclass(frozen=True)
 class FloorFit:
     """The declared model and ground contact fitted together on the floor windows of the
-    training split (``fit``, its vector bounded around the fitted contact)."""
+    training split (``fit``, its vector bounded around the fitted contact) and, where it
+    started from the regression, its two starts compared (``starts``)."""
 
     fit: TrajFit
+    starts: StartCheck | None = None
 
     @property
     def box(self) -> dict[str, tuple[float, float]]:
@@ -346,24 +468,17 @@ def floor_fit(
              + " or ".join(f"{n} windows of {m} steps" for m, n in choices))  # fmt: skip
     # the regression's misfit on a window is its own error, not a stuck state
     from_regression = start is None and values is None
-    w, steps = first_floor_fit(data, vec, choices, longest, count0, noise, s.base_iter,
-                               stuck_at_start=not from_regression)  # fmt: skip
-    while s.floor_window <= 0 and steps < longest:  # on to longer windows from the fit
-        longer = longer_windows(data, vec, w.theta, longest, steps, count0, noise)
-        if longer is None:
-            break
-        n, count, why = longer
-        data.log(f"    floor windows from the fit: {count} of {n} steps; {why}")
-        many_windows = data.cut("train", n, count, 3, lift_off=count // 2)
-        longer_fit = fit_on_floor(data.engine, vec, many_windows, w.theta, s.base_iter,
-                                  log=data.log, stuck=STUCK_WINDOW * noise)  # fmt: skip
-        if not kept_longer(w, longer_fit, noise):
-            data.log(f"    floor windows stay at {steps} steps: the fit on {n}-step windows "
-                     f"ends at {rms_of(longer_fit) * 1e3:.3g} mm, above both "
-                     f"{rms_of(w) * 1e3:.3g} mm on {steps} steps and {STUCK_WINDOW:g} "
-                     "noise levels (stuck windows it kept)")  # fmt: skip
-            break
-        w, steps = longer_fit, n
+    fits = [windowed_floor_fit(data, vec, s, choices, longest, count0, noise,
+                               stuck_at_start=not from_regression)]  # fmt: skip
+    check = None
+    if from_regression and s.second_start:
+        data.log("    the floor fit again, from its second start (the contact search from a "
+                 "spread of soft contacts)")  # fmt: skip
+        fits.append(windowed_floor_fit(data, vec, s, choices, longest, count0, noise,
+                                       stuck_at_start=False, spread=True))  # fmt: skip
+        check = compare_starts(data, vec, [f[0].theta for f in fits], longest, count0, noise)
+        data.log(f"    {check.line()}")
+    w, steps = fits[check.kept if check is not None else 0]
     data.floor_steps = steps
     vec = bounded(vec, w.theta, float(begin.values["height"].reshape(-1)[0]))
     m = w.windows.residuals
@@ -380,7 +495,7 @@ def floor_fit(
             vec, w.theta, w.windows, w.history[-1] * m, m, w.stderr, converged=w.converged
         )
     fit.origin = fit.theta
-    return FloorFit(fit)
+    return FloorFit(fit, check)
 
 
 def rest_radii(data: EndCapData, params: Params, others: Sequence[PhysicalEffect],
@@ -423,6 +538,7 @@ def fit_declared_on_floor(
     t0 = time.perf_counter()
     floor = floor_fit(data, s, start, effects, values, contact)
     adopt_floor_fit(data, floor)
+    data.starts = floor.starts or data.starts
     many = fit = floor.fit
     if selection:
         data.lift_off_selection()
@@ -463,8 +579,10 @@ class FloorIdentification:
     The attributes mirror :class:`~identification.trajectory.identifier.TrajectoryIdentifier`'s
     (``params_``, ``topology_``, ``stderr_`` relative per free parameter, ``mode_``,
     ``notes_``, ``rms_`` [m], ``converged_``, ``stages_``), plus ``contact_`` (the fitted
-    :class:`GroundContact`, standard errors as its ``uncertainty``) and ``effects_`` (the
-    declared effects fitted with it, such as tension-only springs).
+    :class:`GroundContact`, standard errors as its ``uncertainty``), ``effects_`` (the
+    declared effects fitted with it, such as tension-only springs) and ``starts_`` (the
+    floor fit's two starts compared; None where it started from a params file or ran
+    from one start).
     """
 
     params_: Params
@@ -477,6 +595,7 @@ class FloorIdentification:
     stages_: list[dict[str, Any]]
     contact_: GroundContact
     effects_: list[PhysicalEffect] = field(default_factory=list)
+    starts_: StartCheck | None = None
 
 
 def identify_on_floor(
@@ -516,4 +635,5 @@ def identify_on_floor(
         params_=many.params, topology_=topo, stderr_=stderr, mode_=ident.mode_,
         notes_=TrajectoryIdentifier.notes(topo, data.axes, has_control), rms_=many.rms,
         converged_=True, stages_=stages, contact_=fitted, effects_=list(many.effects[:-1]),
+        starts_=data.starts,
     )  # fmt: skip

@@ -265,13 +265,17 @@ def search_floor_contact(
     windows: Windows,
     theta: torch.Tensor,
     log: Callable[[str], None] = lambda s: None,
+    spread: bool = False,
 ) -> torch.Tensor:
     """``theta`` with the contact's coordinates from a Nelder-Mead search on ``windows``.
 
     The declared parameters, the other effects and the windows' states are held. The
     contact is ``vec``'s last effect, its coordinates the last of ``theta``. The floor
     height stays within :data:`FLOOR_SEARCH_RANGE` of its start (where the end caps are
-    seen touching, :func:`floor_height`).
+    seen touching, :func:`floor_height`). ``spread``: the search starts from the best of
+    the fit's contact and a spread of soft-contact time constants
+    (:data:`~identification.trajectory.touchdown.TIME_CONSTANTS`; the floor fit's second
+    start, :func:`~identification.trajectory.floor_declared.floor_fit`).
     """
     assert vec.coords is not None
     n = vec.n_free
@@ -286,7 +290,8 @@ def search_floor_contact(
     found = search_contact(engine, params, others, contact, touch, log,
                            horizons=(windows.steps,), keys=FLOOR_FREE,
                            restarts=SEARCH_RESTARTS, what="contact search on floor windows",
-                           bounds={"height": (h - FLOOR_SEARCH_RANGE, h + FLOOR_SEARCH_RANGE)})  # fmt: skip
+                           bounds={"height": (h - FLOOR_SEARCH_RANGE, h + FLOOR_SEARCH_RANGE)},
+                           spread=spread)  # fmt: skip
     k = len(FLOOR_FREE)
     x = torch.tensor([float(v) for v in _coords(found.contact)], dtype=theta.dtype)
     return torch.cat([theta[: len(theta) - k], x])
@@ -388,6 +393,7 @@ def fit_on_floor(
     log: Callable[[str], None] = lambda s: None,
     stuck: float | None = None,
     stuck_at_start: bool = True,
+    spread: bool = False,
 ) -> WindowFit:
     """Declared parameters, effects and contact fitted jointly on floor ``windows``.
 
@@ -413,7 +419,8 @@ def fit_on_floor(
     ``stuck_at_start``: windows are left out in the first round too, at the start
     model; False where that model is the regression (off by tens of per cent: on 5-sample
     windows its median window fits within the limit while the windows above it show its
-    error, not stuck states).
+    error, not stuck states). ``spread``: the first contact search starts from the best
+    of a spread of contacts (:func:`search_floor_contact`).
     """
     fit: WindowFit | None = None
     seeds = windows
@@ -427,7 +434,7 @@ def fit_on_floor(
             if stuck is not None and stuck_at_start:
                 windows = without_stuck(engine, vec, theta, windows, stuck, log, near=True)
             floor = contact_height(vec, theta)  # the start: where the caps touch, or a given contact's
-            theta = search_floor_contact(engine, vec, windows, theta, log)
+            theta = search_floor_contact(engine, vec, windows, theta, log, spread)
             vec = bounded(vec, theta, floor)
         else:
             assert fit is not None

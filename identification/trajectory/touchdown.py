@@ -67,6 +67,10 @@ MAX_EVALS = 300
 MIN_AIRBORNE = 20
 #: error returned where a rollout blows up [m^2]
 BLOWN_UP = 1.0
+#: soft-contact time constants [s] a search with ``spread=True`` also starts from
+#: (critically damped): MuJoCo's usual range, from a few physics steps to twice its
+#: 20 ms default; a search started at one end of it stays in that end's basin
+TIME_CONSTANTS = (0.0025, 0.005, 0.01, 0.02, 0.04)
 
 
 @dataclass(frozen=True)
@@ -207,6 +211,7 @@ def search_contact(
     restarts: int = RESTARTS,
     what: str = "touchdowns",
     bounds: dict[str, tuple[float, float]] | None = None,
+    spread: bool = False,
 ) -> ContactSearch:
     """Contact parameters from the touchdowns (module docstring, steps 2 and 3).
 
@@ -216,7 +221,9 @@ def search_contact(
     fitted in turn (at most the touchdowns' length); ``keys``: the contact parameters
     searched (default :data:`CONTACT_FREE`); ``restarts``: Nelder-Mead runs per horizon; ``what``: the
     windows' name in the log; ``bounds``: limits (lo, hi) of some of ``keys`` in the
-    search's coordinates (log, logit, m), the simplex and the search kept within them.
+    search's coordinates (log, logit, m), the simplex and the search kept within them;
+    ``spread``: start from the best of ``start`` and :func:`time_constant_starts` (by
+    the error at the first horizon).
     """
     evals = 0
 
@@ -232,6 +239,9 @@ def search_contact(
     box = [(bounds or {}).get(k, (-np.inf, np.inf)) for k in keys]
     lo, hi = np.array([b[0] for b in box]), np.array([b[1] for b in box])
     x = np.clip(x, lo, hi)
+    if spread:
+        tried = [x, *(np.clip(y, lo, hi) for y in time_constant_starts(start, keys))]
+        x = min(tried, key=lambda y: error(y, horizons[0]))
     # a bounded coordinate's simplex edge: at most half its range (a vertex clipped onto
     # the bound would leave the simplex flat in it)
     step = np.minimum(SIMPLEX_STEP, (hi - lo) / 2)
@@ -255,6 +265,16 @@ def search_contact(
         slope = v * (1 - v) if spec.unit_interval else (abs(v) if spec.positive else 1.0)
         contact.uncertainty[k] = slope * float(s)
     return ContactSearch(contact, rms, evals)
+
+
+def time_constant_starts(start: GroundContact, keys: Sequence[str]) -> list[np.ndarray]:
+    """``start``'s ``keys`` in the search's coordinates with its stiffness and damping
+    those of a critically damped soft contact of each of :data:`TIME_CONSTANTS`
+    (``K = 1/(d tc)^2``, ``B = 2/(d tc)`` at its impedance ``d``), (len(keys),) each."""
+    d = float(start.values["impedance"].reshape(-1)[0])
+    return [np.array([to_free(start.PARAMS[k], {"stiffness": 1.0 / (d * tc) ** 2, "damping": 2.0 / (d * tc)}
+                      .get(k, float(start.values[k].reshape(-1)[0]))) for k in keys])
+            for tc in TIME_CONSTANTS]  # fmt: skip
 
 
 def _stderr(

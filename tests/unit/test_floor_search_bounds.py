@@ -1,11 +1,13 @@
 """The first contact search on the floor keeps the floor where the end caps are seen
-touching it: a few short windows of a gapped take cannot lift it centimetres above them."""
+touching it: a few short windows of a gapped take cannot lift it centimetres above them;
+its second start, a spread of soft contacts."""
 
 from __future__ import annotations
 
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 
@@ -60,3 +62,21 @@ def test_the_floor_search_stays_within_the_band_the_caps_are_read_in(monkeypatch
     except RuntimeError:
         pass
     assert seen["bounds"] == {"height": (h0 - TOUCH, h0 + TOUCH)}
+
+
+def test_the_spread_of_contact_starts_is_critically_damped_at_each_time_constant() -> None:
+    """MuJoCo's solref at damping ratio 1: K = 1/(d tc)^2, B = 2/(d tc) at impedance d."""
+    from identification.trajectory.effect_coords import from_free
+    from identification.trajectory.touchdown import TIME_CONSTANTS, time_constant_starts
+    from tensegrity_env.assemblies import icosahedron
+    from tensegrity_env.effects import GroundContact
+
+    contact = GroundContact(icosahedron().topology, impedance=0.9, friction=0.8)
+    keys = ("stiffness", "damping", "friction", "impedance")
+    starts = time_constant_starts(contact, keys)
+    assert len(starts) == len(TIME_CONSTANTS)
+    for tc, x in zip(TIME_CONSTANTS, starts, strict=True):
+        v = {k: float(from_free(contact.PARAMS[k], torch.tensor(x[i]))) for i, k in enumerate(keys)}
+        assert v["impedance"] == pytest.approx(0.9) and v["friction"] == pytest.approx(0.8)
+        assert v["damping"] / (2 * np.sqrt(v["stiffness"])) == pytest.approx(1.0)  # critical
+        assert 2 / (v["damping"] * v["impedance"]) == pytest.approx(tc)

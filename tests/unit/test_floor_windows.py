@@ -188,3 +188,48 @@ def test_stuck_windows_are_left_out_at_the_start_only_from_a_given_model(rolling
                           stuck=1.5e-3, stuck_at_start=at_start)  # fmt: skip
     assert len(calls) == (1 if at_start else 0)
     assert fit.windows.size == windows.size - (1 if at_start else 0)
+
+
+def test_the_two_starts_are_compared_on_the_groups_the_end_caps_pin(rolling) -> None:
+    """The largest relative difference is taken over masses, perpendicular inertias and
+    stiffnesses only (a spring damping the data barely sees may differ more), and the
+    check warns above STARTS_APART."""
+    from identification.trajectory.floor_declared import (
+        STARTS_APART,
+        StartCheck,
+        largest_difference,
+    )
+
+    _, vec, _ = rolling
+    names = [vec.names()[i] for i in np.flatnonzero(vec.free.numpy())]
+    a = vec.theta0()
+    b = a.clone()
+    b[names.index("mass[rod2]")] += np.log(1.05)
+    b[names.index("inertia_perp[rod4]")] -= np.log(1.02)
+    b[names.index("damping[spring3]")] += np.log(3.0)  # not compared
+    name, difference = largest_difference(vec, a, b)
+    assert name == "mass[rod2]" and difference == pytest.approx(0.05, rel=1e-9)
+    assert largest_difference(vec, b, a) == (name, pytest.approx(difference, rel=1e-12))
+    assert largest_difference(vec, a, a)[1] == 0.0
+    apart = StartCheck(name, difference, (1.1e-3, 1.0e-3), 1, "val windows of 30 steps")
+    near = StartCheck(name, 0.9 * STARTS_APART, (1.0e-3, 1.0e-3), 0, "val windows of 30 steps")
+    assert apart.apart and not near.apart
+    assert "two minima" in apart.line() and "kept the second" in apart.line()
+    assert apart.as_dict()["largest_difference"] == {"name": "mass[rod2]", "relative": difference}
+
+
+def test_the_start_whose_model_carries_the_states_further_is_kept(rolling, monkeypatch) -> None:
+    """compare_starts judges both fitted models on the same held-out windows and keeps the
+    lower median state fit (the first on a tie)."""
+    from identification.trajectory import floor_declared
+
+    data, vec, _ = rolling
+    a = vec.theta0()
+    b = a.clone()
+    b[0] += np.log(1.2)
+    scores = {float(a[0]): 2e-3, float(b[0]): 1e-3}
+    monkeypatch.setattr(floor_declared, "judged",
+                        lambda d, v, t, n, c, s: (scores[float(t[0])], "val windows"))  # fmt: skip
+    check = floor_declared.compare_starts(data, vec, [a, b], 30, 8, 1e-3)
+    assert check.kept == 1 and check.judged == (2e-3, 1e-3) and check.apart
+    assert floor_declared.compare_starts(data, vec, [a, a], 30, 8, 1e-3).kept == 0

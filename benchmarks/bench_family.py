@@ -48,6 +48,7 @@ from family_invariants import (
     largest_move,
     relative_se,
     silently_wrong,
+    structure_error,
     verdict,
     warned,
     worst_errors,
@@ -189,6 +190,14 @@ def summary_lines(records: list[dict[str, Any]]) -> list[str]:
                     silent = sum(silently_wrong(r) for r in rs)
                     line += (f"; {silent} written with masses, inertias or stiffnesses off by more "
                              f"than {100 * STRUCTURE_TOL:g} % without identify's warning")  # fmt: skip
+                    tried = [r for r in rs if r.get("two_starts", {}).get("tried")]
+                    if tried:
+                        apart = [r for r in tried if r["two_starts"]["apart"]]
+                        within = sum(structure_error(r) <= STRUCTURE_TOL for r in apart)
+                        line += (f"; the floor fit's two starts ended more than "
+                                 f"{100 * STARTS_APART:g} % apart on {len(apart)} of {len(tried)} "
+                                 f"(warned; {within} of those written within "
+                                 f"{100 * STRUCTURE_TOL:g} %)")  # fmt: skip
                 lines.append(line)
     return lines
 

@@ -145,12 +145,18 @@ def warned(record: Mapping[str, Any]) -> bool:
     return record["identify"]["status"] == "ok" and (poor or apart)
 
 
+def structure_error(record: Mapping[str, Any]) -> float:
+    """The largest relative error of a record's masses, perpendicular inertias and
+    stiffnesses (0 where it has none: nothing written; NaN where one is NaN)."""
+    worst = record.get("worst", {})
+    return float(np.max([worst.get(g, 0.0) for g in ("mass", "inertia", "stiffness")]))
+
+
 def silently_wrong(record: Mapping[str, Any]) -> bool:
     """A fit written with a mass, inertia or stiffness off by more than
     :data:`STRUCTURE_TOL` and without the warning (:func:`warned`), which judges those
     groups (spring damping and contact it leaves alone: a weakly seen damping is legitimate)."""
-    worst = record.get("worst", {})
-    off = any(not worst.get(g, 0.0) <= STRUCTURE_TOL for g in ("mass", "inertia", "stiffness"))
+    off = not structure_error(record) <= STRUCTURE_TOL
     return record["identify"]["status"] == "ok" and off and not warned(record)
 
 

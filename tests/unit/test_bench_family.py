@@ -20,6 +20,7 @@ from family_invariants import (
     largest_move,
     relative_se,
     silently_wrong,
+    structure_error,
     verdict,
     warned,
     worst_errors,
@@ -119,6 +120,19 @@ def test_a_fit_written_off_its_invariants_must_carry_the_warning() -> None:
     assert not silently_wrong(_record("default", worst=damped))  # damping: not the warning's
     refused = _record("default", identify={"status": "failed", "message": "x"})
     assert not silently_wrong(refused) and not warned(refused)
+    # the floor fit's two starts ending apart is a warning too
+    apart = _record("default", worst=off, worst_se_ratio=0.0,
+                    two_starts={"tried": True, "apart": True})  # fmt: skip
+    assert warned(apart) and not silently_wrong(apart)
+    agreed = _record("default", worst=off, two_starts={"tried": True, "apart": False})
+    assert silently_wrong(agreed)
+
+
+def test_a_nan_error_counts_as_off() -> None:
+    nan = {**dict.fromkeys(bench_family.GROUPS, 0.0), "mass": float("nan")}
+    assert np.isnan(structure_error(_record("default", worst=nan)))
+    assert silently_wrong(_record("default", worst=nan, worst_se_ratio=0.0))
+    assert structure_error(_record("default", worst={"inertia": 0.02, "stiffness": 0.05})) == 0.05
 
 
 def test_a_plant_mujoco_cannot_run_is_a_record_naming_the_plant(monkeypatch) -> None:

@@ -343,7 +343,7 @@ def windowed_floor_fit(
 
 #: the largest relative difference of a mass, inertia or stiffness between the floor
 #: fit's two starts above which the model is written with a warning: the default start's
-#: tolerance on those groups (two fits further apart cannot both be within it)
+#: tolerance on those groups (of two fits further apart, one is off by more than half of it)
 STARTS_APART = 0.03
 #: the groups the two starts are compared on: those the end caps pin
 COMPARED = ("mass", "inertia_perp", "stiffness")
@@ -355,7 +355,7 @@ class StartCheck:
     whose values differ most (``name``, ``difference``: ``exp |log a - log b| - 1``),
     each start's :func:`judged` score [m] (``judged``: first, second) and which start's
     fit is kept (``kept``: 0 the regression's contact, 1 the spread of contacts; the
-    lower score, the first on a tie)."""
+    lower score, the first on a tie), ``where``: the judge's windows in words."""
 
     name: str
     difference: float

@@ -2,7 +2,9 @@
 limits as one choice, in ``identify`` and ``diagnose``.
 
 ``default`` is the measured defaults (:mod:`identification.defaults` and the commands'
-own); ``quick`` halves every count and ``thorough`` doubles it. A fit's cost grows in
+own); ``quick`` halves every count and ``thorough`` doubles it. ``quick`` also fits
+floor-only data from one start instead of two
+(:attr:`~identification.trajectory.end_cap_data.TrajectorySettings.second_start`). A fit's cost grows in
 proportion to its windows and iterations, and the spread of the weakest parameters
 (spring damping first) shrinks as the inverse square root of the windows. The window
 lengths are not part of it: they come from the data (the sample rate; on the floor, how
@@ -47,8 +49,8 @@ def add_effort_option(p: argparse.ArgumentParser, hidden: dict[str, Any]) -> Non
     defaulting to None (the effort's value)."""
     p.add_argument("--effort", choices=tuple(EFFORTS), default="default",
                    help="how hard the trajectory fits work: quick halves their windows and "
-                   "iterations, thorough doubles them (default: default); the report prints "
-                   "what was used")  # fmt: skip
+                   "iterations and fits floor-only data from one start, thorough doubles them "
+                   "(default: default); the report prints what was used")  # fmt: skip
     for option, kind in hidden.items():
         p.add_argument(option, type=kind, default=None, help=argparse.SUPPRESS)
 

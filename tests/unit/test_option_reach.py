@@ -110,6 +110,7 @@ def test_diagnose_effort_scales_the_fits_windows_and_iterations(floor_data, caps
     for key in ("train_windows", "fit_windows", "floor_windows", "final_floor_windows",
                 "final_iter"):  # fmt: skip
         assert getattr(chosen, key) == round(factor * getattr(default, key)), key
+    assert default.second_start and chosen.second_start == (effort != "quick")  # floor: one start
     # an old per-knob option, hidden from --help, still replaces its preset value
     old = parser.parse_args(["diagnose", "d.h5", "--effort", effort, "--floor-windows", "5"])
     assert multi_step_scorer(old, floor_data).settings.floor_windows == 5
@@ -126,6 +127,7 @@ def test_identify_effort_reaches_the_floor_fit(floor_data, tmp_path, capsys, mon
 
     def stop(dataset, settings, split, **kw):
         seen["windows"] = settings.floor_windows
+        seen["two starts"] = settings.second_start
         raise Stop
 
     monkeypatch.setattr(command, "identify_on_floor", stop)
@@ -134,6 +136,7 @@ def test_identify_effort_reaches_the_floor_fit(floor_data, tmp_path, capsys, mon
         main(["identify", str(path), "-o", str(tmp_path / "p.json"), "--effort", effort])
     assert f"effort {effort}" in capsys.readouterr().out
     assert seen["windows"] == {"quick": 4, "thorough": 16}[effort]
+    assert seen["two starts"] == (effort != "quick")  # quick: the floor fit from one start
 
 
 def test_identify_effort_reaches_the_free_flight_fit(monkeypatch) -> None:

@@ -20,7 +20,13 @@ from identification.commands.declared import (
     declared_start,
 )
 from identification.commands.durations import describe, samples_of, seconds
-from identification.commands.effort import COUNTS, add_effort_option, apply_effort, effort_line
+from identification.commands.effort import (
+    COUNTS,
+    add_effort_option,
+    apply_effort,
+    effort_line,
+    two_starts,
+)
 from identification.defaults import (
     FLOOR_WINDOW_S,
     PLANTS,
@@ -362,7 +368,7 @@ def multi_step_scorer(args: argparse.Namespace, dataset: Dataset) -> MultiStepSc
                                   final_floor_window=final_floor_window,
                                   floor_window=floor_window, final_iter=args.final_iterations,
                                   seed=args.seed, physics_dt=args.physics_dt,
-                                  second_start=args.effort != "quick")  # fmt: skip
+                                  second_start=two_starts(args.effort))  # fmt: skip
     print(window_header(dataset, settings))
     print(effort_line(args, ("windows", "fit_windows", "floor_windows", "final_floor_windows",
                              "final_iterations")))  # fmt: skip

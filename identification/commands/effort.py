@@ -44,6 +44,11 @@ def effort_counts(effort: str) -> dict[str, int]:
     return {k: max(1, round(f * v)) for k, v in COUNTS.items()}
 
 
+def two_starts(effort: str) -> bool:
+    """Whether ``effort`` fits floor-only data from two starts (all but ``quick``)."""
+    return effort != "quick"
+
+
 def add_effort_option(p: argparse.ArgumentParser, hidden: dict[str, Any]) -> None:
     """``--effort`` and the hidden per-knob options ``hidden`` (option -> type), each
     defaulting to None (the effort's value)."""

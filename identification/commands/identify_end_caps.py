@@ -27,6 +27,7 @@ import numpy as np
 
 from identification.commands.declared import declared_model, declared_start, no_other_effects
 from identification.commands.durations import describe, samples_of
+from identification.commands.effort import two_starts
 from identification.commands.two_starts import two_starts_report
 from identification.data.dataset import Dataset, read_ground_truth
 from identification.data.end_caps import check_caps_seen
@@ -162,7 +163,7 @@ def run_end_caps(args: argparse.Namespace, dataset: Dataset, anchors: dict[str, 
     settings = TrajectorySettings(
         anchors=anchors, smoothing=args.smoothing, seed=args.seed, physics_dt=args.physics_dt,
         fit_window=samples_of(window, dt, 2), floor_windows=args.floor_windows,
-        second_start=args.effort != "quick",
+        second_start=two_starts(args.effort),
     )  # fmt: skip
     if floor:
         how = (f"the declared model and ground contact fitted on {args.floor_windows} or more "

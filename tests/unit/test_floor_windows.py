@@ -233,3 +233,45 @@ def test_the_start_whose_model_carries_the_states_further_is_kept(rolling, monke
     check = floor_declared.compare_starts(data, vec, [a, b], 30, 8, 1e-3)
     assert check.kept == 1 and check.judged == (2e-3, 1e-3) and check.apart
     assert floor_declared.compare_starts(data, vec, [a, a], 30, 8, 1e-3).kept == 0
+
+
+@pytest.mark.parametrize("given, second", [(False, True), (False, False), (True, True)])
+def test_the_floor_fit_runs_its_second_start_only_from_the_regression(rolling, monkeypatch,
+                                                                       given, second) -> None:  # fmt: skip
+    """floor_fit from the regression runs the windowed fit twice (the second from the
+    spread of soft contacts), compares the two and keeps the one the judge prefers; from
+    a given model, or with ``second_start`` off, it runs once and compares nothing."""
+    from identification.trajectory import floor_declared
+    from identification.trajectory.windowed_fit import WindowFit
+
+    data, _, truth = rolling
+    calls: list[tuple[bool, bool]] = []
+    returned = []
+
+    def one_start(d, v, s, choices, longest, count, noise, stuck_at_start=True, spread=False):
+        calls.append((stuck_at_start, spread))
+        names = [v.names()[i] for i in np.flatnonzero(v.free.numpy())]
+        theta = v.theta0().clone()
+        theta[names.index("mass[rod2]")] += np.log(1.1) * spread  # the second start's mass 10 % up
+        returned.append(theta)
+        windows = d.cut("train", 8, 2, 3)
+        return WindowFit(theta, windows, [1e-6], np.zeros(theta.numel()), float("nan"), True), 8
+
+    scores: list[float] = []
+
+    def judge(d, v, theta, longest, count, noise):
+        scores.append(1e-3 if len(scores) else 2e-3)  # the second start's model judged better
+        return scores[-1], "train windows of 8 steps"
+
+    monkeypatch.setattr(floor_declared, "windowed_floor_fit", one_start)
+    monkeypatch.setattr(floor_declared, "judged", judge)
+    s = TrajectorySettings(floor_window=8, floor_windows=2, second_start=second)
+    fitted = floor_declared.floor_fit(data, s, start=truth.params if given else None)
+    if given or not second:
+        assert calls == [(given, False)] and fitted.starts is None and not scores
+        return
+    assert calls == [(False, False), (False, True)]
+    check = fitted.starts
+    assert check is not None and check.kept == 1 and check.apart
+    assert check.name == "mass[rod2]" and check.difference == pytest.approx(0.1, rel=1e-9)
+    assert fitted.fit.theta is returned[1] and fitted.fit.origin is returned[1]

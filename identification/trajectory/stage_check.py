@@ -60,7 +60,9 @@ def noise_level(nodes: np.ndarray, rods: bool = False) -> float:
     x = np.asarray(nodes, dtype=float)
     if rods and x.ndim == 4 and x.shape[2] % 2 == 0:
         length = np.linalg.norm(x[:, :, 1::2] - x[:, :, 0::2], axis=-1)  # (N, T+1, R)
-        dev = length - np.nanmedian(length, axis=1, keepdims=True)
+        seen = np.isfinite(length).any(axis=1, keepdims=True)  # a rod never seen has no median
+        median = np.nanmedian(np.where(seen, length, 0.0), axis=1, keepdims=True)
+        dev = np.where(seen, length - median, np.nan)
         dev = dev[np.isfinite(dev)]
         if dev.size >= LEAST_LENGTHS:
             return MAD_TO_STD * float(np.median(np.abs(dev))) / np.sqrt(2.0)

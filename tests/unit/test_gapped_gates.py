@@ -156,3 +156,20 @@ def test_held_out_residuals_leave_unseen_end_caps_out() -> None:
     assert np.isfinite(list(r.values())).all()
     blind = summarize_window_residuals(window_residuals(pred, win.obs, 0.01, radius))
     assert blind["rms"] > 0.05  # the unseen caps counted as errors of their position
+
+
+def test_the_noise_level_reads_the_seen_rods_when_one_is_never_seen() -> None:
+    """A rod whose end caps are unseen throughout a trajectory (a cap hidden under the
+    robot) adds no lengths and no warning; the others give the noise."""
+    import warnings
+
+    from identification.trajectory.stage_check import noise_level
+
+    rng = np.random.default_rng(3)
+    caps = resting_caps(t1=200)
+    noisy = caps + rng.normal(0.0, 1e-3, caps.shape)
+    noisy[0, :, 5] = np.nan  # rod 2's second cap never seen in the first trajectory
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        level = noise_level(noisy, rods=True)
+    assert abs(level / np.sqrt(2e-6) - 1.0) < 0.1  # 1 mm twice over

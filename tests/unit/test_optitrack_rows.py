@@ -189,3 +189,19 @@ def test_marker_noise_makes_no_free_flight() -> None:
     assert free_flight(caps, time) is None
     found = find_vertical(caps, time)
     assert found is not None and found.axis == "z"
+
+
+def test_an_export_cut_short_in_its_header_is_named_as_such(tmp_path: Path) -> None:
+    """A row-format export that ends among its comment rows is not taken for a plain CSV."""
+    export(tmp_path, np.random.default_rng(5))
+    lines = (tmp_path / "take.csv").read_text().splitlines()
+    info = next(i for i, line in enumerate(lines) if line.startswith("info,"))
+    header = ['comment,"OptiTrack Export Data"', 'comment,"== Data is formatted in rows."']
+    (tmp_path / "cut.csv").write_text("\n".join([*header, *lines[:info]]) + "\n")
+    with pytest.raises(InputError) as e:
+        read_recording(tmp_path / "cut.csv")
+    text = str(e.value)
+    assert "cut.csv" in text and "row-format export ends in its comment header" in text and "\n" not in text
+    (tmp_path / "plain.csv").write_text("comment,x\n1,2\n")  # not every row a row type: plain CSV
+    with pytest.raises(InputError, match="first column must be 'time'"):
+        read_recording(tmp_path / "plain.csv")

@@ -144,18 +144,12 @@ def frame_rows(
 def _read_plain(path: Path, rows: list[list[str]], units: str | None) -> MarkerRecording:
     header = [h.strip() for h in rows[0]]
     if not header or header[0].lower() not in ("time", "t", "time (seconds)"):
-        raise InputError(
-            f"{path}: first column must be 'time' (plain CSV: time, <m>_x, <m>_y, <m>_z, ...)"
-        )
+        raise InputError(f"{path}: first column must be 'time' (plain CSV: time, <m>_x, <m>_y, <m>_z, ...)")
     names: list[str] = []
     for k in range(1, len(header), 3):
         trio = header[k : k + 3]
         stems = {h.rsplit("_", 1)[0] for h in trio}
-        if (
-            len(trio) < 3
-            or [h.rsplit("_", 1)[-1].lower() for h in trio] != list(AXES)
-            or len(stems) != 1
-        ):
+        if len(trio) < 3 or [h.rsplit("_", 1)[-1].lower() for h in trio] != list(AXES) or len(stems) != 1:
             raise InputError(
                 f"{path}: columns {', '.join(trio)} are not one marker's x, y, z columns "
                 "(a column missing or out of order)"
@@ -207,9 +201,7 @@ def _read_motive(path: Path, rows: list[list[str]], units: str | None) -> Marker
 
 
 def _read_vicon(path: Path, rows: list[list[str]], units: str | None) -> MarkerRecording:
-    start = next(
-        (i for i, r in enumerate(rows) if r and r[0].strip().lower() == "trajectories"), None
-    )
+    start = next((i for i, r in enumerate(rows) if r and r[0].strip().lower() == "trajectories"), None)
     if start is None:
         raise InputError(f"{path}: Vicon export without a 'Trajectories' section")
     end = next((i for i in range(start + 1, len(rows)) if not any(c.strip() for c in rows[i])),
@@ -272,9 +264,7 @@ def write_plain_csv(
     lines = [",".join(head)]
     flat = points.reshape(len(time), -1) * scale
     for t, row in zip(time, flat, strict=True):
-        lines.append(
-            ",".join([repr(float(t))] + ["" if np.isnan(v) else repr(float(v)) for v in row])
-        )
+        lines.append(",".join([repr(float(t))] + ["" if np.isnan(v) else repr(float(v)) for v in row]))
     return atomic_write_text(path, "\n".join(lines) + "\n")
 
 

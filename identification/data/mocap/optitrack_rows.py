@@ -75,9 +75,7 @@ def _cell(path: Path, line: int, row: list[str], col: int, kind: type, what: str
                          f"{'an integer' if kind is int else 'a number'}") from None  # fmt: skip
 
 
-def read_optitrack_rows(
-    path: Path, rows: list[list[str]], units: str | None = None
-) -> MarkerRecording:
+def read_optitrack_rows(path: Path, rows: list[list[str]], units: str | None = None) -> MarkerRecording:
     """The markers of a row-format export whose CSV ``rows`` are given (file lines in
     order). Every frame row is checked before it is used: its counts, its length and
     each cell, with one-line errors naming the file, the row and the column."""
@@ -97,15 +95,11 @@ def read_optitrack_rows(
         time = float(_cell(path, line, row, 2, float, "time"))
         n_bodies = int(_cell(path, line, row, 3, int, "rigid body count"))
         if n_bodies < 0:
-            raise InputError(
-                f"{path}: row {line}, column 4: rigid body count {n_bodies} is negative"
-            )
+            raise InputError(f"{path}: row {line}, column 4: rigid body count {n_bodies} is negative")
         at = 4 + RIGID_BODY_CELLS * n_bodies
         n_markers = int(_cell(path, line, row, at, int, "marker count"))
         if n_markers < 0:
-            raise InputError(
-                f"{path}: row {line}, column {at + 1}: marker count {n_markers} is negative"
-            )
+            raise InputError(f"{path}: row {line}, column {at + 1}: marker count {n_markers} is negative")
         want = at + 1 + MARKER_CELLS * n_markers
         if len(row) != want:
             raise InputError(f"{path}: row {line}: {len(row)} cells, but {n_bodies} rigid bodies and "
@@ -113,14 +107,9 @@ def read_optitrack_rows(
         markers = []
         for k in range(n_markers):
             c = at + 1 + MARKER_CELLS * k
-            xyz = [
-                float(_cell(path, line, row, c + a, float, f"marker {k + 1} {'xyz'[a]}"))
-                for a in range(3)
-            ]
+            xyz = [float(_cell(path, line, row, c + a, float, f"marker {k + 1} {'xyz'[a]}")) for a in range(3)]
             if np.isinf(xyz).any():
-                raise InputError(
-                    f"{path}: row {line}, column {c + 1}: marker {k + 1} position is infinite"
-                )
+                raise InputError(f"{path}: row {line}, column {c + 1}: marker {k + 1} position is infinite")
             ident = int(_cell(path, line, row, c + 3, int, f"marker {k + 1} id"))
             markers.append((xyz[0], xyz[1], xyz[2], ident, row[c + 4].strip()))
         frames.append((time, markers, line))
@@ -196,9 +185,7 @@ def write_optitrack_rows(
     rows = ['comment,"OptiTrack Export Data"', "righthanded", "info,version,1.1",
             f"info,framecount,{len(time)}", "info,rigidbodycount,0"]  # fmt: skip
     for f, t in enumerate(time):
-        seen = [
-            m for m in range(points.shape[1]) if ids[f, m] >= 0 and np.isfinite(points[f, m]).all()
-        ]
+        seen = [m for m in range(points.shape[1]) if ids[f, m] >= 0 and np.isfinite(points[f, m]).all()]
         cells = [f"{v:.8f}" for m in seen for v in points[f, m]]
         markers = [",".join([*cells[3 * k : 3 * k + 3], str(ids[f, m]), f"Marker-{ids[f, m]}"])
                    for k, m in enumerate(seen)]  # fmt: skip

@@ -41,24 +41,30 @@ UNLABELLED_NAME = re.compile(r"^Marker-\d+$")
 Frame = tuple[float, list[tuple[float, float, float, int, str]], int]
 
 
+def _row_type_head(rows: list[list[str]]) -> list[list[str]]:
+    """The first 50 non-empty CSV ``rows`` where every one starts with one of
+    :data:`ROW_TYPES` (a row-format export's look), else []."""
+    head = [r for r in rows[:50] if r and any(c.strip() for c in r)]
+    return head if all(r[0].strip().lower() in ROW_TYPES for r in head) else []
+
+
+def _has_version(head: list[list[str]]) -> bool:
+    return any(r[0].strip().lower() == "info" and len(r) > 1 and r[1].strip().lower() == "version"
+               for r in head)  # fmt: skip
+
+
 def is_optitrack_rows(rows: list[list[str]]) -> bool:
     """Whether CSV ``rows`` are a row-format export: an ``info,version,...`` row among
     rows that all start with one of :data:`ROW_TYPES` (the first 50 looked at)."""
-    head = [r for r in rows[:50] if r and any(c.strip() for c in r)]
-    if not head or any(r[0].strip().lower() not in ROW_TYPES for r in head):
-        return False
-    return any(r[0].strip().lower() == "info" and len(r) > 1 and r[1].strip().lower() == "version"
-               for r in head)  # fmt: skip
+    return _has_version(_row_type_head(rows))
 
 
 def is_cut_row_export(rows: list[list[str]]) -> bool:
     """Whether CSV ``rows`` begin as a row-format export (every row of the first 50
     starts with one of :data:`ROW_TYPES`, the first a ``comment``) but hold no
     ``info,version`` row there: a file cut short in its header."""
-    head = [r for r in rows[:50] if r and any(c.strip() for c in r)]
-    return (bool(head) and head[0][0].strip().lower() == "comment"
-            and all(r[0].strip().lower() in ROW_TYPES for r in head)
-            and not is_optitrack_rows(rows))  # fmt: skip
+    head = _row_type_head(rows)
+    return bool(head) and head[0][0].strip().lower() == "comment" and not _has_version(head)
 
 
 def _cell(path: Path, line: int, row: list[str], col: int, kind: type, what: str) -> float | int:
